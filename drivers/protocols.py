@@ -1,0 +1,246 @@
+"""What the station expects of each instrument, as small typing Protocols.
+
+Code that sequences hardware types against these, so a real driver and any other
+implementation speaking the same contract are interchangeable (bluesky's protocols.py idea).
+All angles in degrees, rates in deg/s, temperatures in C, supply in V and A, station time in s.
+Every method may raise a subclass of `drivers.errors.InstrumentError`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class InstrumentIdentity:
+    """Who the instrument says it is (for traceability on the certificate)."""
+
+    manufacturer: str
+    model: str
+    serial: str
+    firmware: str = ""
+
+
+# ---------------------------------------------------------------- rate table
+
+
+@dataclass(frozen=True)
+class TableStatus:
+    """One consistent snapshot of the table's status and feedback registers."""
+
+    ready: bool
+    enabled: bool
+    fault: bool
+    in_position: bool
+    at_rate: bool
+    moving: bool
+    interlock_open: bool
+    fault_code: int
+    encoder_counts: int  # raw, wrapping U32
+    position_deg: float
+    rate_dps: float
+    controller_time_s: float  # controller clock at the snapshot, unwrapped by the driver
+
+
+@runtime_checkable
+class RateTable(Protocol):
+    def identify(self) -> InstrumentIdentity: ...
+
+    def enable(self) -> None: ...
+
+    def disable(self) -> None: ...
+
+    def reset_fault(self) -> None: ...
+
+    def zero_encoder(self) -> None: ...
+
+    def set_rate(self, rate_dps: float, accel_dps2: float | None = None) -> None:
+        """Rate mode at `rate_dps`, ramping at `accel_dps2` (default: the configured limit)."""
+        ...
+
+    def move_to(
+        self,
+        angle_deg: float,
+        *,
+        accel_dps2: float | None = None,
+        move_time_s: float | None = None,
+    ) -> None:
+        """Position mode to `angle_deg`; either an acceleration limit or a move time."""
+        ...
+
+    def read_status(self) -> TableStatus: ...
+
+    def wait_at_rate(self, timeout_s: float) -> TableStatus: ...
+
+    def wait_in_position(self, timeout_s: float) -> TableStatus: ...
+
+    def counts_per_rev(self) -> int: ...
+
+    def safe_state(self) -> None:
+        """Bring the table to rest and disable it. Must not raise if it is already safe."""
+        ...
+
+    def close(self) -> None: ...
+
+
+# ---------------------------------------------------------------- thermal chamber
+
+
+@runtime_checkable
+class Chamber(Protocol):
+    def identify(self) -> InstrumentIdentity: ...
+
+    def set_setpoint(self, temp_c: float) -> None: ...
+
+    def read_setpoint(self) -> float: ...
+
+    def read_temperature(self) -> float:
+        """The chamber's process value (air temperature), C."""
+        ...
+
+    def set_ramp_rate(self, c_per_min: float) -> None: ...
+
+    def setpoint_limits(self) -> tuple[float, float]: ...
+
+    def run(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def is_running(self) -> bool: ...
+
+    def wait_setpoint(self, band_c: float, timeout_s: float) -> float:
+        """Wait until the process value is within `band_c` of the setpoint."""
+        ...
+
+    def safe_state(self, safe_temp_c: float = 25.0) -> None: ...
+
+    def close(self) -> None: ...
+
+
+# ---------------------------------------------------------------- DC supply
+
+
+@runtime_checkable
+class Supply(Protocol):
+    def identify(self) -> InstrumentIdentity: ...
+
+    def reset(self) -> None: ...
+
+    def set_voltage(self, supply_v: float) -> None: ...
+
+    def set_current_limit(self, current_a: float) -> None: ...
+
+    def output(self, on: bool) -> None: ...
+
+    def output_is_on(self) -> bool: ...
+
+    def measure_voltage(self) -> float: ...
+
+    def measure_current(self) -> float: ...
+
+    def check_errors(self) -> None:
+        """Drain the SCPI error queue; raise ScpiError on the first error found."""
+        ...
+
+    def safe_state(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+# ---------------------------------------------------------------- part link (fixture)
+
+
+@dataclass(frozen=True)
+class CalibrationRegisters:
+    """The part's calibration registers, in engineering units.
+
+    The part's compensated output is
+        (raw - (bias + bias_tc*(T-T0) + bias_vc*(V-V0))) / (scale*(1 + scale_tc*(T-T0) + scale_vc*(V-V0)))
+    with raw the uncompensated output in deg/s, T the die temperature and V the supply.
+    The erased state (bias 0, scale 1, coefficients 0) passes the raw output through.
+    """
+
+    bias_dps: float = 0.0
+    scale: float = 1.0
+    bias_tc_dps_per_c: float = 0.0
+    scale_tc_per_c: float = 0.0
+    bias_vc_dps_per_v: float = 0.0
+    scale_vc_per_v: float = 0.0
+    t0_c: float = 25.0
+    v0_v: float = 5.0
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Samples decoded from the stream since the last read, in arrival order.
+
+    `time_s` is the fixture's timestamp (its own clock, unwrapped), never the station's.
+    Lost and corrupted counts are for this block; a gap in `seq` is a lost frame.
+    """
+
+    seq: NDArray[np.int64]
+    time_s: NDArray[np.float64]
+    rate_code: NDArray[np.int64]
+    temp_code: NDArray[np.int64]
+    status: NDArray[np.int64]
+    frames_lost: int = 0
+    frames_corrupted: int = 0
+    bytes_discarded: int = 0
+
+    def __len__(self) -> int:
+        return int(self.seq.size)
+
+
+@dataclass(frozen=True)
+class LinkStats:
+    """Running totals of a part link since streaming started."""
+
+    frames_ok: int = 0
+    frames_lost: int = 0
+    frames_corrupted: int = 0
+    bytes_discarded: int = 0
+    extra: dict[str, int] = field(default_factory=dict)
+
+
+@runtime_checkable
+class PartLink(Protocol):
+    def identify(self) -> InstrumentIdentity:
+        """The fixture microcontroller's identity (not the part's)."""
+        ...
+
+    def part_present(self) -> bool: ...
+
+    def read_part_serial(self) -> str:
+        """The part's own serial-number register, to check against the scanned label."""
+        ...
+
+    def set_output_rate(self, rate_hz: int) -> None: ...
+
+    def start_stream(self) -> None: ...
+
+    def stop_stream(self) -> None: ...
+
+    def read_samples(self, max_wait_s: float = 0.0) -> SampleBlock:
+        """Everything decoded since the last call; waits up to `max_wait_s` wall s for data."""
+        ...
+
+    def stats(self) -> LinkStats: ...
+
+    def read_calibration(self) -> CalibrationRegisters: ...
+
+    def write_calibration(self, registers: CalibrationRegisters) -> None: ...
+
+    def set_compensation(self, enabled: bool) -> None:
+        """Let the part apply its calibration registers to its output (or not: raw output)."""
+        ...
+
+    def stop_angle(self) -> tuple[float, float]:
+        """The fixture's measured angle between its mechanical stops and its standard
+        uncertainty, deg (measured once with an inclinometer, stored in the fixture)."""
+        ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,197 @@
+"""Raw data file of a run: `raw.h5` in the run folder, written incrementally.
+
+Self-describing HDF5 (h5py): every dataset carries a `units` attribute, the root carries the
+format name, part serial and run id. The file is opened in single-writer/multiple-reader mode
+and flushed after every append, so a run killed mid-way leaves a readable file holding
+everything measured up to the last flush.
+
+Layout (all 1-D, resizable, appended together within a group so rows line up):
+
+    /samples   time_s (fixture clock, s)   seq   rate_code   temp_code   status
+               rate_dps   temp_c   station_time_s (station clock estimate of the sample time)
+    /table     station_time_s   controller_time_s   encoder_counts   position_deg   rate_dps   status
+    /chamber   station_time_s   setpoint_c   temp_c
+    /supply    station_time_s   voltage_v   current_a
+    /segments  one row per analysed window: condition, kind (static | plateau | stop_move |
+               stop_static | verify | stabilise), index, start_s, end_s (fixture clock),
+               ref_rate_dps, ref_angle_deg, temp_setpoint_c, supply_v
+    /events    station_time_s, text
+
+Readers use `read_raw`, which returns plain numpy arrays per group.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+from numpy.typing import NDArray
+
+FORMAT = "gyrocal-raw/1"
+
+_STR = h5py.string_dtype("utf-8")
+
+GROUPS: dict[str, dict[str, tuple[Any, str]]] = {
+    "samples": {
+        "time_s": ("f8", "s"),
+        "seq": ("i8", "1"),
+        "rate_code": ("i4", "counts"),
+        "temp_code": ("i4", "counts"),
+        "status": ("u1", "bits"),
+        "rate_dps": ("f8", "deg/s"),
+        "temp_c": ("f8", "C"),
+        "station_time_s": ("f8", "s"),
+    },
+    "table": {
+        "station_time_s": ("f8", "s"),
+        "controller_time_s": ("f8", "s"),
+        "encoder_counts": ("i8", "counts"),
+        "position_deg": ("f8", "deg"),
+        "rate_dps": ("f8", "deg/s"),
+        "status": ("u2", "bits"),
+    },
+    "chamber": {
+        "station_time_s": ("f8", "s"),
+        "setpoint_c": ("f8", "C"),
+        "temp_c": ("f8", "C"),
+    },
+    "supply": {
+        "station_time_s": ("f8", "s"),
+        "voltage_v": ("f8", "V"),
+        "current_a": ("f8", "A"),
+    },
+    "segments": {
+        "condition": (_STR, ""),
+        "kind": (_STR, ""),
+        "index": ("i4", "1"),
+        "start_s": ("f8", "s"),
+        "end_s": ("f8", "s"),
+        "ref_rate_dps": ("f8", "deg/s"),
+        "ref_angle_deg": ("f8", "deg"),
+        "temp_setpoint_c": ("f8", "C"),
+        "supply_v": ("f8", "V"),
+    },
+    "events": {
+        "station_time_s": ("f8", "s"),
+        "text": (_STR, ""),
+    },
+}
+
+
+class RawDataError(ValueError):
+    """The raw data file is missing, unreadable or not of this format."""
+
+
+class RawDataWriter:
+    """Appends rows to the groups of a new raw data file; flushes after every append."""
+
+    def __init__(self, path: Path, attrs: Mapping[str, Any]) -> None:
+        self.path = path
+        self._file = h5py.File(path, "w", libver="latest")
+        self._file.attrs["format"] = FORMAT
+        for key, value in attrs.items():
+            self._file.attrs[key] = value
+        for group_name, columns in GROUPS.items():
+            group = self._file.create_group(group_name)
+            for column, (dtype, units) in columns.items():
+                ds = group.create_dataset(
+                    column, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,)
+                )
+                ds.attrs["units"] = units
+        self._file.swmr_mode = True
+        self._file.flush()
+
+    def append(self, group: str, **columns: Any) -> None:
+        """Append rows; every column of the group must be given, all of one length."""
+        expected = GROUPS[group]
+        missing = set(expected) - set(columns)
+        extra = set(columns) - set(expected)
+        if missing or extra:
+            raise ValueError(
+                f"raw data group {group!r}: missing {sorted(missing)}, unknown {sorted(extra)}"
+            )
+        arrays = {k: np.atleast_1d(np.asarray(v)) for k, v in columns.items()}
+        lengths = {a.shape[0] for a in arrays.values()}
+        if len(lengths) != 1:
+            raise ValueError(f"raw data group {group!r}: columns of different lengths {lengths}")
+        (n,) = lengths
+        if n == 0:
+            return
+        g = self._file[group]
+        for column, values in arrays.items():
+            ds = g[column]
+            old = ds.shape[0]
+            ds.resize((old + n,))
+            if expected[column][0] is _STR:
+                ds[old:] = [str(v) for v in values]
+            else:
+                ds[old:] = values
+        self._file.flush()
+
+    def close(self) -> None:
+        if self._file.id.valid:
+            self._file.flush()
+            self._file.close()
+
+    def __enter__(self) -> RawDataWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class RawData:
+    attrs: dict[str, Any]
+    groups: dict[str, dict[str, NDArray[Any]]]
+
+    def __getitem__(self, group: str) -> dict[str, NDArray[Any]]:
+        return self.groups[group]
+
+
+def read_raw(path: Path) -> RawData:
+    """Read a whole raw data file into memory; RawDataError says what is wrong if it can't."""
+    if not path.exists():
+        raise RawDataError(f"{path}: raw data file is missing")
+    try:
+        with h5py.File(path, "r", libver="latest", swmr=True) as f:
+            if f.attrs.get("format") != FORMAT:
+                raise RawDataError(
+                    f"{path}: not a raw data file of format {FORMAT} "
+                    f"(found {f.attrs.get('format')!r})"
+                )
+            attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
+            groups: dict[str, dict[str, NDArray[Any]]] = {}
+            for group_name, columns in GROUPS.items():
+                if group_name not in f:
+                    raise RawDataError(f"{path}: group /{group_name} is missing")
+                g = f[group_name]
+                groups[group_name] = {}
+                for column, (dtype, _units) in columns.items():
+                    if column not in g:
+                        raise RawDataError(f"{path}: dataset /{group_name}/{column} is missing")
+                    data = g[column][()]
+                    if dtype is _STR:
+                        data = np.asarray(
+                            [d.decode() if isinstance(d, bytes) else str(d) for d in data],
+                            dtype=object,
+                        )
+                    groups[group_name][column] = data
+            return RawData(attrs=attrs, groups=groups)
+    except RawDataError:
+        raise
+    except (OSError, KeyError, ValueError) as exc:
+        raise RawDataError(f"{path}: raw data file cannot be read ({exc})") from exc
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

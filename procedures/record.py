@@ -1,0 +1,186 @@
+"""The run record: what `record.json` in every run folder holds.
+
+Written by the station's engine, read by reports (certificate, lot report), the results
+database and the discrepancy workflow. Keys marked pinned in DESIGN.md (`verdict`,
+`dut.serial`, `procedure.sha256`, `measurements[*].{name,value,units,low,high,outcome}`,
+`calibration.*`) are never renamed or removed; add fields, never take them away.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+RECORD_FILE = "record.json"
+RAW_DATA_FILE = "raw.h5"
+CERTIFICATE_FILE = "certificate.pdf"
+
+
+class Verdict(StrEnum):
+    PASS = "PASS"
+    FAIL = "FAIL"
+    ERROR = "ERROR"
+    ABORTED = "ABORTED"
+    RUNNING = "RUNNING"  # only while the run is in progress; a crash leaves it, marked ERROR later
+
+
+class Outcome(StrEnum):
+    PASS = "PASS"
+    MARGINAL = "MARGINAL"  # inside the limits but inside the marginal band: counts as pass, flagged
+    FAIL = "FAIL"
+    NOT_MEASURED = "NOT_MEASURED"
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+
+class FileRef(_Model):
+    path: str
+    name: str = ""
+    version: str = ""
+    sha256: str
+
+
+class Dut(_Model):
+    serial: str
+    socket: int = 1
+    product: str = ""
+    part_serial_register: str | None = None
+
+
+class InstrumentRecord(_Model):
+    role: str  # rate_table, chamber, supply, fixture_<socket>
+    manufacturer: str = ""
+    model: str = ""
+    serial: str = ""
+    firmware: str = ""
+    address: str = ""
+    calibration_due: str | None = None  # ISO date
+    calibration_overdue: bool = False
+
+
+class Measurement(_Model):
+    name: str
+    value: float | None
+    units: str
+    low: float | None = None
+    high: float | None = None
+    marginal_low: float | None = None
+    marginal_high: float | None = None
+    outcome: Outcome
+    uncertainty_k2: float | None = None
+    condition: str | None = None
+    description: str = ""
+
+
+class Coefficient(_Model):
+    value: float
+    uncertainty_k2: float
+
+
+class Calibration(_Model):
+    bias_dps: Coefficient
+    bias_temp_coeff_dps_per_c: Coefficient
+    bias_supply_coeff_dps_per_v: Coefficient
+    scale: Coefficient
+    scale_temp_coeff_per_c: Coefficient
+    scale_supply_coeff_per_v: Coefficient
+    reference_temperature_c: float = 25.0
+    reference_supply_v: float = 5.0
+    interaction_check: dict[str, float] | None = None  # the spare degree of freedom of the 2x2
+    readback_ok: bool | None = None
+    readback: dict[str, float] | None = None
+
+
+class ConditionRecord(_Model):
+    name: str  # e.g. "T25_V4.75"
+    temperature_c: float
+    supply_v: float
+    die_temperature_c: float | None = None
+    time_to_stability_s: float | None = None
+    stable: bool | None = None
+    bias_dps: float | None = None
+    bias_uncertainty_dps: float | None = None
+    scale_table: float | None = None
+    scale_table_uncertainty: float | None = None
+    scale_stop: float | None = None
+    scale_stop_uncertainty: float | None = None
+    supply_current_a: float | None = None
+
+
+class Event(_Model):
+    time_utc: str
+    station_time_s: float
+    level: str = "INFO"
+    step: str = ""
+    message: str
+
+
+class RunRecord(_Model):
+    """Everything the station knows about one part's run."""
+
+    format: str = "gyrocal-record/1"
+    run_id: str
+    verdict: Verdict
+    reason: str = ""
+    failed_measurements: list[str] = Field(default_factory=list)
+    simulated: bool = False
+    started_utc: str
+    finished_utc: str | None = None
+    station_local_tz: str = ""
+    station: dict[str, Any] = Field(default_factory=dict)  # id, name, location, host
+    operator: str = ""
+    software_version: str = ""
+    dut: Dut
+    product: FileRef
+    procedure: FileRef
+    station_config: FileRef | None = None
+    instruments: list[InstrumentRecord] = Field(default_factory=list)
+    raw_data: FileRef | None = None
+    conditions: list[ConditionRecord] = Field(default_factory=list)
+    measurements: list[Measurement] = Field(default_factory=list)
+    calibration: Calibration | None = None
+    verification: dict[str, Any] | None = None
+    timings: dict[str, float] = Field(default_factory=dict)  # step name -> station seconds
+    events: list[Event] = Field(default_factory=list)
+    analysis: dict[str, Any] = Field(default_factory=dict)  # per-step analysis summaries
+
+
+def write_record(folder: Path, record: RunRecord) -> Path:
+    """Write record.json atomically (temp file + rename), so a crash never leaves half a file."""
+    folder.mkdir(parents=True, exist_ok=True)
+    target = folder / RECORD_FILE
+    text = record.model_dump_json(indent=2)
+    fd, tmp = tempfile.mkstemp(prefix=".record-", suffix=".json", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def read_record(folder: Path) -> RunRecord:
+    """Read and validate record.json; raises ValueError naming the file if it is not valid."""
+    path = folder / RECORD_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise ValueError(f"{path}: no record.json in this run folder") from exc
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from exc
+    try:
+        return RunRecord.model_validate(data)
+    except Exception as exc:  # pydantic.ValidationError, shown in full
+        raise ValueError(f"{path}: not a valid run record: {exc}") from exc

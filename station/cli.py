@@ -1,0 +1,70 @@
+"""The `station` command line.
+
+Each group of commands lives in its own module (`station/cli_*.py`) exposing
+`register(subparsers)`, which adds its subcommands with a `handler(args) -> int` default.
+Errors meant for the user are `UserError`: printed as one clear line, exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from station import __version__
+from station.errors import UserError
+
+COMMAND_MODULES = (
+    "station.cli_bench",  # bench
+    "station.cli_run",  # run, demo, schema
+    "station.cli_analyze",  # analyze stop-method | allan
+    "station.cli_reports",  # report, history, lot-report
+    "station.cli_discrepancy",  # discrepancy
+    "station.cli_ui",  # ui
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="station",
+        description="End-of-line calibration station for MEMS gyroscopes.",
+    )
+    parser.add_argument("--version", action="version", version=f"station {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # that command group is not part of this build
+            raise
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(args.verbose, 2),
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(handler(args))
+    except UserError as exc:
+        print(f"station {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"station {args.command}: interrupted", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
