@@ -14,7 +14,7 @@ binary frames only, so replies and samples share one stream and one parser:
 
 Sample payload (13 bytes, big-endian): seq u16 (wraps), fixture time u32 in microseconds
 (wraps every 2^32 us; the parser unwraps), rate code u24, temperature code u24, status u8.
-Reply payload: ASCII, "OK[ data]" or "ERR <code> <text>".
+Reply payload: printable ASCII (0x20..0x7E), "OK[ data]" or "ERR <code> <text>".
 
 Codes are the ADIS16130's: rate offset binary, 0 deg/s = 8,388,608 counts, 23,488 counts per
 deg/s; temperature 0 C = 8,036,283 counts, 14,093 counts per C.
@@ -22,11 +22,14 @@ deg/s; temperature 0 C = 8,036,283 counts, 14,093 counts per C.
 A frame whose CRC fails is counted as corrupted and dropped; the parser then searches for
 the next sync word from the byte after the bad frame's sync, so it resynchronises on the
 next intact frame. `frames_lost` counts every missing sequence number (dropped in transit or
-dropped here for a bad CRC); `frames_corrupted` counts the bad-CRC frames among them.
+dropped here for a bad CRC); `frames_corrupted` counts the bad-CRC frames among them (a
+frame whose sync, type or length byte is damaged cannot be told from noise: it is counted as
+lost and its bytes as discarded, but not as corrupted).
 """
 
 from __future__ import annotations
 
+import re
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -116,6 +119,44 @@ def temp_code_to_c(code: NDArray[np.int64] | int) -> NDArray[np.float64]:
     return (np.asarray(code, dtype=np.float64) - TEMP_ZERO_CODE) / TEMP_COUNTS_PER_C
 
 
+# ---------------------------------------------------------------- CRC over many sample frames
+
+
+def _make_crc_table() -> NDArray[np.uint32]:
+    table = np.zeros(256, dtype=np.uint32)
+    for i in range(256):
+        c = i
+        for _ in range(8):
+            c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
+        table[i] = c
+    return table
+
+
+_CRC_TABLE = _make_crc_table()
+_CRC_BODY = slice(2, SAMPLE_FRAME_SIZE - CRC_SIZE)  # bytes covered by a sample frame's CRC
+_VECTOR_CRC_MIN_FRAMES = 400  # below this, one zlib call per frame is faster than numpy
+
+
+def _sample_crcs(raw: NDArray[np.uint8]) -> NDArray[np.uint32]:
+    """CRC-32 of every row of `raw` (n x SAMPLE_FRAME_SIZE sample frames), bytes 2..16."""
+    n = raw.shape[0]
+    if n < _VECTOR_CRC_MIN_FRAMES:
+        flat = memoryview(np.ascontiguousarray(raw).tobytes())
+        step = SAMPLE_FRAME_SIZE
+        body_len = SAMPLE_FRAME_SIZE - CRC_SIZE - 2
+        crc32 = zlib.crc32
+        return np.fromiter(
+            (crc32(flat[i : i + body_len]) for i in range(2, n * step, step)),
+            dtype=np.uint32,
+            count=n,
+        )
+    # table-driven CRC, one byte column at a time for all frames at once
+    crc = np.full(n, 0xFFFFFFFF, dtype=np.uint32)
+    for column in raw[:, _CRC_BODY].T:
+        crc = _CRC_TABLE[(crc ^ column) & 0xFF] ^ (crc >> 8)
+    return crc ^ np.uint32(0xFFFFFFFF)
+
+
 # ---------------------------------------------------------------- encoding (fixture side)
 
 _SAMPLE_DTYPE = np.dtype(
@@ -158,21 +199,14 @@ def encode_samples(
     frames["temp"] = _u24_bytes(temp_code)
     frames["status"] = np.asarray(status, dtype=np.int64) & 0xFF
     raw = frames.view(np.uint8).reshape(n, SAMPLE_FRAME_SIZE)
-    body = memoryview(raw.tobytes())
-    crc = np.fromiter(
-        (
-            zlib.crc32(body[i * SAMPLE_FRAME_SIZE + 2 : (i + 1) * SAMPLE_FRAME_SIZE - CRC_SIZE])
-            for i in range(n)
-        ),
-        dtype=np.uint32,
-        count=n,
-    )
-    frames["crc"] = crc
+    frames["crc"] = _sample_crcs(raw)
     return frames.tobytes()
 
 
 def encode_reply(text: str) -> bytes:
-    payload = text.encode("ascii", "replace")[:MAX_REPLY_PAYLOAD]
+    """A reply frame; characters outside printable ASCII are sent as '?'."""
+    printable = "".join(c if " " <= c <= "~" else "?" for c in text)
+    payload = printable.encode("ascii")[:MAX_REPLY_PAYLOAD]
     body = bytes((FrameType.REPLY, len(payload))) + payload
     return SYNC + body + struct.pack(">I", zlib.crc32(body))
 
@@ -197,6 +231,14 @@ class ParseResult:
 
 _EMPTY_I = np.zeros(0, dtype=np.int64)
 _EMPTY_F = np.zeros(0, dtype=np.float64)
+_SYNC_WORD = 0xA55A
+_HALF_TIME_US = TIME_MODULO_US >> 1
+_NOT_TEXT = re.compile(rb"[^\x20-\x7e]")
+
+
+def _u24(column: NDArray[np.uint8]) -> NDArray[np.int64]:
+    c = column.astype(np.int64)
+    return (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
 
 
 class FrameParser:
@@ -205,6 +247,9 @@ class FrameParser:
     Never raises on bad input; every byte that is not part of a valid frame is counted as
     discarded, every frame that fails its CRC as corrupted, every gap in the sequence counter
     as lost frames.
+
+    Runs of well-formed sample frames are checked and decoded with numpy in one go; only
+    replies, damaged frames and partial frames take the byte-by-byte path.
     """
 
     def __init__(self) -> None:
@@ -212,6 +257,9 @@ class FrameParser:
         self._last_seq: int | None = None
         self._last_t_us: int | None = None
         self._t_wraps = 0
+        # end (buffer index) of the last frame counted as corrupted: a sync word found
+        # inside its bytes is not counted a second time
+        self._bad_until = 0
         self.frames_ok = 0
         self.frames_lost = 0
         self.frames_corrupted = 0
@@ -223,18 +271,20 @@ class FrameParser:
         self._last_t_us = None
         self._t_wraps = 0
 
-    def feed(self, data: bytes) -> ParseResult:
+    @property
+    def buffered_bytes(self) -> int:
+        """Bytes held back waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> ParseResult:
         buf = self._buf
         buf += data
-        seqs: list[int] = []
-        times: list[int] = []
-        rates: list[int] = []
-        temps: list[int] = []
-        stats: list[int] = []
+        runs: list[NDArray[np.void]] = []
         replies: list[str] = []
-        lost = corrupted = discarded = 0
+        corrupted = discarded = 0
         pos = 0
         n = len(buf)
+        bad_until = self._bad_until
         crc32 = zlib.crc32
         while True:
             start = buf.find(SYNC, pos)
@@ -248,68 +298,112 @@ class FrameParser:
             if start + HEADER_SIZE > n:
                 pos = start
                 break
+            run = self._sample_run(buf, start, n)
+            if run is not None:
+                runs.append(run)
+                pos = start + run.shape[0] * SAMPLE_FRAME_SIZE
+                continue
             ftype = buf[start + 2]
             plen = buf[start + 3]
+            end = start + HEADER_SIZE + plen + CRC_SIZE
             valid_header = (ftype == FrameType.SAMPLE and plen == SAMPLE_PAYLOAD_SIZE) or (
-                ftype == FrameType.REPLY and plen <= MAX_REPLY_PAYLOAD
+                ftype == FrameType.REPLY
+                and plen <= MAX_REPLY_PAYLOAD
+                # replies are printable ASCII: a false sync inside sample data announcing a
+                # long reply is rejected at its first non-text byte, not after 250 bytes
+                and _NOT_TEXT.search(buf, start + HEADER_SIZE, min(n, end - CRC_SIZE)) is None
             )
             if not valid_header:
                 discarded += 1
                 pos = start + 1
                 continue
-            end = start + HEADER_SIZE + plen + CRC_SIZE
             if end > n:
                 pos = start
                 break
             body = bytes(buf[start + 2 : end - CRC_SIZE])
             (crc,) = struct.unpack_from(">I", buf, end - CRC_SIZE)
             if crc32(body) != crc:
-                corrupted += 1
+                if start >= bad_until:
+                    corrupted += 1
+                    bad_until = end
                 discarded += 1
                 pos = start + 1
                 continue
-            if ftype == FrameType.SAMPLE:
-                seq, t_us = struct.unpack_from(">HI", body, 2)
-                p = body[8:15]
-                rates.append((p[0] << 16) | (p[1] << 8) | p[2])
-                temps.append((p[3] << 16) | (p[4] << 8) | p[5])
-                stats.append(p[6])
-                if self._last_seq is not None:
-                    lost += (seq - self._last_seq - 1) % SEQ_MODULO
-                self._last_seq = seq
-                if self._last_t_us is not None and t_us < self._last_t_us - (TIME_MODULO_US >> 1):
-                    self._t_wraps += 1
-                self._last_t_us = t_us
-                seqs.append(seq)
-                times.append(t_us + self._t_wraps * TIME_MODULO_US)
-            else:
-                replies.append(body[2:].decode("ascii", "replace"))
+            # a valid sample frame is always taken by _sample_run, so this is a reply
+            replies.append(body[2:].decode("ascii", "replace"))
             pos = end
         del buf[:pos]
-        self.frames_ok += len(seqs) + len(replies)
-        self.frames_lost += lost
+        self._bad_until = max(0, bad_until - pos)
         self.frames_corrupted += corrupted
         self.bytes_discarded += discarded
-        if seqs:
+        self.frames_ok += len(replies)
+        if not runs:
             return ParseResult(
-                seq=np.asarray(seqs, dtype=np.int64),
-                time_s=np.asarray(times, dtype=np.float64) * 1e-6,
-                rate_code=np.asarray(rates, dtype=np.int64),
-                temp_code=np.asarray(temps, dtype=np.int64),
-                status=np.asarray(stats, dtype=np.int64),
+                seq=_EMPTY_I,
+                time_s=_EMPTY_F,
+                rate_code=_EMPTY_I,
+                temp_code=_EMPTY_I,
+                status=_EMPTY_I,
                 replies=replies,
-                frames_lost=lost,
+                frames_lost=0,
                 frames_corrupted=corrupted,
                 bytes_discarded=discarded,
             )
+        frames = runs[0] if len(runs) == 1 else np.concatenate(runs)
+        seq = frames["seq"].astype(np.int64)
+        t_us = frames["t_us"].astype(np.int64)
+        lost = self._count_lost(seq)
+        time_us = self._unwrap_time(t_us)
+        self.frames_ok += seq.size
+        self.frames_lost += lost
         return ParseResult(
-            seq=_EMPTY_I,
-            time_s=_EMPTY_F,
-            rate_code=_EMPTY_I,
-            temp_code=_EMPTY_I,
-            status=_EMPTY_I,
+            seq=seq,
+            time_s=time_us.astype(np.float64) * 1e-6,
+            rate_code=_u24(frames["rate"]),
+            temp_code=_u24(frames["temp"]),
+            status=frames["status"].astype(np.int64),
             replies=replies,
             frames_lost=lost,
             frames_corrupted=corrupted,
             bytes_discarded=discarded,
         )
+
+    @staticmethod
+    def _sample_run(buf: bytearray, start: int, n: int) -> NDArray[np.void] | None:
+        """The longest run of intact sample frames at `start` (a copy), or None."""
+        count = (n - start) // SAMPLE_FRAME_SIZE
+        if count == 0:
+            return None
+        chunk = bytes(buf[start : start + count * SAMPLE_FRAME_SIZE])
+        frames = np.frombuffer(chunk, dtype=_SAMPLE_DTYPE)
+        header_ok = (
+            (frames["sync"] == _SYNC_WORD)
+            & (frames["type"] == FrameType.SAMPLE)
+            & (frames["len"] == SAMPLE_PAYLOAD_SIZE)
+        )
+        good = count if bool(header_ok.all()) else int(np.argmin(header_ok))
+        if good == 0:
+            return None
+        raw = np.frombuffer(chunk, dtype=np.uint8, count=good * SAMPLE_FRAME_SIZE)
+        crc_ok = _sample_crcs(raw.reshape(good, SAMPLE_FRAME_SIZE)) == frames["crc"][:good]
+        if not bool(crc_ok.all()):
+            good = int(np.argmin(crc_ok))
+            if good == 0:
+                return None
+        return frames[:good]
+
+    def _count_lost(self, seq: NDArray[np.int64]) -> int:
+        prev = np.empty_like(seq)
+        prev[1:] = seq[:-1]
+        prev[0] = seq[0] - 1 if self._last_seq is None else self._last_seq
+        self._last_seq = int(seq[-1])
+        return int(((seq - prev - 1) % SEQ_MODULO).sum())
+
+    def _unwrap_time(self, t_us: NDArray[np.int64]) -> NDArray[np.int64]:
+        prev = np.empty_like(t_us)
+        prev[1:] = t_us[:-1]
+        prev[0] = t_us[0] if self._last_t_us is None else self._last_t_us
+        wraps = np.cumsum(t_us < prev - _HALF_TIME_US) + self._t_wraps
+        self._t_wraps = int(wraps[-1])
+        self._last_t_us = int(t_us[-1])
+        return t_us + wraps * TIME_MODULO_US
