@@ -1,0 +1,437 @@
+"""Procedure and product files: YAML in, validated pydantic models out.
+
+Every tunable of the calibration lives in YAML (config/procedures/*.yaml,
+config/products/*.yaml). A mistake in a file is reported as `ConfigError` naming the file,
+the line and the field, and saying what is allowed, so a process engineer can fix it without
+reading Python. `load_yaml_model` is the one entry point (station.yaml uses it too).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+# ---------------------------------------------------------------- YAML with line numbers
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing, not YAML, or holds a value that is not allowed."""
+
+
+@dataclass(frozen=True)
+class LoadedYaml:
+    path: Path
+    data: Any
+    lines: dict[tuple[str | int, ...], int]  # field path -> 1-based line of its value
+    sha256: str
+
+
+def _walk(node: yaml.Node, path: tuple[str | int, ...], lines: dict, file: Path) -> None:
+    lines[path] = node.start_mark.line + 1
+    if isinstance(node, yaml.MappingNode):
+        seen: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            key = key_node.value
+            if key in seen:
+                raise ConfigError(
+                    f"{file}:{key_node.start_mark.line + 1}: field {key!r} appears twice "
+                    f"(first on line {seen[key]}); keep only one"
+                )
+            seen[key] = key_node.start_mark.line + 1
+            lines[(*path, key)] = key_node.start_mark.line + 1
+            _walk(value_node, (*path, key), lines, file)
+            lines[(*path, key)] = key_node.start_mark.line + 1
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _walk(item, (*path, i), lines, file)
+
+
+def load_yaml(path: Path) -> LoadedYaml:
+    """Read a YAML file, remembering the line of every field for error messages."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: file not found; give the path of an existing YAML file") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from exc
+    text = raw.decode("utf-8", errors="replace")
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = f":{mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}{line}: not valid YAML: {exc.problem or exc}") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    lines: dict[tuple[str | int, ...], int] = {}
+    if node is not None:
+        _walk(node, (), lines, path)
+    return LoadedYaml(path=path, data=data, lines=lines, sha256=hashlib.sha256(raw).hexdigest())
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def _field_help(model: type[BaseModel], loc: Sequence[str | int]) -> tuple[str, list[str]]:
+    """The description of the field at `loc` and the fields allowed at its level."""
+    current: Any = model
+    allowed: list[str] = sorted(model.model_fields)
+    description = ""
+    for part in loc:
+        if not (isinstance(current, type) and issubclass(current, BaseModel)):
+            break
+        allowed = sorted(current.model_fields)
+        if not isinstance(part, str) or part not in current.model_fields:
+            break
+        info = current.model_fields[part]
+        description = info.description or ""
+        current = _inner_model(info.annotation)
+    return description, allowed
+
+
+def _inner_model(annotation: Any) -> Any:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()) or ():
+        found = _inner_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def format_validation_error(
+    exc: ValidationError, loaded: LoadedYaml, model: type[BaseModel]
+) -> str:
+    """One line per problem: `file:line: field a.b: message (what is allowed)`."""
+    out = []
+    for err in exc.errors():
+        # pydantic adds union member tags (e.g. 'float', 'literal[...]') to loc: drop them
+        loc = [p for p in err["loc"] if isinstance(p, int) or not re.match(r"^[a-z\-]+\[", str(p))]
+        loc = [p for p in loc if p not in ("float", "int", "str", "bool")] or loc
+        line = None
+        for n in range(len(loc), -1, -1):
+            line = loaded.lines.get(tuple(loc[:n]))
+            if line is not None:
+                break
+        where = f"{loaded.path}:{line}" if line else str(loaded.path)
+        field = ".".join(str(p) for p in loc) or "(top level)"
+        description, allowed = _field_help(model, loc)
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = f"unknown field; allowed here: {', '.join(allowed)}"
+        elif err["type"] == "missing":
+            msg = "required field is missing" + (f" ({description})" if description else "")
+        elif description:
+            msg = f"{msg} ({description})"
+        out.append(f"{where}: field {field}: {msg}")
+    return "\n".join(out)
+
+
+def load_yaml_model(path: Path, model: type[M]) -> tuple[M, LoadedYaml]:
+    """Load and validate `path` as `model`; ConfigError with file:line:field on any problem."""
+    loaded = load_yaml(path)
+    if not isinstance(loaded.data, dict):
+        raise ConfigError(
+            f"{loaded.path}:1: expected a mapping of fields at the top level "
+            f"(allowed: {', '.join(sorted(model.model_fields))})"
+        )
+    try:
+        return model.model_validate(loaded.data), loaded
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, loaded, model)) from None
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# ---------------------------------------------------------------- product file
+
+
+class Limit(_Strict):
+    """Acceptance limits of one measurement with an optional marginal band inside them.
+
+    low <= marginal_low <= marginal_high <= high. A value inside [low, high] but outside
+    [marginal_low, marginal_high] is MARGINAL: it passes but is flagged for review.
+    """
+
+    low: float | None = Field(None, description="lowest passing value (omit for no lower limit)")
+    high: float | None = Field(None, description="highest passing value (omit for no upper limit)")
+    marginal_low: float | None = Field(None, description="below this (and >= low): MARGINAL")
+    marginal_high: float | None = Field(None, description="above this (and <= high): MARGINAL")
+    units: str = Field("", description="units of the value, for the certificate")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Limit:
+        chain = [
+            (n, v)
+            for n, v in (
+                ("low", self.low),
+                ("marginal_low", self.marginal_low),
+                ("marginal_high", self.marginal_high),
+                ("high", self.high),
+            )
+            if v is not None
+        ]
+        for (n1, v1), (n2, v2) in zip(chain, chain[1:], strict=False):
+            if v1 > v2:
+                raise ValueError(
+                    f"{n1} ({v1}) must not exceed {n2} ({v2}); "
+                    "order low <= marginal_low <= marginal_high <= high"
+                )
+        if self.low is None and self.high is None:
+            raise ValueError("give at least one of low or high")
+        return self
+
+
+LIMIT_NAMES = (
+    "raw_bias_dps",
+    "raw_scale_error",
+    "noise_arw_deg_per_sqrt_h",
+    "bias_instability_deg_per_h",
+    "nonlinearity_pct_fs",
+    "asymmetry",
+    "bias_temp_coeff_dps_per_c",
+    "scale_temp_coeff_per_c",
+    "bias_supply_coeff_dps_per_v",
+    "scale_supply_coeff_per_v",
+    "residual_bias_dps",
+    "residual_scale_error",
+    "stop_table_consistency",
+    "supply_current_a",
+    "frames_lost_fraction",
+)
+
+
+class Limits(_Strict):
+    """Limits per measurement name; a measurement without a limit is recorded, not judged."""
+
+    raw_bias_dps: Limit | None = Field(None, description="uncalibrated bias at each condition, deg/s")
+    raw_scale_error: Limit | None = Field(None, description="uncalibrated scale - 1 at each condition")
+    noise_arw_deg_per_sqrt_h: Limit | None = Field(None, description="angle random walk")
+    bias_instability_deg_per_h: Limit | None = Field(None, description="Allan floor / 0.664")
+    nonlinearity_pct_fs: Limit | None = Field(None, description="largest residual from the line, % FS")
+    asymmetry: Limit | None = Field(None, description="(K+ - K-) / mean K")
+    bias_temp_coeff_dps_per_c: Limit | None = Field(None, description="fitted bias temperature coefficient")
+    scale_temp_coeff_per_c: Limit | None = Field(None, description="fitted relative scale temperature coefficient")
+    bias_supply_coeff_dps_per_v: Limit | None = Field(None, description="fitted bias supply coefficient")
+    scale_supply_coeff_per_v: Limit | None = Field(None, description="fitted relative scale supply coefficient")
+    residual_bias_dps: Limit | None = Field(None, description="compensated output at rest, deg/s")
+    residual_scale_error: Limit | None = Field(None, description="compensated scale error at the verification rates")
+    stop_table_consistency: Limit | None = Field(
+        None, description="(stop scale - table scale) / combined k=2 uncertainty"
+    )
+    supply_current_a: Limit | None = Field(None, description="supply current per part, A")
+    frames_lost_fraction: Limit | None = Field(None, description="lost frames / expected frames")
+
+
+class ProductConfig(_Strict):
+    """One product (part number): its range, nominal values, serial format and limits."""
+
+    product: str = Field(description="product name shown on the certificate")
+    part_number: str = Field("", description="part number")
+    serial_pattern: str = Field(
+        description="regular expression a scanned serial must match in full, e.g. '^SIM-[0-9]{4}$'"
+    )
+    range_dps: float = Field(gt=0, description="rated measurement range, +/- deg/s")
+    nominal_scale: float = Field(1.0, gt=0, description="nominal output per input (1 = datasheet)")
+    reference_temperature_c: float = Field(25.0, description="T0 of the calibration")
+    reference_supply_v: float = Field(5.0, gt=0, description="V0 of the calibration")
+    current_limit_a: float = Field(0.05, gt=0, description="supply current limit per part, A")
+    limits: Limits = Field(default_factory=Limits, description="acceptance limits")
+
+    @field_validator("serial_pattern")
+    @classmethod
+    def _regex(cls, value: str) -> str:
+        try:
+            re.compile(value)
+        except re.error as exc:
+            raise ValueError(f"not a valid regular expression ({exc})") from exc
+        return value
+
+
+# ---------------------------------------------------------------- procedure file
+
+
+class StepPolicy(_Strict):
+    timeout_s: float = Field(3600.0, gt=0, description="station seconds before the step times out")
+    retries: int = Field(0, ge=0, le=5, description="extra attempts after an instrument timeout")
+
+
+class PowerConfig(_Strict):
+    settle_s: float = Field(2.0, ge=0, description="wait after switching the supply on")
+    supply_tolerance_v: float = Field(0.05, gt=0, description="allowed |measured - set| supply")
+    output_rate_hz: Literal[50, 100, 200, 500, 1000] = Field(
+        100, description="part output data rate, Hz"
+    )
+
+
+class ConditionsConfig(_Strict):
+    temperatures_c: list[float] = Field(min_length=1, description="chamber setpoints, C")
+    supplies_v: list[float] = Field(min_length=1, description="supply levels, V")
+    order: Literal["min_transitions", "as_listed"] = Field(
+        "min_transitions",
+        description="min_transitions: both supplies at one temperature, start at the "
+        "temperature the chamber is nearest to; as_listed: temperatures in file order",
+    )
+
+    @field_validator("supplies_v")
+    @classmethod
+    def _positive(cls, value: list[float]) -> list[float]:
+        if any(v <= 0 for v in value):
+            raise ValueError("supply levels must be positive volts")
+        return value
+
+
+class ChamberConfig(_Strict):
+    ramp_c_per_min: float = Field(5.0, ge=0, description="chamber ramp rate (0 = fastest)")
+    safe_temp_c: float = Field(25.0, description="setpoint the chamber goes to on any exit")
+    setpoint_band_c: float = Field(0.5, gt=0, description="air within this of setpoint")
+    setpoint_timeout_s: float = Field(3600.0, gt=0, description="time allowed to reach setpoint")
+
+
+class StabilityConfig(_Strict):
+    """Thermal stability, judged on each part's own temperature sensor."""
+
+    window_s: float = Field(60.0, gt=0, description="window over which slope and band are judged")
+    slope_c_per_min: float = Field(0.05, gt=0, description="largest |die temperature slope|")
+    band_c: float = Field(0.1, gt=0, description="largest peak-to-peak die temperature in the window")
+    target_tolerance_c: float | None = Field(
+        None, gt=0, description="optional: die temperature within this of the setpoint"
+    )
+    timeout_s: float = Field(3600.0, gt=0, description="time allowed to reach stability")
+    check_interval_s: float = Field(5.0, gt=0, description="how often stability is evaluated")
+
+
+class BiasConfig(_Strict):
+    dwell_s: float | Literal["auto"] = Field(
+        30.0, description="static averaging time, s, or 'auto' (from Allan deviation and target)"
+    )
+    target_accuracy_dps: float = Field(0.005, gt=0, description="k=2 target for 'auto'")
+    min_dwell_s: float = Field(10.0, gt=0, description="pilot dwell for 'auto'")
+    max_dwell_s: float = Field(300.0, gt=0, description="cap for 'auto'")
+
+    @field_validator("dwell_s")
+    @classmethod
+    def _positive(cls, value: float | str) -> float | str:
+        if not isinstance(value, str) and value <= 0:
+            raise ValueError("dwell must be a positive number of seconds or 'auto'")
+        return value
+
+
+class RateTableConfig(_Strict):
+    enabled: bool = True
+    rates_dps: list[float] = Field(min_length=2, description="rate set, deg/s (both signs)")
+    plateau_dwell_s: float = Field(10.0, gt=0, description="averaging time on each plateau")
+    settle_s: float = Field(1.0, ge=0, description="wait after at-rate before averaging")
+    accel_dps2: float = Field(200.0, gt=0, description="table acceleration, deg/s^2")
+    repeats: int = Field(1, ge=1, description="passes through the rate set")
+    at_rate_timeout_s: float = Field(60.0, gt=0, description="time allowed to reach a rate")
+
+
+class StopMethodConfig(_Strict):
+    enabled: bool = True
+    stop_angle_deg: float = Field(90.0, gt=0, le=360, description="angle between the stops")
+    move_time_s: float = Field(3.5, gt=0, description="duration of each smooth move")
+    static_s: float = Field(5.0, gt=0, description="rest before, between and after the moves")
+    bias_window_s: float = Field(3.0, gt=0, description="leading rest used for the bias")
+    repeats: int = Field(1, ge=1, description="out-and-back pairs")
+    reference: Literal["encoder", "fixture"] = Field(
+        "encoder", description="angle reference: the table encoder or the fixture's stop angle"
+    )
+    move_timeout_s: float = Field(60.0, gt=0, description="time allowed for a move")
+
+
+class FitConfig(_Strict):
+    source: Literal["rate_table", "stop_method", "both"] = Field(
+        "rate_table", description="which scale estimate feeds the fit (both: weighted by uncertainty)"
+    )
+
+
+class VerifyConfig(_Strict):
+    enabled: bool = True
+    rates_dps: list[float] = Field(min_length=1, description="verification rates, deg/s")
+    dwell_s: float = Field(10.0, gt=0, description="averaging time at each rate")
+    settle_s: float = Field(1.0, ge=0)
+    supply_v: float | None = Field(None, description="supply during verification (default V0)")
+
+
+class StreamConfig(_Strict):
+    max_lost_fraction: float = Field(0.001, ge=0, le=1, description="allowed lost/expected frames")
+    silent_timeout_s: float = Field(5.0, gt=0, description="no frames this long: part is silent")
+
+
+class StepsConfig(_Strict):
+    default: StepPolicy = StepPolicy()
+    power: StepPolicy | None = None
+    thermal: StepPolicy | None = None
+    bias: StepPolicy | None = None
+    rate_table: StepPolicy | None = None
+    stop_method: StepPolicy | None = None
+    fit: StepPolicy | None = None
+    program: StepPolicy | None = None
+    verify: StepPolicy | None = None
+
+    def policy(self, step: str) -> StepPolicy:
+        return getattr(self, step, None) or self.default
+
+
+class ProcedureConfig(_Strict):
+    """A calibration procedure: what to measure, where, and how long."""
+
+    name: str = Field(description="procedure name shown on the certificate")
+    version: str = Field("1", description="procedure version")
+    description: str = ""
+    product: str | None = Field(
+        None, description="product file, relative to this file (overridden by --product)"
+    )
+    power: PowerConfig = PowerConfig()
+    conditions: ConditionsConfig
+    chamber: ChamberConfig = ChamberConfig()
+    stability: StabilityConfig = StabilityConfig()
+    bias: BiasConfig = BiasConfig()
+    rate_table: RateTableConfig | None = None
+    stop_method: StopMethodConfig | None = None
+    fit: FitConfig = FitConfig()
+    verify: VerifyConfig | None = None
+    stream: StreamConfig = StreamConfig()
+    steps: StepsConfig = StepsConfig()
+
+    @model_validator(mode="after")
+    def _scale_source(self) -> ProcedureConfig:
+        table = self.rate_table is not None and self.rate_table.enabled
+        stop = self.stop_method is not None and self.stop_method.enabled
+        if not (table or stop):
+            raise ValueError("enable at least one of rate_table or stop_method")
+        need = {"rate_table": table, "stop_method": stop, "both": table and stop}
+        if not need[self.fit.source]:
+            raise ValueError(
+                f"fit.source is {self.fit.source!r} but that method is not enabled; "
+                "enable it or choose a source that is"
+            )
+        return self
+
+    @property
+    def table_enabled(self) -> bool:
+        return self.rate_table is not None and self.rate_table.enabled
+
+    @property
+    def stop_enabled(self) -> bool:
+        return self.stop_method is not None and self.stop_method.enabled
+
+
+def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:
+    return load_yaml_model(path, ProductConfig)
+
+
+def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
+    return load_yaml_model(path, ProcedureConfig)

@@ -1,0 +1,130 @@
+"""Run folders: `<out>/<UTC time>_<serial>/`, serial checks, and crash recovery.
+
+A scanned serial becomes part of a path, so it is checked twice: against the product's
+pattern, and against a fixed safe alphabet so that nothing like `../../x` can ever leave
+the output folder. A running run holds a `.running` lock file with its process id; a run
+whose record still says RUNNING but whose process is gone crashed, and `recover_crashed_runs`
+marks it ERROR (its data stay where they are).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import os
+import re
+import socket
+from pathlib import Path
+
+from procedures.record import RECORD_FILE, Event, Verdict, read_record, write_record
+from station.errors import UserError
+
+log = logging.getLogger(__name__)
+
+LOCK_FILE = ".running"
+_SAFE_SERIAL = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+
+
+def validate_serial(serial: str, pattern: str | None = None) -> str:
+    """Return the serial if it is safe as a folder name and matches `pattern`; UserError if not."""
+    s = serial.strip()
+    if not _SAFE_SERIAL.match(s) or ".." in s:
+        raise UserError(
+            f"serial {serial!r} is not allowed: use 1-64 letters, digits, '.', '_' or '-', "
+            "starting with a letter or digit (no path separators); rescan the label"
+        )
+    if pattern is not None and not re.fullmatch(pattern, s):
+        raise UserError(
+            f"serial {s!r} does not match the product's serial pattern {pattern!r}; "
+            "rescan the label or choose the right product file"
+        )
+    return s
+
+
+def utc_stamp(now: dt.datetime | None = None) -> str:
+    now = now or dt.datetime.now(dt.UTC)
+    return now.astimezone(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+
+
+def create_run_folder(out: Path, serial: str, now: dt.datetime | None = None) -> Path:
+    """Make a new, empty `<out>/<UTC time>_<serial>/` (suffixed if it exists) and lock it."""
+    validate_serial(serial)
+    root = Path(out).expanduser().resolve()
+    root.mkdir(parents=True, exist_ok=True)
+    base = f"{utc_stamp(now)}_{serial}"
+    for n in range(1, 1000):
+        folder = root / (base if n == 1 else f"{base}-{n}")
+        if not folder.resolve().is_relative_to(root):  # belt and braces: never outside out
+            raise UserError(f"serial {serial!r} would leave the output folder; rescan the label")
+        try:
+            folder.mkdir()
+        except FileExistsError:
+            continue
+        (folder / LOCK_FILE).write_text(
+            json.dumps({"pid": os.getpid(), "host": socket.gethostname()}), encoding="utf-8"
+        )
+        return folder
+    raise UserError(f"too many run folders named {base} in {root}; clean up the output folder")
+
+
+def release(folder: Path) -> None:
+    """The run has finished (any verdict): drop its lock."""
+    (folder / LOCK_FILE).unlink(missing_ok=True)
+
+
+def _process_alive(lock: Path) -> bool:
+    try:
+        info = json.loads(lock.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if info.get("host") != socket.gethostname():
+        return True  # cannot tell from here; leave it alone
+    pid = int(info.get("pid", 0))
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def recover_crashed_runs(out: Path) -> list[Path]:
+    """Mark ERROR every run under `out` left RUNNING by a process that no longer exists."""
+    root = Path(out)
+    if not root.is_dir():
+        return []
+    recovered: list[Path] = []
+    for record_path in sorted(root.glob(f"*/{RECORD_FILE}")):
+        folder = record_path.parent
+        try:
+            record = read_record(folder)
+        except ValueError as exc:
+            log.warning("skipping unreadable run folder %s: %s", folder, exc)
+            continue
+        if record.verdict is not Verdict.RUNNING:
+            continue
+        lock = folder / LOCK_FILE
+        if lock.exists() and _process_alive(lock):
+            continue
+        now = dt.datetime.now(dt.UTC).isoformat()
+        last_step = record.events[-1].step if record.events else ""
+        record.verdict = Verdict.ERROR
+        record.reason = (
+            "the station stopped during the run (crash, kill or power loss)"
+            + (f" in step {last_step!r}" if last_step else "")
+            + "; everything measured up to then is kept in this folder; rerun the part"
+        )
+        record.finished_utc = record.finished_utc or now
+        record.events.append(
+            Event(time_utc=now, station_time_s=0.0, level="ERROR", step="recovery",
+                  message=record.reason)
+        )
+        write_record(folder, record)
+        lock.unlink(missing_ok=True)
+        recovered.append(folder)
+        log.warning("marked crashed run %s as ERROR", folder)
+    return recovered

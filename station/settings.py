@@ -1,0 +1,117 @@
+"""The station file (config/station.yaml): which instruments, where, and where results go.
+
+Validated with pydantic at the edge; errors name the file, line and field (see
+`procedures.config.load_yaml_model`). Relative paths inside the file are relative to the
+folder that holds it, so the file can travel with its configuration folder.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from procedures.config import LoadedYaml, load_yaml_model
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+CONFIG_DIR = REPO_ROOT / "config"
+DEFAULT_STATION_FILE = CONFIG_DIR / "station.yaml"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class StationInfo(_Strict):
+    id: str = Field(description="station identifier printed on certificates")
+    name: str = ""
+    location: str = ""
+
+
+class InstrumentSettings(_Strict):
+    address: str = Field(
+        "", description="host:port for Modbus TCP, or a serial port (e.g. /dev/ttyUSB0)"
+    )
+    baud: int = Field(115200, gt=0, description="serial baud rate (serial instruments only)")
+    expected_model: str = Field("", description="if set, the identity must contain this model")
+    calibration_due: dt.date | None = Field(
+        None, description="ISO date (YYYY-MM-DD) the instrument's own calibration expires"
+    )
+    timeout_s: float = Field(1.0, gt=0, description="communication timeout, wall seconds")
+
+
+class FixtureSettings(_Strict):
+    sockets: int = Field(1, ge=1, le=16, description="number of part sockets")
+    ports: dict[int, str] = Field(
+        default_factory=dict, description="socket number -> serial port of its microcontroller"
+    )
+    baud: int = Field(115200, gt=0)
+    calibration_due: dt.date | None = Field(None, description="stop-angle calibration expiry")
+
+    @field_validator("ports")
+    @classmethod
+    def _sockets(cls, value: dict[int, str]) -> dict[int, str]:
+        if any(k < 1 for k in value):
+            raise ValueError("socket numbers start at 1")
+        return value
+
+
+class Instruments(_Strict):
+    rate_table: InstrumentSettings = InstrumentSettings()
+    chamber: InstrumentSettings = InstrumentSettings()
+    supply: InstrumentSettings = InstrumentSettings()
+    fixture: FixtureSettings = FixtureSettings()
+
+
+class StationSettings(_Strict):
+    """Everything specific to one physical station."""
+
+    station: StationInfo
+    instruments: Instruments = Instruments()
+    output_folder: str = Field("runs", description="run folders go here (relative to this file)")
+    results_db: str = Field(
+        "runs/results.sqlite", description="SQLite results database (relative to this file)"
+    )
+    procedure: str = Field(
+        "procedures/eol-rate-table.yaml", description="default procedure (relative to this file)"
+    )
+    sim_config: str | None = Field(
+        None, description="simulated bench configuration used by --sim (relative to this file)"
+    )
+    refuse_overdue_instruments: bool = Field(
+        False, description="refuse to run when an instrument's calibration is overdue"
+    )
+
+
+@dataclass(frozen=True)
+class LoadedSettings:
+    settings: StationSettings
+    source: LoadedYaml
+
+    @property
+    def folder(self) -> Path:
+        return self.source.path.resolve().parent
+
+    def resolve(self, relative: str) -> Path:
+        p = Path(relative).expanduser()
+        return p if p.is_absolute() else (self.folder / p).resolve()
+
+    @property
+    def output_folder(self) -> Path:
+        return self.resolve(self.settings.output_folder)
+
+    @property
+    def results_db(self) -> Path:
+        return self.resolve(self.settings.results_db)
+
+    @property
+    def procedure(self) -> Path:
+        return self.resolve(self.settings.procedure)
+
+
+def load_settings(path: Path | None = None) -> LoadedSettings:
+    """Load station.yaml (default: config/station.yaml of this installation)."""
+    model, loaded = load_yaml_model(Path(path or DEFAULT_STATION_FILE), StationSettings)
+    return LoadedSettings(settings=model, source=loaded)
