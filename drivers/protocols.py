@@ -44,6 +44,9 @@ class TableStatus:
     position_deg: float
     rate_dps: float
     controller_time_s: float  # controller clock at the snapshot, unwrapped by the driver
+    # encoder counts made continuous by the driver (no wrap) since it connected; added so the
+    # rate-table fit can difference counts across a U32 wrap
+    encoder_counts_unwrapped: int = 0
 
 
 @runtime_checkable
