@@ -1,0 +1,348 @@
+"""The tables of a certificate: header, traceability, conditions, results, calibration.
+
+Each function takes the loaded inputs and returns platypus flowables. Everything the record
+lacks is shown as '-' or a sentence saying it is not recorded; nothing here raises on a
+sparse record.
+"""
+
+from __future__ import annotations
+
+from datetime import date, datetime
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+from reportlab.lib import colors
+from reportlab.lib.units import mm
+from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
+
+from procedures.record import Measurement, Outcome, RunRecord
+from reports import record_keys
+from reports.cert_inputs import CertificateInputs
+from reports.pdfdoc import parse_utc
+from reports.styles import (
+    BODY,
+    CELL,
+    CELL_MONO,
+    FAIL_ROW,
+    FONT_BOLD,
+    H1,
+    H2,
+    HEADER_GREY,
+    MARGINAL_AMBER,
+    NOTE,
+    VERDICT_COLOURS,
+    WARNING,
+    escape,
+    fmt,
+    grid_style,
+    verdict_style,
+)
+
+CONTENT_WIDTH = 182 * mm
+
+
+def _p(text: object, style=CELL) -> Paragraph:  # type: ignore[no-untyped-def]
+    return Paragraph(escape(text), style)
+
+
+def local_time_text(utc_text: str | None, tz_name: str) -> str:
+    t = parse_utc(utc_text)
+    if t is None:
+        return "not recorded"
+    if not tz_name:
+        return "station time zone not recorded"
+    try:
+        local = t.astimezone(ZoneInfo(tz_name))
+    except (ZoneInfoNotFoundError, ValueError):
+        return f"unknown time zone {tz_name!r}"
+    return f"{local:%Y-%m-%d %H:%M:%S} {local.tzname()} ({tz_name})"
+
+
+def utc_text(text: str | None) -> str:
+    t = parse_utc(text)
+    return f"{t:%Y-%m-%d %H:%M:%S} UTC" if t else (text or "not recorded")
+
+
+def failing(record: RunRecord) -> list[Measurement]:
+    named = set(record.failed_measurements)
+    return [m for m in record.measurements if m.outcome == Outcome.FAIL or m.name in named]
+
+
+def overdue_instruments(record: RunRecord) -> list[str]:
+    """Instruments whose calibration was overdue on the day of the run (flag or date)."""
+    run_day = parse_utc(record.started_utc)
+    out = []
+    for inst in sorted(record.instruments, key=lambda i: i.role):
+        due: date | None = None
+        if inst.calibration_due:
+            try:
+                due = date.fromisoformat(inst.calibration_due[:10])
+            except ValueError:
+                due = None
+        late = inst.calibration_overdue or (
+            due is not None and run_day is not None and due < run_day.date()
+        )
+        if late:
+            out.append(f"{inst.role} ({inst.model or 'model?'} s/n {inst.serial or '?'}, "
+                       f"due {inst.calibration_due or 'unknown'})")
+    return out
+
+
+def header(inputs: CertificateInputs) -> list[Flowable]:
+    rec = inputs.record
+    verdict = inputs.verdict
+    story: list[Flowable] = [Paragraph("Calibration certificate - MEMS gyroscope", H1)]
+    serial = rec.dut.serial if rec else inputs.folder.name
+    banner = Table(
+        [[Paragraph(escape(verdict), verdict_style(verdict))]],
+        colWidths=[CONTENT_WIDTH],
+        rowHeights=[14 * mm],
+    )
+    banner.setStyle(TableStyle([
+        ("BACKGROUND", (0, 0), (-1, -1), VERDICT_COLOURS.get(verdict, colors.grey)),
+        ("VALIGN", (0, 0), (-1, -1), "MIDDLE"),
+    ]))
+    story += [Spacer(1, 2 * mm), banner, Spacer(1, 1.5 * mm)]
+    if verdict == "FAIL" and rec is not None:
+        names = [
+            f"{m.name}{' @ ' + m.condition if m.condition else ''} = {fmt(m.value)} {m.units} "
+            f"(limits {fmt(m.low)} .. {fmt(m.high)})"
+            for m in failing(rec)
+        ] or ["(the record names no failing measurement)"]
+        story.append(Paragraph("<b>Failing measurements:</b> " + escape("; ".join(names)),
+                               WARNING))
+    elif verdict != "PASS":
+        story.append(Paragraph(f"<b>Reason:</b> {escape(inputs.reason or 'not recorded')}",
+                               WARNING))
+    if rec is not None:
+        for late in overdue_instruments(rec):
+            story.append(Paragraph(
+                f"INSTRUMENT CALIBRATION OVERDUE on the day of this run: {escape(late)}", WARNING))
+    rows = _identity_rows(inputs, serial)
+    table = Table([[_p(k), _p(v)] for k, v in rows], colWidths=[42 * mm, CONTENT_WIDTH - 42 * mm])
+    style = grid_style(header_rows=0)
+    style.add("BACKGROUND", (0, 0), (0, -1), HEADER_GREY)
+    table.setStyle(style)
+    story += [Spacer(1, 2 * mm), table]
+    return story
+
+
+def _identity_rows(inputs: CertificateInputs, serial: str) -> list[tuple[str, str]]:
+    rec = inputs.record
+    if rec is None:
+        return [("Run folder", str(inputs.folder)), ("Part serial", f"unknown ({serial})")]
+    st = rec.station
+    reg = rec.dut.part_serial_register
+    part = serial if reg in (None, serial) else f"{serial} (part register reads {reg}: MISMATCH)"
+    return [
+        ("Product", rec.dut.product or rec.product.name or rec.product.path),
+        ("Part serial", part + (f", socket {rec.dut.socket}" if rec.dut.socket else "")),
+        ("Run id", rec.run_id),
+        ("Started", f"{utc_text(rec.started_utc)}  |  station local: "
+                    f"{local_time_text(rec.started_utc, rec.station_local_tz)}"),
+        ("Finished", utc_text(rec.finished_utc)),
+        ("Station", " ".join(str(st[k]) for k in ("id", "name", "location") if st.get(k))
+         or "not recorded"),
+        ("Operator", rec.operator or "not recorded"),
+        ("Software version", rec.software_version or "not recorded"),
+        ("Bench", "SIMULATED bench (no real instruments)" if rec.simulated else "real instruments"),
+    ]
+
+
+def traceability(inputs: CertificateInputs) -> list[Flowable]:
+    rec = inputs.record
+    story: list[Flowable] = [Paragraph("Traceability", H2)]
+    rows = [[_p("Item"), _p("File"), _p("Version"), _p("SHA-256")]]
+    if rec is not None:
+        refs = [("Procedure", rec.procedure), ("Product", rec.product)]
+        if rec.station_config is not None:
+            refs.append(("Station config", rec.station_config))
+        for label, ref in refs:
+            rows.append([_p(label), _p(ref.name or ref.path), _p(ref.version or "-"),
+                         _p(ref.sha256, CELL_MONO)])
+    raw_note = inputs.raw_sha256 or "file missing"
+    rows.append([_p("Raw data"), _p(inputs.raw_path.name), _p("-"), _p(raw_note, CELL_MONO)])
+    t = Table(rows, colWidths=[24 * mm, 42 * mm, 18 * mm, CONTENT_WIDTH - 84 * mm], repeatRows=1)
+    t.setStyle(grid_style())
+    story.append(t)
+    story.append(Spacer(1, 2 * mm))
+    irows = [[_p(h) for h in ("Role", "Instrument", "Serial", "Firmware", "Address",
+                               "Calibration due")]]
+    overdue_rows = []
+    if rec is not None:
+        late = {s.split(" ")[0] for s in overdue_instruments(rec)}
+        for i, inst in enumerate(sorted(rec.instruments, key=lambda x: x.role), start=1):
+            due = inst.calibration_due or "not recorded"
+            if inst.role in late:
+                due += " OVERDUE"
+                overdue_rows.append(i)
+            irows.append([_p(inst.role), _p(f"{inst.manufacturer} {inst.model}".strip() or "-"),
+                          _p(inst.serial or "-"), _p(inst.firmware or "-"),
+                          _p(inst.address or "-"), _p(due)])
+    if len(irows) == 1:
+        irows.append([_p("no instruments recorded")] + [_p("")] * 5)
+    t = Table(irows, colWidths=[24 * mm, 44 * mm, 26 * mm, 22 * mm, 36 * mm, 30 * mm],
+              repeatRows=1)
+    style = grid_style()
+    for r in overdue_rows:
+        style.add("BACKGROUND", (0, r), (-1, r), FAIL_ROW)
+    t.setStyle(style)
+    story.append(t)
+    return story
+
+
+def conditions(inputs: CertificateInputs) -> list[Flowable]:
+    rec = inputs.record
+    story: list[Flowable] = [Paragraph("Test conditions", H2)]
+    if rec is None or not rec.conditions:
+        return story + [Paragraph("No conditions recorded.", NOTE)]
+    heads = ["Condition", "Chamber (C)", "Supply (V)", "Die temp (C)", "Time to stability (s)",
+             "Stable", "Supply current (A)"]
+    rows = [[_p(h) for h in heads]]
+    for c in rec.conditions:
+        rows.append([_p(c.name), _p(fmt(c.temperature_c)), _p(fmt(c.supply_v)),
+                     _p(fmt(c.die_temperature_c)), _p(fmt(c.time_to_stability_s)),
+                     _p(fmt(c.stable) if c.stable is not None else "-"),
+                     _p(fmt(c.supply_current_a))])
+    t = Table(rows, repeatRows=1, colWidths=[30 * mm] + [25 * mm] * 6)
+    t.setStyle(grid_style())
+    crit = record_keys.stability(rec.analysis)
+    story.append(t)
+    if crit:
+        texts = []
+        for name, c in crit.items():
+            parts = []
+            if c.tolerance_c is not None and c.window_s is not None:
+                parts.append(f"die temperature within +/-{fmt(c.tolerance_c)} C for "
+                             f"{fmt(c.window_s)} s")
+            if c.max_rate_c_per_min is not None:
+                parts.append(f"drift below {fmt(c.max_rate_c_per_min)} C/min")
+            texts.append(f"{name}: {' and '.join(parts) or 'criterion not stated'}")
+        story.append(Paragraph("Stability criterion (judged on the part's own temperature "
+                               "sensor): " + escape("; ".join(texts)), NOTE))
+    return story
+
+
+def margin(m: Measurement) -> tuple[float | None, str]:
+    """Distance to the nearest limit (positive inside) and that as % of the half tolerance."""
+    if m.value is None:
+        return None, "-"
+    dists = [d for d in (None if m.low is None else m.value - m.low,
+                         None if m.high is None else m.high - m.value) if d is not None]
+    if not dists:
+        return None, "no limits"
+    d = min(dists)
+    if m.low is not None and m.high is not None and m.high > m.low:
+        return d, f"{d / ((m.high - m.low) / 2) * 100:.0f} %"
+    return d, ""
+
+
+def results(inputs: CertificateInputs) -> list[Flowable]:
+    rec = inputs.record
+    story: list[Flowable] = [Paragraph("Results", H2)]
+    if rec is None or not rec.measurements:
+        return story + [Paragraph("No measurements recorded.", NOTE)]
+    heads = ["Measurement", "Condition", "Value", "U (k=2)", "Units", "Low", "High",
+             "Margin", "Outcome"]
+    rows = [[_p(h) for h in heads]]
+    style = grid_style()
+    for i, m in enumerate(rec.measurements, start=1):
+        d, pct = margin(m)
+        rows.append([_p(m.name), _p(m.condition or "-"), _p(fmt(m.value)),
+                     _p(fmt(m.uncertainty_k2)), _p(m.units), _p(fmt(m.low)), _p(fmt(m.high)),
+                     _p(f"{fmt(d, 3)} {pct}".strip() if d is not None else pct),
+                     _p(m.outcome.value)])
+        if m.outcome == Outcome.FAIL:
+            style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
+            style.add("FONT", (0, i), (-1, i), FONT_BOLD, 7.5)
+        elif m.outcome == Outcome.MARGINAL:
+            style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
+        elif m.outcome == Outcome.NOT_MEASURED:
+            style.add("TEXTCOLOR", (0, i), (-1, i), colors.grey)
+    t = Table(rows, repeatRows=1, colWidths=[40 * mm, 22 * mm, 18 * mm, 16 * mm, 18 * mm,
+                                             16 * mm, 16 * mm, 20 * mm, 16 * mm])
+    t.setStyle(style)
+    n_fail = sum(m.outcome == Outcome.FAIL for m in rec.measurements)
+    n_marg = sum(m.outcome == Outcome.MARGINAL for m in rec.measurements)
+    story += [t, Paragraph(
+        f"{len(rec.measurements)} measurements: {n_fail} failed (red), {n_marg} marginal "
+        "(amber: inside the limits but within the marginal band). Margin = distance to the "
+        "nearest limit in the measurement's units (negative = outside), and as % of half the "
+        "tolerance.", NOTE)]
+    return story
+
+
+_COEFFS = [
+    ("bias_dps", "Bias", "deg/s"),
+    ("bias_temp_coeff_dps_per_c", "Bias temperature coefficient", "deg/s/C"),
+    ("bias_supply_coeff_dps_per_v", "Bias supply coefficient", "deg/s/V"),
+    ("scale", "Scale (output/input)", "1"),
+    ("scale_temp_coeff_per_c", "Scale temperature coefficient", "1/C"),
+    ("scale_supply_coeff_per_v", "Scale supply coefficient", "1/V"),
+]
+
+
+def calibration(inputs: CertificateInputs) -> list[Flowable]:
+    rec = inputs.record
+    story: list[Flowable] = [Paragraph("Calibration written to the part", H2)]
+    cal = rec.calibration if rec else None
+    if cal is None:
+        return story + [Paragraph("No calibration was written to this part.", NOTE)]
+    readback = cal.readback or {}
+    rows = [[_p(h) for h in ("Coefficient", "Key", "Value", "U (k=2)", "Units", "Read back")]]
+    for key, label, units in _COEFFS:
+        c = getattr(cal, key)
+        rows.append([_p(label), _p(key, CELL_MONO), _p(fmt(c.value, 7)),
+                     _p(fmt(c.uncertainty_k2, 3)), _p(units), _p(fmt(readback.get(key), 7))])
+    t = Table(rows, repeatRows=1, colWidths=[48 * mm, 50 * mm, 22 * mm, 18 * mm, 16 * mm,
+                                             28 * mm])
+    t.setStyle(grid_style())
+    story.append(t)
+    bias, scale = cal.bias_dps.value, cal.scale.value
+    rb = {True: "PASSED (registers read back equal to the values written)",
+          False: "FAILED (registers read back differ from the values written)",
+          None: "not recorded"}[cal.readback_ok]
+    story.append(Paragraph(
+        f"Reference conditions {fmt(cal.reference_temperature_c)} C, "
+        f"{fmt(cal.reference_supply_v)} V; coefficients act on dT = die temperature - "
+        f"{fmt(cal.reference_temperature_c)} C and dV = supply - {fmt(cal.reference_supply_v)} V. "
+        f"<b>Sign conventions:</b> the bias is what the part outputs at zero rate; the bias "
+        f"correction is minus the bias ({fmt(-bias)} deg/s here). The scale is output divided by "
+        f"input; the scale correction is input divided by output ({fmt(1 / scale if scale else None)} "
+        f"here). Corrected rate = (output + bias correction) x scale correction. "
+        f"Uncertainties are expanded, k = 2 (about 95 %). <b>Read-back check:</b> {rb}.", BODY))
+    if cal.interaction_check:
+        items = ", ".join(f"{k} = {fmt(v)}" for k, v in sorted(cal.interaction_check.items()))
+        story.append(Paragraph(f"Interaction check (spare degree of freedom of the 2 x 2 "
+                               f"conditions): {escape(items)}", NOTE))
+    story += verification(rec)
+    return [KeepTogether(story[:3])] + story[3:]
+
+
+def verification(rec: RunRecord | None) -> list[Flowable]:
+    story: list[Flowable] = [Paragraph("Verification after correction", H2)]
+    rows_in = record_keys.verification_residuals(rec.verification if rec else None)
+    if not rows_in:
+        return story + [Paragraph("No verification residuals recorded.", NOTE)]
+    rows = [[_p(h) for h in ("Condition", "Input rate (deg/s)", "Residual (deg/s)",
+                             "Residual (%)")]]
+    for r in rows_in:
+        def num(key: str, r: dict = r) -> float | None:  # type: ignore[type-arg]
+            v = r.get(key)
+            return float(v) if isinstance(v, int | float) else None
+        rows.append([_p(r.get("condition", "-")), _p(fmt(num("rate_in_dps"))),
+                     _p(fmt(num("error_dps"), 3)), _p(fmt(num("error_pct"), 3))])
+    t = Table(rows, repeatRows=1, colWidths=[40 * mm, 35 * mm, 35 * mm, 35 * mm])
+    t.setStyle(grid_style())
+    story.append(t)
+    v = rec.verification if rec else None
+    if isinstance(v, dict) and isinstance(v.get("max_error_pct"), int | float):
+        story.append(Paragraph(f"Largest verification error {fmt(v['max_error_pct'], 3)} % "
+                               f"of the input rate.", NOTE))
+    return story
+
+
+def generated_note(inputs: CertificateInputs, when: datetime) -> Paragraph:
+    return Paragraph(
+        f"Rendered from {escape(inputs.folder.name)}/record.json and {escape(inputs.raw_path.name)}"
+        f"; document date = run finish time {when:%Y-%m-%d %H:%M:%S} UTC. Re-render with "
+        "<font face='Courier'>station report RUN_FOLDER</font>.", NOTE)

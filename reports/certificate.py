@@ -1,0 +1,85 @@
+"""The calibration certificate: `certificate.pdf` in every run folder, for every verdict.
+
+`render_certificate(run_folder)` is called by the engine at the end of every run and by
+`station report RUN_FOLDER`. It reads only `record.json` and the raw data file, so the same
+folder always gives the same bytes (reportlab invariant mode, document date = the run's
+finish time). A folder with a missing or broken record or data file still gets a
+certificate, with verdict ERROR and the problem stated on page one.
+
+Page one: verdict banner, failing measurements or the reason, overdue-instrument warning,
+identity (product, serial, times UTC and station local, station, operator, software). Then
+traceability, conditions, results, calibration with uncertainties and verification, and the
+plots (see reports/cert_plots.py, and reports/record_keys.py for the analysis keys read).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from reportlab.platypus import Flowable, Spacer
+
+from procedures.record import CERTIFICATE_FILE
+from reports import cert_plots, cert_sections
+from reports.cert_inputs import CertificateInputs, load_inputs
+from reports.pdfdoc import PageFurniture, build_pdf, parse_utc, write_atomic
+
+log = logging.getLogger(__name__)
+
+_EPOCH = datetime(2000, 1, 1, tzinfo=UTC)
+
+
+def document_time(inputs: CertificateInputs) -> datetime:
+    """The run's finish (or start) time; a fixed epoch when the record gives none."""
+    rec = inputs.record
+    if rec is not None:
+        for text in (rec.finished_utc, rec.started_utc):
+            t = parse_utc(text)
+            if t is not None:
+                return t
+    return _EPOCH
+
+
+def build_story(inputs: CertificateInputs) -> list[Flowable]:
+    when = document_time(inputs)
+    story: list[Flowable] = []
+    story += cert_sections.header(inputs)
+    story += cert_sections.traceability(inputs)
+    story += cert_sections.conditions(inputs)
+    story += cert_sections.results(inputs)
+    story += cert_sections.calibration(inputs)
+    if inputs.record is not None:
+        story += cert_plots.all_plots(inputs)
+    story += [Spacer(1, 4), cert_sections.generated_note(inputs, when)]
+    return story
+
+
+def certificate_bytes(run_folder: Path) -> bytes:
+    """The certificate of a run folder as PDF bytes (nothing written)."""
+    inputs = load_inputs(run_folder)
+    rec = inputs.record
+    serial = rec.dut.serial if rec else "unknown serial"
+    furniture = PageFurniture(
+        title="Calibration certificate",
+        identity=f"{serial}  |  {rec.run_id if rec else run_folder.name}  |  {inputs.verdict}",
+        simulated=bool(rec.simulated) if rec else False,
+        document_time=document_time(inputs),
+        author=rec.operator if rec else "",
+        subject=f"{inputs.verdict} {serial}",
+    )
+    return build_pdf(build_story(inputs), furniture)
+
+
+def render_certificate(run_folder: Path) -> Path:
+    """Write `certificate.pdf` into the run folder and return its path; never raises on bad data.
+
+    Raises only when the folder itself cannot be written (permissions, disk full).
+    """
+    run_folder = Path(run_folder)
+    start = time.perf_counter()
+    data = certificate_bytes(run_folder)
+    path = write_atomic(run_folder / CERTIFICATE_FILE, data)
+    log.info("certificate %s written in %.2f s", path, time.perf_counter() - start)
+    return path
