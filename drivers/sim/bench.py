@@ -1,0 +1,273 @@
+"""The simulated bench process: the world, its twins on loopback and ptys, the control channel.
+
+`run_bench` runs until SIGINT/SIGTERM, writes the JSON state file of DESIGN.md once every
+endpoint listens, and on exit shuts each Modbus server down, closes every pty and the
+control channel, and leaves the state file (the user gave its path) in place.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from drivers.rate_table_map import Fault
+from drivers.sim.config import PartSpec, SimConfig
+from drivers.sim.control import ControlRequestError, ControlServer
+from drivers.sim.modbus_twins import ChamberTwin, ModbusTwin, TableTwin
+from drivers.sim.pty_twins import FixtureTwin, SupplyTwin
+from drivers.sim.world import World
+
+log = logging.getLogger(__name__)
+TICK_WALL_S = 0.005
+
+FAULT_KINDS = (
+    "modbus_drop", "modbus_delay", "table_fault", "interlock_open", "chamber_stuck",
+    "supply_short", "stream_corrupt", "stream_drop", "part_silent", "fixture_silent",
+    "part_absent",
+)
+_TABLE_FAULTS = {
+    "following_error": Fault.FOLLOWING_ERROR,
+    "estop": Fault.ESTOP,
+    "overspeed": Fault.OVERSPEED,
+    "encoder_loss": Fault.ENCODER_LOSS,
+}
+
+
+class Bench:
+    """Everything the bench process serves, on one asyncio loop."""
+
+    def __init__(self, config: SimConfig, speed: float | None = None, host: str = "127.0.0.1",
+                 table_port: int = 0, chamber_port: int = 0, control_port: int = 0) -> None:
+        self.world = World(config, speed)
+        self.host = host
+        self.table = TableTwin(self.world, host, table_port)
+        self.chamber = ChamberTwin(self.world, host, chamber_port)
+        self.control = ControlServer(self.dispatch, host, control_port)
+        self.supply: SupplyTwin | None = None
+        self.fixtures: dict[int, FixtureTwin] = {}
+        self._tick_task: asyncio.Task[None] | None = None
+        self.ticks = 0
+
+    async def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        await self.table.start()
+        await self.chamber.start()
+        self.supply = SupplyTwin(self.world, loop)
+        fifo = self.world.config.fixture.fifo_bytes
+        for index, sock in self.world.sockets.items():
+            self.fixtures[index] = FixtureTwin(self.world, sock, loop, fifo)
+        await self.control.start()
+        self._tick_task = asyncio.create_task(self._tick_loop())
+
+    def endpoints(self) -> dict[str, Any]:
+        assert self.supply is not None
+        return {
+            "speed": self.world.speed,
+            "rate_table": self.table.endpoint,
+            "chamber": self.chamber.endpoint,
+            "supply": self.supply.port.path,
+            "duts": {str(i): f.port.path for i, f in self.fixtures.items()},
+            "control": self.control.endpoint,
+            "pid": os.getpid(),
+            "sockets": len(self.fixtures),
+        }
+
+    async def _tick_loop(self) -> None:
+        while True:
+            t = self.world.advance()
+            for fixture in self.fixtures.values():
+                fixture.tick(t)
+            self.ticks += 1
+            await asyncio.sleep(TICK_WALL_S)
+
+    async def stop(self) -> None:
+        if self._tick_task is not None:
+            self._tick_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._tick_task
+        await self.control.shutdown()
+        for twin in (self.table, self.chamber):
+            await twin.shutdown()
+        if self.supply is not None:
+            self.supply.close()
+        for fixture in self.fixtures.values():
+            fixture.close()
+
+    # ------------------------------------------------------------ control channel
+
+    async def dispatch(self, req: dict[str, Any]) -> Any:
+        cmd = req["cmd"]
+        if cmd == "ping":
+            return {"time_s": self.world.advance(), "speed": self.world.speed}
+        if cmd == "truth":
+            return self.truth()
+        if cmd == "endpoints":
+            return self.endpoints()
+        if cmd == "load":
+            return self._load(req)
+        if cmd == "unload":
+            self.world.unload_part(self._socket_index(req))
+            return {"socket": self._socket_index(req)}
+        if cmd == "fault":
+            return await self._fault(req)
+        if cmd == "clear_faults":
+            await self._clear_faults()
+            return {"cleared": True}
+        raise ControlRequestError(
+            f"unknown cmd {cmd!r}; use ping, truth, endpoints, load, unload, fault, clear_faults"
+        )
+
+    def _socket_index(self, req: dict[str, Any]) -> int:
+        try:
+            index = int(req.get("socket", 1))
+        except (TypeError, ValueError):
+            raise ControlRequestError("socket must be an integer") from None
+        if index not in self.world.sockets:
+            raise ControlRequestError(
+                f"no socket {index}; this bench has sockets 1..{len(self.world.sockets)}"
+            )
+        return index
+
+    def _load(self, req: dict[str, Any]) -> dict[str, Any]:
+        index = self._socket_index(req)
+        part = dict(req.get("part") or {})
+        part["socket"] = index
+        try:
+            spec = PartSpec.model_validate(part)
+        except ValidationError as exc:
+            msgs = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise ControlRequestError(f"bad part: {msgs}") from None
+        sock = self.world.load_part(spec)
+        assert sock.part is not None
+        return {"socket": index, "parameters": sock.part.params.as_dict()}
+
+    async def _fault(self, req: dict[str, Any]) -> dict[str, Any]:
+        kind = req.get("kind")
+        if kind not in FAULT_KINDS:
+            raise ControlRequestError(f"unknown fault kind {kind!r}; use one of {', '.join(FAULT_KINDS)}")
+        w = self.world
+        if kind in ("modbus_drop", "modbus_delay"):
+            for twin in self._modbus_targets(req.get("target", "all")):
+                if kind == "modbus_drop":
+                    await twin.drop()
+                else:
+                    delay = float(req.get("delay_s", 5.0))
+                    if not 0 <= delay <= 600:
+                        raise ControlRequestError("delay_s must be between 0 and 600 (wall s)")
+                    twin.delay_s = delay
+        elif kind == "table_fault":
+            code = req.get("code", "following_error")
+            if code not in _TABLE_FAULTS:
+                raise ControlRequestError(f"table_fault code {code!r}; use one of {', '.join(_TABLE_FAULTS)}")
+            w.trip_table(_TABLE_FAULTS[code])
+        elif kind == "interlock_open":
+            w.set_interlock(True)
+        elif kind == "chamber_stuck":
+            w.advance()
+            w.chamber.stuck = True
+            w.chamber.stuck_reports_fault = bool(req.get("report_fault", False))
+        else:
+            self._socket_fault(kind, req)
+        w.advance()
+        return {"kind": kind}
+
+    def _socket_fault(self, kind: str, req: dict[str, Any]) -> None:
+        sock = self.world.socket(self._socket_index(req))
+        self.world.advance()
+        if kind == "supply_short":
+            if sock.part is None:
+                raise ControlRequestError(f"socket {sock.socket} has no part to short; load one first")
+            sock.part.shorted = True
+        elif kind == "stream_corrupt":
+            sock.corrupt_byte_rate = _rate(req, "byte_error_rate", 1e-3)
+        elif kind == "stream_drop":
+            sock.drop_frame_rate = _rate(req, "frame_drop_rate", 1e-2)
+        elif kind == "part_silent":
+            sock.part_silent = True
+        elif kind == "fixture_silent":
+            sock.fixture_silent = True
+        elif kind == "part_absent":
+            sock.absent = True
+
+    def _modbus_targets(self, target: str) -> list[ModbusTwin]:
+        options = {"table": [self.table], "chamber": [self.chamber], "all": [self.table, self.chamber]}
+        if target not in options:
+            raise ControlRequestError(f"target {target!r}; use table, chamber or all")
+        return options[target]
+
+    async def _clear_faults(self) -> None:
+        for twin in (self.table, self.chamber):
+            twin.delay_s = 0.0
+            await twin.restore()
+        self.world.clear_world_faults()
+
+    def truth(self) -> dict[str, Any]:
+        out = self.world.truth()
+        out["modbus"] = {
+            "table": {"dropped": self.table.dropped, "delay_s": self.table.delay_s,
+                      "requests": self.table.requests},
+            "chamber": {"dropped": self.chamber.dropped, "delay_s": self.chamber.delay_s,
+                        "requests": self.chamber.requests},
+        }
+        for index, fixture in self.fixtures.items():
+            out["sockets"][str(index)]["fifo_pending_bytes"] = fixture.port.pending_bytes
+        out["ticks"] = self.ticks
+        return out
+
+
+def _rate(req: dict[str, Any], key: str, default: float) -> float:
+    value = float(req.get(key, default))
+    if not 0.0 <= value <= 1.0:
+        raise ControlRequestError(f"{key} must be between 0 and 1")
+    return value
+
+
+def write_state(path: Path, state: dict[str, Any]) -> None:
+    """Write the state file atomically (readers never see half a file)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(state, indent=2) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+async def serve(config: SimConfig, state_path: Path | None, speed: float | None = None,
+                ports: dict[str, int] | None = None) -> None:
+    """Run the bench until SIGINT or SIGTERM."""
+    ports = ports or {}
+    bench = Bench(config, speed, table_port=ports.get("rate_table", 0),
+                  chamber_port=ports.get("chamber", 0), control_port=ports.get("control", 0))
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await bench.start()
+        state = bench.endpoints()
+        if state_path is not None:
+            write_state(state_path, state)
+        else:
+            print(json.dumps(state), flush=True)
+        log.info("bench running at %gx: %s", bench.world.speed, state)
+        started = time.monotonic()
+        await stop.wait()
+        log.info("bench stopping after %.1f s wall", time.monotonic() - started)
+    finally:
+        await bench.stop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+
+
+def run_bench(config: SimConfig, state_path: Path | None, speed: float | None = None,
+              ports: dict[str, int] | None = None) -> int:
+    asyncio.run(serve(config, state_path, speed, ports))
+    sys.stdout.flush()
+    return 0

@@ -1,0 +1,218 @@
+"""The simulated bench's configuration (config/sim/*.yaml), validated at the edge.
+
+The pinned part keys of DESIGN.md (`socket`, `serial`, `bias_dps`, `scale`, the four
+first-order coefficients, `arw_deg_per_sqrt_h`, `bias_instability_deg_per_h`, `effects`) are
+accepted as they are; a part parameter left out is drawn from the population
+(`drivers.sim.population`), deterministically per serial number. Everything else (table,
+chamber, supply, fixture and part physics) has defaults close to the real bench.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from drivers.rate_table_map import COUNTS_PER_REV
+
+# effect id -> parameter names it accepts (DESIGN.md's catalog)
+EFFECT_PARAMS: dict[str, frozenset[str]] = {
+    "k2_quadratic": frozenset({"k2_per_dps"}),
+    "k3_cubic": frozenset({"k3_per_dps2"}),
+    "scale_asymmetry": frozenset({"asymmetry"}),
+    "bias_temperature": frozenset({"bias_temp_coeff_dps_per_c"}),
+    "scale_temperature": frozenset({"scale_temp_coeff_per_c"}),
+    "bias_supply": frozenset({"bias_supply_coeff_dps_per_v"}),
+    "scale_supply": frozenset({"scale_supply_coeff_per_v"}),
+    "g_sensitivity_tilt": frozenset({"g_sens_dps_per_g", "tilt_deg", "phase_deg"}),
+    "sensor_lag": frozenset({"tau_s"}),
+    "warmup_drift": frozenset({"amplitude_dps", "tau_s"}),
+}
+# effects whose parameters must all be given (the coefficient effects default to the part's own)
+REQUIRED_EFFECT_PARAMS: dict[str, frozenset[str]] = {
+    "k2_quadratic": frozenset({"k2_per_dps"}),
+    "k3_cubic": frozenset({"k3_per_dps2"}),
+    "scale_asymmetry": frozenset({"asymmetry"}),
+    "g_sensitivity_tilt": frozenset({"g_sens_dps_per_g", "tilt_deg"}),
+    "sensor_lag": frozenset({"tau_s"}),
+    "warmup_drift": frozenset({"amplitude_dps", "tau_s"}),
+}
+
+
+class SimConfigError(ValueError):
+    """The sim config file is missing, unreadable or has a bad value (message names it)."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PartSpec(_Model):
+    """One loaded socket's part; any parameter left as None is drawn from the population."""
+
+    socket: int = Field(ge=1, le=64)
+    serial: str = Field(min_length=1, max_length=40, pattern=r"^[\x21-\x7e]+$")
+    bias_dps: float | None = None
+    scale: float | None = Field(default=None, gt=0.5, lt=2.0)
+    bias_temp_coeff_dps_per_c: float | None = None
+    bias_supply_coeff_dps_per_v: float | None = None
+    scale_temp_coeff_per_c: float | None = None
+    scale_supply_coeff_per_v: float | None = None
+    arw_deg_per_sqrt_h: float | None = Field(default=None, ge=0.0)
+    bias_instability_deg_per_h: float | None = Field(default=None, ge=0.0)
+    rrw_deg_per_h_per_sqrt_h: float | None = Field(default=None, ge=0.0)
+    supply_current_a: float | None = Field(default=None, gt=0.0, le=0.5)
+    effects: dict[str, dict[str, float]] = Field(default_factory=dict)
+
+    @field_validator("effects")
+    @classmethod
+    def _known_effects(cls, effects: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+        for effect_id, params in effects.items():
+            if effect_id not in EFFECT_PARAMS:
+                known = ", ".join(sorted(EFFECT_PARAMS))
+                raise ValueError(f"unknown effect id {effect_id!r}; use one of: {known}")
+            unknown = set(params) - EFFECT_PARAMS[effect_id]
+            if unknown:
+                allowed = ", ".join(sorted(EFFECT_PARAMS[effect_id]))
+                raise ValueError(
+                    f"effect {effect_id!r} has no parameter {sorted(unknown)}; it takes: {allowed}"
+                )
+            missing = REQUIRED_EFFECT_PARAMS.get(effect_id, frozenset()) - set(params)
+            if missing:
+                raise ValueError(f"effect {effect_id!r} needs parameter(s) {sorted(missing)}")
+            if effect_id in ("sensor_lag", "warmup_drift") and params["tau_s"] <= 0:
+                raise ValueError(f"effect {effect_id!r}: tau_s must be positive")
+        return effects
+
+
+class BounceConfig(_Model):
+    """Damped oscillation added after a position move ends (a bounce at a mechanical stop)."""
+
+    amplitude_deg: float = Field(default=0.02, ge=0.0, le=5.0)
+    frequency_hz: float = Field(default=4.0, gt=0.0, le=200.0)
+    decay_s: float = Field(default=0.15, gt=0.0, le=10.0)
+
+
+class TableConfig(_Model):
+    model: str = "SIM-RT-360"
+    serial: str = "RT-0001"
+    firmware: str = "2.4.1"
+    counts_per_rev: int = Field(default=COUNTS_PER_REV, ge=COUNTS_PER_REV)
+    accel_limit_dps2: float = Field(default=100.0, gt=0.0)
+    max_accel_dps2: float = Field(default=2000.0, gt=0.0)
+    slew_rate_dps: float = Field(default=90.0, gt=0.0, description="position-mode speed limit")
+    ripple_dps: float = Field(default=0.004, ge=0.0, description="rate ripple amplitude")
+    ripple_hz: float = Field(default=7.3, gt=0.0)
+    at_rate_settle_s: float = Field(default=0.2, ge=0.0)
+    bounce: BounceConfig | None = None
+
+
+class ChamberConfig(_Model):
+    model: str = "SIM-F4-CHAMBER"
+    serial: str = "CH-0001"
+    firmware: str = "1.9"
+    ambient_c: float = 25.0
+    air_tau_s: float = Field(default=60.0, gt=0.0, description="air response to the ramped setpoint")
+    idle_tau_s: float = Field(default=900.0, gt=0.0, description="drift to ambient when stopped")
+    max_ramp_c_per_min: float = Field(default=5.0, gt=0.0)
+    setpoint_low_c: float = -40.0
+    setpoint_high_c: float = 125.0
+    initial_setpoint_c: float = 25.0
+
+    @model_validator(mode="after")
+    def _limits(self) -> ChamberConfig:
+        if not self.setpoint_low_c < self.setpoint_high_c:
+            raise ValueError("setpoint_low_c must be below setpoint_high_c")
+        return self
+
+
+class SupplyConfig(_Model):
+    manufacturer: str = "SIMPOWER"
+    model: str = "SP-3005"
+    serial: str = "PS-0001"
+    firmware: str = "1.2"
+    max_voltage_v: float = Field(default=30.0, gt=0.0)
+    max_current_a: float = Field(default=3.0, gt=0.0)
+    short_resistance_ohm: float = Field(default=0.5, gt=0.0)
+
+
+class FixtureConfig(_Model):
+    sockets: int = Field(default=1, ge=1, le=64)
+    fifo_bytes: int = Field(default=1 << 20, ge=1024, description="outgoing FIFO per socket")
+    stop_angle_deg: float | None = Field(default=None, gt=10.0, lt=350.0)
+    stop_angle_uncertainty_deg: float = Field(default=0.01, gt=0.0)
+    clock_offset_s: float = Field(default=12.5, ge=0.0)
+
+
+class PartPhysicsConfig(_Model):
+    """Thermal and electrical behaviour shared by all parts."""
+
+    die_tau_s: float = Field(default=300.0, gt=0.0, description="die lag behind chamber air")
+    self_heat_c_per_w: float = Field(default=40.0, ge=0.0)
+    self_heat_tau_s: float = Field(default=90.0, gt=0.0)
+    brownout_v: float = Field(default=4.0, gt=0.0)
+    supply_low_v: float = Field(default=4.5, gt=0.0)
+    temp_noise_c: float = Field(default=0.02, ge=0.0)
+
+
+class SimConfig(_Model):
+    speed: float = Field(default=1.0, gt=0.0, le=10000.0)
+    seed: int = 0
+    parts: list[PartSpec] = Field(default_factory=list)
+    table: TableConfig = Field(default_factory=TableConfig)
+    chamber: ChamberConfig = Field(default_factory=ChamberConfig)
+    supply: SupplyConfig = Field(default_factory=SupplyConfig)
+    fixture: FixtureConfig = Field(default_factory=FixtureConfig)
+    part_physics: PartPhysicsConfig = Field(default_factory=PartPhysicsConfig)
+
+    @model_validator(mode="after")
+    def _sockets(self) -> SimConfig:
+        seen: set[int] = set()
+        for part in self.parts:
+            if part.socket in seen:
+                raise ValueError(f"socket {part.socket} is given two parts; one part per socket")
+            seen.add(part.socket)
+        return self
+
+    @property
+    def socket_count(self) -> int:
+        """Sockets served: the fixture's count, grown to hold every configured part."""
+        return max([self.fixture.sockets, *(p.socket for p in self.parts)])
+
+
+def _format_validation(exc: ValidationError, source: str) -> str:
+    lines = []
+    for err in exc.errors():
+        where = ".".join(str(x) for x in err["loc"]) or "(top level)"
+        lines.append(f"{where}: {err['msg']}")
+    return f"{source}: invalid sim config: " + "; ".join(lines) + " (fix it in the YAML file)"
+
+
+def parse_sim_config(data: Any, source: str = "<sim config>") -> SimConfig:
+    """Validate a mapping as a SimConfig; errors name the source and the field."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise SimConfigError(f"{source}: the sim config must be a YAML mapping, got {type(data).__name__}")
+    try:
+        return SimConfig.model_validate(data)
+    except ValidationError as exc:
+        raise SimConfigError(_format_validation(exc, source)) from None
+
+
+def load_sim_config(path: str | Path | None) -> SimConfig:
+    """Read and validate a sim config file; None gives the defaults (one empty socket)."""
+    if path is None:
+        return SimConfig()
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SimConfigError(f"{p}: cannot read the sim config ({exc.strerror}); check the path") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SimConfigError(f"{p}: not valid YAML ({exc}); fix the syntax") from None
+    return parse_sim_config(data, str(p))

@@ -1,0 +1,189 @@
+"""A simulated part in the world: its error model, noise, thermal and electrical state.
+
+This is the world's truth and deliberately separate from procedures/model (the station's
+model): the world may hold effects the station's model does not know.
+
+    y = scale (1 + sT dT + sV dV) (1 + asym/2 sign w) w + bias + bT dT + bV dV
+        + k2 w^2 + k3 w^3 + g_sens sin(tilt) cos(angle - phase) + warm-up drift
+        -> first-order sensor lag (if any) -> + white noise + bias instability + rate random walk
+
+Bias instability is a sum of three Gauss-Markov processes a decade apart in correlation time,
+scaled so the flat part of the Allan deviation is 0.664 B (IEEE 952); rate random walk is
+integrated white noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from drivers.protocols import CalibrationRegisters
+from drivers.sim.config import PartPhysicsConfig
+from drivers.sim.population import PartParams, serial_seed
+
+FloatArray = NDArray[np.float64]
+T_REF_C = 25.0
+V_REF_V = 5.0
+GM_TAUS_S = (3.0, 30.0, 300.0)
+
+
+def gauss_markov_avar(tau_s: FloatArray, corr_s: float, sigma: float = 1.0) -> FloatArray:
+    """Allan variance of a first-order Gauss-Markov process (variance sigma^2, time corr_s)."""
+    x = tau_s / corr_s
+    bracket = 1.0 - (3.0 - 4.0 * np.exp(-x) + np.exp(-2.0 * x)) / (2.0 * x)
+    return 2.0 * sigma**2 * corr_s / tau_s * bracket
+
+
+def _gm_sigma_for_bias_instability(bi_dps: float) -> float:
+    """Common sigma of the Gauss-Markov terms whose summed ADEV peaks at 0.664 * bi."""
+    tau = np.logspace(-1, 4, 400)
+    avar = sum(gauss_markov_avar(tau, c) for c in GM_TAUS_S)
+    return 0.664 * bi_dps / math.sqrt(float(np.max(avar)))
+
+
+class PartModel:
+    """One part: parameters, calibration registers, die temperature, power and noise state."""
+
+    def __init__(self, params: PartParams, physics: PartPhysicsConfig, seed: int, t_s: float,
+                 air_c: float) -> None:
+        self.params = params
+        self.physics = physics
+        self.rng = np.random.default_rng([serial_seed(params.serial, "noise"), seed])
+        self.cal = CalibrationRegisters()
+        self.compensation = False
+        self.die_c = air_c  # die temperature without self-heating (lags the air)
+        self.heat_c = 0.0  # self-heating rise
+        self._hist_t = [t_s, t_s]
+        self._hist_die = [air_c, air_c]
+        self.powered = False
+        self.power_on_s: float | None = None
+        self.shorted = False
+        self.bi_dps = params.bias_instability_deg_per_h / 3600.0
+        self._gm_sigma = _gm_sigma_for_bias_instability(self.bi_dps) if self.bi_dps > 0 else 0.0
+        self._gm_state = self.rng.normal(0.0, 1.0, len(GM_TAUS_S)) * self._gm_sigma
+        self._rrw_state = 0.0
+        self._lag_state: float | None = None
+        fx = params.effects
+        self._k2 = fx.get("k2_quadratic", {}).get("k2_per_dps", 0.0)
+        self._k3 = fx.get("k3_cubic", {}).get("k3_per_dps2", 0.0)
+        self._asym = fx.get("scale_asymmetry", {}).get("asymmetry", 0.0)
+        g = fx.get("g_sensitivity_tilt")
+        self._g_tilt = (
+            (g["g_sens_dps_per_g"] * math.sin(math.radians(g["tilt_deg"])),
+             g.get("phase_deg", 0.0))
+            if g else None
+        )
+        self._lag_tau = fx.get("sensor_lag", {}).get("tau_s")
+        w = fx.get("warmup_drift")
+        self._warmup = (w["amplitude_dps"], w["tau_s"]) if w else None
+
+    # ------------------------------------------------------------ electrical, thermal
+
+    def conductance_s(self) -> float:
+        """Load the part puts on the supply (a short is a fraction of an ohm)."""
+        return self.params.supply_current_a / V_REF_V
+
+    def step(self, t_s: float, dt_s: float, air_c: float, supply_v: float) -> None:
+        """Advance thermal and power state to world time `t_s`."""
+        was = self.powered
+        self.powered = supply_v >= self.physics.brownout_v and not self.shorted
+        if self.powered and not was:
+            self.power_on_s = t_s
+        if not self.powered:
+            self.power_on_s = None if supply_v < self.physics.brownout_v else self.power_on_s
+        if dt_s > 0:
+            k = 1.0 - math.exp(-dt_s / self.physics.die_tau_s)
+            self.die_c += (air_c - self.die_c) * k
+            power_w = supply_v**2 * self.conductance_s() if self.powered else 0.0
+            target = self.physics.self_heat_c_per_w * power_w
+            kh = 1.0 - math.exp(-dt_s / self.physics.self_heat_tau_s)
+            self.heat_c += (target - self.heat_c) * kh
+            self._hist_t = [self._hist_t[1], t_s]
+            self._hist_die = [self._hist_die[1], self.die_temp_c()]
+
+    def die_temp_c(self) -> float:
+        return self.die_c + self.heat_c
+
+    def die_temp_at(self, t_s: FloatArray) -> FloatArray:
+        t0, t1 = self._hist_t
+        d0, d1 = self._hist_die
+        if t1 <= t0:
+            return np.full_like(t_s, d1)
+        return d0 + (d1 - d0) * np.clip((t_s - t0) / (t1 - t0), 0.0, None)
+
+    # ------------------------------------------------------------ output
+
+    def _noise(self, n: int, dt_s: float) -> FloatArray:
+        p = self.params
+        white = self.rng.normal(0.0, p.arw_deg_per_sqrt_h / 60.0 / math.sqrt(dt_s), n)
+        out = white
+        if self._gm_sigma > 0:
+            for i, corr in enumerate(GM_TAUS_S):
+                a = math.exp(-dt_s / corr)
+                e = self.rng.normal(0.0, self._gm_sigma * math.sqrt(1 - a * a), n)
+                x, _ = lfilter([1.0], [1.0, -a], e, zi=[a * self._gm_state[i]])
+                self._gm_state[i] = x[-1]
+                out = out + x
+        k_si = p.rrw_deg_per_h_per_sqrt_h / 216000.0
+        if k_si > 0:
+            walk = self._rrw_state + np.cumsum(self.rng.normal(0.0, k_si * math.sqrt(dt_s), n))
+            self._rrw_state = float(walk[-1])
+            out = out + walk
+        return out
+
+    def raw_output_dps(self, t_s: FloatArray, rate_dps: FloatArray, angle_deg: FloatArray,
+                       supply_v: float, dt_s: float) -> tuple[FloatArray, FloatArray]:
+        """(raw output deg/s, die temperature C) at sample times `t_s` spaced `dt_s`."""
+        p = self.params
+        die = self.die_temp_at(t_s)
+        d_t = die - T_REF_C
+        d_v = supply_v - V_REF_V
+        w = rate_dps
+        scale = p.scale * (1.0 + p.scale_temp_coeff_per_c * d_t + p.scale_supply_coeff_per_v * d_v)
+        if self._asym:
+            scale = scale * (1.0 + 0.5 * self._asym * np.sign(w))
+        y = scale * w + p.bias_dps + p.bias_temp_coeff_dps_per_c * d_t
+        y = y + p.bias_supply_coeff_dps_per_v * d_v
+        if self._k2:
+            y = y + self._k2 * w * w
+        if self._k3:
+            y = y + self._k3 * w**3
+        if self._g_tilt is not None:
+            g_term, phase = self._g_tilt
+            y = y + g_term * np.cos(np.radians(angle_deg - phase))
+        if self._warmup is not None and self.power_on_s is not None:
+            amp, tau = self._warmup
+            y = y + amp * np.exp(-np.maximum(t_s - self.power_on_s, 0.0) / tau)
+        if self._lag_tau is not None:
+            a = math.exp(-dt_s / self._lag_tau)
+            prev = float(y[0]) if self._lag_state is None else self._lag_state
+            y, _ = lfilter([1.0 - a], [1.0, -a], y, zi=[a * prev])
+            self._lag_state = float(y[-1])
+        return y + self._noise(len(t_s), dt_s), die
+
+    def compensate(self, raw_dps: FloatArray, die_c: FloatArray, supply_v: float) -> FloatArray:
+        """The part's own correction with its calibration registers (CalibrationRegisters)."""
+        c = self.cal
+        d_t = die_c - c.t0_c
+        d_v = supply_v - c.v0_v
+        bias = c.bias_dps + c.bias_tc_dps_per_c * d_t + c.bias_vc_dps_per_v * d_v
+        scale = c.scale * (1.0 + c.scale_tc_per_c * d_t + c.scale_vc_per_v * d_v)
+        return (raw_dps - bias) / scale
+
+    def truth(self) -> dict[str, Any]:
+        return {
+            "serial": self.params.serial,
+            "parameters": self.params.as_dict(),
+            "die_temp_c": self.die_temp_c(),
+            "self_heating_c": self.heat_c,
+            "powered": self.powered,
+            "power_on_s": self.power_on_s,
+            "shorted": self.shorted,
+            "compensation": self.compensation,
+            "calibration": asdict(self.cal),
+        }

@@ -1,0 +1,139 @@
+"""Modbus TCP twins of the rate table and the chamber, served with pymodbus 3.16.
+
+The registers are `pymodbus.simulator.SimDevice` blocks; the `action` callback runs on every
+request and fills them from the world at the request time (so the table's 22..29 snapshot is
+exact and consistent), applies writes to the world, and refuses writes to read-only
+registers (exception 2) or bad values (exception 3). Fault hooks: drop (stop listening and
+close every connection) and delay (answer late).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from drivers import chamber_map as cm
+from drivers import rate_table_map as rm
+from drivers.sim.table import REGISTER_COUNT, CommandRefused
+from drivers.sim.world import World
+
+log = logging.getLogger(__name__)
+
+Action = Callable[[int, int, int, int, list[int], list[int] | list[bool] | None],
+                  Awaitable[ExcCodes | None]]
+
+
+class ModbusTwin:
+    """One instrument's Modbus TCP server on loopback, with drop/delay fault hooks."""
+
+    def __init__(self, name: str, blocks: list[SimData], host: str, port: int) -> None:
+        self.name = name
+        self.host = host
+        self.port = port
+        self.delay_s = 0.0
+        self.dropped = False
+        self.requests = 0
+        self._blocks = blocks
+        self._server: ModbusTcpServer | None = None
+
+    async def start(self) -> None:
+        device = SimDevice(id=rm.DEVICE_ID, simdata=self._blocks, action=self._action)
+        self._server = ModbusTcpServer(device, address=(self.host, self.port))
+        await self._server.serve_forever(background=True)
+        sockets = getattr(self._server.transport, "sockets", None)
+        if sockets:
+            self.port = sockets[0].getsockname()[1]
+
+    @property
+    def endpoint(self) -> str:
+        return f"{self.host}:{self.port}"
+
+    async def _action(self, fc: int, start: int, address: int, count: int,
+                      registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+        self.requests += 1
+        if self.delay_s > 0:
+            await asyncio.sleep(self.delay_s)
+        return await self.handle(fc, start, address, count, registers, values)
+
+    async def handle(self, fc: int, start: int, address: int, count: int,
+                     registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+        raise NotImplementedError
+
+    async def drop(self) -> None:
+        """Stop listening and close every open connection (a pulled cable, a crashed unit)."""
+        if self._server is not None and not self.dropped:
+            self.dropped = True
+            self._server.close()
+
+    async def restore(self) -> None:
+        if self._server is not None and self.dropped:
+            self.dropped = False
+            if not await self._server.listen():
+                log.error("%s: could not listen again on %s", self.name, self.endpoint)
+
+    async def shutdown(self) -> None:
+        if self._server is not None:
+            await self._server.shutdown()
+            self._server = None
+
+
+class TableTwin(ModbusTwin):
+    def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
+        blocks = [SimData(address=0, count=REGISTER_COUNT, values=0, datatype=DataType.REGISTERS)]
+        super().__init__("rate table", blocks, host, port)
+        self.world = world
+
+    async def handle(self, fc: int, start: int, address: int, count: int,
+                     registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+        table = self.world.table
+        t = self.world.advance()
+        if values is not None:
+            if any(a not in rm.WRITABLE for a in range(address, address + count)):
+                return ExcCodes.ILLEGAL_ADDRESS
+            try:
+                table.write(t, address, [int(v) for v in values], table.registers(t))
+            except CommandRefused as exc:
+                log.info("rate table refused a write: %s", exc)
+                return ExcCodes.ILLEGAL_VALUE
+        registers[0:REGISTER_COUNT] = table.registers(t)
+        return None
+
+
+class ChamberTwin(ModbusTwin):
+    def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
+        def block(address: int, count: int) -> SimData:
+            return SimData(address=address, count=count, values=0, datatype=DataType.REGISTERS)
+
+        blocks = [
+            block(cm.Reg.MODEL, 20),
+            block(cm.Reg.PROCESS_VALUE, 1),
+            block(cm.Reg.STATE, 1),
+            block(cm.Reg.SETPOINT, 1),
+            block(cm.Reg.SP_LIMIT_LOW, 2),
+            block(cm.Reg.RUN, 2),
+        ]
+        super().__init__("chamber", blocks, host, port)
+        self.world = world
+
+    async def handle(self, fc: int, start: int, address: int, count: int,
+                     registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+        chamber = self.world.chamber
+        self.world.advance()
+        if values is not None:
+            if any(a not in cm.WRITABLE for a in range(address, address + count)):
+                return ExcCodes.ILLEGAL_ADDRESS
+            try:
+                for i, v in enumerate(values):
+                    chamber.write(address + i, int(v))
+            except ValueError as exc:
+                log.info("chamber refused a write: %s", exc)
+                return ExcCodes.ILLEGAL_VALUE
+            self.world.advance()
+        for reg, value in chamber.registers().items():
+            registers[reg - start] = value
+        return None

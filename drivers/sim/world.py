@@ -1,0 +1,146 @@
+"""The simulated bench's world: one clock at a speed factor, and every instrument's physics.
+
+World time = wall time since start x speed. The world is advanced lazily (`advance()`) on
+every request and by the bench's tick, with exact exponential steps for the slow thermal
+states; the table's motion is analytic and evaluated at any time.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from drivers.rate_table_map import Fault
+from drivers.sim.chamber import ChamberModel
+from drivers.sim.config import PartSpec, SimConfig
+from drivers.sim.fixture import FixtureSocket
+from drivers.sim.gyro import PartModel
+from drivers.sim.population import resolve_part
+from drivers.sim.supply import SupplyModel
+from drivers.sim.table import TableModel
+
+SAFE_CHAMBER_RANGE_C = (10.0, 40.0)
+
+
+class World:
+    def __init__(self, config: SimConfig, speed: float | None = None) -> None:
+        self.config = config
+        self.speed = float(speed if speed is not None else config.speed)
+        if not self.speed > 0:
+            raise ValueError(f"speed must be positive, got {self.speed}")
+        self._t0_wall = time.monotonic()
+        self._last_t = 0.0
+        rng = np.random.default_rng([config.seed, 1])
+        self.table = TableModel(config.table)
+        self.chamber = ChamberModel(config.chamber)
+        self.supply = SupplyModel(config.supply, rng)
+        fx = config.fixture
+        self.sockets: dict[int, FixtureSocket] = {}
+        for s in range(1, config.socket_count + 1):
+            angle = fx.stop_angle_deg
+            if angle is None:  # each fixture socket's stops, measured once: 90 +/- 0.05 deg
+                angle = 90.0 + float(np.random.default_rng([config.seed, s, 90]).uniform(-0.05, 0.05))
+            self.sockets[s] = FixtureSocket(self, s, angle, fx.stop_angle_uncertainty_deg,
+                                            fx.clock_offset_s + 0.137 * s)
+        for spec in config.parts:
+            self.load_part(spec)
+
+    # ------------------------------------------------------------ time
+
+    def now_s(self) -> float:
+        return (time.monotonic() - self._t0_wall) * self.speed
+
+    def advance(self) -> float:
+        """Bring every slow state up to now; returns the world time."""
+        t = max(self.now_s(), self._last_t)
+        dt = t - self._last_t
+        self.chamber.step(dt)
+        self.supply.load_siemens = self._load_siemens()
+        supply_v = self.supply.output_v()
+        air = self.chamber.air_c
+        for sock in self.sockets.values():
+            if sock.part is not None:
+                sock.part.step(t, dt, air, supply_v if sock.part_present() else 0.0)
+        self._last_t = t
+        return t
+
+    def _load_siemens(self) -> float:
+        g = 0.0
+        for sock in self.sockets.values():
+            part = sock.part
+            if part is None or not sock.part_present():
+                continue
+            g += 1.0 / self.config.supply.short_resistance_ohm if part.shorted else part.conductance_s()
+        return g
+
+    # ------------------------------------------------------------ operator actions
+
+    def socket(self, index: int) -> FixtureSocket:
+        if index not in self.sockets:
+            raise KeyError(f"no socket {index}; this bench has sockets 1..{len(self.sockets)}")
+        return self.sockets[index]
+
+    def load_part(self, spec: PartSpec) -> FixtureSocket:
+        sock = self.socket(spec.socket)
+        t = self.advance()
+        sock.part = PartModel(resolve_part(spec), self.config.part_physics, self.config.seed, t,
+                              self.chamber.air_c)
+        sock.streaming = False
+        sock.absent = False
+        self.advance()
+        return sock
+
+    def unload_part(self, index: int) -> None:
+        sock = self.socket(index)
+        self.advance()
+        sock.part = None
+        sock.streaming = False
+        self.advance()
+
+    # ------------------------------------------------------------ faults inside the world
+
+    def trip_table(self, fault: Fault) -> None:
+        self.table.inject_fault(self.advance(), fault)
+
+    def set_interlock(self, open_: bool) -> None:
+        self.table.set_interlock(self.advance(), open_)
+
+    def clear_world_faults(self) -> None:
+        self.advance()
+        self.table.clear_faults()
+        self.chamber.stuck = False
+        self.chamber.stuck_reports_fault = False
+        for sock in self.sockets.values():
+            sock.absent = sock.part_silent = sock.fixture_silent = False
+            sock.corrupt_byte_rate = sock.drop_frame_rate = 0.0
+            if sock.part is not None:
+                sock.part.shorted = False
+        self.advance()
+
+    # ------------------------------------------------------------ truth
+
+    def safe_summary(self, t_s: float) -> dict[str, Any]:
+        lo, hi = SAFE_CHAMBER_RANGE_C
+        table_safe = self.table.is_safe(t_s)
+        supply_off = not self.supply.output_on
+        chamber_safe = self.chamber.is_safe(lo, hi)
+        return {
+            "table_stopped_and_disabled": table_safe,
+            "supply_off": supply_off,
+            "chamber_safe": chamber_safe,
+            "all": table_safe and supply_off and chamber_safe,
+        }
+
+    def truth(self) -> dict[str, Any]:
+        t = self.advance()
+        return {
+            "time_s": t,
+            "speed": self.speed,
+            "table": self.table.truth(t),
+            "chamber": self.chamber.truth(),
+            "supply": self.supply.truth(),
+            "sockets": {str(i): s.truth() for i, s in self.sockets.items()},
+            "safe": self.safe_summary(t),
+        }

@@ -1,0 +1,43 @@
+"""`station bench`: run the simulated bench in the foreground until SIGINT/SIGTERM."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from station.errors import UserError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser(
+        "bench",
+        help="run the simulated bench (instrument twins on loopback and ptys)",
+        description="Run the simulated bench until SIGINT/SIGTERM. Writes a JSON state file "
+        "with every endpoint (rate_table, chamber, supply, duts, control).",
+    )
+    p.add_argument("--config", type=Path, help="sim config YAML (default: one empty socket)")
+    p.add_argument("--state", type=Path, help="state file to write (default: print to stdout)")
+    p.add_argument("--speed", type=float, help="world speed factor (default: the config's, or 1)")
+    p.add_argument("--sockets", type=int, help="fixture sockets (default: the config's, or 1)")
+    p.set_defaults(handler=handle)
+
+
+def handle(args: argparse.Namespace) -> int:
+    # imported here so `station --help` stays fast and other commands need no pymodbus
+    from drivers.sim.bench import run_bench
+    from drivers.sim.config import SimConfigError, load_sim_config
+
+    try:
+        config = load_sim_config(args.config)
+    except SimConfigError as exc:
+        raise UserError(str(exc)) from None
+    if args.speed is not None and not 0 < args.speed <= 10000:
+        raise UserError(f"--speed must be in (0, 10000], got {args.speed}")
+    if args.sockets is not None:
+        if not 1 <= args.sockets <= 64:
+            raise UserError(f"--sockets must be 1..64, got {args.sockets}")
+        fixture = config.fixture.model_copy(update={"sockets": args.sockets})
+        config = config.model_copy(update={"fixture": fixture})
+    if args.state is not None and not args.state.parent.is_dir():
+        raise UserError(f"--state: directory {args.state.parent} does not exist; create it first")
+    return run_bench(config, args.state, args.speed)
