@@ -1,0 +1,253 @@
+"""`station analyze stop-method|allan CSV`: run the calibration analysis on a recorded CSV.
+
+CSV columns `time_s, rate_dps` (header row required; extra columns ignored, an optional
+`status` column carries the fixture's status bits). JSON keys are pinned in DESIGN.md; keys
+beyond them are additions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
+from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
+from station.errors import UserError
+
+REQUIRED = ("time_s", "rate_dps")
+MIN_ROWS = 16
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("analyze", help="analyse a recorded rate CSV (stop method, Allan)")
+    sub = p.add_subparsers(dest="analysis", metavar="ANALYSIS")
+    p.set_defaults(handler=lambda _args: _help(p))
+
+    sm = sub.add_parser(
+        "stop-method",
+        help="bias and scale correction from a record of moves between two mechanical stops",
+    )
+    sm.add_argument("csv", type=Path, metavar="CSV", help="columns time_s, rate_dps [, status]")
+    sm.add_argument(
+        "--reference-angle", type=float, default=90.0, metavar="DEG",
+        help="angle between the stops, measured independently (default 90)",
+    )
+    sm.add_argument(
+        "--reference-angle-uncertainty", type=float, default=0.0, metavar="DEG",
+        help="standard (k=1) uncertainty of the reference angle (default 0)",
+    )
+    sm.add_argument(
+        "--full-scale", type=float, default=None, metavar="DPS",
+        help="treat |rate| beyond this as over-range even without status bits",
+    )
+    sm.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    sm.set_defaults(handler=run_stop_method)
+
+    al = sub.add_parser("allan", help="Allan deviation and noise terms of a static record")
+    al.add_argument("csv", type=Path, metavar="CSV", help="columns time_s, rate_dps")
+    al.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    al.set_defaults(handler=run_allan)
+
+
+def _help(parser: argparse.ArgumentParser) -> int:
+    parser.print_help()
+    return 2
+
+
+def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
+    """Columns of a rate CSV as float arrays; UserError naming the problem otherwise."""
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except FileNotFoundError:
+        raise UserError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: cannot read it ({exc})") from None
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    if not rows:
+        raise UserError(f"{path}: the file is empty; expected a header row time_s,rate_dps")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in REQUIRED if c not in header]
+    if missing:
+        raise UserError(
+            f"{path}: missing column(s) {', '.join(missing)} (found {', '.join(header)}); "
+            "the header row must name time_s and rate_dps"
+        )
+    wanted = [c for c in (*REQUIRED, "status") if c in header]
+    cols: dict[str, list[float]] = {c: [] for c in wanted}
+    for line_no, row in enumerate(rows[1:], start=2):
+        for c in wanted:
+            i = header.index(c)
+            text = row[i].strip() if i < len(row) else ""
+            try:
+                cols[c].append(float(text))
+            except ValueError:
+                raise UserError(
+                    f"{path}: line {line_no}, column {c}: {text!r} is not a number"
+                ) from None
+    data = {c: np.asarray(v, dtype=np.float64) for c, v in cols.items()}
+    n = data["time_s"].size
+    if n < MIN_ROWS:
+        raise UserError(f"{path}: {n} data rows; the record is too short (need at least {MIN_ROWS})")
+    for c, arr in data.items():
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            raise UserError(
+                f"{path}: column {c} holds NaN or infinite values (first at data row "
+                f"{int(np.argmax(bad)) + 1}); repair or remove those rows"
+            )
+    steps = np.diff(data["time_s"])
+    if np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0))
+        raise UserError(
+            f"{path}: time_s is not increasing at data row {i + 2} "
+            f"({data['time_s'][i]!r} then {data['time_s'][i + 1]!r}); sort the record"
+        )
+    return data
+
+
+def run_stop_method(args: argparse.Namespace) -> int:
+    data = read_rate_csv(args.csv)
+    settings = StopMethodSettings(full_scale_dps=args.full_scale)
+    try:
+        result = analyze_stop_method(
+            data["time_s"],
+            data["rate_dps"],
+            reference_angle_deg=args.reference_angle,
+            u_reference_angle_deg=args.reference_angle_uncertainty,
+            status=data["status"].astype(np.int64) if "status" in data else None,
+            settings=settings,
+        )
+        result.require_scale_correction()
+    except AnalysisError as exc:
+        raise UserError(f"{args.csv}: {exc}") from None
+    for w in result.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(stop_method_json(result), indent=2))
+    else:
+        print(stop_method_table(result))
+    return 0
+
+
+def stop_method_json(r: StopMethodResult) -> dict[str, Any]:
+    return {
+        "bias_dps": r.bias_dps,
+        "bias_correction_dps": r.bias_correction_dps,
+        "moves": [
+            {
+                "start_s": m.start_s,
+                "end_s": m.end_s,
+                "measured_angle_deg": m.measured_angle_deg,
+                "scale_correction": m.scale_correction,
+                "u_scale_correction": m.u_scale_correction,
+                "u_measured_angle_deg": m.u_measured_angle_deg,
+                "peak_rate_dps": m.peak_rate_dps,
+                "n_over_range": m.n_over_range,
+            }
+            for m in r.moves
+        ],
+        "scale_correction": r.scale_correction,
+        "u_scale_correction": r.u_scale_correction,
+        "scale": r.scale,
+        "u_scale": r.u_scale,
+        "u_bias_dps": r.bias.u_bias_dps,
+        "bias_window_s": r.bias.duration_s,
+        "reference_angle_deg": r.reference_angle_deg,
+        "u_reference_angle_deg": r.u_reference_angle_deg,
+        "n_over_range": r.n_over_range,
+        "warnings": list(r.warnings),
+    }
+
+
+def stop_method_table(r: StopMethodResult) -> str:
+    lines = [
+        f"bias                {r.bias_dps:+10.4f} deg/s   u(k=2) {r.bias.u_bias_dps_k2:.2g} deg/s"
+        f"   from the first {r.bias.duration_s:.3g} s",
+        f"bias correction     {r.bias_correction_dps:+10.4f} deg/s",
+        "",
+        f"{'move':>4}  {'start_s':>8}  {'end_s':>8}  {'angle_deg':>10}  {'scale_corr':>10}  "
+        f"{'u(k=2)':>8}  note",
+    ]
+    for i, m in enumerate(r.moves, start=1):
+        corr = "-" if m.scale_correction is None else f"{m.scale_correction:.4f}"
+        u = "-" if m.u_scale_correction is None else f"{2 * m.u_scale_correction:.2g}"
+        note = "CLIPPED: refused" if m.clipped else ("" if m.complete else "incomplete")
+        lines.append(
+            f"{i:>4}  {m.start_s:8.3f}  {m.end_s:8.3f}  {m.measured_angle_deg:+10.3f}  "
+            f"{corr:>10}  {u:>8}  {note}"
+        )
+    lines.append("")
+    if r.scale_correction is not None and r.u_scale_correction is not None:
+        lines.append(
+            f"scale correction    {r.scale_correction:.4f}   u(k=2) {2 * r.u_scale_correction:.2g}"
+            f"   (scale {r.scale:.4f})"
+        )
+    return "\n".join(lines)
+
+
+def run_allan(args: argparse.Namespace) -> int:
+    data = read_rate_csv(args.csv)
+    t = data["time_s"]
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    gaps = np.abs(steps - dt) > 0.25 * dt
+    if gaps.any():
+        i = int(np.argmax(gaps))
+        raise UserError(
+            f"{args.csv}: samples are not evenly spaced (step of {steps[i]:.6g} s after "
+            f"t = {t[i]:.6g} s, typical {dt:.6g} s); the Allan deviation needs an unbroken "
+            "record: re-record or analyse the section without gaps"
+        )
+    try:
+        result = analyze_allan(data["rate_dps"], 1.0 / dt)
+    except AnalysisError as exc:
+        raise UserError(f"{args.csv}: {exc}") from None
+    noise = result.noise
+    if args.json:
+        out = {
+            "tau_s": result.adev.tau_s.tolist(),
+            "adev_dps": result.adev.adev_dps.tolist(),
+            "arw_deg_per_sqrt_h": noise.arw_deg_per_sqrt_h,
+            "bias_instability_deg_per_h": noise.bias_instability_deg_per_h,
+            "u_arw_deg_per_sqrt_h": noise.u_arw_deg_per_sqrt_h,
+            "u_bias_instability_deg_per_h": noise.u_bias_instability_deg_per_h,
+            "rrw_deg_per_h_per_sqrt_h": noise.model.rrw_deg_per_h_per_sqrt_h,
+            "arw_region_s": noise.arw_region_s,
+            "flat_region_s": noise.flat_region_s,
+            "rrw_region_s": noise.rrw_region_s,
+            "sample_rate_hz": 1.0 / dt,
+            "n_samples": result.adev.n_samples,
+        }
+        print(json.dumps(out, indent=2))
+        return 0
+    lines = [f"{'tau_s':>12}  {'adev_dps':>12}  {'model_dps':>12}"]
+    model = noise.model.adev_dps(result.adev.tau_s)
+    for tau, ad, md in zip(result.adev.tau_s, result.adev.adev_dps, model, strict=True):
+        lines.append(f"{tau:12.5g}  {ad:12.5g}  {md:12.5g}")
+    lines += [
+        "",
+        f"angle random walk   {noise.arw_deg_per_sqrt_h:.4g} deg/sqrt(h)"
+        f"   u(k=2) {2 * noise.u_arw_deg_per_sqrt_h:.2g}   {_region(noise.arw_region_s)}",
+        f"bias instability    {noise.bias_instability_deg_per_h:.4g} deg/h"
+        f"   u(k=2) {2 * noise.u_bias_instability_deg_per_h:.2g}   {_region(noise.flat_region_s)}",
+        f"rate random walk    {noise.model.rrw_deg_per_h_per_sqrt_h:.4g} deg/h/sqrt(h)"
+        f"   {_region(noise.rrw_region_s)}",
+    ]
+    print("\n".join(lines))
+    return 0
+
+
+def _region(region: tuple[float, float] | None) -> str:
+    if region is None:
+        return "(not seen in this record)"
+    lo, hi = region
+    return f"(dominant from {lo:.3g} to {hi:.3g} s)" if math.isfinite(hi) else ""
