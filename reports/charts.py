@@ -351,7 +351,7 @@ def bar_chart(
     x0, y0 = _LEFT, _BOTTOM + 22
     pw, ph = width - _LEFT - _RIGHT, height - y0 - _TOP
     vmax = max([float(v) for v in values] + [1.0])
-    ticks = nice_ticks(0.0, vmax, target=4)
+    ticks = nice_ticks(0.0, max(vmax, 4.0), target=4)
     ymax = max(ticks[-1], vmax)
     for t in ticks:
         py = y0 + t / ymax * ph

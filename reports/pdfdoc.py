@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -155,3 +156,8 @@ def write_atomic(path: Path, data: bytes) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def page_count(pdf: bytes) -> int:
+    """Number of pages of a PDF written by build_pdf (counts its page objects)."""
+    return len(re.findall(rb"/Type /Page(?![a-zA-Z])", pdf))

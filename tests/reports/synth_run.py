@@ -181,14 +181,28 @@ def _outcome(value: float, low: float, high: float, mlow: float, mhigh: float) -
     return Outcome.PASS
 
 
+def run_id_of(part: Part) -> str:
+    return f"{part.started:%Y%m%dT%H%M%SZ}_{part.serial}"
+
+
 def make_run(root: Path, part: Part | None = None) -> tuple[Path, RunRecord]:
-    """Write a run folder under root; returns (folder, record)."""
+    """Write a run folder (raw.h5 and record.json) under root; returns (folder, record)."""
     part = part or Part()
-    run_id = f"{part.started:%Y%m%dT%H%M%SZ}_{part.serial}"
-    folder = root / run_id
+    folder = root / run_id_of(part)
     folder.mkdir(parents=True, exist_ok=True)
     raw_path = folder / RAW_DATA_FILE
-    analysis = _write_raw(raw_path, part, run_id)
+    analysis = _write_raw(raw_path, part, run_id_of(part))
+    record = make_record(part, analysis, FileRef(path=RAW_DATA_FILE, name=RAW_DATA_FILE,
+                                                  sha256=file_sha256(raw_path)))
+    write_record(folder, record)
+    return folder, record
+
+
+def make_record(part: Part, analysis: dict[str, Any] | None = None,
+                raw_ref: FileRef | None = None) -> RunRecord:
+    """The record of a part's run (no files written); fast, for database tests."""
+    run_id = run_id_of(part)
+    analysis = analysis if analysis is not None else {}
     values = {
         "bias_dps": part.bias_dps, "scale": part.scale,
         "bias_temp_coeff_dps_per_c": part.bias_temp_coeff_dps_per_c,
@@ -241,11 +255,11 @@ def make_run(root: Path, part: Part | None = None) -> tuple[Path, RunRecord]:
             InstrumentRecord(role="supply", manufacturer="SimCo", model="PS-5", serial="PS9",
                              calibration_due=due_ok),
         ],
-        raw_data=FileRef(path=RAW_DATA_FILE, name=RAW_DATA_FILE, sha256=file_sha256(raw_path)),
+        raw_data=raw_ref,
         conditions=[ConditionRecord(name=c, temperature_c=t, supply_v=v,
                                     die_temperature_c=t + 1.2,
-                                    time_to_stability_s=analysis["stability"][c][
-                                        "time_to_stability_s"], stable=True,
+                                    time_to_stability_s=analysis.get("stability", {}).get(
+                                        c, {}).get("time_to_stability_s"), stable=True,
                                     supply_current_a=0.006) for c, t, v in CONDITIONS],
         measurements=measurements, calibration=cal,
         verification={"residuals": [{"condition": "T25_V5.25", "rate_in_dps": r,
@@ -253,5 +267,4 @@ def make_run(root: Path, part: Part | None = None) -> tuple[Path, RunRecord]:
                                     for r in (-150.0, 50.0, 150.0)], "max_error_pct": 0.1},
         analysis=analysis,
     )
-    write_record(folder, record)
-    return folder, record
+    return record

@@ -1,0 +1,228 @@
+"""The lot report: yield, failure pareto, per-measurement histograms with limits and Cpk,
+and the trend of the written bias and scale over time, all from the results database.
+
+`render_lot_report(db, out, since=..., product=..., verdict=..., serial=...)` writes the
+PDF and returns a `LotSummary` with the figures it printed, so callers and tests can check
+them. Byte-identical for the same database content (document date = newest run's time).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+from reportlab.lib.units import mm
+from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
+
+from reports import lot_stats
+from reports.charts import LIMIT_RED, PALETTE, Chart, bar_chart, message_box
+from reports.pdfdoc import PageFurniture, build_pdf, page_count, parse_utc, write_atomic
+from reports.styles import (
+    BODY,
+    CELL,
+    FAIL_ROW,
+    H1,
+    H2,
+    MARGINAL_AMBER,
+    NOTE,
+    escape,
+    fmt,
+    grid_style,
+)
+from station.results_db import MeasurementRow, ResultsDB, RunRow
+
+FULL_W = 182 * mm
+HALF_W = 90 * mm
+_EPOCH = datetime(2000, 1, 1, tzinfo=UTC)
+
+
+@dataclass(frozen=True)
+class LotSummary:
+    path: Path
+    yields: lot_stats.YieldSummary
+    pareto: list[tuple[str, int]]
+    capabilities: list[lot_stats.Capability]
+    pages: int
+
+
+def _p(text: object) -> Paragraph:
+    return Paragraph(escape(text), CELL)
+
+
+def _filters_text(filters: dict[str, object]) -> str:
+    given = [f"{k} = {v}" for k, v in filters.items() if v not in (None, "")]
+    return ", ".join(given) if given else "none (every run in the database)"
+
+
+def _summary_table(y: lot_stats.YieldSummary) -> Table:
+    yf = y.yield_fraction
+    rows = [
+        ["Runs", "Parts (serials)", "PASS", "FAIL", "ERROR", "ABORTED", "Yield"],
+        [str(y.runs), str(y.parts), str(y.passed), str(y.failed), str(y.errors),
+         str(y.aborted), f"{yf * 100:.1f} %" if yf is not None else "n/a"],
+    ]
+    t = Table(rows, colWidths=[26 * mm] * 7)
+    style = grid_style()
+    style.add("FONT", (0, 1), (-1, 1), "Helvetica-Bold", 11)
+    style.add("ALIGN", (0, 0), (-1, -1), "CENTER")
+    t.setStyle(style)
+    return t
+
+
+def _capability_table(caps: list[lot_stats.Capability]) -> Table:
+    rows = [[_p(h) for h in ("Measurement", "Units", "n", "Mean", "Sigma (n-1)", "LSL", "USL",
+                             "Cpk")]]
+    style = grid_style()
+    for i, c in enumerate(caps, start=1):
+        rows.append([_p(c.name + (" *" if c.limits_varied else "")), _p(c.units), _p(c.n),
+                     _p(fmt(c.mean)), _p(fmt(c.sigma, 3)), _p(fmt(c.low)), _p(fmt(c.high)),
+                     _p(fmt(c.cpk, 3))])
+        if c.cpk is not None and c.cpk < 1.0:
+            style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
+        elif c.cpk is not None and c.cpk < 1.33:
+            style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
+    t = Table(rows, repeatRows=1, colWidths=[46 * mm, 20 * mm, 12 * mm, 22 * mm, 22 * mm,
+                                             20 * mm, 20 * mm, 18 * mm])
+    t.setStyle(style)
+    return t
+
+
+def _histogram(c: lot_stats.Capability) -> Flowable:
+    title = f"{c.name} ({c.units})"
+    if c.n < 2:
+        return message_box(HALF_W, 55 * mm, title, f"Not drawn: {c.n} value(s) in the lot.")
+    values = np.asarray(c.values)
+    lo, hi = float(values.min()), float(values.max())
+    if hi <= lo:
+        lo, hi = lo - 0.5 * (abs(lo) or 1), hi + 0.5 * (abs(hi) or 1)
+    bins = int(np.clip(math.ceil(math.sqrt(c.n)), 5, 30))
+    counts, edges = np.histogram(values, bins=bins, range=(lo, hi))
+    xs = [lo, hi] + [v for v in (c.low, c.high) if v is not None]
+    span = max(xs) - min(xs)
+    chart = Chart(HALF_W, 55 * mm, title=title, x_label=f"{c.name} ({c.units})",
+                  y_label="runs", x_range=(min(xs) - 0.04 * span, max(xs) + 0.04 * span))
+    chart.bars(edges, counts, PALETTE[0], f"n = {c.n}")
+    if c.low is not None:
+        chart.vline(c.low, LIMIT_RED, "limits", dash=None, width=1.0)
+    if c.high is not None:
+        chart.vline(c.high, LIMIT_RED, None if c.low is not None else "limit", dash=None,
+                    width=1.0)
+    if c.mean is not None:
+        chart.vline(c.mean, PALETTE[2], f"mean, Cpk {fmt(c.cpk, 3)}", dash=(3, 2))
+    return chart.drawing()
+
+
+def _pairs(items: list[Flowable]) -> list[Flowable]:
+    out: list[Flowable] = []
+    for i in range(0, len(items), 2):
+        row = items[i:i + 2] + ([Spacer(1, 1)] if len(items[i:i + 2]) == 1 else [])
+        t = Table([row], colWidths=[HALF_W + 1 * mm, HALF_W])
+        t.setStyle(TableStyle([("LEFTPADDING", (0, 0), (-1, -1), 0),
+                               ("RIGHTPADDING", (0, 0), (-1, -1), 0),
+                               ("VALIGN", (0, 0), (-1, -1), "TOP")]))
+        out.append(t)
+    return out
+
+
+def _trend(runs: list[RunRow]) -> list[Flowable]:
+    pts = [(parse_utc(r.started_utc), r) for r in runs if r.verdict in lot_stats.COMPLETED]
+    pts = [(t, r) for t, r in pts if t is not None]
+    if len(pts) < 2:
+        return [message_box(FULL_W, 50 * mm, "Trend of bias and scale",
+                            f"Not drawn: {len(pts)} completed run(s) with a start time.")]
+    t0 = pts[0][0]
+    charts = []
+    for key, label, units in (("bias_dps", "Bias written to the part", "deg/s"),
+                              ("scale", "Scale written to the part", "1")):
+        hours = [(t - t0).total_seconds() / 3600 for t, r in pts
+                 if r.calibration.get(key) is not None]
+        vals = [r.calibration[key] for _t, r in pts if r.calibration.get(key) is not None]
+        if len(vals) < 2:
+            charts.append(message_box(HALF_W, 55 * mm, label,
+                                      f"Not drawn: {len(vals)} run(s) with a written {key}."))
+            continue
+        ch = Chart(HALF_W, 55 * mm, title=label,
+                   x_label=f"hours since {t0:%Y-%m-%d %H:%M} UTC", y_label=f"{key} ({units})")
+        ch.line(hours, vals, PALETTE[0], width=0.4)
+        ch.scatter(hours, vals, PALETTE[0], size=1.8)
+        ch.hline(float(np.mean(vals)), PALETTE[2], "lot mean", dash=(3, 2))
+        charts.append(ch.drawing())
+    return _pairs(charts)
+
+
+def _run_list(runs: list[RunRow]) -> Table:
+    rows = [[_p(h) for h in ("Run", "Serial", "Started (UTC)", "Verdict", "Failed / reason")]]
+    style = grid_style()
+    for i, r in enumerate(runs, start=1):
+        why = ", ".join(r.failed_measurements) or r.reason
+        rows.append([_p(r.run_id), _p(r.serial), _p(r.started_utc.replace("+00:00", "")),
+                     _p(r.verdict + (" (sim)" if r.simulated else "")), _p(why or "-")])
+        if r.verdict != "PASS":
+            style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
+    t = Table(rows, repeatRows=1, colWidths=[58 * mm, 28 * mm, 34 * mm, 20 * mm, 42 * mm])
+    t.setStyle(style)
+    return t
+
+
+def build_lot(db: ResultsDB, **filters: object) -> tuple[list[Flowable], LotSummary, PageFurniture]:
+    runs = db.runs(**filters)  # type: ignore[arg-type]
+    rows: list[MeasurementRow] = db.measurement_values(**filters)  # type: ignore[arg-type]
+    y = lot_stats.yield_summary(runs)
+    pareto = lot_stats.failure_pareto(rows)
+    names = list(dict.fromkeys(m.name for m in rows))
+    caps = [lot_stats.capability(n, rows) for n in names]
+    story: list[Flowable] = [
+        Paragraph("Lot report - MEMS gyroscope calibration", H1),
+        Paragraph(f"Database: {escape(db.path)}. Filters: {escape(_filters_text(filters))}. "
+                  + (f"Runs from {escape(runs[0].started_utc)} to {escape(runs[-1].started_utc)}."
+                     if runs else "No run matches the filters."), BODY),
+        Spacer(1, 3 * mm),
+        _summary_table(y),
+        Paragraph("Yield = PASS / (PASS + FAIL); ERROR and ABORTED runs are station problems, "
+                  "listed but not counted in the yield.", NOTE),
+    ]
+    sims = sum(r.simulated for r in runs)
+    if sims:
+        story.append(Paragraph(f"{sims} of {len(runs)} runs used the SIMULATED bench.", BODY))
+    story.append(Paragraph("Failure pareto (runs failing each measurement)", H2))
+    if pareto:
+        story.append(bar_chart(FULL_W, 62 * mm, [n for n, _ in pareto], [c for _, c in pareto],
+                               title="Failures by measurement", y_label="failing runs"))
+    else:
+        story.append(Paragraph("No failing measurement in this lot.", BODY))
+    story += [Paragraph("Capability", H2), _capability_table(caps), Paragraph(
+        "Over completed runs (PASS or FAIL). Sigma = sample standard deviation (n - 1) of all "
+        "values in the lot (overall sigma, so strictly Ppk). Cpk = min(USL - mean, mean - LSL) "
+        "/ (3 sigma); one-sided when a limit is missing. Red: Cpk < 1.0, amber: Cpk < 1.33. "
+        "* limits changed within the lot; the newest run's limits are used.", NOTE)]
+    hist = _pairs([_histogram(c) for c in caps])
+    if hist:
+        story += [KeepTogether([Paragraph("Distributions with limits", H2), hist[0]])] + hist[1:]
+    trend = _trend(runs)
+    story += [KeepTogether([Paragraph("Trend of the calibration written", H2), trend[0]])]
+    story += trend[1:]
+    story += [Paragraph("Runs", H2), _run_list(runs)]
+    newest = max((parse_utc(r.finished_utc or r.started_utc) for r in runs), default=None,
+                 key=lambda t: t or _EPOCH)
+    furniture = PageFurniture(
+        title="Lot report",
+        identity=f"{y.runs} runs | yield "
+                 + (f"{y.yield_fraction * 100:.1f} %" if y.yield_fraction is not None else "n/a"),
+        simulated=sims > 0,
+        document_time=newest or _EPOCH,
+        subject="lot report",
+    )
+    summary = LotSummary(Path(), y, pareto, caps, 0)
+    return story, summary, furniture
+
+
+def render_lot_report(db: ResultsDB, out: Path, **filters: object) -> LotSummary:
+    """Write the lot report PDF for the runs matching the filters (see ResultsDB.runs)."""
+    story, summary, furniture = build_lot(db, **filters)
+    data = build_pdf(story, furniture)
+    write_atomic(Path(out), data)
+    return LotSummary(Path(out), summary.yields, summary.pareto, summary.capabilities,
+                      page_count(data))

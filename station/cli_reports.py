@@ -1,0 +1,154 @@
+"""`station report`, `station history`, `station lot-report`: the quality engineer's review.
+
+    station report RUN_FOLDER [--index] [--db PATH]
+    station history [--since DATE] [--until DATE] [--product P] [--verdict V] [--serial S]
+                    [--db PATH] [--json]
+    station lot-report [same filters] --out FILE.pdf [--db PATH]
+
+The database defaults to the one named in config/station.yaml (`results_db`), or
+runs/results.sqlite when no station file can be loaded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from procedures.record import RECORD_FILE, read_record
+from station.errors import UserError
+from station.results_db import ResultsDB, ResultsDBError
+
+log = logging.getLogger(__name__)
+
+FALLBACK_DB = Path("runs/results.sqlite")
+VERDICTS = ("PASS", "FAIL", "ERROR", "ABORTED", "RUNNING")
+
+
+def default_db_path() -> Path:
+    """The station file's results database, or runs/results.sqlite without one."""
+    try:
+        from station.settings import load_settings
+
+        return load_settings().results_db
+    except Exception as exc:  # no station.yaml, or settings not part of this build
+        log.info("station settings not loaded (%s); using %s", exc, FALLBACK_DB)
+        return FALLBACK_DB
+
+
+def _open_db(args: argparse.Namespace, must_exist: bool) -> ResultsDB:
+    path = Path(args.db) if args.db else default_db_path()
+    if must_exist and not path.exists():
+        raise UserError(
+            f"results database {path} does not exist; give the right one with --db PATH "
+            "(runs are indexed there by `station run`)"
+        )
+    try:
+        return ResultsDB(path)
+    except ResultsDBError as exc:
+        raise UserError(str(exc)) from exc
+
+
+def _filters(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "since": args.since,
+        "until": args.until,
+        "product": args.product,
+        "verdict": args.verdict.upper() if args.verdict else None,
+        "serial": args.serial,
+    }
+
+
+def _add_filters(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--since", metavar="DATE", help="runs started at or after (YYYY-MM-DD or ISO)")
+    p.add_argument("--until", metavar="DATE", help="runs started before (YYYY-MM-DD or ISO)")
+    p.add_argument("--product", metavar="P", help="product name as on the certificate")
+    p.add_argument("--verdict", metavar="V", type=str.upper, choices=VERDICTS,
+                   help="PASS, FAIL, ERROR or ABORTED")
+    p.add_argument("--serial", metavar="S", help="one part's serial number")
+    p.add_argument("--db", metavar="PATH", help="results database (default: station.yaml's)")
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from reports.certificate import render_certificate
+
+    folder = Path(args.run_folder)
+    if not folder.is_dir():
+        raise UserError(f"{folder} is not a run folder (no such directory); give the folder "
+                        f"that holds {RECORD_FILE}")
+    path = render_certificate(folder)
+    if args.index:
+        try:
+            record = read_record(folder)
+        except ValueError as exc:
+            raise UserError(f"certificate written to {path}, but not indexed: {exc}") from exc
+        _open_db(args, must_exist=False).add_run(folder, record)
+    print(path)
+    return 0
+
+
+def cmd_history(args: argparse.Namespace) -> int:
+    db = _open_db(args, must_exist=True)
+    try:
+        runs = db.runs(**_filters(args))
+    except ResultsDBError as exc:
+        raise UserError(str(exc)) from exc
+    if args.json:
+        print(json.dumps([{
+            "run_id": r.run_id, "serial": r.serial, "product": r.product,
+            "verdict": r.verdict, "started_utc": r.started_utc, "reason": r.reason,
+            "failed_measurements": list(r.failed_measurements), "folder": r.folder,
+            "simulated": r.simulated} for r in runs], indent=2))
+        return 0
+    if not runs:
+        print("no runs match")
+        return 0
+    print(f"{'started (UTC)':<26}{'serial':<16}{'product':<18}{'verdict':<9}detail")
+    for r in runs:
+        detail = ", ".join(r.failed_measurements) or r.reason
+        sim = " [sim]" if r.simulated else ""
+        print(f"{r.started_utc:<26}{r.serial:<16}{r.product:<18}{r.verdict:<9}"
+              f"{detail}{sim}")
+    counts = {v: sum(r.verdict == v for r in runs) for v in VERDICTS}
+    done = counts["PASS"] + counts["FAIL"]
+    yield_text = f"{counts['PASS'] / done * 100:.1f} %" if done else "n/a"
+    print(f"{len(runs)} runs: " + ", ".join(f"{v} {n}" for v, n in counts.items() if n)
+          + f"; yield {yield_text}")
+    return 0
+
+
+def cmd_lot_report(args: argparse.Namespace) -> int:
+    from reports.lot_report import render_lot_report
+
+    db = _open_db(args, must_exist=True)
+    out = Path(args.out)
+    if out.suffix.lower() != ".pdf":
+        raise UserError(f"--out {out}: give a file name ending in .pdf")
+    try:
+        summary = render_lot_report(db, out, **_filters(args))
+    except ResultsDBError as exc:
+        raise UserError(str(exc)) from exc
+    y = summary.yields
+    yf = f"{y.yield_fraction * 100:.1f} %" if y.yield_fraction is not None else "n/a"
+    print(f"{out}: {y.runs} runs, yield {yf}, {summary.pages} pages")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = subparsers.add_parser("report", help="render a run folder's certificate again")
+    p.add_argument("run_folder", metavar="RUN_FOLDER")
+    p.add_argument("--index", action="store_true", help="also (re)index it in the database")
+    p.add_argument("--db", metavar="PATH", help="results database for --index")
+    p.set_defaults(handler=cmd_report)
+
+    p = subparsers.add_parser("history", help="list runs from the results database")
+    _add_filters(p)
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(handler=cmd_history)
+
+    p = subparsers.add_parser("lot-report", help="write a lot summary PDF")
+    _add_filters(p)
+    p.add_argument("--out", metavar="FILE.pdf", required=True, help="where to write the PDF")
+    p.set_defaults(handler=cmd_lot_report)
