@@ -1,0 +1,188 @@
+"""The certificate: content a quality engineer signs off from, vector-only, reproducible."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from procedures.record import read_record, write_record
+from reports.certificate import certificate_bytes, render_certificate
+from reports.styles import fmt
+from tests.reports.conftest import need_poppler, pdf_pages, pdf_text
+
+
+def _flat(text: str) -> str:
+    return re.sub(r"\s+", " ", text)
+
+
+def test_pass_certificate_names_serial_verdict_and_every_measurement(pass_run: Path) -> None:
+    pdf = pass_run / "certificate.pdf"
+    text = pdf_text(pdf)
+    record = read_record(pass_run)
+    assert "SIM-PASS-1" in text
+    page1 = pdf_text(pdf, page=1)
+    assert re.search(r"^\s*PASS\s*$", page1, re.M), "verdict banner missing on page one"
+    assert "Failing measurements" not in page1 and "Reason:" not in page1
+    lines = text.splitlines()
+    for m in record.measurements:
+        # the value on the same line as the name, in the results table
+        assert any(m.name in ln and fmt(m.value) in ln.split() for ln in lines), m.name
+
+
+def test_fail_certificate_names_the_failing_measurement_on_page_one(fail_run: Path) -> None:
+    pdf = fail_run / "certificate.pdf"
+    page1 = _flat(pdf_text(pdf, page=1))
+    assert "SIM-FAIL-2" in page1
+    assert re.search(r"\bFAIL\b", page1)
+    assert "Failing measurements: bias_dps = 12.5 deg/s (limits -10 .. 10)" in page1
+    # the passing measurements are not named as failing
+    failing_line = page1.split("Failing measurements:")[1].split("INSTRUMENT")[0]
+    assert "scale_temp_coeff_per_c" not in failing_line
+    text = pdf_text(pdf)
+    for m in read_record(fail_run).measurements:
+        assert any(m.name in ln and fmt(m.value) in ln.split() for ln in text.splitlines())
+
+
+def test_overdue_instrument_is_stated_on_page_one(fail_run: Path, pass_run: Path) -> None:
+    assert "CALIBRATION OVERDUE" in pdf_text(fail_run / "certificate.pdf", page=1)
+    assert "chamber" in pdf_text(fail_run / "certificate.pdf", page=1)
+    assert "OVERDUE" not in pdf_text(pass_run / "certificate.pdf")
+
+
+def test_traceability_shows_hashes_instruments_and_times(pass_run: Path) -> None:
+    text = _flat(pdf_text(pass_run / "certificate.pdf", layout=False))
+    rec = read_record(pass_run)
+    assert rec.raw_data is not None
+    for sha in (rec.procedure.sha256, rec.product.sha256, rec.raw_data.sha256):
+        assert sha in text.replace(" ", "")
+    for inst in rec.instruments:
+        assert inst.serial in text and str(inst.calibration_due) in text
+    assert "2026-11-21 09:30:00 UTC" in text
+    assert "10:30:00 CET (Europe/Berlin)" in text  # station local time
+    assert "EOL-03" in text and "A. Tester" in text and "0.1.0+test" in text
+
+
+def test_every_page_renders_numbered_and_marked_simulated(pass_run: Path, tmp_path: Path) -> None:
+    pdf = pass_run / "certificate.pdf"
+    n = pdf_pages(pdf)
+    assert n >= 3
+    subprocess.run(["pdftoppm", "-r", "30", "-png", str(pdf), str(tmp_path / "p")], check=True)
+    pngs = sorted(tmp_path.glob("p-*.png"))
+    assert len(pngs) == n
+    assert all(p.stat().st_size > 1000 for p in pngs)
+    for i in range(1, n + 1):
+        page = pdf_text(pdf, page=i)
+        assert f"page {i} of {n}" in page
+        assert "SIMULATED BENCH" in page
+
+
+def test_real_bench_run_carries_no_simulated_mark(tmp_path: Path, pass_run: Path) -> None:
+    folder = tmp_path / pass_run.name
+    shutil.copytree(pass_run, folder)
+    rec = read_record(folder)
+    write_record(folder, rec.model_copy(update={"simulated": False}))
+    text = pdf_text(render_certificate(folder))
+    assert "SIMULATED" not in text
+    assert "real instruments" in text
+
+
+def test_certificate_holds_no_raster_image(pass_run: Path) -> None:
+    need_poppler()
+    pdf = pass_run / "certificate.pdf"
+    listing = subprocess.run(["pdfimages", "-list", str(pdf)], capture_output=True, text=True,
+                             check=True).stdout.splitlines()
+    assert len(listing) == 2, listing  # header lines only, no image rows
+    assert b"/Subtype /Image" not in pdf.read_bytes()
+
+
+def test_plots_are_drawn_with_their_captions(pass_run: Path) -> None:
+    text = _flat(pdf_text(pass_run / "certificate.pdf", layout=False))
+    for title in ("Stop method, condition T25_V4.75", "Output versus input",
+                  "Residual from the fitted line", "Allan deviation T25_V5.25", "Die temperature",
+                  "static (bias) window", "integration window", "ARW 0.6 deg/sqrt(h)"):
+        assert title in text, title
+    assert "Not drawn" not in text
+
+
+def test_calibration_section_states_sign_conventions_and_readback(pass_run: Path) -> None:
+    text = _flat(pdf_text(pass_run / "certificate.pdf", layout=False))
+    assert "bias correction is minus the bias (-3.1 deg/s here)" in text
+    assert f"input divided by output ({fmt(1 / 1.021)} here)" in text
+    assert "Read-back check: PASSED" in text
+    assert "k = 2" in text
+
+
+def test_rendering_twice_gives_identical_bytes_anywhere(pass_run: Path, tmp_path: Path) -> None:
+    first = certificate_bytes(pass_run)
+    assert certificate_bytes(pass_run) == first
+    moved = tmp_path / "elsewhere" / pass_run.name
+    shutil.copytree(pass_run, moved)
+    assert certificate_bytes(moved) == first  # no machine or path dependence
+    assert b"D:20261121100100+00'00'" in first  # dated by the run, not by now
+
+
+def test_missing_raw_data_gives_error_certificate_saying_what_is_missing(fresh_run: Path) -> None:
+    (fresh_run / "raw.h5").unlink()
+    pdf = render_certificate(fresh_run)
+    page1 = _flat(pdf_text(pdf, page=1))
+    assert re.search(r"\bERROR\b", page1)
+    assert "raw data file raw.h5 is missing" in page1
+    assert "the run itself recorded PASS" in page1
+    assert "Not drawn" in _flat(pdf_text(pdf))
+
+
+def test_corrupt_raw_data_gives_error_certificate(fresh_run: Path) -> None:
+    (fresh_run / "raw.h5").write_bytes(b"\x89HDF garbage, truncated by a crash")
+    page1 = _flat(pdf_text(render_certificate(fresh_run), page=1))
+    assert "ERROR" in page1 and "raw data unreadable" in page1
+    assert "does not match the SHA-256" in page1
+
+
+def test_altered_raw_data_is_caught_by_its_hash(fresh_run: Path) -> None:
+    rec = read_record(fresh_run)
+    assert rec.raw_data is not None
+    write_record(fresh_run, rec.model_copy(update={
+        "raw_data": rec.raw_data.model_copy(update={"sha256": "0" * 64})}))
+    page1 = _flat(pdf_text(render_certificate(fresh_run), page=1))
+    assert "ERROR" in page1 and "does not match the SHA-256 in record.json" in page1
+
+
+@pytest.mark.parametrize("damage", ["missing", "not json", "not a record"])
+def test_broken_record_gives_error_certificate(fresh_run: Path, damage: str) -> None:
+    path = fresh_run / "record.json"
+    if damage == "missing":
+        path.unlink()
+    elif damage == "not json":
+        path.write_text('{"run_id": "x", ', encoding="utf-8")
+    else:
+        path.write_text('{"run_id": "x"}', encoding="utf-8")
+    pdf = render_certificate(fresh_run)
+    page1 = _flat(pdf_text(pdf, page=1))
+    assert "ERROR" in page1
+    expected = {"missing": "no record.json", "not json": "not valid JSON",
+                "not a record": "not a valid run record"}[damage]
+    assert expected in page1
+    assert pdf_pages(pdf) >= 1
+
+
+def test_aborted_run_states_its_reason(tmp_path: Path) -> None:
+    from tests.reports.synth_run import Part, make_run
+
+    folder, _ = make_run(tmp_path, Part(serial="SIM-ABT-4", verdict="ABORTED"))
+    page1 = _flat(pdf_text(render_certificate(folder), page=1))
+    assert "ABORTED" in page1 and "Reason: run reason: operator pressed stop" in page1
+
+
+def test_missing_analysis_draws_boxes_saying_why(fresh_run: Path) -> None:
+    rec = read_record(fresh_run)
+    write_record(fresh_run, rec.model_copy(update={"analysis": {}}))
+    text = _flat(pdf_text(render_certificate(fresh_run), layout=False))
+    assert "Not drawn: record.analysis['allan'] is not in the record" in text
+    # rate-table and stop-method plots fall back to raw.h5
+    assert "computed from raw.h5 plateau means" in text
+    assert "Stop method, condition T45_V5.25" in text
+    assert re.search(r"\bPASS\b", text)
