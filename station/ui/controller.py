@@ -1,0 +1,290 @@
+"""The station's live state as the pages see it, and the rules around starting a run.
+
+One run at a time per fixture: a second Start while a run is in progress is refused with a
+message naming the run. Serials are validated here against the product's pattern (never
+trust the page). Every change is published to the hub; `snapshot()` is what a page that
+(re)connects receives first, so a reload mid-run shows the run in progress.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from dataclasses import asdict
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from station.errors import UserError
+from station.ui.hub import Hub
+from station.ui.runner_adapter import ProductChoice, Runner, StartRequest
+
+log = logging.getLogger(__name__)
+
+SERIAL_MAX_CHARS = 64
+CHART_MAX_POINTS = 1200  # per socket; older points are thinned, never the newest
+SAMPLE_PUSH_INTERVAL_S = 0.2  # live chart updates at most 5 times a second
+
+
+class RunRefused(UserError):
+    """Start refused: a run is in progress, or the request is incomplete."""
+
+
+class SerialRejected(UserError):
+    """A scanned serial does not fit the product's pattern."""
+
+    def __init__(self, socket: int, message: str) -> None:
+        super().__init__(message)
+        self.socket = socket
+
+
+def _now_utc() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+class Controller:
+    def __init__(self, runner: Runner, hub: Hub) -> None:
+        self.runner = runner
+        self.hub = hub
+        self._lock = threading.RLock()
+        procedure, product = runner.default_selection()
+        self._selection = {"procedure": procedure, "product": product}
+        self._generation = 0
+        self._run: dict[str, Any] | None = None
+        self._last: dict[str, Any] | None = None
+        self._instruments = [asdict(i) for i in runner.instruments()]
+        self._chart: dict[int, dict[str, list[float]]] = {}
+        self._pending: dict[int, dict[str, list[float]]] = {}
+        self._last_push_s = 0.0
+        self.run_folders: dict[str, Path] = {}  # certificate key -> run folder
+
+    # ------------------------------------------------------------------ reading
+
+    def snapshot(self) -> dict[str, Any]:
+        with self._lock:
+            return {
+                "type": "snapshot",
+                "station": asdict(self.runner.info),
+                "selection": self._selection_view(),
+                "run": self._run_view(),
+                "last": self._last,
+                "instruments": self._instruments,
+                "chart": {str(k): v for k, v in self._chart.items()},
+            }
+
+    def busy(self) -> bool:
+        with self._lock:
+            return self._run is not None
+
+    def product(self) -> ProductChoice:
+        path = self._selection["product"]
+        for product in self.runner.products():
+            if product.path == path:
+                return product
+        raise UserError(f"product {path} is no longer available; an engineer must select one")
+
+    def _selection_view(self) -> dict[str, Any]:
+        procedure = next(
+            (p for p in self.runner.procedures() if p.path == self._selection["procedure"]), None
+        )
+        try:
+            product: ProductChoice | None = self.product()
+        except UserError:
+            product = None
+        return {
+            "procedure": self._selection["procedure"],
+            "procedure_name": procedure.name if procedure else "",
+            "product": self._selection["product"],
+            "product_name": product.name if product else "",
+            "serial_pattern": product.serial_pattern if product else "",
+            "serial_example": product.serial_example if product else "",
+        }
+
+    def _run_view(self) -> dict[str, Any] | None:
+        if self._run is None:
+            return None
+        return {k: v for k, v in self._run.items() if not k.startswith("_")}
+
+    # ------------------------------------------------------------------ commands
+
+    def validate_serial(self, socket: int, serial: str) -> str:
+        """Return the serial as it will be used (trimmed) or raise SerialRejected with why."""
+        if socket not in self.runner.info.sockets:
+            raise SerialRejected(socket, f"socket {socket} does not exist on this fixture")
+        text = serial.strip()
+        if not text:
+            raise SerialRejected(socket, f"socket {socket}: no serial; scan the part's label")
+        if len(text) > SERIAL_MAX_CHARS:
+            raise SerialRejected(
+                socket, f"socket {socket}: serial longer than {SERIAL_MAX_CHARS} characters; rescan"
+            )
+        product = self.product()
+        if not re.fullmatch(product.serial_pattern, text):
+            example = f" such as {product.serial_example}" if product.serial_example else ""
+            raise SerialRejected(
+                socket,
+                f"socket {socket}: serial {text!r} is not a {product.name} serial "
+                f"(expected {product.serial_pattern}{example}); check the part and rescan",
+            )
+        return text
+
+    def start(self, serials: dict[int, str], operator: str = "") -> str:
+        """Validate and start a run; raises RunRefused or SerialRejected with the reason."""
+        with self._lock:
+            if self._run is not None:
+                serial_list = ", ".join(self._run["serials"].values())
+                raise RunRefused(
+                    f"a run is already in progress on this fixture ({serial_list}, "
+                    f"run {self._run['run_id']}); wait for it to finish or abort it first"
+                )
+            loaded = {s: v for s, v in serials.items() if v.strip()}
+            if not loaded:
+                raise RunRefused("no serial scanned; scan the label of each part in the fixture")
+            clean = {s: self.validate_serial(s, v) for s, v in sorted(loaded.items())}
+            if len(set(clean.values())) != len(clean):
+                raise RunRefused("the same serial is scanned in two sockets; rescan each part")
+            self._generation += 1
+            generation = self._generation
+            self._run = {
+                "run_id": "",
+                "serials": {str(k): v for k, v in clean.items()},
+                "procedure": self._selection["procedure"],
+                "product": self._selection["product"],
+                "operator": operator,
+                "started_utc": _now_utc(),
+                "steps": [],
+                "progress": None,
+                "aborting": False,
+            }
+            self._chart = {s: {"t_s": [], "rate_dps": [], "temp_c": []} for s in clean}
+            self._pending = {s: {"t_s": [], "rate_dps": [], "temp_c": []} for s in clean}
+            request = StartRequest(
+                serials=clean,
+                procedure_path=self._selection["procedure"],
+                product_path=self._selection["product"],
+                operator=operator,
+            )
+            self.hub.publish({"type": "run", "run": self._run_view()})
+
+            def sink(event: dict[str, Any]) -> None:
+                self._on_event(generation, event)
+
+            try:
+                run_id = self.runner.start(request, sink)
+            except UserError:
+                self._run = None
+                self.hub.publish({"type": "run", "run": None})
+                raise
+            except Exception as exc:
+                log.exception("the engine refused to start")
+                self._run = None
+                self.hub.publish({"type": "run", "run": None})
+                raise RunRefused(f"the station could not start the run: {exc}") from exc
+            if self._run is not None and self._generation == generation:
+                self._run["run_id"] = run_id
+                self.hub.publish({"type": "run", "run": self._run_view()})
+            return run_id
+
+    def abort(self) -> None:
+        with self._lock:
+            if self._run is None:
+                raise RunRefused("no run in progress: nothing to abort")
+            self._run["aborting"] = True
+            self.hub.publish({"type": "run", "run": self._run_view()})
+        self.runner.abort()
+
+    def select(self, procedure: str | None, product: str | None) -> None:
+        """Change procedure and/or product (the app checks the engineer role first)."""
+        with self._lock:
+            if self._run is not None:
+                raise RunRefused("a run is in progress; change the selection after it ends")
+            if procedure is not None:
+                if procedure not in {p.path for p in self.runner.procedures()}:
+                    raise UserError(f"unknown procedure {procedure!r}; pick one from the list")
+                self._selection["procedure"] = procedure
+            if product is not None:
+                if product not in {p.path for p in self.runner.products()}:
+                    raise UserError(f"unknown product {product!r}; pick one from the list")
+                self._selection["product"] = product
+            self.hub.publish({"type": "selection", "selection": self._selection_view()})
+
+    # ------------------------------------------------------------------ engine events
+
+    def _on_event(self, generation: int, event: dict[str, Any]) -> None:
+        with self._lock:
+            if generation != self._generation:
+                return  # a late event from a run that is already over
+            kind = event.get("type")
+            if kind == "samples":
+                self._on_samples(event)
+                return
+            if kind == "instruments":
+                self._instruments = list(event.get("instruments", []))
+            elif kind == "steps" and self._run is not None:
+                self._run["steps"] = list(event.get("steps", []))
+            elif kind == "progress" and self._run is not None:
+                progress = {k: v for k, v in event.items() if k != "type"}
+                progress["received_utc"] = _now_utc()
+                self._run["progress"] = progress
+            elif kind == "finished":
+                self._flush_samples(force=True)
+                self._finish(event)
+                return
+            self.hub.publish(event)
+
+    def _on_samples(self, event: dict[str, Any]) -> None:
+        socket = int(event.get("socket", 0))
+        pending = self._pending.get(socket)
+        if pending is None:
+            return
+        for key in ("t_s", "rate_dps", "temp_c"):
+            pending[key].extend(float(v) for v in event.get(key, []))
+        self._flush_samples(force=False)
+
+    def _flush_samples(self, *, force: bool) -> None:
+        now = time.monotonic()
+        if not force and now - self._last_push_s < SAMPLE_PUSH_INTERVAL_S:
+            return
+        self._last_push_s = now
+        for socket, pending in self._pending.items():
+            n = min(len(pending["t_s"]), len(pending["rate_dps"]), len(pending["temp_c"]))
+            if n == 0:
+                continue
+            step = max(1, n // 40)  # at most ~40 points per push per socket
+            chunk = {k: pending[k][:n:step] for k in pending}
+            for k in pending:
+                pending[k] = []
+            chart = self._chart.setdefault(socket, {"t_s": [], "rate_dps": [], "temp_c": []})
+            for k, values in chunk.items():
+                chart[k].extend(values)
+            if len(chart["t_s"]) > CHART_MAX_POINTS:
+                for k in chart:
+                    chart[k] = chart[k][::2]
+            self.hub.publish({"type": "samples", "socket": socket, **chunk})
+
+    def _finish(self, event: dict[str, Any]) -> None:
+        results = []
+        for result in event.get("results", []):
+            view = dict(result)
+            folder = view.pop("run_folder", None)
+            view["certificate_url"] = None
+            if folder:
+                key = Path(folder).name
+                self.run_folders[key] = Path(folder)
+                view["run_key"] = key
+                if (Path(folder) / "certificate.pdf").is_file():
+                    view["certificate_url"] = f"/runs/{key}/certificate.pdf"
+            results.append(view)
+        run = self._run or {}
+        self._last = {
+            "run_id": run.get("run_id", ""),
+            "finished_utc": _now_utc(),
+            "results": results,
+            "safe_state": event.get("safe_state"),
+            "message": event.get("message", ""),
+        }
+        self._run = None
+        self._generation += 1  # nothing from that run may change the state any more
+        self.hub.publish({"type": "finished", "last": self._last})

@@ -1,0 +1,154 @@
+"""Run history for the review screen: the run folders under the station's output directory.
+
+Each run folder holds its record.json (procedures/record.py), so the history is read from
+there; records are cached by modification time, so a refresh only reads new or changed runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from procedures.record import CERTIFICATE_FILE, RECORD_FILE, RunRecord, read_record
+
+log = logging.getLogger(__name__)
+
+_KEY_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.:+\-]{0,160}$")
+
+
+def result_from_record(record: RunRecord, folder: Path) -> dict[str, Any]:
+    """The UI's view of one part's finished run (what the verdict panel and review show)."""
+    failed = [
+        {
+            "name": m.name,
+            "value": m.value,
+            "units": m.units,
+            "low": m.low,
+            "high": m.high,
+            "condition": m.condition,
+        }
+        for m in record.measurements
+        if m.outcome == "FAIL"
+    ]
+    return {
+        "socket": record.dut.socket,
+        "serial": record.dut.serial,
+        "verdict": str(record.verdict),
+        "reason": record.reason,
+        "failed": failed,
+        "run_folder": str(folder),
+    }
+
+
+@dataclass(frozen=True)
+class RunFilter:
+    serial: str = ""  # substring, case-insensitive
+    verdict: str = ""  # PASS | FAIL | ERROR | ABORTED, empty for all
+    product: str = ""  # substring of the product name
+    operator: str = ""
+    since: str = ""  # ISO date or date-time, inclusive
+    until: str = ""  # ISO date or date-time, inclusive (a bare date covers the whole day)
+
+    def matches(self, row: dict[str, Any]) -> bool:
+        if self.serial and self.serial.lower() not in row["serial"].lower():
+            return False
+        if self.verdict and row["verdict"] != self.verdict.upper():
+            return False
+        if self.product and self.product.lower() not in row["product"].lower():
+            return False
+        if self.operator and self.operator.lower() not in row["operator"].lower():
+            return False
+        started = row["started_utc"]
+        if self.since and started < self.since:
+            return False
+        return not (self.until and started[: len(self.until)] > self.until)
+
+
+class History:
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = out_dir
+        self._lock = threading.Lock()
+        self._cache: dict[Path, tuple[float, dict[str, Any] | None]] = {}
+
+    def rows(self, flt: RunFilter | None = None) -> list[dict[str, Any]]:
+        """Every run, newest first, as flat rows for the review table."""
+        flt = flt or RunFilter()
+        rows = [r for r in self._scan() if flt.matches(r)]
+        rows.sort(key=lambda r: r["started_utc"], reverse=True)
+        return rows
+
+    def folder(self, key: str) -> Path | None:
+        """The run folder named `key`, only if it is one of this station's runs."""
+        if not _KEY_RE.match(key):
+            return None
+        candidate = self.out_dir / key
+        if (candidate / RECORD_FILE).is_file():
+            return candidate
+        return None
+
+    def _scan(self) -> list[dict[str, Any]]:
+        if not self.out_dir.is_dir():
+            return []
+        rows = []
+        with self._lock:
+            seen = set()
+            for record_path in self.out_dir.glob(f"*/{RECORD_FILE}"):
+                folder = record_path.parent
+                seen.add(folder)
+                try:
+                    mtime = record_path.stat().st_mtime
+                except OSError:
+                    continue
+                cached = self._cache.get(folder)
+                if cached is None or cached[0] != mtime:
+                    cached = (mtime, self._row(folder))
+                    self._cache[folder] = cached
+                if cached[1] is not None:
+                    rows.append(cached[1])
+            for gone in set(self._cache) - seen:
+                del self._cache[gone]
+        return rows
+
+    def _row(self, folder: Path) -> dict[str, Any] | None:
+        try:
+            record = read_record(folder)
+        except ValueError as exc:
+            log.warning("review skips a run folder: %s", exc)
+            return None
+        row = result_from_record(record, folder)
+        del row["run_folder"]
+        row.update(
+            key=folder.name,
+            run_id=record.run_id,
+            started_utc=record.started_utc,
+            finished_utc=record.finished_utc or "",
+            operator=record.operator,
+            product=record.product.name or Path(record.product.path).stem,
+            procedure=record.procedure.name or Path(record.procedure.path).stem,
+            simulated=record.simulated,
+            certificate_url=(
+                f"/runs/{folder.name}/certificate.pdf"
+                if (folder / CERTIFICATE_FILE).is_file()
+                else None
+            ),
+        )
+        return row
+
+
+def yield_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Counts per verdict and the yield: PASS over parts that completed (PASS + FAIL)."""
+    counts = {v: 0 for v in ("PASS", "FAIL", "ERROR", "ABORTED")}
+    for row in rows:
+        if row["verdict"] in counts:
+            counts[row["verdict"]] += 1
+    completed = counts["PASS"] + counts["FAIL"]
+    return {
+        "counts": counts,
+        "total": len(rows),
+        "completed": completed,
+        "yield": counts["PASS"] / completed if completed else None,
+    }

@@ -1,0 +1,64 @@
+"""Run the web app with uvicorn, in the foreground (CLI) or in a thread (tests, scripts)."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import uvicorn
+from fastapi import FastAPI
+
+
+@dataclass
+class BackgroundServer:
+    server: uvicorn.Server
+    thread: threading.Thread
+    url: str
+    before_stop: Callable[[], None] | None = None
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        if self.before_stop is not None:
+            self.before_stop()
+        self.server.should_exit = True
+        self.thread.join(timeout_s)
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _config(app: FastAPI, host: str, port: int, log_level: str) -> uvicorn.Config:
+    # Short graceful shutdown: open event streams would otherwise hold it up.
+    return uvicorn.Config(
+        app, host=host, port=port, log_level=log_level, timeout_graceful_shutdown=1,
+        access_log=False,
+    )
+
+
+def serve_forever(app: FastAPI, host: str, port: int, log_level: str = "warning") -> None:
+    uvicorn.Server(_config(app, host, port, log_level)).run()
+
+
+def serve_in_thread(
+    app: FastAPI,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    startup_timeout_s: float = 10.0,
+    before_stop: Callable[[], None] | None = None,
+) -> BackgroundServer:
+    """Start the app on a background thread; returns once it accepts connections."""
+    port = port or free_port(host)
+    server = uvicorn.Server(_config(app, host, port, "warning"))
+    thread = threading.Thread(target=server.run, name="station-ui", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + startup_timeout_s
+    while not server.started:
+        if not thread.is_alive() or time.monotonic() > deadline:
+            raise RuntimeError(f"the UI server did not start on {host}:{port}")
+        time.sleep(0.02)
+    return BackgroundServer(server, thread, f"http://{host}:{port}", before_stop)

@@ -1,0 +1,50 @@
+// Tiny two-axis line chart on a canvas: rate (left axis) and part temperature (right axis).
+"use strict";
+function drawChart(canvas, data) {
+  const dpr = window.devicePixelRatio || 1;
+  const w = canvas.clientWidth || canvas.width, h = canvas.clientHeight || canvas.height;
+  if (canvas.width !== Math.round(w * dpr)) { canvas.width = Math.round(w * dpr); canvas.height = Math.round(h * dpr); }
+  const g = canvas.getContext("2d");
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, w, h);
+  const t = (data && data.t_s) || [];
+  const pad = { l: 52, r: 46, t: 8, b: 20 };
+  g.font = "11px system-ui,sans-serif";
+  g.strokeStyle = "#d1d5db";
+  g.strokeRect(pad.l, pad.t, w - pad.l - pad.r, h - pad.t - pad.b);
+  if (t.length < 2) {
+    g.fillStyle = "#6b7280";
+    g.fillText("waiting for samples", pad.l + 8, pad.t + 18);
+    return;
+  }
+  const t0 = t[0], t1 = t[t.length - 1] > t0 ? t[t.length - 1] : t0 + 1;
+  const x = (v) => pad.l + ((v - t0) / (t1 - t0)) * (w - pad.l - pad.r);
+  const series = [
+    { v: data.rate_dps, color: "#2563eb", side: "l" },
+    { v: data.temp_c, color: "#ea580c", side: "r" },
+  ];
+  for (const s of series) {
+    let lo = Infinity, hi = -Infinity;
+    for (const v of s.v) if (v !== null && isFinite(v)) { if (v < lo) lo = v; if (v > hi) hi = v; }
+    if (!isFinite(lo)) continue;
+    if (hi - lo < 1e-6) { lo -= 0.5; hi += 0.5; }
+    const m = (hi - lo) * 0.05; lo -= m; hi += m;
+    const y = (v) => pad.t + (1 - (v - lo) / (hi - lo)) * (h - pad.t - pad.b);
+    g.strokeStyle = s.color; g.lineWidth = 1.5; g.beginPath();
+    let pen = false;
+    for (let i = 0; i < t.length; i++) {
+      const v = s.v[i];
+      if (v === null || !isFinite(v)) { pen = false; continue; }
+      if (pen) g.lineTo(x(t[i]), y(v)); else { g.moveTo(x(t[i]), y(v)); pen = true; }
+    }
+    g.stroke();
+    g.fillStyle = s.color;
+    const tx = s.side === "l" ? 2 : w - pad.r + 4;
+    g.fillText(fmt(hi - m), tx, pad.t + 10);
+    g.fillText(fmt(lo + m), tx, h - pad.b);
+  }
+  g.fillStyle = "#6b7280";
+  g.fillText(fmt(t0) + " s", pad.l, h - 5);
+  g.fillText(fmt(t1) + " s", w - pad.r - 40, h - 5);
+}
+function fmt(v) { const a = Math.abs(v); return a >= 1000 ? v.toFixed(0) : a >= 10 ? v.toFixed(1) : v.toFixed(2); }

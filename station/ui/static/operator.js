@@ -1,0 +1,270 @@
+// Operator screen: state comes from the server as a snapshot, then as pushed events (SSE).
+"use strict";
+const $ = (id) => document.getElementById(id);
+const S = { station: null, selection: null, run: null, last: null, instruments: [], chart: {}, role: "operator" };
+const sockets = {};  // socket number -> {root, input, msg, ...}
+let progressAt = 0;  // performance.now() when the last progress event arrived
+window.__ui = { startClickedAt: null, firstProgressMs: null, firstRunEventMs: null, events: 0 };
+
+async function api(path, body) {
+  const opt = body === undefined ? {} : { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) };
+  const r = await fetch(path, opt);
+  let data = {};
+  try { data = await r.json(); } catch (e) { data = { error: "the station answered " + r.status }; }
+  return { ok: r.ok, status: r.status, data };
+}
+
+// ---------------------------------------------------------------- rendering
+function buildSockets() {
+  const box = $("sockets"), tpl = $("socket-tpl");
+  for (const n of S.station.sockets) {
+    if (sockets[n]) continue;
+    const root = tpl.content.firstElementChild.cloneNode(true);
+    root.id = "socket-" + n;
+    root.querySelector(".socket-no").textContent = n;
+    const s = {
+      root, input: root.querySelector(".serial"), msg: root.querySelector(".serial-msg"),
+      box: root.querySelector(".verdict-box"), verdict: root.querySelector(".verdict"),
+      vserial: root.querySelector(".verdict-serial"), reasons: root.querySelector(".reasons"),
+      cert: root.querySelector(".certificate"), canvas: root.querySelector(".chart"),
+    };
+    s.input.id = "serial-" + n;
+    s.input.addEventListener("keydown", (e) => { if (e.key === "Enter") { e.preventDefault(); validate(n); } });
+    s.input.addEventListener("input", () => { s.input.classList.remove("ok", "bad"); s.msg.textContent = ""; });
+    sockets[n] = s;
+    box.appendChild(root);
+  }
+}
+
+function renderInstruments() {
+  const box = $("instruments");
+  box.textContent = "";
+  for (const i of S.instruments) {
+    const d = document.createElement("div");
+    d.className = "inst";
+    d.dataset.name = i.name;
+    d.title = i.detail || "";
+    const cal = i.in_calibration === null ? "warn" : i.in_calibration ? "on" : "bad";
+    d.innerHTML = "<b></b>" +
+      `<span class="light ${i.connected ? "on" : "bad"}" data-light="connected"></span>connected` +
+      `<span class="light ${cal}" data-light="calibration"></span>in cal` +
+      `<span class="light ${i.faulted ? "bad" : ""}" data-light="fault"></span>fault`;
+    d.querySelector("b").textContent = i.name + (i.calibration_due ? " (due " + i.calibration_due + ")" : "");
+    box.appendChild(d);
+  }
+}
+
+function renderSelection() {
+  const sel = S.selection || {};
+  $("procedure-name").textContent = sel.procedure_name || sel.procedure || "-";
+  $("product-name").textContent = sel.product_name || sel.product || "-";
+  $("serial-pattern").textContent = sel.serial_example ? sel.serial_example : sel.serial_pattern || "-";
+  $("serial-pattern").title = sel.serial_pattern || "";
+}
+
+function renderRole() {
+  const eng = S.role === "engineer";
+  $("role-badge").textContent = eng ? "ENGINEER" : "OPERATOR";
+  $("role-badge").classList.toggle("engineer", eng);
+  $("engineer-btn").textContent = eng ? "Log out" : "Engineer";
+  $("engineer-panel").hidden = !eng;
+  if (eng) loadChoices(); else { $("procedure-select").textContent = ""; $("product-select").textContent = ""; }
+}
+
+function renderRun() {
+  const run = S.run;
+  const running = !!run;
+  $("start-btn").disabled = running;
+  $("abort-btn").disabled = !running || run.aborting;
+  $("apply-selection").disabled = running;
+  for (const n in sockets) sockets[n].input.disabled = running;
+  $("progress").hidden = !running;
+  if (!running) return;
+  for (const [n, serial] of Object.entries(run.serials)) if (sockets[n]) sockets[n].input.value = serial;
+  const p = run.progress;
+  $("step-name").textContent = run.aborting ? "Aborting: cleaning up..." : p ? p.step : "Starting...";
+  $("condition-name").textContent = p && p.condition ? p.condition : "";
+  $("bar-fill").style.width = (p ? Math.max(0, Math.min(1, p.fraction)) * 100 : 0) + "%";
+  const list = $("step-list");
+  list.textContent = "";
+  const current = p ? p.step_index : -1;
+  run.steps.forEach((name, i) => {
+    const li = document.createElement("li");
+    li.textContent = name;
+    li.className = i < current ? "done" : i === current ? "current" : "";
+    list.appendChild(li);
+  });
+  renderRemaining();
+}
+
+function renderRemaining() {
+  const p = S.run && S.run.progress;
+  if (!p || p.remaining_s === null || p.remaining_s === undefined) { $("remaining").textContent = ""; return; }
+  const left = Math.max(0, p.remaining_s - (performance.now() - progressAt) / 1000);
+  const m = Math.floor(left / 60), s = Math.floor(left % 60);
+  $("remaining").textContent = (m ? m + " min " : "") + s + " s left";
+}
+
+function renderLast() {
+  for (const n in sockets) sockets[n].box.hidden = true;
+  const last = S.last;
+  if (!last) return;
+  for (const r of last.results) {
+    const s = sockets[r.socket];
+    if (!s) continue;
+    s.box.hidden = false;
+    s.box.className = "verdict-box " + r.verdict;
+    s.verdict.textContent = r.verdict;
+    s.vserial.textContent = r.serial;
+    s.reasons.textContent = "";
+    const lines = r.failed.map((f) => `${f.name}${f.condition ? " @ " + f.condition : ""}: ${num(f.value)} ${f.units} (limits ${num(f.low)} .. ${num(f.high)})`);
+    if (r.reason && !lines.length) lines.push(r.reason);
+    else if (r.reason && r.verdict !== "PASS") lines.unshift(r.reason);
+    for (const line of lines) { const li = document.createElement("li"); li.textContent = line; s.reasons.appendChild(li); }
+    s.cert.hidden = !r.certificate_url;
+    if (r.certificate_url) s.cert.href = r.certificate_url;
+  }
+}
+
+function num(v) { return v === null || v === undefined ? "-" : Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0) ? v.toExponential(3) : +v.toPrecision(5); }
+
+function renderCharts() { for (const n in sockets) drawChart(sockets[n].canvas, S.chart[n]); }
+
+function renderAll() {
+  $("station-name").textContent = S.station.name;
+  $("sim-badge").hidden = !S.station.simulated;
+  buildSockets(); renderInstruments(); renderSelection(); renderRun(); renderLast(); renderCharts();
+}
+
+// ---------------------------------------------------------------- live events
+function apply(ev) {
+  window.__ui.events++;
+  switch (ev.type) {
+    case "snapshot":
+      Object.assign(S, { station: ev.station, selection: ev.selection, run: ev.run, last: ev.last, instruments: ev.instruments, chart: ev.chart || {} });
+      progressAt = performance.now();
+      renderAll();
+      break;
+    case "run":
+      if (ev.run && window.__ui.startClickedAt !== null && window.__ui.firstRunEventMs === null) window.__ui.firstRunEventMs = performance.now() - window.__ui.startClickedAt;
+      if (ev.run && (!S.run || S.run.started_utc !== ev.run.started_utc)) { S.chart = {}; S.last = null; renderLast(); renderCharts(); }
+      S.run = ev.run; renderRun(); break;
+    case "steps": if (S.run) { S.run.steps = ev.steps; renderRun(); } break;
+    case "progress":
+      if (window.__ui.startClickedAt !== null && window.__ui.firstProgressMs === null) window.__ui.firstProgressMs = performance.now() - window.__ui.startClickedAt;
+      if (S.run) { S.run.progress = ev; progressAt = performance.now(); renderRun(); }
+      break;
+    case "samples": {
+      const c = S.chart[ev.socket] || (S.chart[ev.socket] = { t_s: [], rate_dps: [], temp_c: [] });
+      for (const k of ["t_s", "rate_dps", "temp_c"]) c[k].push(...ev[k]);
+      if (c.t_s.length > 1500) for (const k in c) c[k] = c[k].filter((_, i) => i % 2 === 0);
+      scheduleCharts();
+      break;
+    }
+    case "instruments": S.instruments = ev.instruments; renderInstruments(); break;
+    case "selection": S.selection = ev.selection; renderSelection(); if (S.role === "engineer") loadChoices(); break;
+    case "finished":
+      S.run = null; S.last = ev.last; renderRun(); renderLast(); readyForNext(); break;
+  }
+}
+
+let chartQueued = false;
+function scheduleCharts() { if (!chartQueued) { chartQueued = true; requestAnimationFrame(() => { chartQueued = false; renderCharts(); }); } }
+
+function readyForNext() {
+  for (const n in sockets) { const s = sockets[n]; s.input.value = ""; s.input.classList.remove("ok", "bad"); s.msg.textContent = ""; }
+  const first = Object.keys(sockets)[0];
+  if (first) sockets[first].input.focus();
+}
+
+function connect() {
+  const es = new EventSource("/api/events");
+  es.onopen = () => { $("conn").hidden = true; };
+  es.onmessage = (m) => apply(JSON.parse(m.data));
+  es.onerror = () => { $("conn").hidden = false; };
+}
+
+// ---------------------------------------------------------------- commands
+async function validate(n) {
+  const s = sockets[n];
+  const r = await api("/api/validate", { socket: +n, serial: s.input.value });
+  s.input.classList.toggle("ok", r.ok);
+  s.input.classList.toggle("bad", !r.ok);
+  s.msg.textContent = r.ok ? "" : r.data.error;
+  if (!r.ok) { s.input.select(); return false; }
+  s.input.value = r.data.serial;
+  const keys = Object.keys(sockets);
+  const next = keys.find((k) => +k > +n && !sockets[k].input.value);
+  (next ? sockets[next].input : $("start-btn")).focus();
+  return true;
+}
+
+async function start() {
+  $("message").textContent = "";
+  const serials = {};
+  for (const n in sockets) serials[n] = sockets[n].input.value;
+  window.__ui.startClickedAt = performance.now();
+  window.__ui.firstProgressMs = null; window.__ui.firstRunEventMs = null;
+  const r = await api("/api/start", { serials, operator: $("operator-id").value });
+  if (!r.ok) {
+    window.__ui.startClickedAt = null;
+    $("message").textContent = r.data.error;
+    if (r.data.socket && sockets[r.data.socket]) {
+      const s = sockets[r.data.socket];
+      s.input.classList.add("bad"); s.msg.textContent = r.data.error;
+    }
+  }
+}
+
+async function abortRun() {
+  $("abort-dialog").close();
+  const r = await api("/api/abort", {});
+  if (!r.ok) $("message").textContent = r.data.error;
+}
+
+async function loadChoices() {
+  const r = await api("/api/choices");
+  if (!r.ok) { $("selection-msg").textContent = r.data.error; return; }
+  fill($("procedure-select"), r.data.procedures, r.data.selection.procedure);
+  fill($("product-select"), r.data.products, r.data.selection.product);
+}
+
+function fill(select, items, current) {
+  select.textContent = "";
+  for (const it of items) { const o = new Option(it.name, it.path); o.selected = it.path === current; select.appendChild(o); }
+}
+
+async function applySelection() {
+  const r = await api("/api/select", { procedure: $("procedure-select").value, product: $("product-select").value });
+  $("selection-msg").textContent = r.ok ? "Applied" : r.data.error;
+}
+
+async function engineerButton() {
+  if (S.role === "engineer") { await api("/api/logout", {}); S.role = "operator"; renderRole(); return; }
+  $("login-msg").textContent = ""; $("password").value = "";
+  $("login-dialog").showModal();
+}
+
+async function login(e) {
+  e.preventDefault();
+  const r = await api("/api/login", { password: $("password").value });
+  if (!r.ok) { $("login-msg").textContent = r.data.error; return; }
+  $("login-dialog").close();
+  S.role = "engineer"; renderRole();
+}
+
+// ---------------------------------------------------------------- wiring
+$("start-btn").addEventListener("click", start);
+$("abort-btn").addEventListener("click", () => $("abort-dialog").showModal());
+$("abort-confirm").addEventListener("click", abortRun);
+$("abort-cancel").addEventListener("click", () => $("abort-dialog").close());
+$("engineer-btn").addEventListener("click", engineerButton);
+$("login-form").addEventListener("submit", login);
+$("login-cancel").addEventListener("click", () => $("login-dialog").close());
+$("apply-selection").addEventListener("click", applySelection);
+$("operator-id").value = localStorage.getItem("operator") || "";
+$("operator-id").addEventListener("change", () => localStorage.setItem("operator", $("operator-id").value));
+setInterval(renderRemaining, 1000);
+window.addEventListener("resize", scheduleCharts);
+api("/api/whoami").then((r) => { if (r.ok) { S.role = r.data.role; renderRole(); } });
+connect();

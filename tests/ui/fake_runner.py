@@ -1,0 +1,134 @@
+"""An in-process stand-in for the engine, for the UI-mechanics tests only.
+
+It walks through named steps on a timer, streams samples, writes a real record.json (the
+pinned format) and a small PDF per part, fails parts whose serial contains "BAD", and honours
+abort by ending ABORTED after its cleanup. The real engine is exercised by test_station_sim.py.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from procedures.record import (
+    Dut,
+    FileRef,
+    Measurement,
+    Outcome,
+    RunRecord,
+    Verdict,
+    write_record,
+)
+from station.ui.history import result_from_record
+from station.ui.runner_adapter import (
+    Choice,
+    EventSink,
+    InstrumentLight,
+    ProductChoice,
+    StartRequest,
+    StationInfo,
+)
+
+STEPS = ["connect", "power", "stabilise", "rate table", "stop method", "fit", "verify"]
+PDF = b"%PDF-1.4\n1 0 obj<</Type/Catalog/Pages 2 0 R>>endobj\n2 0 obj<</Type/Pages/Kids[]/Count 0>>endobj\ntrailer<</Root 1 0 R>>\n%%EOF\n"
+
+
+class FakeRunner:
+    def __init__(self, out_dir: Path, sockets: list[int] | None = None, step_s: float = 0.05):
+        self.info = StationInfo(
+            name="Fake station", sockets=sockets or [1, 2], simulated=True, out_dir=str(out_dir)
+        )
+        self.out_dir = out_dir
+        self.step_s = step_s
+        self.started: list[StartRequest] = []
+        self.safe_state_calls = 0
+        self._abort = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def procedures(self) -> list[Choice]:
+        return [Choice("eol-full", "/cfg/full.yaml"), Choice("eol-short", "/cfg/short.yaml")]
+
+    def products(self) -> list[ProductChoice]:
+        return [
+            ProductChoice("GYR-130", "/cfg/gyr130.yaml", r"^[A-Z]{2,4}-[0-9]{4,8}$", "SIM-0001"),
+            ProductChoice("GYR-200", "/cfg/gyr200.yaml", r"^G2-[0-9]{6}$", "G2-000001"),
+        ]
+
+    def default_selection(self) -> tuple[str, str]:
+        return "/cfg/full.yaml", "/cfg/gyr130.yaml"
+
+    def instruments(self) -> list[InstrumentLight]:
+        return [
+            InstrumentLight("rate table", True, True, False, "2027-06-30"),
+            InstrumentLight("chamber", True, False, False, "2020-01-01", "calibration overdue"),
+            InstrumentLight("supply", True, None, False),
+        ]
+
+    def start(self, request: StartRequest, sink: EventSink) -> str:
+        self.started.append(request)
+        self._abort.clear()
+        run_id = f"fake-{len(self.started)}"
+        self._thread = threading.Thread(target=self._run, args=(request, sink), daemon=True)
+        self._thread.start()
+        return run_id
+
+    def abort(self) -> None:
+        self._abort.set()
+
+    def close(self) -> None:
+        self._abort.set()
+        if self._thread is not None:
+            self._thread.join(5)
+
+    def wait(self, timeout_s: float = 10.0) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+    def _run(self, request: StartRequest, sink: EventSink) -> None:
+        sink({"type": "steps", "steps": STEPS})
+        aborted = False
+        t = 0.0
+        for i, step in enumerate(STEPS):
+            if self._abort.is_set():
+                aborted = True
+                break
+            remaining = (len(STEPS) - i) * self.step_s
+            sink({"type": "progress", "step": step, "step_index": i, "step_count": len(STEPS),
+                  "condition": "T25_V5.00" if i >= 2 else "", "fraction": i / len(STEPS),
+                  "remaining_s": remaining})
+            for socket in request.serials:
+                ts = [t + k * 0.1 for k in range(10)]
+                sink({"type": "samples", "socket": socket, "t_s": ts,
+                      "rate_dps": [100 * math.sin(x) for x in ts],
+                      "temp_c": [25 + 0.1 * x for x in ts]})
+            t += 1.0
+            self._abort.wait(self.step_s)
+        self.safe_state_calls += 1
+        results = [self._write(s, serial, request, aborted) for s, serial in request.serials.items()]
+        sink({"type": "finished", "results": results,
+              "safe_state": {"rate_table": True, "chamber": True, "supply": True}})
+
+    def _write(self, socket: int, serial: str, request: StartRequest, aborted: bool) -> dict:
+        now = datetime.now(UTC)
+        folder = self.out_dir / f"{now:%Y%m%dT%H%M%S%fZ}_{serial}"
+        bad = "BAD" in serial
+        bias = 14.2 if bad else 1.3
+        outcome = Outcome.FAIL if bad else Outcome.PASS
+        verdict = Verdict.ABORTED if aborted else Verdict.FAIL if bad else Verdict.PASS
+        record = RunRecord(
+            run_id=folder.name, verdict=verdict, started_utc=now.isoformat(),
+            finished_utc=now.isoformat(), operator=request.operator,
+            reason="aborted by the operator" if aborted else "raw_bias_dps out of limits" if bad else "",
+            dut=Dut(serial=serial, socket=socket),
+            product=FileRef(path=request.product_path, name="GYR-130", sha256="0" * 64),
+            procedure=FileRef(path=request.procedure_path, name="eol-full", sha256="0" * 64),
+            measurements=[] if aborted else [Measurement(
+                name="raw_bias_dps", value=bias, units="deg/s", low=-10, high=10, outcome=outcome)],
+        )
+        write_record(folder, record)
+        if not aborted:
+            (folder / "certificate.pdf").write_bytes(PDF)
+        return result_from_record(record, folder)
