@@ -1,0 +1,421 @@
+"""The part's link: the fixture microcontroller of one socket, on its own serial port.
+
+Wire format and command set: `drivers.fixture_protocol`. A background thread reads the port
+and feeds one `FrameParser`; sample frames pile up for `read_samples`, reply frames go to
+the command that is waiting for them (one command at a time, with a wall-clock timeout).
+While streaming, a part that sends nothing for `silent_after_s` of station time makes
+`read_samples` raise `PartSilent`; a fixture that does not answer a command raises
+`NoReply` (a `PartAbsent` and an `InstrumentTimeout`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+
+import numpy as np
+
+from drivers.clock import Clock
+from drivers.errors import (
+    ConnectionLost,
+    InstrumentError,
+    InstrumentTimeout,
+    PartAbsent,
+    PartSilent,
+    ProtocolError,
+    StreamCorrupted,
+)
+from drivers.fixture_protocol import (
+    CAL_KEYS,
+    OUTPUT_RATES_HZ,
+    Command,
+    FrameParser,
+    ReplyError,
+)
+from drivers.protocols import CalibrationRegisters, InstrumentIdentity, LinkStats, SampleBlock
+from drivers.scpi import SerialLike, open_serial
+
+log = logging.getLogger(__name__)
+
+# CAL? keys and the CalibrationRegisters field each one fills
+CAL_FIELDS = {
+    "bias": "bias_dps",
+    "scale": "scale",
+    "bias_tc": "bias_tc_dps_per_c",
+    "scale_tc": "scale_tc_per_c",
+    "bias_vc": "bias_vc_dps_per_v",
+    "scale_vc": "scale_vc_per_v",
+    "t0": "t0_c",
+    "v0": "v0_v",
+}
+assert tuple(CAL_FIELDS) == CAL_KEYS
+_CAL_TOLERANCE_REL = 1e-5
+_CAL_TOLERANCE_ABS = 1e-9
+
+
+class NoReply(PartAbsent, InstrumentTimeout):
+    """The fixture did not answer a command at all."""
+
+
+class FixtureRefused(InstrumentError):
+    """The fixture answered a command with ERR <code> <text>."""
+
+    def __init__(self, message: str, *, code: int, instrument: str | None = None) -> None:
+        super().__init__(message, instrument=instrument)
+        self.code = code
+
+
+class _Pending:
+    """Samples decoded since the last read_samples, plus counters (guarded by the link's lock)."""
+
+    def __init__(self) -> None:
+        self.chunks: list[tuple[np.ndarray, ...]] = []
+        self.lost = self.corrupted = self.discarded = 0
+
+
+class SerialPartLink:
+    """`drivers.protocols.PartLink` for one fixture socket.
+
+    Args:
+        port: an open serial port (pyserial `Serial` with a short read timeout).
+        clock: the station clock (silence is judged in station seconds).
+        socket: the fixture socket's name, for messages.
+        reply_timeout_s: wall seconds a command waits for its reply.
+        silent_after_s: station seconds without a frame, while streaming, before PartSilent.
+        loss_limit: more frames lost than this since start_stream makes read_samples raise
+            StreamCorrupted (None: never; the counts are in each SampleBlock either way).
+        batch_s: wall seconds the reader pauses after a small read so frames arrive in
+            batches (keeps the per-frame cost low at high rates).
+    """
+
+    def __init__(
+        self,
+        port: SerialLike,
+        clock: Clock,
+        *,
+        socket: str | int = 1,
+        reply_timeout_s: float = 1.0,
+        silent_after_s: float = 2.0,
+        loss_limit: int | None = None,
+        batch_s: float = 0.002,
+    ) -> None:
+        self._port = port
+        self._clock = clock
+        self.name = f"fixture on socket {socket}"
+        self.reply_timeout_s = reply_timeout_s
+        self.silent_after_s = silent_after_s
+        self.loss_limit = loss_limit
+        self._batch_s = batch_s
+        self._parser = FrameParser()
+        self._lock = threading.Lock()
+        self._command_lock = threading.Lock()
+        self._replies: queue.Queue[str] = queue.Queue()
+        self._data = threading.Event()
+        self._pending = _Pending()
+        self._totals = LinkStats()
+        self._reset_seq = False
+        self._streaming = False
+        self._last_frame_s = clock.now_s()
+        self._reader_error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read_loop, name=self.name, daemon=True)
+        self._thread.start()
+
+    @classmethod
+    def open(cls, path: str, clock: Clock, **kwargs) -> SerialPartLink:  # noqa: ANN003
+        return cls(open_serial(path, read_timeout_s=0.02), clock, **kwargs)
+
+    # ------------------------------------------------------------ reader thread
+
+    def _read_loop(self) -> None:
+        port = self._port
+        try:
+            while not self._stop.is_set():
+                waiting = port.in_waiting
+                data = port.read(waiting or 1)
+                if not data:
+                    continue
+                if not waiting:
+                    more = port.in_waiting
+                    if more:
+                        data += port.read(more)
+                self._consume(data)
+                if len(data) < 4096 and self._batch_s > 0:
+                    time.sleep(self._batch_s)
+        except Exception as exc:  # noqa: BLE001 - reported to the caller by _check_reader
+            if not self._stop.is_set():
+                log.error("%s: reader stopped: %s", self.name, exc)
+                self._reader_error = exc
+                self._data.set()
+
+    def _consume(self, data: bytes) -> None:
+        if self._reset_seq:
+            self._parser.reset_sequence()
+            self._reset_seq = False
+        result = self._parser.feed(data)
+        with self._lock:
+            p = self._pending
+            if result.seq.size:
+                p.chunks.append(
+                    (result.seq, result.time_s, result.rate_code, result.temp_code, result.status)
+                )
+                self._last_frame_s = self._clock.now_s()
+            p.lost += result.frames_lost
+            p.corrupted += result.frames_corrupted
+            p.discarded += result.bytes_discarded
+        for reply in result.replies:
+            self._replies.put(reply)
+        if result.seq.size:
+            self._data.set()
+
+    def _check_reader(self) -> None:
+        if self._reader_error is not None:
+            raise ConnectionLost(
+                f"the serial port of the {self.name} failed ({self._reader_error}): check the "
+                "fixture's cable, then reconnect",
+                instrument=self.name,
+            )
+
+    # ------------------------------------------------------------ commands
+
+    def command(self, text: str) -> str:
+        """Send one command line; return the data after OK, raise on ERR or no reply."""
+        with self._command_lock:
+            self._check_reader()
+            while not self._replies.empty():  # a late reply to an earlier command
+                log.warning("%s: discarding stale reply %r", self.name, self._replies.get_nowait())
+            try:
+                self._port.write(text.encode("ascii") + b"\n")
+            except Exception as exc:  # noqa: BLE001 - pyserial raises several types
+                raise ConnectionLost(
+                    f"cannot write to the {self.name}: {exc}; check its cable",
+                    instrument=self.name,
+                ) from exc
+            try:
+                reply = self._replies.get(timeout=self.reply_timeout_s)
+            except queue.Empty:
+                self._check_reader()
+                raise NoReply(
+                    f"the {self.name} did not answer {text!r} within {self.reply_timeout_s:g} s: "
+                    "check that the fixture is powered and its cable is in, and that a part "
+                    "is seated in the socket",
+                    instrument=self.name,
+                ) from None
+        return self._parse_reply(text, reply)
+
+    def _parse_reply(self, text: str, reply: str) -> str:
+        if reply == "OK" or reply.startswith("OK "):
+            return reply[3:]
+        if reply.startswith("ERR"):
+            parts = reply.split(" ", 2)
+            try:
+                code = int(parts[1])
+            except (IndexError, ValueError):
+                code = -1
+            detail = parts[2] if len(parts) > 2 else ""
+            if code == ReplyError.NO_PART:
+                raise PartAbsent(
+                    f"no part in the {self.name} ({detail}): seat a part and retry",
+                    instrument=self.name,
+                )
+            advice = {
+                ReplyError.NOT_POWERED: "switch the supply output on first",
+                ReplyError.BUSY_STREAMING: "stop streaming first",
+                ReplyError.OUT_OF_RANGE: "use a supported value",
+            }.get(code, "check the command against drivers/fixture_protocol.py")
+            raise FixtureRefused(
+                f"the {self.name} refused {text!r}: ERR {code} {detail}; {advice}",
+                code=code,
+                instrument=self.name,
+            )
+        raise ProtocolError(
+            f"the {self.name} answered {text!r} with {reply!r}, neither OK nor ERR",
+            instrument=self.name,
+        )
+
+    def identify(self) -> InstrumentIdentity:
+        reply = self.command(Command.IDENTIFY)
+        parts = [p.strip() for p in reply.split(",")]
+        if len(parts) != 4:
+            raise ProtocolError(
+                f"the {self.name} identified as {reply!r}, not 'maker,model,serial,firmware'",
+                instrument=self.name,
+            )
+        return InstrumentIdentity(*parts)
+
+    def part_present(self) -> bool:
+        reply = self.command(Command.PRESENT).strip()
+        if reply not in ("0", "1"):
+            raise ProtocolError(f"PRESENT? answered {reply!r}, not 0 or 1", instrument=self.name)
+        return reply == "1"
+
+    def read_part_serial(self) -> str:
+        serial = self.command(Command.PART_SERIAL).strip()
+        if not serial:
+            raise ProtocolError(
+                f"the part in the {self.name} gave an empty serial number", instrument=self.name
+            )
+        return serial
+
+    def set_output_rate(self, rate_hz: int) -> None:
+        if rate_hz not in OUTPUT_RATES_HZ:
+            raise ValueError(f"output data rate {rate_hz} Hz is not one of {OUTPUT_RATES_HZ}")
+        self.command(Command.OUTPUT_RATE.format(hz=rate_hz))
+
+    def set_compensation(self, enabled: bool) -> None:
+        self.command(Command.COMPENSATION.format(on=int(bool(enabled))))
+
+    def stop_angle(self) -> tuple[float, float]:
+        reply = self.command(Command.STOP_ANGLE).split()
+        try:
+            angle, sigma = float(reply[0]), float(reply[1])
+        except (IndexError, ValueError):
+            raise ProtocolError(
+                f"STOPANGLE? answered {' '.join(reply)!r}, not '<angle_deg> <uncertainty_deg>'",
+                instrument=self.name,
+            ) from None
+        return angle, sigma
+
+    # ------------------------------------------------------------ calibration registers
+
+    def read_calibration(self) -> CalibrationRegisters:
+        reply = self.command(Command.CAL_READ)
+        values: dict[str, float] = {}
+        for item in reply.split():
+            key, sep, value = item.partition("=")
+            if not sep or key not in CAL_FIELDS:
+                continue
+            try:
+                values[CAL_FIELDS[key]] = float(value)
+            except ValueError:
+                raise ProtocolError(
+                    f"CAL? gave {item!r}, not a number: {reply!r}", instrument=self.name
+                ) from None
+        missing = [k for k, f in CAL_FIELDS.items() if f not in values]
+        if missing:
+            raise ProtocolError(
+                f"CAL? answered {reply!r}, missing {', '.join(missing)}", instrument=self.name
+            )
+        return CalibrationRegisters(**values)
+
+    def write_calibration(self, registers: CalibrationRegisters) -> None:
+        """Write all calibration registers, then read them back and compare."""
+        wanted = {k: float(getattr(registers, f)) for k, f in CAL_FIELDS.items()}
+        bad = [k for k, v in wanted.items() if not math.isfinite(v)]
+        if bad:
+            raise ValueError(f"calibration values must be finite: {', '.join(bad)}")
+        assignments = " ".join(f"{k}={v:.9g}" for k, v in wanted.items())
+        self.command(Command.CAL_WRITE.format(assignments=assignments))
+        back = self.read_calibration()
+        diffs = [
+            f"{k} wrote {v:.9g} read {getattr(back, f):.9g}"
+            for (k, f), v in zip(CAL_FIELDS.items(), wanted.values(), strict=True)
+            if not math.isclose(
+                getattr(back, f), v, rel_tol=_CAL_TOLERANCE_REL, abs_tol=_CAL_TOLERANCE_ABS
+            )
+        ]
+        if diffs:
+            raise InstrumentError(
+                f"the part in the {self.name} did not keep its calibration ({'; '.join(diffs)}): "
+                "the write failed; retry once, then reject the part",
+                instrument=self.name,
+            )
+
+    # ------------------------------------------------------------ streaming
+
+    def start_stream(self) -> None:
+        with self._lock:
+            self._pending = _Pending()
+            self._totals = LinkStats()
+            self._last_frame_s = self._clock.now_s()
+            self._reset_seq = True
+        self._data.clear()
+        self.command(Command.START)
+        with self._lock:
+            self._streaming = True
+            self._last_frame_s = self._clock.now_s()
+
+    def stop_stream(self) -> None:
+        self._streaming = False
+        self.command(Command.STOP)
+
+    def _take(self) -> SampleBlock:
+        with self._lock:
+            p = self._pending
+            self._pending = _Pending()
+            self._data.clear()
+            block = self._block(p)
+            t = self._totals
+            self._totals = LinkStats(
+                frames_ok=t.frames_ok + len(block),
+                frames_lost=t.frames_lost + block.frames_lost,
+                frames_corrupted=t.frames_corrupted + block.frames_corrupted,
+                bytes_discarded=t.bytes_discarded + block.bytes_discarded,
+            )
+        return block
+
+    @staticmethod
+    def _block(p: _Pending) -> SampleBlock:
+        if not p.chunks:
+            empty_i = np.zeros(0, dtype=np.int64)
+            block = SampleBlock(empty_i, np.zeros(0), empty_i, empty_i, empty_i,
+                                p.lost, p.corrupted, p.discarded)
+        else:
+            cols = [np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*p.chunks, strict=True)]
+            block = SampleBlock(*cols, frames_lost=p.lost, frames_corrupted=p.corrupted,
+                                bytes_discarded=p.discarded)
+        return block
+
+    def read_samples(self, max_wait_s: float = 0.0) -> SampleBlock:
+        self._check_reader()
+        if max_wait_s > 0 and not self._data.is_set():
+            self._data.wait(max_wait_s)
+            self._check_reader()
+        block = self._take()
+        if self.loss_limit is not None and self._totals.frames_lost > self.loss_limit:
+            t = self._totals
+            raise StreamCorrupted(
+                f"the {self.name} lost {t.frames_lost} frames ({t.frames_corrupted} corrupted, "
+                f"{t.bytes_discarded} bytes discarded) since streaming started, more than the "
+                f"{self.loss_limit} allowed: check the fixture cable and its grounding",
+                instrument=self.name,
+            )
+        if self._streaming and not len(block):
+            silent_s = self._clock.now_s() - self._last_frame_s
+            if silent_s > self.silent_after_s:
+                raise PartSilent(
+                    f"the part in the {self.name} stopped sending frames {silent_s:.1f} s ago "
+                    f"while streaming: check its supply and seating; the run cannot continue "
+                    "with this part",
+                    instrument=self.name,
+                )
+        return block
+
+    def stats(self) -> LinkStats:
+        with self._lock:
+            p = self._pending
+            pending_ok = sum(c[0].size for c in p.chunks)
+            t = self._totals
+            return LinkStats(
+                frames_ok=t.frames_ok + pending_ok,
+                frames_lost=t.frames_lost + p.lost,
+                frames_corrupted=t.frames_corrupted + p.corrupted,
+                bytes_discarded=t.bytes_discarded + p.discarded,
+            )
+
+    def close(self) -> None:
+        self._stop.set()
+        cancel = getattr(self._port, "cancel_read", None)
+        if cancel is not None:
+            try:
+                cancel()
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                pass
+        self._thread.join(1.0)
+        try:
+            self._port.close()
+        except OSError as exc:
+            log.warning("closing the %s: %s", self.name, exc)

@@ -1,0 +1,149 @@
+"""A scripted fixture microcontroller on the master side of a pty, for part-link tests.
+
+It answers the command set of drivers.fixture_protocol and, once started, streams sample
+frames at `rate_fps` frames per wall second in 5 ms batches. Hooks let a test damage the
+stream (`mangle`), stop the frames (`go_silent`), or make the fixture deaf (`deaf`).
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import threading
+import time
+import tty
+from collections.abc import Callable
+
+import numpy as np
+
+from drivers import fixture_protocol as fp
+
+
+class FakeFixture:
+    def __init__(self, *, rate_fps: float = 2000.0, serial: str = "SIM-0001") -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self.rate_fps = rate_fps
+        self.serial = serial
+        self.commands: list[bytes] = []
+        self.cal = "bias=0 scale=1 bias_tc=0 scale_tc=0 bias_vc=0 scale_vc=0 t0=25 v0=5"
+        self.part_present = True
+        self.deaf = False
+        self.go_silent = False
+        self.cal_sticky_bias: float | None = None  # a part that does not keep bias
+        self.mangle: Callable[[bytes, int], bytes] | None = None  # (frames, first_seq) -> bytes
+        self.sent = 0
+        self.wall_streaming_s = 0.0
+        self._streaming = threading.Event()
+        self._stop = threading.Event()
+        self._wlock = threading.Lock()
+        self._threads = [
+            threading.Thread(target=self._commands, daemon=True),
+            threading.Thread(target=self._stream, daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def _write(self, data: bytes) -> None:
+        with self._wlock:
+            view = memoryview(data)
+            while view:
+                n = os.write(self.master, view)
+                view = view[n:]
+
+    def reply(self, text: str) -> None:
+        self._write(fp.encode_reply(text))
+
+    def _commands(self) -> None:
+        buf = b""
+        while not self._stop.is_set():
+            try:
+                if not select.select([self.master], [], [], 0.05)[0]:
+                    continue
+                buf += os.read(self.master, 1024)
+            except (OSError, ValueError):
+                return
+            while b"\n" in buf:
+                line, buf = buf.split(b"\n", 1)
+                self.commands.append(line)
+                if not self.deaf:
+                    self._handle(line.decode())
+
+    def _handle(self, line: str) -> None:
+        word, _, arg = line.partition(" ")
+        if word == "IDN?":
+            self.reply("OK TestCo,FIX-8,F001,0.9")
+        elif word == "PRESENT?":
+            self.reply(f"OK {int(self.part_present)}")
+        elif word == "SN?":
+            self.reply(f"OK {self.serial}" if self.part_present else "ERR 10 no part")
+        elif word == "ODR":
+            ok = arg.isdigit() and int(arg) in fp.OUTPUT_RATES_HZ
+            self.reply("OK" if ok else "ERR 3 rate not supported")
+        elif word == "START":
+            self.reply("OK")
+            self._streaming.set()
+        elif word == "STOP":
+            self._streaming.clear()
+            with self._wlock:  # wait for the batch in flight to be written
+                pass
+            self.reply("OK")
+        elif word == "CAL?":
+            self.reply(f"OK {self.cal}")
+        elif word == "CAL":
+            values = dict(item.split("=") for item in arg.split())
+            if self.cal_sticky_bias is not None:
+                values["bias"] = str(self.cal_sticky_bias)
+            self.cal = " ".join(f"{k}={v}" for k, v in values.items())
+            self.reply("OK")
+        elif word == "COMP":
+            self.reply("OK")
+        elif word == "STOPANGLE?":
+            self.reply("OK 90.130 0.050")
+        else:
+            self.reply("ERR 2 unknown command")
+
+    def _stream(self) -> None:
+        batch_s = 0.005
+        seq = 0
+        while not self._stop.is_set():
+            if not self._streaming.wait(0.05):
+                continue
+            t_start = time.monotonic()
+            sent_at_start = seq
+            while self._streaming.is_set() and not self._stop.is_set():
+                due = int((time.monotonic() - t_start) * self.rate_fps) + sent_at_start - seq
+                if due <= 0:
+                    time.sleep(batch_s)
+                    continue
+                if self.go_silent:
+                    time.sleep(batch_s)
+                    continue
+                idx = np.arange(seq, seq + due, dtype=np.int64)
+                data = fp.encode_samples(
+                    idx, idx * 1000, fp.RATE_ZERO_CODE + (idx % 1000), np.full(due, fp.TEMP_ZERO_CODE),
+                    np.zeros(due, dtype=np.int64),
+                )
+                if self.mangle is not None:
+                    data = self.mangle(data, seq)
+                with self._wlock:
+                    if not self._streaming.is_set():
+                        break
+                    view = memoryview(data)
+                    while view:
+                        view = view[os.write(self.master, view):]
+                seq += due
+                self.sent = seq
+            self.wall_streaming_s += time.monotonic() - t_start
+
+    def close(self) -> None:
+        self._stop.set()
+        self._streaming.clear()
+        try:
+            os.close(self.master)
+        except OSError:
+            pass
+        for t in self._threads:
+            t.join(1.0)
+        os.close(self.slave)

@@ -1,0 +1,179 @@
+"""Part link over a real pty against a scripted fixture: command bytes, replies, calibration
+write and read-back, streaming without loss, damage counted, silence and absence typed."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from drivers import fixture_protocol as fp
+from drivers.clock import ScaledClock
+from drivers.errors import InstrumentTimeout, PartAbsent, PartSilent, StreamCorrupted, InstrumentError
+from drivers.part_link import FixtureRefused, NoReply, SerialPartLink
+from drivers.protocols import CalibrationRegisters
+from tests.drivers._fixture_fake import FakeFixture
+
+
+@pytest.fixture
+def rig():
+    made = []
+
+    def build(*, rate_fps=2000.0, speed=1.0, **kw):
+        fixture = FakeFixture(rate_fps=rate_fps)
+        link = SerialPartLink.open(fixture.path, ScaledClock(speed), **kw)
+        made.append((fixture, link))
+        return fixture, link
+
+    yield build
+    for fixture, link in made:
+        link.close()
+        fixture.close()
+
+
+def collect(link, until_n=None, wall_s=1.0):
+    blocks = []
+    t_end = time.monotonic() + wall_s
+    while time.monotonic() < t_end:
+        blocks.append(link.read_samples(max_wait_s=0.05))
+        if until_n is not None and sum(len(b) for b in blocks) >= until_n:
+            break
+    return blocks
+
+
+def test_commands_are_ascii_lines_and_replies_parse(rig):
+    fixture, link = rig(reply_timeout_s=0.5)
+    ident = link.identify()
+    assert (ident.manufacturer, ident.model, ident.serial, ident.firmware) == (
+        "TestCo", "FIX-8", "F001", "0.9")
+    assert link.part_present() is True
+    assert link.read_part_serial() == "SIM-0001"
+    link.set_output_rate(200)
+    link.set_compensation(True)
+    assert link.stop_angle() == (90.13, 0.05)
+    assert fixture.commands == [b"IDN?", b"PRESENT?", b"SN?", b"ODR 200", b"COMP 1", b"STOPANGLE?"]
+
+
+def test_unsupported_rate_is_refused_locally_and_by_the_fixture(rig):
+    fixture, link = rig(reply_timeout_s=0.5)
+    with pytest.raises(ValueError, match="not one of"):
+        link.set_output_rate(300)
+    assert fixture.commands == []
+    with pytest.raises(FixtureRefused, match="ERR 2") as info:
+        link.command("BOGUS")
+    assert info.value.code == 2
+
+
+def test_calibration_write_is_read_back(rig):
+    fixture, link = rig(reply_timeout_s=0.5)
+    regs = CalibrationRegisters(
+        bias_dps=8.6, scale=1.0567, bias_tc_dps_per_c=0.0071, scale_tc_per_c=2.1e-4,
+        bias_vc_dps_per_v=0.05, scale_vc_per_v=1e-3, t0_c=25.0, v0_v=5.0,
+    )
+    link.write_calibration(regs)
+    assert fixture.commands[0] == (
+        b"CAL bias=8.6 scale=1.0567 bias_tc=0.0071 scale_tc=0.00021 bias_vc=0.05 "
+        b"scale_vc=0.001 t0=25 v0=5"
+    )
+    assert fixture.commands[1] == b"CAL?"
+    assert link.read_calibration() == regs
+
+
+def test_calibration_that_does_not_stick_is_reported(rig):
+    fixture, link = rig(reply_timeout_s=0.5)
+    fixture.cal_sticky_bias = 0.0
+    with pytest.raises(InstrumentError, match="bias wrote 8.6 read 0"):
+        link.write_calibration(CalibrationRegisters(bias_dps=8.6))
+
+
+def test_absent_part_raises_part_absent(rig):
+    fixture, link = rig(reply_timeout_s=0.5)
+    fixture.part_present = False
+    assert link.part_present() is False
+    with pytest.raises(PartAbsent, match="seat a part"):
+        link.read_part_serial()
+
+
+def test_deaf_fixture_raises_no_reply_within_its_timeout(rig):
+    fixture, link = rig(reply_timeout_s=0.2)
+    fixture.deaf = True
+    t0 = time.monotonic()
+    with pytest.raises(NoReply) as info:
+        link.read_part_serial()
+    assert 0.2 <= time.monotonic() - t0 < 0.5
+    assert isinstance(info.value, PartAbsent) and isinstance(info.value, InstrumentTimeout)
+
+
+def test_stream_start_stop_delivers_every_frame_in_order(rig):
+    fixture, link = rig(rate_fps=5000.0)
+    link.start_stream()
+    blocks = collect(link, wall_s=0.4)
+    link.stop_stream()
+    blocks.append(link.read_samples())
+    seq = np.concatenate([b.seq for b in blocks])
+    assert seq.size == fixture.sent > 1000
+    np.testing.assert_array_equal(seq, np.arange(seq.size) % fp.SEQ_MODULO)
+    assert sum(b.frames_lost for b in blocks) == 0
+    t = np.concatenate([b.time_s for b in blocks])
+    np.testing.assert_allclose(np.diff(t), 1e-3)
+    stats = link.stats()
+    assert (stats.frames_ok, stats.frames_lost, stats.frames_corrupted) == (seq.size, 0, 0)
+
+
+def test_damaged_frames_are_counted_and_never_delivered(rig):
+    fixture, link = rig(rate_fps=5000.0)
+    size = fp.SAMPLE_FRAME_SIZE
+    damaged: set[int] = set()
+
+    def mangle(data: bytes, first: int) -> bytes:
+        frames = bytearray(data)
+        out = bytearray()
+        for i in range(len(frames) // size):
+            k = first + i
+            frame = frames[i * size : (i + 1) * size]
+            if k % 97 == 5:  # flip a payload bit
+                frame[10] ^= 0x04
+                damaged.add(k)
+            elif k % 89 == 7:  # drop the frame
+                damaged.add(k)
+                continue
+            elif k % 83 == 3:  # noise before an intact frame
+                out += b"\x00\xa5\x13"
+            out += frame
+        return bytes(out)
+
+    fixture.mangle = mangle
+    link.start_stream()
+    blocks = collect(link, wall_s=0.5)
+    link.stop_stream()
+    blocks.append(link.read_samples())
+    seq = np.concatenate([b.seq for b in blocks])
+    expected = np.array([k for k in range(fixture.sent) if k not in damaged])
+    np.testing.assert_array_equal(seq, expected)
+    assert sum(b.frames_lost for b in blocks) == len(damaged)
+    assert sum(b.frames_corrupted for b in blocks) == sum(1 for k in damaged if k % 97 == 5)
+    assert link.stats().frames_lost == len(damaged)
+
+
+def test_loss_limit_raises_stream_corrupted(rig):
+    fixture, link = rig(rate_fps=5000.0, loss_limit=10)
+    size = fp.SAMPLE_FRAME_SIZE
+    fixture.mangle = lambda data, first: b"".join(
+        data[i : i + size] for i in range(0, len(data), size) if (first + i // size) % 10
+    )
+    link.start_stream()
+    with pytest.raises(StreamCorrupted, match="more than the 10 allowed"):
+        collect(link, wall_s=1.0)
+
+
+def test_silent_part_raises_part_silent_after_the_station_time_window(rig):
+    # 0.5 station s at speed 10 is 0.05 wall s
+    fixture, link = rig(rate_fps=2000.0, speed=10.0, silent_after_s=0.5)
+    link.start_stream()
+    assert len(collect(link, until_n=50, wall_s=1.0)) > 0
+    fixture.go_silent = True
+    t0 = time.monotonic()
+    with pytest.raises(PartSilent, match="stopped sending"):
+        collect(link, wall_s=2.0)
+    assert time.monotonic() - t0 < 0.05 + 0.3
