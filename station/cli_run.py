@@ -1,14 +1,31 @@
-"""`station run`, `station demo` and `station schema`."""
+"""`station run`, `station demo` and `station schema`.
+
+`run` is one UUT cycle (exit 0 PASS, 1 FAIL, 2 error or abort); `--sim` starts the simulated
+bench as its own process for the duration of the run. `demo` runs the default procedure on
+one simulated part. Both show a progress display and turn Ctrl-C into a clean abort (the
+bench is made safe and the record says ABORTED).
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
+import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
-from procedures.config import ProcedureConfig, ProductConfig
+from procedures.config import ConfigError, ProcedureConfig, ProductConfig
+from procedures.progress import ProgressEvent
 from station.errors import UserError
-from station.settings import StationSettings
+from station.settings import CONFIG_DIR, StationSettings, load_settings
+
+DEMO_SERIAL = "SIM-0001"
+DEMO_SPEED = 120.0
+DEFAULT_SIM_SPEED = 100.0
 
 SCHEMAS = {
     "procedure": ProcedureConfig,
@@ -33,7 +50,161 @@ def _schema(args: argparse.Namespace) -> int:
     return 0
 
 
+class ProgressDisplay:
+    """One updating line on a terminal; one line per step otherwise."""
+
+    def __init__(self, stream: Any = None) -> None:
+        self.stream = stream or sys.stdout
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._last_step = ""
+
+    def __call__(self, ev: ProgressEvent) -> None:
+        step = f"{ev.step} {ev.condition}".strip()
+        remaining = "" if ev.remaining_s is None else f"~{ev.remaining_s / 60:4.1f} min left"
+        sockets = " ".join(f"{k}:{v}" for k, v in sorted(ev.sockets.items()))
+        line = f"[{100 * ev.fraction:3.0f}%] {step:<26} {remaining:<15} t={ev.station_time_s:7.0f} s  {sockets}"
+        if self.tty:
+            self.stream.write("\r" + line[:110].ljust(110))
+            if ev.kind == "finished":
+                self.stream.write("\n")
+            self.stream.flush()
+        elif ev.kind in ("step", "finished", "part") and step != self._last_step or ev.kind == "finished":
+            self._last_step = step
+            print(line, file=self.stream, flush=True)
+
+
+@contextlib.contextmanager
+def _sigint_aborts(runner: Any) -> Iterator[None]:
+    """First Ctrl-C: clean abort (bench made safe, record ABORTED); second: hard interrupt."""
+    hits = {"n": 0}
+
+    def handler(signum: int, frame: Any) -> None:
+        hits["n"] += 1
+        if hits["n"] > 1:
+            raise KeyboardInterrupt
+        print("\nabort requested: making the bench safe...", file=sys.stderr, flush=True)
+        runner.abort("operator abort (Ctrl-C)")
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _duts(values: list[str]) -> dict[int, str]:
+    """`--dut SERIAL` fills sockets 1, 2, ...; `--dut 3=SERIAL` names the socket."""
+    out: dict[int, str] = {}
+    next_socket = 1
+    for v in values:
+        sock_text, sep, serial = v.partition("=")
+        if sep and sock_text.isdigit():
+            sock = int(sock_text)
+        else:
+            sock, serial = next_socket, v
+        if sock in out:
+            raise UserError(f"socket {sock} given twice; one serial per socket")
+        out[sock] = serial
+        next_socket = max(out) + 1
+    return out
+
+
+def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | None]:
+    """The bench config to start: the given file, or one part per scanned serial."""
+    if path:
+        p = Path(path)
+        if not p.is_file():
+            raise UserError(f"--sim-config {path}: no such file")
+        return p, None
+    return {"parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]}, DEFAULT_SIM_SPEED
+
+
+def run_cycle(args: argparse.Namespace, duts: dict[int, str], *, sim: bool,
+              sim_config: Any = None, speed: float | None = None) -> int:
+    """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
+    from station.uut import Endpoints, UutRunner
+
+    try:
+        settings = load_settings(Path(args.station) if args.station else None)
+        runner_kwargs = dict(
+            procedure_path=Path(args.procedure) if args.procedure else None,
+            product_path=Path(args.product) if getattr(args, "product", None) else None,
+            operator=getattr(args, "operator", "") or "",
+            out=Path(args.out) if args.out else None,
+        )
+        probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
+        probe.validate(duts)  # bad serials: refuse before a bench or a folder exists
+    except ConfigError as exc:
+        raise UserError(str(exc)) from None
+    bench_cm: Any = contextlib.nullcontext(None)
+    if sim:
+        from drivers.sim.launcher import launch_bench
+
+        bench_cm = launch_bench(config=sim_config, speed=speed,
+                                sockets=max(duts) if isinstance(sim_config, dict) else None)
+    wall0 = time.monotonic()
+    with bench_cm as bench:
+        endpoints = None
+        if bench is not None:
+            e = bench.endpoints
+            endpoints = Endpoints(speed=e.speed, rate_table=e.rate_table, chamber=e.chamber,
+                                  supply=e.supply, duts=dict(e.duts))
+            print(f"simulated bench running at {e.speed:g}x (pid {e.pid})", flush=True)
+        runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)  # type: ignore[arg-type]
+        display = ProgressDisplay()
+        runner.progress.subscribe(display)
+        with _sigint_aborts(runner):
+            result = runner.run(duts)
+    wall = time.monotonic() - wall0
+    for sock in sorted(result.verdicts):
+        print(f"socket {sock} {duts[sock]}: {result.verdicts[sock]}"
+              + (f" - {result.reasons[sock]}" if result.reasons[sock] else ""))
+        print(f"  run folder: {result.folders[sock]}")
+        if sock in result.certificates:
+            print(f"  certificate: {result.certificates[sock]}")
+        else:
+            print(f"  record: {result.folders[sock] / 'record.json'}")
+    print(f"station time {result.station_time_s / 60:.1f} min, wall time {wall:.1f} s")
+    return result.exit_code
+
+
+def _run(args: argparse.Namespace) -> int:
+    duts = _duts(args.dut)
+    sim_config, speed = _sim_config(args.sim_config, duts) if args.sim else (None, None)
+    if args.speed is not None:
+        speed = args.speed
+    return run_cycle(args, duts, sim=args.sim, sim_config=sim_config, speed=speed)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    duts = {1: DEMO_SERIAL}
+    args.station = args.station or None
+    args.procedure = args.procedure or str(CONFIG_DIR / "procedures" / "eol-rate-table.yaml")
+    code = run_cycle(args, duts, sim=True, sim_config={"parts": [{"socket": 1, "serial": DEMO_SERIAL}]},
+                     speed=args.speed or DEMO_SPEED)
+    return 0 if code in (0, 1) else code
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    r = subparsers.add_parser("run", help="one UUT cycle: calibrate the scanned parts")
+    r.add_argument("--dut", action="append", required=True, metavar="SERIAL",
+                   help="scanned serial; repeat for more sockets (or SOCKET=SERIAL)")
+    r.add_argument("--procedure", help="procedure file (default: station.yaml's)")
+    r.add_argument("--product", help="product file (default: the procedure's product)")
+    r.add_argument("--station", help="station file (default: config/station.yaml)")
+    r.add_argument("--operator", default="", help="operator name or badge")
+    r.add_argument("--sim", action="store_true", help="start the simulated bench for this run")
+    r.add_argument("--sim-config", help="simulated bench configuration (YAML) for --sim")
+    r.add_argument("--speed", type=float, help="simulated bench speed factor (with --sim)")
+    r.add_argument("--out", help="output folder for run folders (default: station.yaml's)")
+    r.set_defaults(handler=_run)
+    d = subparsers.add_parser("demo", help="the station on the simulated bench, one part")
+    d.add_argument("--out", help="output folder (default: station.yaml's)")
+    d.add_argument("--procedure", help="procedure file (default: the full rate-table procedure)")
+    d.add_argument("--station", help="station file (default: config/station.yaml)")
+    d.add_argument("--speed", type=float, help=f"bench speed factor (default {DEMO_SPEED:g})")
+    d.add_argument("--operator", default="demo")
+    d.set_defaults(handler=_demo)
     p = subparsers.add_parser(
         "schema", help="write JSON Schemas of the station, product and procedure files"
     )

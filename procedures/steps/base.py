@@ -1,0 +1,65 @@
+"""What every step shares: names, the no-op phases, and sample helpers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivers.fixture_protocol import SampleStatus
+from procedures.engine import PartRun, RunContext
+from procedures.record import Verdict
+
+
+@dataclass
+class BaseStep:
+    name: str = "step"
+    policy: str = "default"
+    condition: str = ""
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        return 0.0
+
+    def setup(self, ctx: RunContext) -> None:
+        return None
+
+    def main(self, ctx: RunContext) -> None:
+        return None
+
+    def cleanup(self, ctx: RunContext) -> None:
+        return None
+
+
+def sample_rate_hz(ctx: RunContext) -> float:
+    return float(ctx.procedure.power.output_rate_hz)
+
+
+def samples_between(ctx: RunContext, part: PartRun, t0_station_s: float, t1_station_s: float
+                    ) -> dict[str, NDArray[Any]]:
+    """The part's samples between two station times (mapped to its fixture clock)."""
+    assert part.stream is not None
+    f0 = part.stream.fixture_time(t0_station_s)
+    f1 = part.stream.fixture_time(t1_station_s)
+    return part.stream.window(f0, f1)
+
+
+def check_window(ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]], what: str,
+                 expected_s: float) -> bool:
+    """Refuse a window with too few samples or over-range samples; drops the part if so."""
+    fs = sample_rate_hz(ctx)
+    n = int(data["time_s"].size)
+    expected = expected_s * fs
+    if expected > 0 and n < 0.5 * expected:
+        ctx.drop(part, Verdict.ERROR,
+                 f"{what}: only {n} samples where about {expected:.0f} were expected; the "
+                 "stream is losing data (check the fixture cable) ")
+        return False
+    over = int(np.count_nonzero(data["status"] & (SampleStatus.OVER_RANGE | SampleStatus.SATURATED)))
+    if over:
+        ctx.drop(part, Verdict.FAIL,
+                 f"{what}: {over} samples over range or saturated; the part must never "
+                 "over-range during a measurement (reduce the rate set or check the part)")
+        return False
+    return True

@@ -1,0 +1,94 @@
+"""Bias at rest (and, at the first condition, the Allan deviation of the part's noise)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from procedures.analysis.allan import analyze_allan
+from procedures.analysis.bias import estimate_bias, required_averaging_time_s
+from procedures.analysis.errors import AnalysisError
+from procedures.engine import PartRun, RunContext
+from procedures.record import Verdict
+from procedures.steps.base import BaseStep, check_window, sample_rate_hz, samples_between
+
+
+@dataclass
+class Bias(BaseStep):
+    first: bool = False
+    name: str = "bias"
+    policy: str = "bias"
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        cfg = ctx.procedure.bias
+        return float(cfg.dwell_s) if cfg.dwell_s != "auto" else 0.5 * (cfg.min_dwell_s + cfg.max_dwell_s)
+
+    def main(self, ctx: RunContext) -> None:
+        cfg = ctx.procedure.bias
+        fs = sample_rate_hz(ctx)
+        if ctx.bench.table is not None:
+            ctx.snapshot()
+        t0 = ctx.clock.now_s()
+        if cfg.dwell_s == "auto":
+            ctx.sleep(cfg.min_dwell_s)
+            need = cfg.min_dwell_s
+            for part in ctx.alive():
+                data = samples_between(ctx, part, t0, ctx.clock.now_s())
+                try:
+                    noise = analyze_allan(data["rate_dps"], fs).noise.model
+                    need = max(need, required_averaging_time_s(noise, cfg.target_accuracy_dps))
+                except AnalysisError:
+                    need = cfg.max_dwell_s
+            dwell = min(max(need, cfg.min_dwell_s), cfg.max_dwell_s)
+            ctx.event(f"bias: automatic dwell {dwell:.1f} s for {cfg.target_accuracy_dps:g} deg/s (k=2)")
+            ctx.sleep(t0 + dwell - ctx.clock.now_s())
+        else:
+            dwell = float(cfg.dwell_s)
+            ctx.sleep(dwell)
+        t1 = ctx.clock.now_s()
+        if ctx.bench.table is not None:
+            ctx.snapshot()
+        ctx.each(lambda part: self._analyse(ctx, part, t0, t1, dwell))
+
+    def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float, dwell: float) -> None:
+        fs = sample_rate_hz(ctx)
+        data = samples_between(ctx, part, t0, t1)
+        if not check_window(ctx, part, data, f"bias at {self.condition}", dwell):
+            return
+        try:
+            allan = analyze_allan(data["rate_dps"], fs)
+            noise = allan.noise.model
+            est = estimate_bias(data["rate_dps"], fs, noise)
+        except AnalysisError as exc:
+            ctx.drop(part, Verdict.ERROR, f"bias at {self.condition}: {exc}")
+            return
+        part.extra["noise"] = noise
+        res = part.conditions[self.condition]
+        res.bias_dps, res.u_bias_dps = est.bias_dps, est.u_bias_dps
+        ctx.measure(part, "raw_bias_dps", est.bias_dps, units="deg/s",
+                    uncertainty_k2=2 * est.u_bias_dps, condition=self.condition,
+                    description="uncalibrated bias at rest")
+        ctx.segment(part, "static", 0, float(data["time_s"][0]), float(data["time_s"][-1]),
+                    ref_rate_dps=0.0, temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+        if self.first:
+            arw = noise.arw_deg_per_sqrt_h
+            bi = noise.bias_instability_deg_per_h
+            part.record.analysis["allan"] = {
+                "condition": self.condition,
+                "tau_s": [float(x) for x in allan.adev.tau_s],
+                "adev_dps": [float(x) for x in allan.adev.adev_dps],
+                "arw_deg_per_sqrt_h": arw, "bias_instability_deg_per_h": bi,
+                "rate_random_walk_deg_per_h_per_sqrt_h": noise.rrw_deg_per_h_per_sqrt_h,
+                "record_s": float(data["time_s"][-1] - data["time_s"][0]),
+            }
+            ctx.measure(part, "noise_arw_deg_per_sqrt_h", arw if math.isfinite(arw) else None,
+                        units="deg/sqrt(h)", condition=self.condition,
+                        uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
+                        description="angle random walk from the Allan deviation")
+            if bi > 0 and np.isfinite(bi):
+                ctx.measure(part, "bias_instability_deg_per_h", bi, units="deg/h",
+                            condition=self.condition,
+                            uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
+                            description="bias instability (short record: indicative)")

@@ -1,0 +1,115 @@
+"""The article's stop method: rest, move to the second stop, rest, move back, rest.
+
+The record is analysed by `procedures.analysis.stop_method` (moves found in the data, bias
+from the leading rest). The reference angle is the encoder's measured travel (position at
+rest after each move minus before it) or the fixture's stored stop angle with its uncertainty.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.rate_table_map import COUNTS_PER_REV
+from procedures.analysis.consistency import stop_vs_rate_table
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.stop_method import StopMethodSettings, analyze_stop_method
+from procedures.engine import PartRun, RunContext
+from procedures.record import Verdict
+from procedures.steps.base import BaseStep, check_window, samples_between
+
+
+@dataclass
+class StopMethod(BaseStep):
+    name: str = "stop_method"
+    policy: str = "stop_method"
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        cfg = ctx.procedure.stop_method
+        assert cfg is not None
+        return cfg.static_s + cfg.repeats * 2 * (cfg.move_time_s + cfg.static_s + 1.0) + 2.0
+
+    def main(self, ctx: RunContext) -> None:
+        cfg = ctx.procedure.stop_method
+        table = ctx.bench.table
+        assert cfg is not None and table is not None
+        table.enable()
+        table.set_rate(0.0)
+        table.wait_at_rate(cfg.move_timeout_s)
+        table.zero_encoder()
+        t_start = ctx.clock.now_s()
+        _, rest = ctx.snapshot()
+        positions = [rest.position_deg]
+        ctx.sleep(cfg.static_s)
+        far = cfg.stop_angle_deg
+        if cfg.reference == "fixture":
+            # the stops are the fixture's: move to its measured angle (mean over sockets)
+            far = float(np.mean([p.extra["stop_angle"][0] for p in ctx.alive()]))
+        for _ in range(cfg.repeats):
+            for target in (far, 0.0):
+                table.move_to(target, move_time_s=cfg.move_time_s)
+                table.wait_in_position(cfg.move_timeout_s)
+                ctx.sleep(cfg.static_s)
+                _, rest = ctx.snapshot()
+                positions.append(rest.position_deg)
+        t_end = ctx.clock.now_s()
+        travel = np.abs(np.diff(positions))
+        self._encoder_angle = float(travel.mean())
+        # each end quantised to one count; two ends per move, averaged over the moves
+        self._encoder_u = (360.0 / COUNTS_PER_REV) * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
+        ctx.each(lambda part: self._analyse(ctx, part, t_start, t_end))
+
+    def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:
+        cfg = ctx.procedure.stop_method
+        assert cfg is not None
+        res = part.conditions[self.condition]
+        data = samples_between(ctx, part, t0, t1)
+        if not check_window(ctx, part, data, f"stop method at {self.condition}",
+                            cfg.static_s * (2 * cfg.repeats + 1)):
+            return
+        if cfg.reference == "fixture":
+            ref, u_ref = part.extra["stop_angle"]
+        else:
+            ref, u_ref = self._encoder_angle, self._encoder_u
+        try:
+            result = analyze_stop_method(
+                data["time_s"], data["rate_dps"], ref, u_ref, status=data["status"],
+                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps))
+            scale = result.scale
+            u_scale = result.u_scale
+            if scale is None or u_scale is None:
+                raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+        except AnalysisError as exc:
+            ctx.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
+            return
+        res.stop = {"scale": scale, "u_scale": u_scale, "bias_dps": result.bias_dps,
+                    "reference_angle_deg": ref, "u_reference_angle_deg": u_ref}
+        for i, (a, b) in enumerate(result.static_segments_s):
+            ctx.segment(part, "stop_static", i, a, b, ref_rate_dps=0.0,
+                        temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+        for i, mv in enumerate(result.moves):
+            ctx.segment(part, "stop_move", i, mv.start_s, mv.end_s,
+                        ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
+                        temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+        part.record.analysis.setdefault("stop_method", {})[self.condition] = {
+            "bias_dps": result.bias_dps, "bias_correction_dps": result.bias_correction_dps,
+            "scale_correction": result.scale_correction, "scale": scale, "u_scale": u_scale,
+            "reference_angle_deg": ref, "u_reference_angle_deg": u_ref,
+            "reference": cfg.reference,
+            "static_windows": [[a, b] for a, b in result.static_segments_s],
+            "moves": [{"start_s": m.start_s, "end_s": m.end_s,
+                       "measured_angle_deg": m.measured_angle_deg,
+                       "scale_correction": m.scale_correction} for m in result.moves],
+            "warnings": list(result.warnings),
+        }
+        if res.table_fit is not None:
+            try:
+                cons = stop_vs_rate_table(result, res.table_fit)
+            except AnalysisError as exc:
+                ctx.event(f"socket {part.socket}: consistency not computed: {exc}", "WARNING", [part])
+                return
+            ctx.measure(part, "stop_table_consistency", cons.normalised_difference, units="1",
+                        condition=self.condition,
+                        description="(stop scale - table scale) / combined k=2 uncertainty")

@@ -1,0 +1,116 @@
+"""Rate-table sweep: plateaus at the rate set, reference rate from the encoder."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from procedures.analysis.bias import window_mean
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.rate_table import fit_rate_table, reference_rate_from_encoder
+from procedures.engine import PartRun, RunContext
+from procedures.record import Verdict
+from procedures.steps.base import BaseStep, check_window, sample_rate_hz, samples_between
+
+
+def plateau_time_s(rate_dps: float, previous_dps: float, accel_dps2: float) -> float:
+    return abs(rate_dps - previous_dps) / accel_dps2
+
+
+@dataclass
+class Plateau:
+    rate_cmd_dps: float
+    t0_s: float
+    t1_s: float
+    ref_dps: float
+    u_ref_dps: float
+    angle_deg: float
+
+
+def run_plateaus(ctx: RunContext, rates: list[float], dwell_s: float, settle_s: float,
+                 accel_dps2: float, timeout_s: float) -> list[Plateau]:
+    """Drive the table through `rates`; each plateau's reference from two encoder snapshots."""
+    table = ctx.bench.table
+    assert table is not None
+    cpr = table.counts_per_rev()
+    out: list[Plateau] = []
+    for rate in rates:
+        ctx.check()
+        table.set_rate(rate, accel_dps2)
+        table.wait_at_rate(timeout_s)
+        ctx.sleep(settle_s)
+        t0, s0 = ctx.snapshot()
+        ctx.sleep(dwell_s)
+        t1, s1 = ctx.snapshot()
+        c0 = s0.encoder_counts_unwrapped or s0.encoder_counts
+        c1 = s1.encoder_counts_unwrapped or s1.encoder_counts
+        ref = reference_rate_from_encoder([c0, c1], [s0.controller_time_s, s1.controller_time_s], cpr,
+                                          counts_modulo=1 << 62 if s0.encoder_counts_unwrapped else 1 << 32)
+        out.append(Plateau(rate, t0, t1, ref.rate_dps, ref.u_rate_dps, ref.angle_deg))
+    table.set_rate(0.0, accel_dps2)
+    table.wait_at_rate(timeout_s)
+    return out
+
+
+@dataclass
+class RateSweep(BaseStep):
+    name: str = "rate_table"
+    policy: str = "rate_table"
+    plateaus: list[Plateau] = field(default_factory=list)
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        cfg = ctx.procedure.rate_table
+        assert cfg is not None
+        rates = cfg.rates_dps * cfg.repeats
+        ramps = sum(abs(b - a) for a, b in zip([0.0, *rates], [*rates, 0.0], strict=True)) / cfg.accel_dps2
+        return len(rates) * (cfg.plateau_dwell_s + cfg.settle_s + 0.5) + ramps
+
+    def main(self, ctx: RunContext) -> None:
+        cfg = ctx.procedure.rate_table
+        assert cfg is not None and ctx.bench.table is not None
+        ctx.bench.table.enable()
+        self.plateaus = run_plateaus(ctx, list(cfg.rates_dps) * cfg.repeats, cfg.plateau_dwell_s,
+                                     cfg.settle_s, cfg.accel_dps2, cfg.at_rate_timeout_s)
+        ctx.each(lambda part: self._analyse(ctx, part))
+
+    def _analyse(self, ctx: RunContext, part: PartRun) -> None:
+        cfg = ctx.procedure.rate_table
+        assert cfg is not None
+        fs = sample_rate_hz(ctx)
+        noise = part.extra.get("noise")
+        res = part.conditions[self.condition]
+        ref, u_ref, out, u_out = [], [], [], []
+        for i, p in enumerate(self.plateaus):
+            data = samples_between(ctx, part, p.t0_s, p.t1_s)
+            if not check_window(ctx, part, data, f"plateau {p.rate_cmd_dps:g} deg/s at {self.condition}",
+                                cfg.plateau_dwell_s):
+                return
+            wm = window_mean(data["rate_dps"], fs, noise)
+            ref.append(p.ref_dps)
+            u_ref.append(p.u_ref_dps)
+            out.append(wm.mean_dps)
+            u_out.append(wm.u_mean_dps)
+            ctx.segment(part, "plateau", i, float(data["time_s"][0]), float(data["time_s"][-1]),
+                        ref_rate_dps=p.ref_dps, ref_angle_deg=p.angle_deg,
+                        temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+        try:
+            fit = fit_rate_table(ref, u_ref, out, u_out, ctx.product.range_dps)
+        except AnalysisError as exc:
+            ctx.drop(part, Verdict.ERROR, f"rate-table fit at {self.condition}: {exc}")
+            return
+        res.table_fit = fit
+        nominal = ctx.product.nominal_scale
+        ctx.measure(part, "raw_scale_error", fit.scale / nominal - 1.0, units="1",
+                    uncertainty_k2=2 * fit.u_scale / nominal, condition=self.condition,
+                    description="uncalibrated scale / nominal - 1 (rate table)")
+        ctx.measure(part, "nonlinearity_pct_fs", fit.nonlinearity_pct_fs, units="% FS",
+                    uncertainty_k2=2 * fit.u_nonlinearity_pct_fs, condition=self.condition)
+        ctx.measure(part, "asymmetry", fit.asymmetry_ppm * 1e-6, units="1",
+                    uncertainty_k2=2 * fit.u_asymmetry_ppm * 1e-6, condition=self.condition)
+        part.record.analysis.setdefault("rate_table", {})[self.condition] = {
+            "rate_in_dps": [float(x) for x in ref], "u_rate_in_dps": [float(x) for x in u_ref],
+            "rate_out_dps": [float(x) for x in out], "u_rate_out_dps": [float(x) for x in u_out],
+            "residual_dps": [float(x) for x in fit.residual_dps],
+            "scale": fit.scale, "u_scale": fit.u_scale, "bias_dps": fit.bias_dps,
+            "u_bias_dps": fit.u_bias_dps, "nonlinearity_pct_fs": fit.nonlinearity_pct_fs,
+            "asymmetry_ppm": fit.asymmetry_ppm,
+        }

@@ -1,0 +1,254 @@
+"""Acquisition: pulling sample blocks from every part link, continuously, into memory and raw.h5.
+
+One background thread reads every streaming `PartLink` (the fixture streams whether or not
+the engine is looking, and a blocked serial buffer would lose frames), converts codes to
+engineering units, estimates each sample's station time, keeps everything in memory for the
+steps and appends it to the part's raw data file in batches.
+
+Station time of a sample: fixture clock + offset, where the offset is the smallest
+(station time at read - fixture time of the newest sample) seen so far; transport latency only
+ever makes that difference larger, so the minimum is the best estimate.
+
+Only the acquisition thread touches a link while it streams; other link commands go through
+`PartStream.command`, which holds the link's lock.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivers.clock import Clock
+from drivers.errors import InstrumentError, PartSilent
+from drivers.fixture_protocol import rate_code_to_dps, temp_code_to_c
+from drivers.protocols import PartLink, SampleBlock
+from procedures.rawdata import RawDataWriter
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+_COLUMNS = ("time_s", "seq", "rate_code", "temp_code", "status", "rate_dps", "temp_c", "station_time_s")
+_FLUSH_SAMPLES = 2000
+_FLUSH_WALL_S = 0.5
+
+
+class _Growable:
+    """Columns that grow by doubling, so appends are cheap and slices are views."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self._cap = 0
+        self._cols: dict[str, NDArray[Any]] = {}
+
+    def append(self, cols: dict[str, NDArray[Any]]) -> None:
+        k = len(next(iter(cols.values())))
+        if self.n + k > self._cap:
+            cap = max(4096, 2 * (self.n + k))
+            for name, values in cols.items():
+                new = np.empty(cap, dtype=values.dtype)
+                if name in self._cols:
+                    new[: self.n] = self._cols[name][: self.n]
+                self._cols[name] = new
+            self._cap = cap
+        for name, values in cols.items():
+            self._cols[name][self.n : self.n + k] = values
+        self.n += k
+
+    def column(self, name: str) -> NDArray[Any]:
+        if name not in self._cols:
+            return np.zeros(0)
+        return self._cols[name][: self.n]
+
+
+class PartStream:
+    """One socket's sample stream: in memory, in raw.h5, with its health counters."""
+
+    def __init__(
+        self,
+        socket: int,
+        link: PartLink,
+        clock: Clock,
+        writer: RawDataWriter | None = None,
+        silent_timeout_s: float = 5.0,
+    ) -> None:
+        self.socket = socket
+        self.link = link
+        self.clock = clock
+        self.writer = writer
+        self.silent_timeout_s = silent_timeout_s
+        self.lock = threading.RLock()
+        self._data = _Growable()
+        self._pending: list[dict[str, NDArray[Any]]] = []
+        self._pending_n = 0
+        self._last_flush = time.monotonic()
+        self.offset_s: float | None = None
+        self.streaming = False
+        self.error: InstrumentError | None = None
+        self.frames_ok = 0
+        self.frames_lost = 0
+        self.frames_corrupted = 0
+        self._last_data_station_s = 0.0
+
+    # ------------------------------------------------------------ control (main thread)
+
+    def command(self, fn: Callable[[PartLink], T]) -> T:
+        """Run a link command while holding the link (never concurrently with a read)."""
+        with self.lock:
+            return fn(self.link)
+
+    def start(self) -> None:
+        with self.lock:
+            self.link.start_stream()
+            self.streaming = True
+            self._last_data_station_s = self.clock.now_s()
+
+    def stop(self) -> None:
+        with self.lock:
+            if not self.streaming:
+                return
+            self.streaming = False
+            try:
+                self.link.stop_stream()
+                self._ingest(self.link.read_samples(0.0))
+            finally:
+                self.flush()
+
+    # ------------------------------------------------------------ acquisition thread
+
+    def poll(self) -> int:
+        """Read what the link has; returns the number of new samples."""
+        with self.lock:
+            if not self.streaming or self.error is not None:
+                return 0
+            try:
+                block = self.link.read_samples(0.0)
+                n = self._ingest(block)
+                now = self.clock.now_s()
+                if n:
+                    self._last_data_station_s = now
+                elif now - self._last_data_station_s > self.silent_timeout_s:
+                    raise PartSilent(
+                        f"socket {self.socket}: no samples for {self.silent_timeout_s:g} s: "
+                        "the part stopped streaming; check its seating and the fixture cable",
+                        instrument=f"fixture_{self.socket}",
+                    )
+            except InstrumentError as exc:
+                self.error = exc
+                self.streaming = False
+                self.flush()
+                return 0
+            if self._pending_n >= _FLUSH_SAMPLES or (
+                self._pending_n and time.monotonic() - self._last_flush > _FLUSH_WALL_S
+            ):
+                self.flush()
+            return n
+
+    def _ingest(self, block: SampleBlock) -> int:
+        self.frames_lost += int(block.frames_lost)
+        self.frames_corrupted += int(block.frames_corrupted)
+        n = len(block)
+        if n == 0:
+            return 0
+        self.frames_ok += n
+        now = self.clock.now_s()
+        candidate = now - float(block.time_s[-1])
+        if self.offset_s is None or candidate < self.offset_s:
+            self.offset_s = candidate
+        cols = {
+            "time_s": np.asarray(block.time_s, dtype=np.float64),
+            "seq": np.asarray(block.seq, dtype=np.int64),
+            "rate_code": np.asarray(block.rate_code, dtype=np.int64),
+            "temp_code": np.asarray(block.temp_code, dtype=np.int64),
+            "status": np.asarray(block.status, dtype=np.int64),
+            "rate_dps": rate_code_to_dps(block.rate_code),
+            "temp_c": temp_code_to_c(block.temp_code),
+        }
+        cols["station_time_s"] = cols["time_s"] + self.offset_s
+        self._data.append(cols)
+        self._pending.append(cols)
+        self._pending_n += n
+        return n
+
+    def flush(self) -> None:
+        with self.lock:
+            if not self._pending or self.writer is None:
+                self._pending, self._pending_n = [], 0
+                return
+            merged = {c: np.concatenate([p[c] for p in self._pending]) for c in _COLUMNS}
+            self._pending, self._pending_n = [], 0
+            self._last_flush = time.monotonic()
+            try:
+                self.writer.append("samples", **merged)
+            except Exception:  # the raw file must never kill the acquisition
+                log.exception("socket %d: could not append samples to raw data", self.socket)
+
+    # ------------------------------------------------------------ reading (main thread)
+
+    def fixture_time(self, station_time_s: float) -> float:
+        """The fixture-clock time corresponding to a station time."""
+        with self.lock:
+            if self.offset_s is None:
+                raise PartSilent(
+                    f"socket {self.socket}: no samples received yet, cannot map times",
+                    instrument=f"fixture_{self.socket}",
+                )
+            return station_time_s - self.offset_s
+
+    def window(self, start_s: float, end_s: float) -> dict[str, NDArray[Any]]:
+        """Samples with fixture time in [start_s, end_s] (copies)."""
+        with self.lock:
+            t = self._data.column("time_s")
+            i0, i1 = np.searchsorted(t, [start_s, end_s], side="left")
+            return {c: self._data.column(c)[i0:i1].copy() for c in _COLUMNS}
+
+    def last_time_s(self) -> float | None:
+        with self.lock:
+            t = self._data.column("time_s")
+            return float(t[-1]) if t.size else None
+
+    @property
+    def n_samples(self) -> int:
+        return self._data.n
+
+
+class Acquisition:
+    """The background thread that keeps every streaming part drained."""
+
+    def __init__(self, streams: dict[int, PartStream], poll_wall_s: float = 0.005) -> None:
+        self.streams = streams
+        self.poll_wall_s = poll_wall_s
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> Acquisition:
+        self._thread = threading.Thread(target=self._run, name="acquisition", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            got = 0
+            for stream in list(self.streams.values()):
+                got += stream.poll()
+            if not got:
+                self._stop.wait(self.poll_wall_s)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for stream in self.streams.values():
+            try:
+                stream.stop()
+            except Exception as exc:  # the link may be gone; the data in memory is kept
+                log.warning("socket %d: stop stream failed: %s", stream.socket, exc)
+            stream.flush()

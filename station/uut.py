@@ -1,0 +1,441 @@
+"""The UUT loop: scanned serials -> run -> certificate -> results database.
+
+The small API the CLI uses and the browser UI will use:
+
+    runner = UutRunner(settings, procedure_path=..., product_path=..., operator="ana")
+    unsubscribe = runner.progress.subscribe(print)        # ProgressEvent stream
+    runner.start({1: "SIM-0001", 2: "SIM-0002"})          # background thread; or run(...) to block
+    runner.abort()                                        # operator abort (also from SIGINT)
+    runner.state()                                        # {"state": "running", "step": ...}
+    result = runner.wait()                                # UutResult: folders, verdicts, certificates
+
+`endpoints` (from the simulated bench's state file) replaces the addresses of station.yaml
+and sets the clock's speed; real instruments run at speed 1.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import socket as socketlib
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from drivers.clock import ScaledClock
+from drivers.errors import InstrumentError
+from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
+from procedures.config import ConfigError, ProcedureConfig, ProductConfig, load_procedure, load_product
+from procedures.engine import Bench, Engine, PartRun, RunContext
+from procedures.progress import ProgressBus, ProgressEvent
+from procedures.rawdata import RawDataWriter, file_sha256
+from procedures.record import (
+    RAW_DATA_FILE,
+    Dut,
+    Event,
+    FileRef,
+    InstrumentRecord,
+    RunRecord,
+    Verdict,
+    write_record,
+)
+from procedures.steps.plan import build_plan
+from procedures.streams import PartStream
+from station import __version__
+from station.errors import UserError
+from station.run_folder import create_run_folder, recover_crashed_runs, release, validate_serial
+from station.settings import InstrumentSettings, LoadedSettings
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Endpoints:
+    """Where the instruments are, when they are not where station.yaml says (the sim bench)."""
+
+    speed: float
+    rate_table: str
+    chamber: str
+    supply: str
+    duts: dict[int, str]
+
+
+@dataclass
+class UutResult:
+    folders: dict[int, Path] = field(default_factory=dict)
+    verdicts: dict[int, Verdict] = field(default_factory=dict)
+    reasons: dict[int, str] = field(default_factory=dict)
+    certificates: dict[int, Path] = field(default_factory=dict)
+    station_time_s: float = 0.0
+    wall_time_s: float = 0.0
+
+    @property
+    def exit_code(self) -> int:
+        """0 all PASS, 1 any FAIL (and no error), 2 error or abort."""
+        if any(v in (Verdict.ERROR, Verdict.ABORTED, Verdict.RUNNING) for v in self.verdicts.values()):
+            return 2
+        return 1 if any(v is Verdict.FAIL for v in self.verdicts.values()) else 0
+
+
+# ---------------------------------------------------------------- instruments
+
+
+def _host_port(address: str, role: str) -> tuple[str, int]:
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise UserError(f"{role} address {address!r} is not host:port; fix it in station.yaml")
+    return host, int(port)
+
+
+@dataclass
+class OpenBench:
+    bench: Bench
+    instruments: list[InstrumentRecord]
+    closers: list[Callable[[], None]]
+
+    def close(self) -> None:
+        for closer in reversed(self.closers):
+            try:
+                closer()
+            except Exception as exc:  # closing a dead link must not hide the run's result
+                log.info("closing an instrument: %s", exc)
+
+
+def _record(role: str, ident: InstrumentIdentity | None, address: str,
+            cfg: InstrumentSettings | None, due: dt.date | None = None) -> InstrumentRecord:
+    due = due if due is not None else (cfg.calibration_due if cfg else None)
+    return InstrumentRecord(
+        role=role, manufacturer=ident.manufacturer if ident else "", model=ident.model if ident else "",
+        serial=ident.serial if ident else "", firmware=ident.firmware if ident else "",
+        address=address, calibration_due=due.isoformat() if due else None,
+        calibration_overdue=bool(due and due < dt.date.today()))
+
+
+def open_part_link(path: str, clock: ScaledClock, baud: int) -> PartLink:
+    """The fixture driver of one socket (drivers.part_link)."""
+    from drivers import part_link  # imported late: the driver module is optional at import time
+
+    opener = getattr(part_link, "open_part_link", None)
+    if opener is not None:
+        return opener(path, clock=clock, baudrate=baud)  # type: ignore[no-any-return]
+    cls = getattr(part_link, "SerialPartLink", None) or getattr(part_link, "FixturePartLink")
+    return cls.open(path, clock=clock, baudrate=baud)  # type: ignore[no-any-return]
+
+
+def open_bench(settings: LoadedSettings, sockets: list[int], endpoints: Endpoints | None,
+               needs_table: bool) -> OpenBench:
+    """Connect every instrument the run needs; InstrumentError names the one that failed."""
+    from drivers.chamber import ModbusChamber
+    from drivers.rate_table import ModbusRateTable
+    from drivers.supply import ScpiSupply
+
+    cfg = settings.settings.instruments
+    clock = ScaledClock(endpoints.speed if endpoints else 1.0)
+    closers: list[Callable[[], None]] = []
+    records: list[InstrumentRecord] = []
+    try:
+        table: RateTable | None = None
+        if needs_table:
+            addr = endpoints.rate_table if endpoints else cfg.rate_table.address
+            t = ModbusRateTable.connect(*_host_port(addr, "rate_table"), clock,
+                                        timeout_s=cfg.rate_table.timeout_s)
+            closers.append(t.close)
+            table = t
+            records.append(_record("rate_table", t.identify(), addr, cfg.rate_table))
+        addr = endpoints.chamber if endpoints else cfg.chamber.address
+        chamber: Chamber = ModbusChamber.connect(*_host_port(addr, "chamber"), clock,
+                                                 timeout_s=cfg.chamber.timeout_s)
+        closers.append(chamber.close)
+        records.append(_record("chamber", chamber.identify(), addr, cfg.chamber))
+        addr = endpoints.supply if endpoints else cfg.supply.address
+        supply: Supply = ScpiSupply.open(addr, baudrate=cfg.supply.baud, timeout_s=cfg.supply.timeout_s)
+        closers.append(supply.close)
+        records.append(_record("supply", supply.identify(), addr, cfg.supply))
+        links: dict[int, PartLink] = {}
+        for s in sockets:
+            port = (endpoints.duts.get(s) if endpoints else cfg.fixture.ports.get(s))
+            if not port:
+                raise UserError(f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
+                                "or the bench's sockets); load fewer parts or configure the socket")
+            link = open_part_link(port, clock, cfg.fixture.baud)
+            closers.append(link.close)
+            links[s] = link
+        return OpenBench(Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
+                         records, closers)
+    except BaseException:
+        OpenBench(None, [], closers).close()  # type: ignore[arg-type]
+        raise
+
+
+# ---------------------------------------------------------------- the runner
+
+
+class UutRunner:
+    """One UUT cycle at a time for one station; thread-safe `abort` and `state`."""
+
+    def __init__(self, settings: LoadedSettings, *, procedure_path: Path | None = None,
+                 product_path: Path | None = None, operator: str = "",
+                 out: Path | None = None, endpoints: Endpoints | None = None,
+                 certificate: bool = True) -> None:
+        self.settings = settings
+        self.procedure_path = Path(procedure_path) if procedure_path else settings.procedure
+        self.procedure, self.procedure_file = load_procedure(self.procedure_path)
+        if product_path is None:
+            if not self.procedure.product:
+                raise ConfigError(f"{self.procedure_path}: no product given; add 'product:' "
+                                  "to the procedure or pass --product")
+            product_path = (self.procedure_path.parent / self.procedure.product).resolve()
+        self.product_path = Path(product_path)
+        self.product, self.product_file = load_product(self.product_path)
+        self.operator = operator
+        self.out = Path(out) if out else settings.output_folder
+        self.endpoints = endpoints
+        self.certificate = certificate
+        self.progress = ProgressBus()
+        self._lock = threading.Lock()
+        self._ctx: RunContext | None = None
+        self._engine: Engine | None = None
+        self._thread: threading.Thread | None = None
+        self._result: UutResult | None = None
+        self._state = "idle"
+        self._error: BaseException | None = None
+
+    # ------------------------------------------------------------ API for the CLI and the UI
+
+    def validate(self, duts: dict[int, str]) -> dict[int, str]:
+        """Check sockets and serials before anything is written; UserError says what to fix."""
+        if not duts:
+            raise UserError("no part given: scan at least one serial (--dut SERIAL)")
+        n_sockets = self.settings.settings.instruments.fixture.sockets
+        if self.endpoints is not None:
+            n_sockets = max(n_sockets, max(self.endpoints.duts, default=0))
+        clean: dict[int, str] = {}
+        for sock, serial in duts.items():
+            if not 1 <= sock <= n_sockets:
+                raise UserError(f"socket {sock} does not exist on this fixture (1..{n_sockets})")
+            clean[sock] = validate_serial(serial, self.product.serial_pattern)
+        if len(set(clean.values())) != len(clean):
+            raise UserError("the same serial was scanned for two sockets; rescan the labels")
+        return clean
+
+    def start(self, duts: dict[int, str]) -> None:
+        """Start a run in a background thread (validation errors are raised here)."""
+        duts = self.validate(duts)
+        with self._lock:
+            if self._state == "running":
+                raise UserError("a run is already in progress; wait for it or abort it")
+            self._state = "running"
+            self._result = None
+        self._thread = threading.Thread(target=self._thread_main, args=(duts,), name="uut-run",
+                                        daemon=True)
+        self._thread.start()
+
+    def wait(self, timeout_s: float | None = None) -> UutResult | None:
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+    def abort(self, reason: str = "operator abort") -> None:
+        with self._lock:
+            ctx = self._ctx
+            self._abort_requested = reason
+        if ctx is not None:
+            ctx.abort(reason)
+
+    def state(self) -> dict[str, Any]:
+        last: ProgressEvent | None = self.progress.last
+        out: dict[str, Any] = {"state": self._state}
+        if last is not None:
+            out.update(step=last.step, condition=last.condition, fraction=last.fraction,
+                       remaining_s=last.remaining_s, sockets=last.sockets)
+        if self._result is not None:
+            out["verdicts"] = {s: str(v) for s, v in self._result.verdicts.items()}
+            out["folders"] = {s: str(p) for s, p in self._result.folders.items()}
+        return out
+
+    def _thread_main(self, duts: dict[int, str]) -> None:
+        try:
+            self._result = self.run(duts)
+        except BaseException as exc:  # surfaced by wait()
+            self._error = exc
+            self._state = "error"
+
+    # ------------------------------------------------------------ one cycle
+
+    def run(self, duts: dict[int, str]) -> UutResult:
+        """Validate, create run folders, run the procedure, certificates, results database."""
+        duts = self.validate(duts)
+        self._abort_requested = ""
+        self._state = "running"
+        wall0 = dt.datetime.now(dt.UTC)
+        self._mark_crashed_in_db(recover_crashed_runs(self.out))
+        parts = [self._new_part(sock, serial) for sock, serial in sorted(duts.items())]
+        result = UutResult(folders={p.socket: p.folder for p in parts})
+        opened: OpenBench | None = None
+        try:
+            try:
+                opened = open_bench(self.settings, sorted(duts), self.endpoints,
+                                    self.procedure.table_enabled or self.procedure.stop_enabled)
+            except (InstrumentError, OSError) as exc:
+                for part in parts:
+                    part.verdict = Verdict.ERROR
+                    part.reason = f"could not connect the instruments: {exc}"
+                self._finish_unstarted(parts)
+            else:
+                self._run_engine(opened, parts)
+        finally:
+            if opened is not None:
+                opened.close()
+            for part in parts:
+                release(part.folder)
+        for part in parts:
+            result.verdicts[part.socket] = part.record.verdict
+            result.reasons[part.socket] = part.record.reason
+            cert = self._certificate(part.folder)
+            if cert is not None:
+                result.certificates[part.socket] = cert
+            self._store(part)
+        result.station_time_s = max((p.record.timings.get("total", 0.0) for p in parts), default=0.0)
+        result.wall_time_s = (dt.datetime.now(dt.UTC) - wall0).total_seconds()
+        self._result = result
+        self._state = "finished"
+        return result
+
+    def _run_engine(self, opened: OpenBench, parts: list[PartRun]) -> None:
+        bench = opened.bench
+        cfg = self.settings.settings.instruments
+        for part in parts:
+            part.record.instruments = list(opened.instruments)
+            part.record.instruments.append(_record(
+                f"fixture_{part.socket}", None, self.endpoints.duts.get(part.socket, "")
+                if self.endpoints else cfg.fixture.ports.get(part.socket, ""), None,
+                cfg.fixture.calibration_due))
+            part.stream = PartStream(part.socket, bench.links[part.socket], bench.clock,
+                                     part.writer, self.procedure.stream.silent_timeout_s)
+        overdue = [i.role for i in opened.instruments if i.calibration_overdue]
+        ctx = RunContext(bench, self.procedure, self.product, parts, self.progress)
+        with self._lock:
+            self._ctx = ctx
+            pending_abort = getattr(self, "_abort_requested", "")
+        if pending_abort:
+            ctx.abort(pending_abort)
+        if overdue:
+            ctx.event(f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING")
+            if self.settings.settings.refuse_overdue_instruments:
+                for part in parts:
+                    ctx.drop(part, Verdict.ERROR, f"instrument calibration overdue ({', '.join(overdue)}); "
+                             "recalibrate them or set refuse_overdue_instruments: false")
+        try:
+            start_temp = bench.chamber.read_temperature()
+        except InstrumentError:
+            start_temp = None
+        engine = Engine(ctx, build_plan(self.procedure, start_temp))
+        self._engine = engine
+        engine.run()
+        for part in parts:
+            if (part.folder / RAW_DATA_FILE).exists() and part.record.raw_data is not None:
+                part.record.raw_data.sha256 = file_sha256(part.folder / RAW_DATA_FILE)
+                write_record(part.folder, part.record)
+        with self._lock:
+            self._ctx = None
+
+    def _finish_unstarted(self, parts: list[PartRun]) -> None:
+        now = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
+        for part in parts:
+            part.record.verdict = part.verdict or Verdict.ERROR
+            part.record.reason = part.reason
+            part.record.finished_utc = now
+            part.record.events.append(Event(time_utc=now, station_time_s=0.0, level="ERROR",
+                                            step="connect", message=part.reason))
+            if part.writer is not None:
+                part.writer.close()
+            write_record(part.folder, part.record)
+
+    def _new_part(self, sock: int, serial: str) -> PartRun:
+        folder = create_run_folder(self.out, serial)
+        info = self.settings.settings.station
+        now = dt.datetime.now(dt.UTC)
+        record = RunRecord(
+            run_id=folder.name, verdict=Verdict.RUNNING, simulated=self.endpoints is not None,
+            started_utc=now.isoformat(timespec="milliseconds"),
+            station_local_tz=str(dt.datetime.now().astimezone().tzinfo),
+            station={"id": info.id, "name": info.name, "location": info.location,
+                     "host": socketlib.gethostname()},
+            operator=self.operator, software_version=__version__,
+            dut=Dut(serial=serial, socket=sock, product=self.product.product),
+            product=FileRef(path=str(self.product_path), name=self.product.product,
+                            version=self.product.part_number, sha256=self.product_file.sha256),
+            procedure=FileRef(path=str(self.procedure_path), name=self.procedure.name,
+                              version=self.procedure.version, sha256=self.procedure_file.sha256),
+            station_config=FileRef(path=str(self.settings.source.path), name=info.id,
+                                   sha256=self.settings.source.sha256),
+            raw_data=FileRef(path=RAW_DATA_FILE, name="raw data (HDF5)", sha256=""),
+        )
+        write_record(folder, record)
+        writer = RawDataWriter(folder / RAW_DATA_FILE, {
+            "serial": serial, "run_id": folder.name, "socket": sock,
+            "procedure": self.procedure.name, "product": self.product.product,
+            "station": info.id, "simulated": self.endpoints is not None,
+            "software_version": __version__, "time_base": "fixture clock (s); station_time_s: "
+            "station clock estimate"})
+        return PartRun(socket=sock, serial=serial, folder=folder, record=record, writer=writer)
+
+    # ------------------------------------------------------------ after the run
+
+    def _certificate(self, folder: Path) -> Path | None:
+        if not self.certificate:
+            return None
+        try:
+            from reports.certificate import render_certificate
+        except ModuleNotFoundError:
+            return None
+        try:
+            return render_certificate(folder)
+        except Exception as exc:  # the record stands without its PDF; say so
+            log.error("certificate for %s failed: %s", folder, exc)
+            return None
+
+    def _results_db(self) -> Any:
+        try:
+            from station.results_db import ResultsDB
+        except ModuleNotFoundError:
+            return None
+        return ResultsDB(self.settings.results_db if self.out == self.settings.output_folder
+                         else self.out / "results.sqlite")
+
+    def _store(self, part: PartRun) -> None:
+        try:
+            db = self._results_db()
+            if db is not None:
+                db.add_run(part.folder, part.record)
+        except Exception as exc:  # the run folder is the master copy; the index can be rebuilt
+            log.error("results database: could not add %s: %s", part.folder, exc)
+
+    def _mark_crashed_in_db(self, folders: list[Path]) -> None:
+        if not folders:
+            return
+        from procedures.record import read_record
+
+        try:
+            db = self._results_db()
+            if db is None:
+                return
+            for folder in folders:
+                db.add_run(folder, read_record(folder))
+        except Exception as exc:
+            log.error("results database: could not record crashed runs: %s", exc)
+
+
+def procedure_product(procedure_path: Path, product_path: Path | None) -> tuple[ProcedureConfig, ProductConfig]:
+    """Load both files (ConfigError with file:line:field on any problem)."""
+    procedure, _ = load_procedure(procedure_path)
+    if product_path is None:
+        if not procedure.product:
+            raise ConfigError(f"{procedure_path}: no product given; add 'product:' or pass --product")
+        product_path = (procedure_path.parent / procedure.product).resolve()
+    product, _ = load_product(product_path)
+    return procedure, product
