@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -198,7 +197,7 @@ def run_allan(args: argparse.Namespace) -> int:
     data = read_rate_csv(args.csv)
     t = data["time_s"]
     steps = np.diff(t)
-    dt = float(np.median(steps))
+    dt = float(t[-1] - t[0]) / (t.size - 1)
     gaps = np.abs(steps - dt) > 0.25 * dt
     if gaps.any():
         i = int(np.argmax(gaps))
@@ -220,6 +219,7 @@ def run_allan(args: argparse.Namespace) -> int:
             "bias_instability_deg_per_h": noise.bias_instability_deg_per_h,
             "u_arw_deg_per_sqrt_h": noise.u_arw_deg_per_sqrt_h,
             "u_bias_instability_deg_per_h": noise.u_bias_instability_deg_per_h,
+            "bias_instability_upper_bound_deg_per_h": result.bias_instability_upper_bound_deg_per_h,
             "rrw_deg_per_h_per_sqrt_h": noise.model.rrw_deg_per_h_per_sqrt_h,
             "arw_region_s": noise.arw_region_s,
             "flat_region_s": noise.flat_region_s,
@@ -237,8 +237,14 @@ def run_allan(args: argparse.Namespace) -> int:
         "",
         f"angle random walk   {noise.arw_deg_per_sqrt_h:.4g} deg/sqrt(h)"
         f"   u(k=2) {2 * noise.u_arw_deg_per_sqrt_h:.2g}   {_region(noise.arw_region_s)}",
-        f"bias instability    {noise.bias_instability_deg_per_h:.4g} deg/h"
-        f"   u(k=2) {2 * noise.u_bias_instability_deg_per_h:.2g}   {_region(noise.flat_region_s)}",
+        (
+            f"bias instability    {noise.bias_instability_deg_per_h:.4g} deg/h"
+            f"   u(k=2) {2 * noise.u_bias_instability_deg_per_h:.2g}   "
+            f"{_region(noise.flat_region_s)}"
+            if noise.flat_region_s is not None
+            else "bias instability    not resolved in this record: at most "
+            f"{result.bias_instability_upper_bound_deg_per_h:.3g} deg/h (lowest ADEV / 0.664)"
+        ),
         f"rate random walk    {noise.model.rrw_deg_per_h_per_sqrt_h:.4g} deg/h/sqrt(h)"
         f"   {_region(noise.rrw_region_s)}",
     ]
@@ -250,4 +256,4 @@ def _region(region: tuple[float, float] | None) -> str:
     if region is None:
         return "(not seen in this record)"
     lo, hi = region
-    return f"(dominant from {lo:.3g} to {hi:.3g} s)" if math.isfinite(hi) else ""
+    return f"(dominant from {lo:.3g} to {hi:.3g} s)"

@@ -142,6 +142,11 @@ class AllanAnalysis:
     adev: AllanDeviation
     noise: NoiseFit
 
+    @property
+    def bias_instability_upper_bound_deg_per_h(self) -> float:
+        """Lowest ADEV / 0.664: what B can be at most; useful when the flat part is unseen."""
+        return float(np.min(self.adev.adev_dps)) / FLICKER_ADEV_FACTOR * 3600.0
+
 
 def tau_samples(n_samples: int, taus: TauSpec, sample_rate_hz: float) -> NDArray[np.int64]:
     """Averaging factors m (tau = m / rate) usable on a record of n_samples."""
@@ -151,9 +156,9 @@ def tau_samples(n_samples: int, taus: TauSpec, sample_rate_hz: float) -> NDArray
     if isinstance(taus, str):
         if taus == "octave":
             m = 2 ** np.arange(int(math.log2(m_max)) + 1)
-        elif taus == "log":
-            m = np.unique(np.round(np.logspace(0, math.log10(m_max), 10 * max(1, int(
-                math.ceil(math.log10(m_max)))) + 1)).astype(np.int64))
+        elif taus == "log":  # about ten per decade
+            n_points = int(10 * math.log10(m_max)) + 1 if m_max > 1 else 1
+            m = np.unique(np.round(np.logspace(0, math.log10(m_max), n_points)).astype(np.int64))
         else:
             raise AnalysisError(f"taus must be 'octave', 'log' or an array of seconds, not {taus!r}")
     else:
@@ -184,12 +189,17 @@ def overlapping_adev(
     phase *= dt
     adev = np.empty(m.size)
     n_terms = np.empty(m.size, dtype=np.int64)
+    buf = np.empty(phase.size)
     for i, mi in enumerate(m):
         mi = int(mi)
-        d = phase[2 * mi :] - 2.0 * phase[mi:-mi] + phase[: -2 * mi]
+        k = phase.size - 2 * mi
+        d = buf[:k]  # x[n+2m] - 2 x[n+m] + x[n], in place: no temporaries on long records
+        np.subtract(phase[2 * mi :], phase[mi:-mi], out=d)
+        np.subtract(d, phase[mi:-mi], out=d)
+        np.add(d, phase[:k], out=d)
         tau = mi * dt
-        n_terms[i] = d.size
-        adev[i] = math.sqrt(float(np.dot(d, d)) / (2.0 * tau * tau * d.size))
+        n_terms[i] = k
+        adev[i] = math.sqrt(float(np.dot(d, d)) / (2.0 * tau * tau * k))
     return AllanDeviation(
         tau_s=m * dt, adev_dps=adev, m=m, n_terms=n_terms, n_samples=rate.size,
         sample_rate_hz=fs,
