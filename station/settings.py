@@ -65,6 +65,16 @@ class Instruments(_Strict):
     fixture: FixtureSettings = FixtureSettings()
 
 
+class UiSettings(_Strict):
+    """The browser UI (`station ui`)."""
+
+    engineer_password_hash: str | None = Field(
+        None,
+        description="scrypt hash of the engineer password; make it with "
+        "`station ui --hash-password` (never the password itself)",
+    )
+
+
 class StationSettings(_Strict):
     """Everything specific to one physical station."""
 
@@ -83,6 +93,7 @@ class StationSettings(_Strict):
     refuse_overdue_instruments: bool = Field(
         False, description="refuse to run when an instrument's calibration is overdue"
     )
+    ui: UiSettings = Field(default_factory=UiSettings, description="browser UI settings")
 
 
 @dataclass(frozen=True)
