@@ -1,0 +1,107 @@
+"""`station report`, `station history`, `station lot-report` through the real CLI."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from station.cli import main
+from tests.reports.lot_data import make_lot
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def station_process(*args: str) -> subprocess.CompletedProcess[str]:
+    """The real console entry point in its own process."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    return subprocess.run([sys.executable, "-m", "station", *args], capture_output=True,
+                          text=True, env=env, cwd=REPO, timeout=120)
+
+
+def station(*args: str) -> subprocess.CompletedProcess[str]:
+    """The same CLI in this process (fast); same exit codes and output streams."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(list(args))
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
+
+
+def test_report_twice_gives_identical_bytes(pass_run: Path, tmp_path: Path) -> None:
+    folder = tmp_path / pass_run.name
+    shutil.copytree(pass_run, folder)
+    (folder / "certificate.pdf").unlink()
+    first = station_process("report", str(folder))
+    assert first.returncode == 0, first.stderr
+    assert first.stdout.strip() == str(folder / "certificate.pdf")
+    one = (folder / "certificate.pdf").read_bytes()
+    second = station_process("report", str(folder))
+    assert second.returncode == 0
+    assert (folder / "certificate.pdf").read_bytes() == one
+    assert one == (pass_run / "certificate.pdf").read_bytes()  # same as the engine's render
+
+
+def test_report_on_a_folder_without_data_writes_error_certificate(tmp_path: Path) -> None:
+    folder = tmp_path / "20261121T000000Z_EMPTY"
+    folder.mkdir()
+    out = station("report", str(folder))
+    assert out.returncode == 0 and "Traceback" not in out.stderr
+    assert (folder / "certificate.pdf").read_bytes().startswith(b"%PDF")
+
+
+def test_report_on_no_folder_is_one_clear_line(tmp_path: Path) -> None:
+    out = station_process("report", str(tmp_path / "nope"))
+    assert out.returncode == 2
+    assert out.stderr.count("\n") == 1 and "not a run folder" in out.stderr
+
+
+def test_report_index_adds_the_run_to_the_database(pass_run: Path, tmp_path: Path) -> None:
+    db = tmp_path / "r.sqlite"
+    folder = tmp_path / pass_run.name
+    shutil.copytree(pass_run, folder)
+    assert station("report", str(folder), "--index", "--db", str(db)).returncode == 0
+    runs = json.loads(station("history", "--db", str(db), "--json").stdout)
+    assert [r["serial"] for r in runs] == ["SIM-PASS-1"]
+    assert runs[0]["folder"] == str(folder.resolve())
+
+
+def test_history_filters_and_summarises(tmp_path: Path) -> None:
+    db = tmp_path / "r.sqlite"
+    records = make_lot(db, 12)
+    out = station("history", "--db", str(db), "--verdict", "fail")
+    assert out.returncode == 0, out.stderr
+    n_fail = sum(r.verdict.value == "FAIL" for r in records)
+    rows = [ln for ln in out.stdout.splitlines() if ln.startswith("2026-")]
+    assert len(rows) == n_fail > 0 and all(" FAIL " in ln for ln in rows)
+    assert f"{n_fail} runs: FAIL {n_fail}" in out.stdout
+    js = json.loads(station("history", "--db", str(db), "--since", "2026-11-21T12:00Z",
+                            "--json").stdout)
+    assert len(js) == sum(r.started_utc >= "2026-11-21T12:00" for r in records)
+    bad = station("history", "--db", str(db), "--since", "yesterday")
+    assert bad.returncode == 2 and "YYYY-MM-DD" in bad.stderr
+
+
+def test_history_without_database_says_how_to_fix(tmp_path: Path) -> None:
+    out = station("history", "--db", str(tmp_path / "missing.sqlite"))
+    assert out.returncode == 2 and "--db PATH" in out.stderr
+    assert not (tmp_path / "missing.sqlite").exists()  # not created by a read
+
+
+def test_lot_report_writes_pdf_and_prints_yield(tmp_path: Path) -> None:
+    db = tmp_path / "r.sqlite"
+    records = make_lot(db, 20)
+    out_pdf = tmp_path / "lot.pdf"
+    out = station("lot-report", "--db", str(db), "--product", "ADIS16130-EOL",
+                  "--out", str(out_pdf))
+    assert out.returncode == 0, out.stderr
+    passed = sum(r.verdict.value == "PASS" for r in records)
+    done = sum(r.verdict.value in ("PASS", "FAIL") for r in records)
+    assert f"yield {passed / done * 100:.1f} %" in out.stdout
+    assert out_pdf.read_bytes().startswith(b"%PDF")
+    bad = station("lot-report", "--db", str(db), "--out", str(tmp_path / "lot.txt"))
+    assert bad.returncode == 2 and ".pdf" in bad.stderr

@@ -1,0 +1,100 @@
+"""Lot report over 50 simulated parts: yield and Cpk from the database match a direct count."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from procedures.record import Verdict
+from reports import lot_stats
+from reports.lot_report import render_lot_report
+from station.results_db import ResultsDB
+from tests.reports.conftest import pdf_pages, pdf_text
+from tests.reports.lot_data import make_lot
+
+
+@pytest.fixture(scope="module")
+def lot(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list]:
+    path = tmp_path_factory.mktemp("lot") / "results.sqlite"
+    return path, make_lot(path, 50)
+
+
+def _direct_cpk(values: list[float], low: float, high: float) -> float:
+    mean = sum(values) / len(values)
+    var = sum((v - mean) ** 2 for v in values) / (len(values) - 1)
+    return min(high - mean, mean - low) / (3 * var**0.5)
+
+
+def test_yield_and_cpk_equal_a_direct_computation(lot: tuple[Path, list], tmp_path: Path) -> None:
+    path, records = lot
+    out = tmp_path / "lot.pdf"
+    summary = render_lot_report(ResultsDB(path), out)
+    passed = sum(r.verdict == Verdict.PASS for r in records)
+    failed = sum(r.verdict == Verdict.FAIL for r in records)
+    assert 0 < failed < 50  # the population gives a real mix
+    assert summary.yields.yield_fraction == pytest.approx(passed / (passed + failed), abs=0)
+    caps = {c.name: c for c in summary.capabilities}
+    for name in ("bias_dps", "scale", "arw_deg_per_sqrt_h"):
+        values = [m.value for r in records for m in r.measurements if m.name == name]
+        m0 = next(m for m in records[-1].measurements if m.name == name)
+        assert caps[name].n == 50
+        assert caps[name].cpk == pytest.approx(_direct_cpk(values, m0.low, m0.high), rel=1e-12)
+    # and the PDF prints those same figures
+    text = pdf_text(out)
+    assert f"{passed / (passed + failed) * 100:.1f} %" in text
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("bias_dps "))
+    assert f"{caps['bias_dps'].cpk:.3g}" in line.split()
+    assert pdf_pages(out) == summary.pages >= 2
+
+
+def test_pareto_counts_failing_runs_per_measurement(lot: tuple[Path, list], tmp_path: Path) -> None:
+    path, records = lot
+    summary = render_lot_report(ResultsDB(path), tmp_path / "lot.pdf")
+    direct: dict[str, int] = {}
+    for r in records:
+        for name in r.failed_measurements:
+            direct[name] = direct.get(name, 0) + 1
+    assert dict(summary.pareto) == direct
+    counts = [c for _n, c in summary.pareto]
+    assert counts == sorted(counts, reverse=True)
+
+
+def test_filters_reach_the_report_and_bytes_repeat(lot: tuple[Path, list], tmp_path: Path) -> None:
+    path, records = lot
+    db = ResultsDB(path)
+    a, b = tmp_path / "a.pdf", tmp_path / "b.pdf"
+    s = render_lot_report(db, a, verdict="PASS", since="2026-11-22")
+    render_lot_report(db, b, verdict="PASS", since="2026-11-22")
+    assert a.read_bytes() == b.read_bytes()
+    expect = [r for r in records if r.verdict == Verdict.PASS and r.started_utc >= "2026-11-22"]
+    assert s.yields.runs == len(expect) and s.yields.yield_fraction == 1.0
+    assert "verdict = PASS" in pdf_text(a)
+
+
+def test_empty_selection_still_gives_a_report(lot: tuple[Path, list], tmp_path: Path) -> None:
+    path, _ = lot
+    s = render_lot_report(ResultsDB(path), tmp_path / "none.pdf", product="NO-SUCH")
+    assert s.yields.runs == 0 and s.yields.yield_fraction is None
+    assert "No run matches the filters" in pdf_text(tmp_path / "none.pdf")
+
+
+def test_cpk_definitions() -> None:
+    assert lot_stats.cpk(0.0, 1.0, -3.0, 3.0) == pytest.approx(1.0)
+    assert lot_stats.cpk(1.0, 1.0, -3.0, 3.0) == pytest.approx(2 / 3)
+    assert lot_stats.cpk(1.0, 0.5, None, 4.0) == pytest.approx(2.0)  # upper only
+    assert lot_stats.cpk(1.0, 0.5, -2.0, None) == pytest.approx(2.0)  # lower only
+    assert lot_stats.cpk(1.0, 0.5, None, None) is None
+    assert lot_stats.cpk(1.0, 0.0, 0.0, 2.0) is None  # no spread: undefined, not infinite
+    assert np.isclose(lot_stats.cpk(5.0, 1.0, 0.0, 4.0), -1 / 3)  # mean outside: negative
+
+
+def test_histograms_and_trend_are_in_the_report(lot: tuple[Path, list], tmp_path: Path) -> None:
+    path, _ = lot
+    render_lot_report(ResultsDB(path), tmp_path / "lot.pdf")
+    text = pdf_text(tmp_path / "lot.pdf", layout=False)
+    assert "bias_dps (deg/s)" in text and "Bias written to the part" in text
+    assert "Scale written to the part" in text and "Failures by measurement" in text
+    assert re.search(r"Sigma = sample standard deviation \(n - 1\)", re.sub(r"\s+", " ", text))
