@@ -223,10 +223,20 @@ class RunContext:
         """Raise Aborted / StepTimeout when due; drop parts whose stream failed."""
         if self._abort.is_set():
             raise Aborted(self.abort_reason or "operator abort")
+        limit = self.procedure.stream.max_lost_fraction
         for part in self.alive():
             stream = part.stream
-            if stream is not None and stream.error is not None:
+            if stream is None:
+                continue
+            if stream.error is not None:
                 self.drop(part, Verdict.ERROR, str(stream.error))
+                continue
+            lost, total = stream.frames_lost, stream.frames_lost + stream.frames_ok
+            if lost > 10 and lost > limit * total:
+                self.drop(part, Verdict.ERROR, (
+                    f"socket {part.socket}: stream corrupted: {lost} of {total} frames lost "
+                    f"({stream.frames_corrupted} with a bad CRC), more than the "
+                    f"{limit:g} allowed: check the fixture cable and its grounding"))
         self.require_parts()
         if self._deadline_s is not None and self.clock.now_s() > self._deadline_s:
             raise StepTimeout(

@@ -113,19 +113,24 @@ def _record(role: str, ident: InstrumentIdentity | None, address: str,
         calibration_overdue=bool(due and due < dt.date.today()))
 
 
-def open_part_link(path: str, clock: ScaledClock, baud: int) -> PartLink:
+def open_part_link(path: str, clock: ScaledClock, socket: int, silent_after_s: float) -> PartLink:
     """The fixture driver of one socket (drivers.part_link)."""
-    from drivers import part_link  # imported late: the driver module is optional at import time
+    from drivers.part_link import SerialPartLink
 
-    opener = getattr(part_link, "open_part_link", None)
-    if opener is not None:
-        return opener(path, clock=clock, baudrate=baud)  # type: ignore[no-any-return]
-    cls = getattr(part_link, "SerialPartLink", None) or getattr(part_link, "FixturePartLink")
-    return cls.open(path, clock=clock, baudrate=baud)  # type: ignore[no-any-return]
+    # frame loss is judged by the engine against the procedure's fraction, not by the driver;
+    # silence needs a wall-time floor too: at 200x, 5 station s are 25 wall ms of scheduling
+    return SerialPartLink.open(path, clock, socket=socket,
+                               silent_after_s=silent_floor_s(silent_after_s, clock),
+                               loss_limit=None)
+
+
+def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: float = 1.0) -> float:
+    """Station seconds of silence before a part counts as silent (at least `wall_floor_s` wall)."""
+    return max(silent_after_s, wall_floor_s * clock.speed)
 
 
 def open_bench(settings: LoadedSettings, sockets: list[int], endpoints: Endpoints | None,
-               needs_table: bool) -> OpenBench:
+               needs_table: bool, silent_after_s: float = 5.0) -> OpenBench:
     """Connect every instrument the run needs; InstrumentError names the one that failed."""
     from drivers.chamber import ModbusChamber
     from drivers.rate_table import ModbusRateTable
@@ -159,7 +164,7 @@ def open_bench(settings: LoadedSettings, sockets: list[int], endpoints: Endpoint
             if not port:
                 raise UserError(f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
                                 "or the bench's sockets); load fewer parts or configure the socket")
-            link = open_part_link(port, clock, cfg.fixture.baud)
+            link = open_part_link(port, clock, s, silent_after_s)
             closers.append(link.close)
             links[s] = link
         return OpenBench(Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
@@ -279,7 +284,8 @@ class UutRunner:
         try:
             try:
                 opened = open_bench(self.settings, sorted(duts), self.endpoints,
-                                    self.procedure.table_enabled or self.procedure.stop_enabled)
+                                    self.procedure.table_enabled or self.procedure.stop_enabled,
+                                    self.procedure.stream.silent_timeout_s)
             except (InstrumentError, OSError) as exc:
                 for part in parts:
                     part.verdict = Verdict.ERROR
@@ -315,7 +321,8 @@ class UutRunner:
                 if self.endpoints else cfg.fixture.ports.get(part.socket, ""), None,
                 cfg.fixture.calibration_due))
             part.stream = PartStream(part.socket, bench.links[part.socket], bench.clock,
-                                     part.writer, self.procedure.stream.silent_timeout_s)
+                                     part.writer,
+                                     silent_floor_s(self.procedure.stream.silent_timeout_s, bench.clock))
         overdue = [i.role for i in opened.instruments if i.calibration_overdue]
         ctx = RunContext(bench, self.procedure, self.product, parts, self.progress)
         with self._lock:

@@ -57,6 +57,13 @@ class Bench:
         self.fixtures: dict[int, FixtureTwin] = {}
         self._tick_task: asyncio.Task[None] | None = None
         self.ticks = 0
+        self.table.before_write = self._flush_samples  # type: ignore[attr-defined]
+
+    def _flush_samples(self, t_s: float) -> None:
+        """Send every sample due before a motion command, so none is computed with the new
+        motion profile (the tick loop runs every few wall ms, seconds of world time at 100x)."""
+        for fixture in self.fixtures.values():
+            fixture.tick(t_s)
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()

@@ -93,6 +93,9 @@ class TableTwin(ModbusTwin):
         table = self.world.table
         t = self.world.advance()
         if values is not None:
+            hook = getattr(self, "before_write", None)
+            if hook is not None:  # samples due before this command must see the old motion
+                hook(t)
             if any(a not in rm.WRITABLE for a in range(address, address + count)):
                 return ExcCodes.ILLEGAL_ADDRESS
             try:
