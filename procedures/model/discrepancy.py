@@ -1,0 +1,299 @@
+"""The model-discrepancy workflow: find the gap, name the effect, add it, refit, repeat.
+
+Each iteration tests every catalog effect not yet in the model by adding it and refitting.
+Significance: F test of the whitened chi^2 drop, F = (dchi2 / q) / (chi2_1 / dof_1), with q
+the effect's linear coefficients plus its profiled time constant; the family-wise false
+alarm rate over all candidates of the iteration is held at `alpha` with Holm's step-down
+procedure. Among significant candidates the best is the one with the lowest BIC. If another
+significant candidate fits almost the same signature (whitened signature correlation above
+`SEPARABLE_CORRELATION`) and its BIC is within `SEPARABLE_DELTA_BIC`, the data cannot tell
+them apart: they are reported as not separable and the workflow stops without guessing.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from procedures.model import effects as fx
+from procedures.model.blocks import Blocks, make_blocks
+from procedures.model.fit import FitResult, Fitter
+from procedures.model.gyro_model import GyroModel, zero_params
+from procedures.model.noise import NoiseModel, measure_noise
+from procedures.model.residuals import BinSummary, floor_dps, gap_dps, summarize, worst_z
+from procedures.model.trajectory import FloatArray, Trajectory
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ALPHA = 0.01
+SEPARABLE_CORRELATION = 0.9
+SEPARABLE_DELTA_BIC = 10.0
+MIN_INDEPENDENT_FRACTION = 1e-3  # below this an effect's regressor is already in the model
+MAX_ITERATIONS = 10
+
+
+@dataclass(frozen=True)
+class CandidateTest:
+    effect: str
+    delta_chi2: float
+    q: int
+    f_statistic: float
+    p_value: float
+    p_holm: float
+    bic: float
+    delta_bic: float  # BIC of the candidate minus BIC of the current model (negative: better)
+    significant: bool
+    parameters: dict[str, float]
+    uncertainties: dict[str, float]
+    fit: FitResult | None = None
+
+
+@dataclass(frozen=True)
+class Iteration:
+    effect: str
+    gap_before_dps: float
+    gap_after_dps: float
+    parameters: dict[str, float]
+    uncertainties: dict[str, float]
+    evidence: dict[str, Any]
+    candidates: tuple[CandidateTest, ...]
+    residual_before_dps: FloatArray
+    residual_after_dps: FloatArray
+
+
+@dataclass(frozen=True)
+class DiscrepancyResult:
+    initial_model: GyroModel
+    final_model: GyroModel
+    noise: NoiseModel
+    blocks: Blocks
+    sigma_block_dps: FloatArray
+    gap_initial_dps: float
+    noise_floor_dps: float
+    iterations: tuple[Iteration, ...]
+    gap_final_dps: float
+    residual_initial_dps: FloatArray
+    residual_final_dps: FloatArray
+    summary_initial: dict[str, list[BinSummary]]
+    summary_final: dict[str, list[BinSummary]]
+    not_separable: tuple[dict[str, Any], ...] = ()
+    not_identifiable: tuple[str, ...] = ()
+    last_candidates: tuple[CandidateTest, ...] = ()
+    alpha: float = DEFAULT_ALPHA
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def effects_added(self) -> list[str]:
+        return [it.effect for it in self.iterations]
+
+
+def bic(fit: FitResult) -> float:
+    return fit.chi2 + fit.n_params * math.log(fit.n_blocks)
+
+
+def holm(p_values: list[float]) -> list[float]:
+    """Holm step-down adjusted p-values (family-wise error control)."""
+    m = len(p_values)
+    order = np.argsort(p_values)
+    adjusted = np.empty(m)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p_values[i]))
+        adjusted[i] = running
+    return adjusted.tolist()
+
+
+def _candidate(fitter: Fitter, current: FitResult, effect_id: str) -> tuple[FitResult, float]:
+    trial = current.model.with_effect(effect_id, zero_params(effect_id))
+    fit = fitter.fit(trial, profile=[effect_id])
+    return fit, max(current.chi2 - fit.chi2, 0.0)
+
+
+def test_candidates(
+    fitter: Fitter, current: FitResult, alpha: float
+) -> tuple[list[CandidateTest], list[str]]:
+    """Add each missing catalog effect in turn; F test, Holm adjustment, BIC."""
+    missing = [e for e in fx.CATALOG if e not in current.model.effects]
+    base_structure = {e: fx.nonlinear_of(e, p) for e, p in current.model.effects.items()}
+    raw: list[tuple[str, FitResult, float, int, float, float]] = []
+    not_identifiable = []
+    for e in missing:
+        if fitter.column_rank_gain(base_structure, e) < MIN_INDEPENDENT_FRACTION:
+            not_identifiable.append(e)
+            continue
+        fit, dchi2 = _candidate(fitter, current, e)
+        q = fit.n_params - current.n_params
+        dof = max(fit.dof, 1)
+        f_stat = (dchi2 / q) / max(fit.chi2 / dof, 1e-300)
+        p = float(stats.f.sf(f_stat, q, dof))
+        raw.append((e, fit, dchi2, q, f_stat, p))
+    adjusted = holm([r[5] for r in raw]) if raw else []
+    bic0 = bic(current)
+    tests = []
+    for (e, fit, dchi2, q, f_stat, p), p_adj in zip(raw, adjusted, strict=True):
+        params = dict(fit.model.effects[e])
+        unc = {
+            k.split(".", 1)[1]: v
+            for k, v in fit.model.uncertainties.items()
+            if k.startswith(e + ".")
+        }
+        tests.append(
+            CandidateTest(
+                effect=e,
+                delta_chi2=dchi2,
+                q=q,
+                f_statistic=f_stat,
+                p_value=p,
+                p_holm=p_adj,
+                bic=bic(fit),
+                delta_bic=bic(fit) - bic0,
+                significant=p_adj <= alpha,
+                parameters=params,
+                uncertainties=unc,
+                fit=fit,
+            )
+        )
+    tests.sort(key=lambda c: c.bic)
+    return tests, not_identifiable
+
+
+def _signature_correlation(current: FitResult, a: FitResult, b: FitResult) -> float:
+    sa = a.fitted_white - current.fitted_white
+    sb = b.fitted_white - current.fitted_white
+    na, nb = np.linalg.norm(sa), np.linalg.norm(sb)
+    if na == 0 or nb == 0:
+        return 0.0
+    return float(abs(sa @ sb) / (na * nb))
+
+
+def run_discrepancy(
+    traj: Trajectory,
+    model: GyroModel,
+    alpha: float = DEFAULT_ALPHA,
+    max_block_s: float = 10.0,
+    max_iterations: int = MAX_ITERATIONS,
+) -> DiscrepancyResult:
+    """Fit, find the gap, name effects one at a time until none is significant."""
+    blocks = make_blocks(traj, max_block_s=max_block_s)
+    # noise from the residual of the starting model's fit with white weights
+    white_only = NoiseModel(1.0, 0.0, np.zeros(0), np.zeros(0))
+    first = Fitter(traj, blocks, white_only).fit(model)
+    noise = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
+    log.info(
+        "noise: N %.4g deg/s*sqrt(s), flat %.4g deg/s", noise.white_dps_rt_s, noise.floor_dps
+    )
+    fitter = Fitter(traj, blocks, noise)
+    sigma = noise.sigma_dps(blocks.duration_s)
+    floor = floor_dps(sigma, blocks.duration_s)
+    current = fitter.fit(model)
+    initial = current
+    iterations: list[Iteration] = []
+    not_separable: list[dict[str, Any]] = []
+    not_identifiable: list[str] = []
+    tests: list[CandidateTest] = []
+    for _ in range(max_iterations):
+        tests, not_identifiable = test_candidates(fitter, current, alpha)
+        significant = [c for c in tests if c.significant]
+        if not significant:
+            break
+        best = significant[0]
+        assert best.fit is not None
+        rivals = []
+        for other in significant[1:]:
+            assert other.fit is not None
+            corr = _signature_correlation(current, best.fit, other.fit)
+            if corr >= SEPARABLE_CORRELATION and other.bic - best.bic < SEPARABLE_DELTA_BIC:
+                rivals.append((other, corr))
+        if rivals:
+            not_separable.append(
+                {
+                    "effects": [best.effect, *[r.effect for r, _ in rivals]],
+                    "delta_bic": [round(r.bic - best.bic, 3) for r, _ in rivals],
+                    "signature_correlation": [round(c, 4) for _, c in rivals],
+                    "reason": (
+                        "each explains the gap about equally well with almost the same "
+                        "residual signature; the data (e.g. the rate set) cannot tell them "
+                        "apart, so none was added"
+                    ),
+                }
+            )
+            break
+        new = fitter.fit(best.fit.model, local=True)  # refit every time constant together
+        summary_before = summarize(blocks, current.residual_dps, sigma)
+        summary_after = summarize(blocks, new.residual_dps, sigma)
+        zb, za = worst_z(summary_before), worst_z(summary_after)
+        pattern = max(zb, key=lambda k: zb[k] - za[k])
+        runner = significant[1] if len(significant) > 1 else None
+        evidence = {
+            "delta_chi2": round(best.delta_chi2, 3),
+            "f_statistic": round(best.f_statistic, 3),
+            "p_value": best.p_value,
+            "p_holm": best.p_holm,
+            "alpha_familywise": alpha,
+            "n_candidates": len(tests),
+            "delta_bic": round(best.delta_bic, 3),
+            "runner_up": (
+                {"effect": runner.effect, "delta_bic_vs_best": round(runner.bic - best.bic, 3)}
+                if runner
+                else None
+            ),
+            "uncertainties": best.uncertainties,
+            "pattern": {
+                "variable": pattern,
+                "worst_z_before": round(zb[pattern], 2),
+                "worst_z_after": round(za[pattern], 2),
+                "expected": fx.CATALOG[best.effect].pattern,
+            },
+        }
+        iterations.append(
+            Iteration(
+                effect=best.effect,
+                gap_before_dps=gap_dps(current.residual_dps, blocks.duration_s),
+                gap_after_dps=gap_dps(new.residual_dps, blocks.duration_s),
+                parameters=best.parameters,
+                uncertainties=best.uncertainties,
+                evidence=evidence,
+                candidates=tuple(tests),
+                residual_before_dps=current.residual_dps,
+                residual_after_dps=new.residual_dps,
+            )
+        )
+        log.info("named %s: gap %.4g -> %.4g", best.effect, iterations[-1].gap_before_dps,
+                 iterations[-1].gap_after_dps)
+        current = new
+    final_model = GyroModel(
+        name=_model_name(model.name, [it.effect for it in iterations]),
+        bias_dps=current.model.bias_dps,
+        scale=current.model.scale,
+        effects=current.model.effects,
+        uncertainties=current.model.uncertainties,
+    )
+    return DiscrepancyResult(
+        initial_model=initial.model,
+        final_model=final_model,
+        noise=noise,
+        blocks=blocks,
+        sigma_block_dps=sigma,
+        gap_initial_dps=gap_dps(initial.residual_dps, blocks.duration_s),
+        noise_floor_dps=floor,
+        iterations=tuple(iterations),
+        gap_final_dps=gap_dps(current.residual_dps, blocks.duration_s),
+        residual_initial_dps=initial.residual_dps,
+        residual_final_dps=current.residual_dps,
+        summary_initial=summarize(blocks, initial.residual_dps, sigma),
+        summary_final=summarize(blocks, current.residual_dps, sigma),
+        not_separable=tuple(not_separable),
+        not_identifiable=tuple(not_identifiable),
+        last_candidates=tuple(tests),
+        alpha=alpha,
+        notes=traj.notes,
+    )
+
+
+def _model_name(start: str, added: list[str]) -> str:
+    return "+".join([start, *added]) if added else start
