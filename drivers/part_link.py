@@ -52,6 +52,9 @@ CAL_FIELDS = {
     "v0": "v0_v",
 }
 assert tuple(CAL_FIELDS) == CAL_KEYS
+# a pty passes at most about 4 KB per read: pausing after bigger reads would cap the link
+# near 1 MB/s, so the reader pauses only when little arrived
+_BATCH_BELOW_BYTES = 1024
 _CAL_TOLERANCE_REL = 1e-5
 _CAL_TOLERANCE_ABS = 1e-9
 
@@ -143,7 +146,7 @@ class SerialPartLink:
                     if more:
                         data += port.read(more)
                 self._consume(data)
-                if len(data) < 4096 and self._batch_s > 0:
+                if len(data) < _BATCH_BELOW_BYTES and self._batch_s > 0:
                     time.sleep(self._batch_s)
         except Exception as exc:  # noqa: BLE001 - reported to the caller by _check_reader
             if not self._stop.is_set():

@@ -147,3 +147,24 @@ class FakeFixture:
         for t in self._threads:
             t.join(1.0)
         os.close(self.slave)
+
+
+def serve_main(rates: list[float]) -> None:
+    """Run fixtures in this process (a separate one from the links, as the bench is): print
+    their pty paths as one JSON line, then at each stdin line print each fixture's `sent` and
+    streaming wall time; exit when stdin closes."""
+    import json
+    import sys
+
+    fixtures = [FakeFixture(rate_fps=r) for r in rates]
+    print(json.dumps([f.path for f in fixtures]), flush=True)
+    for _ in sys.stdin:
+        print(json.dumps([[f.sent, f.wall_streaming_s] for f in fixtures]), flush=True)
+    for f in fixtures:
+        f.close()
+
+
+if __name__ == "__main__":
+    import sys
+
+    serve_main([float(x) for x in sys.argv[1:]])
