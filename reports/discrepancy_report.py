@@ -1,0 +1,191 @@
+"""PDF report of a model-discrepancy run: where the gap was, which effect was named at each
+step and why, residuals before and after, the gap against the noise floor at every step.
+Vector charts only (reports/charts.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from reportlab.lib import colors
+from reportlab.lib.pagesizes import A4
+from reportlab.lib.units import mm
+from reportlab.platypus import Paragraph, SimpleDocTemplate, Spacer, Table, TableStyle
+
+from procedures.model.discrepancy import DiscrepancyResult, Iteration
+from procedures.model.residuals import BinSummary
+from reports.charts import PALETTE, Chart, bar_chart
+from reports.styles import BODY, CELL, HEADER_GREY, NOTE
+
+H1 = BODY.clone("h1", fontSize=14, leading=17, fontName="Helvetica-Bold")
+H2 = BODY.clone("h2", fontSize=11, leading=14, fontName="Helvetica-Bold", spaceBefore=6)
+WIDTH = 180 * mm
+
+PATTERN_AXIS = {
+    "temperature": "temp_c",
+    "supply": "supply_v",
+    "rate": "rate_dps",
+    "sign of rate": "rate_dps",
+    "time since power-on": "time_since_power_on_s",
+    "table angle": "angle_deg",
+    "segment kind": "center_s",
+}
+AXIS_LABEL = {
+    "temp_c": "die temperature (C)",
+    "supply_v": "supply (V)",
+    "rate_dps": "block mean rate (deg/s)",
+    "time_since_power_on_s": "time since power-on (s)",
+    "angle_deg": "table angle (deg)",
+    "center_s": "time (s)",
+}
+
+
+def _table(rows: list[list[Any]], widths: list[float] | None = None) -> Table:
+    data = [[Paragraph(str(c), CELL) for c in r] for r in rows]
+    t = Table(data, colWidths=widths, repeatRows=1)
+    t.setStyle(
+        TableStyle(
+            [
+                ("BACKGROUND", (0, 0), (-1, 0), HEADER_GREY),
+                ("GRID", (0, 0), (-1, -1), 0.25, colors.grey),
+                ("VALIGN", (0, 0), (-1, -1), "TOP"),
+            ]
+        )
+    )
+    return t
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def _gap_chart(res: DiscrepancyResult) -> Any:
+    cats = ["start", *[it.effect for it in res.iterations]]
+    vals = [res.gap_initial_dps, *[it.gap_after_dps for it in res.iterations]]
+    return bar_chart(WIDTH, 150, cats, vals, title="Gap after each step (deg/s)",
+                     y_label="gap (deg/s)")
+
+
+def _allan_chart(res: DiscrepancyResult) -> Any:
+    ch = Chart(WIDTH, 170, title="Allan deviation of the residual (constant-input windows)",
+               x_label="tau (s)", y_label="deg/s", log_x=True, log_y=True)
+    if res.noise.tau_s.size:
+        ch.scatter(res.noise.tau_s, res.noise.adev_dps, label="measured")
+        ch.line(res.noise.tau_s, res.noise.sigma_dps(res.noise.tau_s), label="noise model")
+    return ch.drawing()
+
+
+def _residual_chart(res: DiscrepancyResult, x: np.ndarray, x_label: str, title: str,
+                    before: np.ndarray, after: np.ndarray) -> Any:
+    ch = Chart(WIDTH, 170, title=title, x_label=x_label, y_label="block-mean residual (deg/s)")
+    f = res.noise_floor_dps
+    ch.band_y(-f, f, label="+/- noise floor")
+    ch.scatter(x, before, color=PALETTE[1], label="before", size=1.6)
+    ch.scatter(x, after, color=PALETTE[0], label="after", size=1.6)
+    return ch.drawing()
+
+
+def _summary_rows(before: list[BinSummary], after: list[BinSummary]) -> list[list[Any]]:
+    rows: list[list[Any]] = [["bin", "blocks", "mean before", "z before", "rms before",
+                              "mean after", "z after", "rms after", "floor"]]
+    after_by = {b.label: b for b in after}
+    for b in before:
+        a = after_by.get(b.label)
+        rows.append([b.label, b.n_blocks, _fmt(b.mean_dps), f"{b.z:.1f}", _fmt(b.rms_dps),
+                     _fmt(a.mean_dps) if a else "", f"{a.z:.1f}" if a else "",
+                     _fmt(a.rms_dps) if a else "", _fmt(b.floor_dps)])
+    return rows
+
+
+def _iteration_story(res: DiscrepancyResult, k: int, it: Iteration) -> list[Any]:
+    ev = it.evidence
+    story: list[Any] = [Paragraph(f"Step {k}: named <b>{it.effect}</b>", H2)]
+    params = ", ".join(
+        f"{p} = {_fmt(v)}" + (f" &plusmn; {_fmt(it.uncertainties[p])}" if p in it.uncertainties
+                              else "")
+        for p, v in it.parameters.items()
+    )
+    runner = ev.get("runner_up")
+    why = (
+        f"Adding {it.effect} lowers chi<super>2</super> by {ev['delta_chi2']:.1f} "
+        f"(F = {ev['f_statistic']:.1f}, Holm-adjusted p = {ev['p_holm']:.2g} against a "
+        f"family-wise false-alarm rate of {ev['alpha_familywise']:g} over "
+        f"{ev['n_candidates']} candidates; BIC change {ev['delta_bic']:.1f}). "
+    )
+    if runner:
+        why += (f"Next best: {runner['effect']}, BIC {runner['delta_bic_vs_best']:.1f} worse. ")
+    pat = ev["pattern"]
+    why += (
+        f"The residual pattern it explains shows against <i>{pat['variable']}</i> "
+        f"(largest |z| of a bin {pat['worst_z_before']} before, {pat['worst_z_after']} after; "
+        f"expected signature: {pat['expected']}). Gap {it.gap_before_dps:.4g} &rarr; "
+        f"{it.gap_after_dps:.4g} deg/s against a floor of {res.noise_floor_dps:.4g} deg/s."
+    )
+    story += [Paragraph(why, BODY), Paragraph(f"Parameters: {params}", BODY), Spacer(1, 3)]
+    rows: list[list[Any]] = [["candidate", "delta chi2", "p (Holm)", "delta BIC", "significant"]]
+    for c in it.candidates:
+        rows.append([c.effect, f"{c.delta_chi2:.1f}", f"{c.p_holm:.2g}", f"{c.delta_bic:.1f}",
+                     "yes" if c.significant else "no"])
+    story.append(_table(rows))
+    axis = PATTERN_AXIS.get(pat["variable"], "center_s")
+    x = getattr(res.blocks, axis)
+    story.append(_residual_chart(res, x, AXIS_LABEL[axis],
+                                 f"Residuals against {pat['variable']}, before and after step {k}",
+                                 it.residual_before_dps, it.residual_after_dps))
+    return story
+
+
+def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
+    n = res.noise
+    story: list[Any] = [
+        Paragraph("Model-discrepancy report", H1),
+        Paragraph(f"Data: {title_data}", BODY),
+        Paragraph(
+            f"Starting model: <b>{res.initial_model.name}</b>. Final model: "
+            f"<b>{res.final_model.name}</b>. Effects added: "
+            f"{', '.join(res.effects_added) or 'none'}.", BODY),
+        Paragraph(
+            f"Gap {res.gap_initial_dps:.4g} deg/s at the start, {res.gap_final_dps:.4g} deg/s "
+            f"at the end ({res.gap_final_dps / res.noise_floor_dps:.2f} x the noise floor of "
+            f"{res.noise_floor_dps:.4g} deg/s). Noise measured from the data: ARW "
+            f"{n.arw_deg_per_sqrt_h:.3g} deg/sqrt(h), flat Allan level {n.floor_dps:.3g} deg/s "
+            f"(bias instability {n.bias_instability_deg_per_h:.3g} deg/h); "
+            f"{res.blocks.count} averaging blocks.", BODY),
+        Paragraph(
+            "Gap: duration-weighted RMS of the block-mean residuals. Noise floor: the same RMS "
+            "of the Allan deviation at each block's duration. See docs/discrepancy.md.", NOTE),
+    ]
+    for ns in res.not_separable:
+        story.append(Paragraph(
+            f"<b>Not separable:</b> {' / '.join(ns['effects'])} (BIC differences "
+            f"{ns['delta_bic']}, signature correlation {ns['signature_correlation']}): "
+            f"{ns['reason']}.", BODY))
+    if res.not_identifiable:
+        story.append(Paragraph(
+            f"Not identifiable from this data (no independent signature): "
+            f"{', '.join(res.not_identifiable)}.", BODY))
+    for note in res.notes:
+        story.append(Paragraph(f"Note: {note}", NOTE))
+    story += [Spacer(1, 4), _gap_chart(res), _allan_chart(res)]
+    story.append(_residual_chart(res, res.blocks.center_s, "time (s)",
+                                 "Residuals over the record: starting model vs final model",
+                                 res.residual_initial_dps, res.residual_final_dps))
+    for k, it in enumerate(res.iterations, start=1):
+        story += _iteration_story(res, k, it)
+    if not res.iterations:
+        story.append(Paragraph("No candidate effect is significant: nothing was named.", H2))
+    story.append(Paragraph("Where the gap was: residual summaries, start vs end", H2))
+    for dim, before in res.summary_initial.items():
+        story.append(Paragraph(f"by {dim}", BODY))
+        story.append(_table(_summary_rows(before, res.summary_final.get(dim, []))))
+    return story
+
+
+def write_report(res: DiscrepancyResult, path: Path, title_data: str = "") -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc = SimpleDocTemplate(str(path), pagesize=A4, leftMargin=15 * mm, rightMargin=15 * mm,
+                            topMargin=15 * mm, bottomMargin=15 * mm,
+                            title="Model-discrepancy report", author="gyrocal station")
+    doc.build(build_story(res, title_data))
+    return path
