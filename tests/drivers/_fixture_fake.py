@@ -34,7 +34,8 @@ class FakeFixture:
         self.cal_sticky_bias: float | None = None  # a part that does not keep bias
         self.mangle: Callable[[bytes, int], bytes] | None = None  # (frames, first_seq) -> bytes
         self.sent = 0
-        self.wall_streaming_s = 0.0
+        self.wall_streaming_s = 0.0  # START to STOP, wall seconds
+        self._t_start = 0.0
         self._streaming = threading.Event()
         self._stop = threading.Event()
         self._wlock = threading.Lock()
@@ -83,11 +84,13 @@ class FakeFixture:
             self.reply("OK" if ok else "ERR 3 rate not supported")
         elif word == "START":
             self.reply("OK")
+            self._t_start = time.monotonic()
             self._streaming.set()
         elif word == "STOP":
             self._streaming.clear()
             with self._wlock:  # wait for the batch in flight to be written
                 pass
+            self.wall_streaming_s += time.monotonic() - self._t_start
             self.reply("OK")
         elif word == "CAL?":
             self.reply(f"OK {self.cal}")
@@ -135,7 +138,6 @@ class FakeFixture:
                         view = view[os.write(self.master, view):]
                 seq += due
                 self.sent = seq
-            self.wall_streaming_s += time.monotonic() - t_start
 
     def close(self) -> None:
         self._stop.set()
