@@ -9,10 +9,16 @@ substitute any object with the same methods.
 
 from __future__ import annotations
 
+import datetime as dt
 import logging
+import re
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
+
+from station.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -114,3 +120,290 @@ def engine_available() -> bool:
             return False
         raise
     return True
+
+
+# ---------------------------------------------------------------- the real engine
+
+
+def _label(name: str, condition: str) -> str:
+    return f"{name} {condition}".strip()
+
+
+class EngineRunner:
+    """`Runner` over station/uut.py: one UutRunner per run, its progress bus translated.
+
+    With a simulated bench (`control` given) each Start first loads the scanned parts into
+    the bench's sockets (a serial listed in `sim_parts` gets that entry's parameters, any
+    other serial a part drawn from the population), and the finished event carries the
+    twins' own report of the safe state.
+    """
+
+    def __init__(
+        self,
+        settings: Any,  # station.settings.LoadedSettings
+        *,
+        out: Path | None = None,
+        endpoints: Any = None,  # station.uut.Endpoints
+        control: Any = None,  # drivers.sim.control_client.ControlClient
+        sim_parts: dict[str, dict[str, Any]] | None = None,
+        sample_interval_s: float = 0.25,
+    ) -> None:
+        self.settings = settings
+        self.out = Path(out) if out else settings.output_folder
+        self.endpoints = endpoints
+        self.control = control
+        self.sim_parts = sim_parts or {}
+        self.sample_interval_s = sample_interval_s
+        s = settings.settings
+        n_sockets = s.instruments.fixture.sockets
+        if endpoints is not None:
+            n_sockets = max(endpoints.duts, default=n_sockets)
+        self.info = StationInfo(
+            name=s.station.name or s.station.id,
+            sockets=list(range(1, n_sockets + 1)),
+            simulated=endpoints is not None,
+            out_dir=str(self.out),
+        )
+        self._uut: Any = None
+        self._thread: threading.Thread | None = None
+        self._control_lock = threading.Lock()
+
+    # ------------------------------------------------------------ choices
+
+    def _yaml_files(self, sub: str) -> list[Path]:
+        folder = self.settings.folder / sub
+        return sorted(folder.glob("*.yaml")) if folder.is_dir() else []
+
+    def procedures(self) -> list[Choice]:
+        from procedures.config import ConfigError, load_procedure
+
+        paths = {self.settings.procedure.resolve(), *(p.resolve() for p in self._yaml_files("procedures"))}
+        choices = []
+        for path in sorted(paths):
+            try:
+                proc, _ = load_procedure(path)
+            except (ConfigError, OSError) as exc:
+                log.warning("procedure list skips %s: %s", path, exc)
+                continue
+            choices.append(Choice(proc.name, str(path), proc.description))
+        return choices
+
+    def products(self) -> list[ProductChoice]:
+        from procedures.config import ConfigError, load_product
+
+        choices = []
+        paths = {p.resolve() for p in self._yaml_files("products")}
+        default_product = self._default_product()
+        if default_product is not None:
+            paths.add(default_product)
+        for path in sorted(paths):
+            try:
+                prod, _ = load_product(path)
+            except (ConfigError, OSError) as exc:
+                log.warning("product list skips %s: %s", path, exc)
+                continue
+            choices.append(ProductChoice(prod.product, str(path), prod.serial_pattern,
+                                         _example_serial(prod.serial_pattern)))
+        return choices
+
+    def _default_product(self) -> Path | None:
+        from procedures.config import ConfigError, load_procedure
+
+        try:
+            proc, _ = load_procedure(self.settings.procedure)
+        except (ConfigError, OSError):
+            return None
+        if not proc.product:
+            return None
+        return (self.settings.procedure.parent / proc.product).resolve()
+
+    def default_selection(self) -> tuple[str, str]:
+        product = self._default_product()
+        return str(self.settings.procedure.resolve()), str(product) if product else ""
+
+    # ------------------------------------------------------------ instruments
+
+    def instruments(self) -> list[InstrumentLight]:
+        from station.ui.instruments import InstrumentAddress, probe
+
+        if self.busy():
+            return []
+        cfg = self.settings.settings.instruments
+        e = self.endpoints
+        addresses = [
+            InstrumentAddress("rate table", e.rate_table if e else cfg.rate_table.address,
+                              cfg.rate_table.calibration_due),
+            InstrumentAddress("chamber", e.chamber if e else cfg.chamber.address,
+                              cfg.chamber.calibration_due),
+            InstrumentAddress("supply", e.supply if e else cfg.supply.address,
+                              cfg.supply.calibration_due),
+        ]
+        for sock in self.info.sockets:
+            port = e.duts.get(sock, "") if e else cfg.fixture.ports.get(sock, "")
+            addresses.append(InstrumentAddress(f"fixture {sock}", port, cfg.fixture.calibration_due))
+        return probe(addresses)
+
+    # ------------------------------------------------------------ running
+
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self, request: StartRequest, sink: EventSink) -> str:
+        from procedures.config import ConfigError
+        from station.uut import UutRunner
+
+        if self.busy():
+            raise UserError("a run is already in progress; wait for it or abort it")
+        try:
+            uut = UutRunner(
+                self.settings,
+                procedure_path=Path(request.procedure_path),
+                product_path=Path(request.product_path) if request.product_path else None,
+                operator=request.operator,
+                out=self.out,
+                endpoints=self.endpoints,
+            )
+        except ConfigError as exc:
+            raise UserError(str(exc)) from None
+        serials = uut.validate(dict(request.serials))
+        self._load_sim_parts(serials)
+        from procedures.steps.plan import build_plan
+
+        labels = [_label(s.name, s.condition) for s in build_plan(uut.procedure, None)]
+        self._uut = uut
+        run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        self._thread = threading.Thread(
+            target=self._run, args=(uut, serials, labels, sink), name="ui-run", daemon=True
+        )
+        self._thread.start()
+        return run_id
+
+    def abort(self) -> None:
+        if self._uut is not None:
+            self._uut.abort("operator abort (station UI)")
+
+    def close(self) -> None:
+        self.abort()
+        if self._thread is not None:
+            self._thread.join(60)
+
+    def _load_sim_parts(self, serials: dict[int, str]) -> None:
+        if self.control is None:
+            return
+        with self._control_lock:
+            for sock, serial in serials.items():
+                part = {k: v for k, v in self.sim_parts.get(serial, {}).items() if k != "socket"}
+                part["serial"] = serial
+                self.control.load(sock, part)
+
+    def _run(self, uut: Any, serials: dict[int, str], labels: list[str], sink: EventSink) -> None:
+        speed = self.endpoints.speed if self.endpoints is not None else 1.0
+        state = {"index": -1}
+        sink({"type": "steps", "steps": list(labels)})
+
+        def on_progress(ev: Any) -> None:
+            if ev.kind == "step":
+                label = _label(ev.step, ev.condition)
+                try:
+                    state["index"] = labels.index(label, max(state["index"], 0))
+                except ValueError:
+                    labels.insert(state["index"] + 1, label)
+                    state["index"] += 1
+                    sink({"type": "steps", "steps": list(labels)})
+            elif ev.kind not in ("progress", "part"):
+                if ev.kind == "log" and ev.message:
+                    sink({"type": "log", "level": "INFO", "message": ev.message})
+                return
+            sink({
+                "type": "progress",
+                "step": _label(ev.step, ev.condition) or "starting",
+                "step_index": state["index"],
+                "step_count": len(labels),
+                "condition": ev.condition,
+                "fraction": float(ev.fraction),
+                "remaining_s": None if ev.remaining_s is None else float(ev.remaining_s) / speed,
+                "sockets": {str(k): v for k, v in ev.sockets.items()},
+            })
+
+        unsubscribe = uut.progress.subscribe(on_progress)
+        stop_samples = threading.Event()
+        sampler = threading.Thread(target=self._sample_loop, args=(uut, sink, stop_samples),
+                                   name="ui-samples", daemon=True)
+        sampler.start()
+        results: list[dict[str, Any]] = []
+        message = ""
+        try:
+            result = uut.run(serials)
+            results = [self._result(sock, serials[sock], result.folders.get(sock))
+                       for sock in sorted(serials)]
+        except Exception as exc:  # the UI must always get its "finished"
+            log.exception("the run failed")
+            message = f"the run stopped with an error: {exc}"
+            results = [self._result(sock, serials[sock], None, message) for sock in sorted(serials)]
+        finally:
+            stop_samples.set()
+            sampler.join(2)
+            unsubscribe()
+        sink({"type": "finished", "results": results, "safe_state": self._safe_state(),
+              "message": message})
+
+    def _result(self, sock: int, serial: str, folder: Path | None, error: str = "") -> dict[str, Any]:
+        from procedures.record import read_record
+        from station.ui.history import result_from_record
+
+        if folder is not None:
+            try:
+                return result_from_record(read_record(folder), folder)
+            except ValueError as exc:
+                error = str(exc)
+        return {"socket": sock, "serial": serial, "verdict": "ERROR", "reason": error,
+                "failed": [], "run_folder": str(folder) if folder else None}
+
+    def _safe_state(self) -> dict[str, bool] | None:
+        if self.control is None:
+            return None
+        try:
+            with self._control_lock:
+                safe = self.control.truth().get("safe")
+        except Exception as exc:  # noqa: BLE001 - the verdict stands without it
+            log.warning("could not read the bench's safe state: %s", exc)
+            return None
+        return {str(k): bool(v) for k, v in safe.items()} if isinstance(safe, dict) else None
+
+    def _sample_loop(self, uut: Any, sink: EventSink, stop: threading.Event) -> None:
+        """Forward each part's new samples (the engine keeps them in its PartStreams)."""
+        seen: dict[int, float] = {}
+        while not stop.wait(self.sample_interval_s):
+            ctx = getattr(uut, "_ctx", None)  # the live run context (None before/after)
+            for part in getattr(ctx, "parts", None) or []:
+                stream = getattr(part, "stream", None)
+                if stream is None:
+                    continue
+                try:
+                    last = stream.last_time_s()
+                    if last is None or last <= seen.get(part.socket, -1e300):
+                        continue
+                    start = seen.get(part.socket, last - 5.0)
+                    win = stream.window(start + 1e-9, last + 1e-9)
+                except Exception as exc:  # noqa: BLE001 - a chart must never stop a run
+                    log.debug("samples of socket %s unavailable: %s", part.socket, exc)
+                    continue
+                seen[part.socket] = last
+                n = len(win["time_s"])
+                if n == 0:
+                    continue
+                step = max(1, n // 50)
+                sink({
+                    "type": "samples", "socket": part.socket,
+                    "t_s": win["time_s"][::step].tolist(),
+                    "rate_dps": win["rate_dps"][::step].tolist(),
+                    "temp_c": win["temp_c"][::step].tolist(),
+                })
+
+
+def _example_serial(pattern: str) -> str:
+    """A readable example for the commonest serial patterns, '' when not obvious."""
+    m = re.fullmatch(r"\^?\[A-Z\]\{(\d+)(?:,\d+)?\}-\[0-9\]\{(\d+)(?:,\d+)?\}\$?", pattern)
+    if m:
+        return "A" * int(m.group(1)) + "-" + "1" * int(m.group(2))
+    return ""

@@ -66,3 +66,66 @@ def page(browser: object) -> Iterator[object]:
         yield pg
     finally:
         context.close()
+
+
+# ---------------------------------------------------------------- the real station, simulated bench
+
+SIM_SPEED = 300.0
+PASS_SERIAL = "SIM-0001"
+FAIL_SERIAL = "SIM-0666"  # raw bias 14 deg/s, outside the product's +/-10 deg/s
+REPO = Path(__file__).resolve().parents[2]
+
+
+def make_station_config(folder: Path, password_hash: str | None = _HASH) -> Path:
+    """A config folder like config/, with the short test procedure as the default one."""
+    import shutil
+
+    import yaml
+
+    (folder / "procedures").mkdir(parents=True)
+    (folder / "products").mkdir()
+    for p in (REPO / "config" / "procedures").glob("*.yaml"):
+        shutil.copy(p, folder / "procedures" / p.name)
+    for p in (REPO / "config" / "products").glob("*.yaml"):
+        shutil.copy(p, folder / "products" / p.name)
+    short = (Path(__file__).parent / "data" / "ui-short.yaml").read_text(encoding="utf-8")
+    short = short.replace("product: ../../../config/products/", "product: ../products/")
+    (folder / "procedures" / "ui-short.yaml").write_text(short, encoding="utf-8")
+    station = yaml.safe_load((REPO / "config" / "station.yaml").read_text(encoding="utf-8"))
+    station.update(output_folder="runs", results_db="runs/results.sqlite",
+                   procedure="procedures/ui-short.yaml")
+    station["instruments"]["fixture"]["sockets"] = 2
+    if password_hash:
+        station["ui"] = {"engineer_password_hash": password_hash}
+    (folder / "station.yaml").write_text(yaml.safe_dump(station), encoding="utf-8")
+    sim = {"speed": SIM_SPEED, "parts": [
+        {"socket": 1, "serial": PASS_SERIAL},
+        {"socket": 2, "serial": FAIL_SERIAL, "bias_dps": 14.0},
+    ]}
+    (folder / "sim.yaml").write_text(yaml.safe_dump(sim), encoding="utf-8")
+    return folder / "station.yaml"
+
+
+@dataclass
+class SimStation:
+    station: object  # station.ui.launch.UiStation
+    server: BackgroundServer
+    config: Path
+
+    @property
+    def url(self) -> str:
+        return self.server.url
+
+
+@pytest.fixture(scope="module")
+def sim_station(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimStation]:
+    from station.ui.launch import ui_station
+
+    folder = tmp_path_factory.mktemp("station") / "config"
+    station_file = make_station_config(folder)
+    with ui_station(station_file, sim=True, sim_config=folder / "sim.yaml", speed=SIM_SPEED) as st:
+        server = serve_in_thread(st.app, before_stop=st.controller.hub.close)
+        try:
+            yield SimStation(st, server, folder)
+        finally:
+            server.stop()

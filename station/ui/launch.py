@@ -1,0 +1,114 @@
+"""Put the UI station together: settings, (simulated) bench, engine runner, controller, app.
+
+Shared by `station ui`, the browser tests, the screenshot script and the UI benchmark, so
+they all run the same station.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from fastapi import FastAPI
+
+from station.errors import UserError
+from station.ui.app import create_app
+from station.ui.auth import check_hash_format
+from station.ui.controller import Controller
+from station.ui.history import History
+from station.ui.hub import Hub
+from station.ui.runner_adapter import EngineRunner, engine_available
+
+log = logging.getLogger(__name__)
+
+DEFAULT_SIM_SPEED = 100.0
+
+
+@dataclass
+class UiStation:
+    app: FastAPI
+    controller: Controller
+    runner: EngineRunner
+    bench: Any  # drivers.sim.launcher.BenchHandle | None
+
+
+def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int]:
+    """Parts of the sim config by serial, and the number of sockets it needs."""
+    if sim_config is None:
+        return {}, 0
+    try:
+        data = yaml.safe_load(sim_config.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise UserError(f"--sim-config {sim_config}: cannot read it ({exc}); check the file") from None
+    parts = data.get("parts") or [] if isinstance(data, dict) else []
+    by_serial = {str(p["serial"]): dict(p) for p in parts if isinstance(p, dict) and "serial" in p}
+    sockets = max([int(p.get("socket", 1)) for p in parts if isinstance(p, dict)], default=0)
+    return by_serial, sockets
+
+
+@contextlib.contextmanager
+def ui_station(
+    station_file: Path | None = None,
+    *,
+    sim: bool = False,
+    sim_config: Path | None = None,
+    speed: float | None = None,
+    sockets: int | None = None,
+    out: Path | None = None,
+) -> Iterator[UiStation]:
+    """The whole UI station; with `sim` the simulated bench runs for the block's duration."""
+    if not engine_available():
+        raise UserError("the end-of-line engine (station/uut.py) is not in this build")
+    from procedures.config import ConfigError
+    from station.settings import load_settings
+
+    try:
+        settings = load_settings(station_file)
+    except ConfigError as exc:
+        raise UserError(str(exc)) from None
+    password_hash = settings.settings.ui.engineer_password_hash
+    if password_hash:
+        try:
+            check_hash_format(password_hash)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+    else:
+        log.warning("no ui.engineer_password_hash in %s: the engineer role is disabled",
+                    settings.source.path)
+    if sim_config is None and sim and settings.settings.sim_config:
+        sim_config = settings.resolve(settings.settings.sim_config)
+    if sim_config is not None and not sim_config.is_file():
+        raise UserError(f"--sim-config {sim_config}: no such file")
+    parts, config_sockets = _sim_parts(sim_config)
+    bench_cm: Any = contextlib.nullcontext(None)
+    if sim:
+        from drivers.sim.launcher import launch_bench
+
+        n = sockets or config_sockets or 1
+        if not 1 <= n <= 16:
+            raise UserError(f"--sockets must be 1..16, got {n}")
+        bench_cm = launch_bench(config=sim_config, speed=speed or DEFAULT_SIM_SPEED, sockets=n)
+    with bench_cm as bench:
+        endpoints = None
+        control = None
+        if bench is not None:
+            from station.uut import Endpoints
+
+            e = bench.endpoints
+            endpoints = Endpoints(speed=e.speed, rate_table=e.rate_table, chamber=e.chamber,
+                                  supply=e.supply, duts=dict(e.duts))
+            control = bench.control
+        runner = EngineRunner(settings, out=out, endpoints=endpoints, control=control,
+                              sim_parts=parts)
+        controller = Controller(runner, Hub())
+        app = create_app(controller, History(runner.out), engineer_password_hash=password_hash)
+        try:
+            yield UiStation(app, controller, runner, bench)
+        finally:
+            controller.hub.close()
+            runner.close()
