@@ -62,16 +62,20 @@ def article_record(
     bias_dps: float = 8.6,
     out_deg: float = 95.1,
     back_deg: float = -95.3,
-    bounce_dps: float = 0.0,
+    bounce_deg: float = 0.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """A record shaped like the article's Figure 4: static to 4.5 s, a 3.5 s move out,
     static, a 3.5 s move back from 12.5 s, static to 21 s. Angles are bias-corrected
-    integrals; a bounce (damped oscillation of zero net angle) can follow each arrival."""
+    integrals. A bounce can follow each arrival: the part rebounds off the stop by up to
+    `bounce_deg` and settles back on it, so its net angle is zero."""
     t = np.arange(0.0, 21.0, 1.0 / sample_rate_hz)
     y = bias_dps + raised_cosine(t, 4.5, 3.5, out_deg) + raised_cosine(t, 12.5, 3.5, back_deg)
-    if bounce_dps:
-        for arrive in (8.0, 16.0):
-            s = t - arrive
-            y += np.where((s > 0) & (s < 0.6), bounce_dps * np.sin(2 * np.pi * s / 0.15)
-                          * np.exp(-s / 0.15), 0.0)
+    if bounce_deg:
+        omega, tau = 2.0 * np.pi / 0.15, 0.1
+        for arrive, rebound in ((8.0, -np.sign(out_deg)), (16.0, -np.sign(back_deg))):
+            s = np.maximum(t - arrive, 0.0)
+            # angle = a sin^2(omega s / 2) exp(-s / tau): smooth, away from the stop and back
+            rate = bounce_deg * np.exp(-s / tau) * (
+                0.5 * omega * np.sin(omega * s) - np.sin(0.5 * omega * s) ** 2 / tau)
+            y += rebound * rate
     return t, y + noise_dps * rng.standard_normal(t.size)
