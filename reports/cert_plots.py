@@ -211,14 +211,16 @@ def allan(inputs: CertificateInputs) -> list[Flowable]:
             n_dps_rt_s = a.arw_deg_per_sqrt_h / 60.0  # deg/sqrt(h) -> (deg/s) * sqrt(s)
             chart.line(tau, n_dps_rt_s / np.sqrt(tau), PALETTE[1],
                        f"ARW {fmt(a.arw_deg_per_sqrt_h, 3)} deg/sqrt(h)", dash=(3, 2))
-        if a.bias_instability_deg_per_h is not None:
+        if a.bias_instability_deg_per_h is not None and a.bias_instability_deg_per_h <= 0:
+            chart.title += " (bias instability not resolved: record too short)"
+        elif a.bias_instability_deg_per_h is not None:
             floor = 0.664 * a.bias_instability_deg_per_h / 3600.0
             chart.hline(floor, PALETTE[2], f"bias instability {fmt(a.bias_instability_deg_per_h, 3)}"
                         " deg/h (x 0.664)", dash=(1, 2))
         text = ("Overlapping Allan deviation of the static record (IEEE 952). The angle random "
                 "walk line is N/sqrt(tau), read at tau = 1 s; the bias instability floor is "
                 "0.664 B.")
-        if a.rate_random_walk_deg_per_h_per_sqrt_h is not None:
+        if a.rate_random_walk_deg_per_h_per_sqrt_h:
             text += f" Rate random walk {fmt(a.rate_random_walk_deg_per_h_per_sqrt_h, 3)} "\
                     "deg/h/sqrt(h)."
         return [chart.drawing(), Paragraph(escape(text), NOTE)]
@@ -259,16 +261,19 @@ def stabilisation(inputs: CertificateInputs) -> list[Flowable]:
             if when is not None and math.isfinite(when):
                 left.vline(when, colour, dash=(2, 2), width=0.6)
                 right.vline(when, colour, dash=(2, 2), width=0.6)
-            if c and c.tolerance_c is not None:
+            if c and c.band_c is not None:
+                tol = c.band_c / 2
+            elif c and c.tolerance_c is not None and tol is None:
                 tol = c.tolerance_c
         if tol is not None:
-            right.band_y(-tol, tol, STATIC_FILL, f"criterion +/-{fmt(tol)} C")
+            right.band_y(-tol, tol, STATIC_FILL, f"criterion band {fmt(2 * tol)} C")
             right.y_range = (-8 * tol, 8 * tol)  # zoomed on the criterion; the left plot shows all
             right.title = f"Deviation from settled value (zoom +/-{fmt(8 * tol)} C)"
         grid = Table([[left.drawing(), right.drawing()]], colWidths=[HALF_W + 1 * mm, HALF_W])
         grid.setStyle(TableStyle([("LEFTPADDING", (0, 0), (-1, -1), 0),
                                   ("RIGHTPADDING", (0, 0), (-1, -1), 0)]))
-        note = ("Dashed vertical lines: the time each condition was declared stable. "
+        note = ("Dashed vertical lines: the time each condition was declared stable; the "
+                "criterion is judged over the window just before it (see Test conditions). "
                 + ("" if crit else "record.analysis has no 'stability' criterion; only the "
                    "times to stability from record.conditions are marked."))
         return [grid, Paragraph(escape(note), NOTE)]

@@ -208,17 +208,24 @@ def conditions(inputs: CertificateInputs) -> list[Flowable]:
     crit = record_keys.stability(rec.analysis)
     story.append(t)
     if crit:
-        texts = []
+        texts: list[tuple[str, str]] = []
         for name, c in crit.items():
             parts = []
-            if c.tolerance_c is not None and c.window_s is not None:
-                parts.append(f"die temperature within +/-{fmt(c.tolerance_c)} C for "
-                             f"{fmt(c.window_s)} s")
+            if c.band_c is not None:
+                parts.append(f"peak-to-peak below {fmt(c.band_c)} C")
             if c.max_rate_c_per_min is not None:
-                parts.append(f"drift below {fmt(c.max_rate_c_per_min)} C/min")
-            texts.append(f"{name}: {' and '.join(parts) or 'criterion not stated'}")
+                parts.append(f"|slope| below {fmt(c.max_rate_c_per_min)} C/min")
+            if c.window_s is not None and parts:
+                parts[-1] += f" over the last {fmt(c.window_s)} s"
+            if c.tolerance_c is not None:
+                parts.append(f"within {fmt(c.tolerance_c)} C of the setpoint")
+            texts.append((name, ' and '.join(parts) or 'criterion not stated'))
+        by_text: dict[str, list[str]] = {}
+        for name, text in texts:
+            by_text.setdefault(text, []).append(name)
+        joined = "; ".join(f"{', '.join(names)}: {text}" for text, names in by_text.items())
         story.append(Paragraph("Stability criterion (judged on the part's own temperature "
-                               "sensor): " + escape("; ".join(texts)), NOTE))
+                               "sensor): " + escape(joined), NOTE))
     return story
 
 
@@ -248,7 +255,7 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
     for i, m in enumerate(rec.measurements, start=1):
         d, pct = margin(m)
         rows.append([_p(m.name), _p(m.condition or "-"), _p(fmt(m.value)),
-                     _p(fmt(m.uncertainty_k2)), _p(m.units), _p(fmt(m.low)), _p(fmt(m.high)),
+                     _p(fmt(m.uncertainty_k2, 3)), _p(m.units), _p(fmt(m.low)), _p(fmt(m.high)),
                      _p(f"{fmt(d, 3)} {pct}".strip() if d is not None else pct),
                      _p(m.outcome.value)])
         if m.outcome == Outcome.FAIL:

@@ -267,11 +267,15 @@ class Chart:
             if b > a:
                 d.add(Rect(x0, a, pw, b - a, fillColor=s.color, strokeColor=None, strokeWidth=0))
         elif s.kind == "hline":
+            if self.log_y and not s.ys[0] > 0:
+                return
             py = float(ty(s.ys[0]))
             if y0 <= py <= top:
                 d.add(Line(x0, py, right, py, strokeColor=s.color, strokeWidth=s.width,
                            strokeDashArray=list(s.dash) if s.dash else None))
         elif s.kind == "vline":
+            if self.log_x and not s.xs[0] > 0:
+                return
             px = float(tx(s.xs[0]))
             if x0 <= px <= right:
                 d.add(Line(px, y0, px, top, strokeColor=s.color, strokeWidth=s.width,

@@ -77,7 +77,7 @@ def _capability_table(caps: list[lot_stats.Capability]) -> Table:
                              "Cpk")]]
     style = grid_style()
     for i, c in enumerate(caps, start=1):
-        rows.append([_p(c.name + (" *" if c.limits_varied else "")), _p(c.units), _p(c.n),
+        rows.append([_p(c.label + (" *" if c.limits_varied else "")), _p(c.units), _p(c.n),
                      _p(fmt(c.mean)), _p(fmt(c.sigma, 3)), _p(fmt(c.low)), _p(fmt(c.high)),
                      _p(fmt(c.cpk, 3))])
         if c.cpk is not None and c.cpk < 1.0:
@@ -91,7 +91,7 @@ def _capability_table(caps: list[lot_stats.Capability]) -> Table:
 
 
 def _histogram(c: lot_stats.Capability) -> Flowable:
-    title = f"{c.name} ({c.units})"
+    title = f"{c.label} ({c.units})"
     if c.n < 2:
         return message_box(HALF_W, 55 * mm, title, f"Not drawn: {c.n} value(s) in the lot.")
     values = np.asarray(c.values)
@@ -172,8 +172,7 @@ def build_lot(db: ResultsDB, **filters: object) -> tuple[list[Flowable], LotSumm
     rows: list[MeasurementRow] = db.measurement_values(**filters)  # type: ignore[arg-type]
     y = lot_stats.yield_summary(runs)
     pareto = lot_stats.failure_pareto(rows)
-    names = list(dict.fromkeys(m.name for m in rows))
-    caps = [lot_stats.capability(n, rows) for n in names]
+    caps = [lot_stats.capability(n, rows, c) for n, c in lot_stats.measurement_keys(rows)]
     story: list[Flowable] = [
         Paragraph("Lot report - MEMS gyroscope calibration", H1),
         Paragraph(f"Database: {escape(db.path)}. Filters: {escape(_filters_text(filters))}. "

@@ -58,7 +58,10 @@ def failure_pareto(rows: list[MeasurementRow]) -> list[tuple[str, int]]:
 
 @dataclass(frozen=True)
 class Capability:
+    """One measurement's spread against its limits; `label` names it with its condition."""
+
     name: str
+    condition: str | None
     units: str
     n: int
     mean: float | None
@@ -68,6 +71,10 @@ class Capability:
     cpk: float | None
     limits_varied: bool
     values: tuple[float, ...]
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} @ {self.condition}" if self.condition else self.name
 
 
 def cpk(mean: float, sigma: float, low: float | None, high: float | None) -> float | None:
@@ -83,9 +90,16 @@ def cpk(mean: float, sigma: float, low: float | None, high: float | None) -> flo
     return min(sides) if sides else None
 
 
-def capability(name: str, rows: list[MeasurementRow]) -> Capability:
-    """Capability of one measurement over the completed runs among `rows` (oldest first)."""
-    mine = [m for m in rows if m.name == name and m.verdict in COMPLETED]
+def measurement_keys(rows: list[MeasurementRow]) -> list[tuple[str, str | None]]:
+    """(name, condition) pairs in order of first appearance: one capability each."""
+    return list(dict.fromkeys((m.name, m.condition) for m in rows))
+
+
+def capability(name: str, rows: list[MeasurementRow], condition: str | None = None
+               ) -> Capability:
+    """Capability of one measurement (at one condition) over the completed runs in `rows`."""
+    mine = [m for m in rows
+            if m.name == name and m.condition == condition and m.verdict in COMPLETED]
     values = [m.value for m in mine if m.value is not None and math.isfinite(m.value)]
     newest = mine[-1] if mine else None
     low = newest.low if newest else None
@@ -97,6 +111,7 @@ def capability(name: str, rows: list[MeasurementRow]) -> Capability:
     index = cpk(mean, sigma, low, high) if mean is not None and sigma is not None else None
     return Capability(
         name=name,
+        condition=condition,
         units=newest.units if newest else "",
         n=n,
         mean=mean,

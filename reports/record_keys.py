@@ -24,11 +24,13 @@ fixture clock (the same clock as `raw.h5` `/samples/time_s` and `/segments`).
         "rate_random_walk_deg_per_h_per_sqrt_h": float,   # optional
     }
     analysis["stability"][<condition>] = {
-        "tolerance_c": float, "window_s": float,          # die temp within +/- tolerance
-        "max_rate_c_per_min": float,                      # or a rate criterion (either/both)
+        "window_s": float,                                # judged over the last window_s
+        "band_c": float,                                  # largest peak-to-peak in the window
+        "max_rate_c_per_min": float,                      # largest |slope| in the window
+        "tolerance_c": float | None,                      # optional: within this of setpoint
         "time_to_stability_s": float, "stable": bool,
-    }   # the die temperature curve itself comes from raw.h5 /samples within the
-        # segment of kind stabilise of that condition.
+    }   # any subset; the die temperature curve itself comes from raw.h5 /samples within
+        # the segment of kind stabilise of that condition (set -> declared stable).
     verification = {                                      # RunRecord.verification
         "residuals": [{"condition": str, "rate_in_dps": float, "error_dps": float,
                        "error_pct": float (optional)}, ...],
@@ -201,6 +203,7 @@ def stop_method(analysis: dict[str, Any]) -> dict[str, StopSummary]:
 @dataclass(frozen=True)
 class StabilityCriterion:
     condition: str
+    band_c: float | None
     tolerance_c: float | None
     window_s: float | None
     max_rate_c_per_min: float | None
@@ -220,6 +223,7 @@ def stability(analysis: dict[str, Any]) -> dict[str, StabilityCriterion]:
         stable = d.get("stable")
         out[cond] = StabilityCriterion(
             condition=cond,
+            band_c=_opt_float(d, "band_c"),
             tolerance_c=_opt_float(d, "tolerance_c"),
             window_s=_opt_float(d, "window_s"),
             max_rate_c_per_min=_opt_float(d, "max_rate_c_per_min"),
