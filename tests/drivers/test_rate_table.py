@@ -237,3 +237,14 @@ def test_connect_to_nothing_raises_connection_lost_with_advice():
     link = ModbusLink("127.0.0.1", port, timeout_s=0.3, instrument="rate table")
     with pytest.raises(ConnectionLost, match="powered"):
         ModbusRateTable(link, ManualClock()).read_status()
+
+
+def test_next_request_after_a_drop_reconnects():
+    server, table = make([
+        Exchange(read_pdu(20, 10), None, close=True),
+        status_read(rate_mdps=2_500),
+    ])
+    with pytest.raises(ConnectionLost):
+        table.read_status()
+    assert table.read_status().rate_dps == 2.5
+    finish(server, table)
