@@ -95,7 +95,9 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
     data = {c: np.asarray(v, dtype=np.float64) for c, v in cols.items()}
     n = data["time_s"].size
     if n < MIN_ROWS:
-        raise UserError(f"{path}: {n} data rows; the record is too short (need at least {MIN_ROWS})")
+        raise UserError(
+            f"{path}: {n} data rows; the record is too short (need at least {MIN_ROWS})"
+        )
     for c, arr in data.items():
         bad = ~np.isfinite(arr)
         if bad.any():

@@ -160,7 +160,9 @@ def tau_samples(n_samples: int, taus: TauSpec, sample_rate_hz: float) -> NDArray
             n_points = int(10 * math.log10(m_max)) + 1 if m_max > 1 else 1
             m = np.unique(np.round(np.logspace(0, math.log10(m_max), n_points)).astype(np.int64))
         else:
-            raise AnalysisError(f"taus must be 'octave', 'log' or an array of seconds, not {taus!r}")
+            raise AnalysisError(
+                f"taus must be 'octave', 'log' or an array of seconds, not {taus!r}"
+            )
     else:
         tau_req = finite_1d(taus, "taus")
         m = np.unique(np.round(tau_req * sample_rate_hz).astype(np.int64))
@@ -201,7 +203,11 @@ def overlapping_adev(
         n_terms[i] = k
         adev[i] = math.sqrt(float(np.dot(d, d)) / (2.0 * tau * tau * k))
     return AllanDeviation(
-        tau_s=m * dt, adev_dps=adev, m=m, n_terms=n_terms, n_samples=rate.size,
+        tau_s=np.asarray(m * dt, dtype=np.float64),
+        adev_dps=adev,
+        m=m,
+        n_terms=n_terms,
+        n_samples=rate.size,
         sample_rate_hz=fs,
     )
 
@@ -209,9 +215,13 @@ def overlapping_adev(
 def _edf(n_phase: int, m: NDArray[np.float64], alpha: int) -> NDArray[np.float64]:
     n = float(n_phase)
     if alpha == 0:
-        edf = (3.0 * (n - 1.0) / (2.0 * m) - 2.0 * (n - 2.0) / n) * (4.0 * m**2 / (4.0 * m**2 + 5.0))
+        edf = (3.0 * (n - 1.0) / (2.0 * m) - 2.0 * (n - 2.0) / n) * (
+            4.0 * m**2 / (4.0 * m**2 + 5.0)
+        )
     elif alpha == -1:
-        edf = np.where(m == 1, 2.0 * (n - 2.0) / (2.3 * n - 4.9), 5.0 * n**2 / (4.0 * m * (n + 3.0 * m)))
+        edf = np.where(
+            m == 1, 2.0 * (n - 2.0) / (2.3 * n - 4.9), 5.0 * n**2 / (4.0 * m * (n + 3.0 * m))
+        )
     elif alpha == -2:
         edf = (n - 2.0) / m * ((n - 1.0) ** 2 - 3.0 * m * (n - 1.0) + 4.0 * m**2) / (n - 3.0) ** 2
     else:

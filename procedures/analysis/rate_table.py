@@ -120,7 +120,7 @@ def _wls(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     w = 1.0 / var
     a = design.T @ (design * w[:, None])
-    cov = np.linalg.inv(a)
+    cov = np.asarray(np.linalg.inv(a), dtype=np.float64)
     p = cov @ (design.T @ (w * y))
     return p, cov
 

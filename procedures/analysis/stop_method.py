@@ -118,8 +118,9 @@ def detect_moves(
 ) -> tuple[list[tuple[int, int]], float, float]:
     """Index ranges [i0, i1] of the moves, margins included, plus the bias and sigma used."""
     e_all = rate_dps - np.median(rate_dps)
-    sigma = MAD_TO_SIGMA * float(np.median(np.abs(np.diff(rate_dps) - np.median(np.diff(rate_dps)))))
-    sigma /= math.sqrt(2.0)
+    # noise from sample-to-sample steps: smooth motion barely moves their median
+    steps = np.diff(rate_dps)
+    sigma = MAD_TO_SIGMA * float(np.median(np.abs(steps - np.median(steps)))) / math.sqrt(2.0)
     bias = float(np.median(rate_dps))
     for _ in range(3):  # static level and noise from the samples that are clearly static
         enter = max(settings.enter_sigma * sigma, settings.min_enter_dps)
@@ -294,7 +295,8 @@ def _mean_correction(
         return None, None
     n = len(usable)
     corrs = np.array([math.copysign(ref, a) / a for a, _, _ in usable])
-    # d c_k / d ref = c_k / ref; d c_k / d bias = c_k * T_k / angle_k; d c_k / d noise_k = -c_k / angle_k
+    # d c_k / d ref = c_k / ref; d c_k / d bias = c_k T_k / angle_k;
+    # d c_k / d noise_k = -c_k / angle_k
     g_ref = float(np.mean(corrs / ref))
     g_bias = float(np.mean([c * d / a for c, (a, d, _) in zip(corrs, usable, strict=True)]))
     g_noise = np.array([-c / a * un for c, (a, _, un) in zip(corrs, usable, strict=True)]) / n

@@ -158,7 +158,7 @@ def _wls(
             "the conditions do not separate temperature from supply: measure at two "
             "temperatures and two supply levels (a 2 x 2 design)"
         )
-    cov = np.linalg.inv(a)
+    cov = np.asarray(np.linalg.inv(a), dtype=np.float64)
     p = cov @ (design.T @ (w * y))
     r = y - design @ p
     return p, cov, float(np.sum(r**2 * w))

@@ -36,8 +36,8 @@ def test_article_worked_example_through_the_station_cli(tmp_path: Path) -> None:
     )
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
-    assert STOP_KEYS <= doc.keys()
-    assert all(MOVE_KEYS <= m.keys() for m in doc["moves"])
+    assert doc.keys() >= STOP_KEYS
+    assert all(m.keys() >= MOVE_KEYS for m in doc["moves"])
     assert round(doc["bias_correction_dps"], 1) == -8.6
     assert [round(m["scale_correction"], 3) for m in doc["moves"]] == [0.946, 0.944]
     assert [round(m["measured_angle_deg"], 1) for m in doc["moves"]] == [95.1, -95.3]
@@ -71,7 +71,7 @@ def test_allan_json_keys_and_values(tmp_path: Path, capsys: pytest.CaptureFixtur
     csv_path = _write(tmp_path / "a.csv", {"time_s": np.arange(y.size) / 100.0, "rate_dps": y})
     assert main(["analyze", "allan", str(csv_path), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert ALLAN_KEYS <= doc.keys()
+    assert doc.keys() >= ALLAN_KEYS
     assert len(doc["tau_s"]) == len(doc["adev_dps"]) >= 10
     assert doc["arw_deg_per_sqrt_h"] == pytest.approx(0.6, rel=0.05)
     assert main(["analyze", "allan", str(csv_path)]) == 0
