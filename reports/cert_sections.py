@@ -123,7 +123,38 @@ def header(inputs: CertificateInputs) -> list[Flowable]:
     style.add("BACKGROUND", (0, 0), (0, -1), HEADER_GREY)
     table.setStyle(style)
     story += [Spacer(1, 2 * mm), table]
+    if rec is not None:
+        story.append(Spacer(1, 1.5 * mm))
+        story.append(Paragraph(escape(summary_text(rec)), BODY))
     return story
+
+
+def summary_text(rec: RunRecord) -> str:
+    """One paragraph for page one: what was tested, how, and how it came out."""
+    temps = sorted({c.temperature_c for c in rec.conditions})
+    volts = sorted({c.supply_v for c in rec.conditions})
+    proc = rec.procedure.name or rec.procedure.path
+    how = (f"Tested with procedure {proc}" + (f" v{rec.procedure.version}"
+                                               if rec.procedure.version else "")
+           + (f" at {len(rec.conditions)} conditions ("
+              + "/".join(fmt(t) for t in temps) + " C, " + "/".join(fmt(v) for v in volts)
+              + " V)" if rec.conditions else ", no condition recorded"))
+    counts = {o: sum(m.outcome == o for m in rec.measurements) for o in Outcome}
+    out = (f"{len(rec.measurements)} measurements: {counts[Outcome.FAIL]} failed, "
+           f"{counts[Outcome.MARGINAL]} marginal, {counts[Outcome.NOT_MEASURED]} not measured")
+    cal = rec.calibration
+    if cal is None:
+        cal_text = "No calibration was written to the part"
+    else:
+        rb = {True: "read-back PASSED", False: "read-back FAILED",
+              None: "read-back not recorded"}[cal.readback_ok]
+        cal_text = (f"Calibration written: bias {fmt(cal.bias_dps.value)} +/- "
+                    f"{fmt(cal.bias_dps.uncertainty_k2, 2)} deg/s, scale {fmt(cal.scale.value, 6)}"
+                    f" +/- {fmt(cal.scale.uncertainty_k2, 2)} (k = 2); {rb}")
+    v = rec.verification
+    if isinstance(v, dict) and isinstance(v.get("max_error_pct"), int | float):
+        cal_text += f"; verification largest error {fmt(v['max_error_pct'], 3)} % of rate"
+    return f"{how}. {out}. {cal_text}."
 
 
 def _identity_rows(inputs: CertificateInputs, serial: str) -> list[tuple[str, str]]:

@@ -84,8 +84,8 @@ def _capability_table(caps: list[lot_stats.Capability]) -> Table:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
         elif c.cpk is not None and c.cpk < 1.33:
             style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
-    t = Table(rows, repeatRows=1, colWidths=[46 * mm, 20 * mm, 12 * mm, 22 * mm, 22 * mm,
-                                             20 * mm, 20 * mm, 18 * mm])
+    t = Table(rows, repeatRows=1, colWidths=[62 * mm, 16 * mm, 10 * mm, 20 * mm, 20 * mm,
+                                             18 * mm, 18 * mm, 16 * mm])
     t.setStyle(style)
     return t
 

@@ -47,6 +47,17 @@ def test_fail_certificate_names_the_failing_measurement_on_page_one(fail_run: Pa
         assert any(m.name in ln and fmt(m.value) in ln.split() for ln in text.splitlines())
 
 
+def test_page_one_summarises_how_tested_and_the_outcome(fail_run: Path) -> None:
+    page1 = _flat(pdf_text(fail_run / "certificate.pdf", page=1))
+    rec = read_record(fail_run)
+    n_fail = sum(m.outcome.value == "FAIL" for m in rec.measurements)
+    n_marg = sum(m.outcome.value == "MARGINAL" for m in rec.measurements)
+    assert (n_fail, n_marg) == (1, 1)
+    assert f"{len(rec.measurements)} measurements: {n_fail} failed, {n_marg} marginal" in page1
+    assert "4 conditions (25/45 C, 4.75/5.25 V)" in page1
+    assert "read-back PASSED" in page1
+
+
 def test_overdue_instrument_is_stated_on_page_one(fail_run: Path, pass_run: Path) -> None:
     assert "CALIBRATION OVERDUE" in pdf_text(fail_run / "certificate.pdf", page=1)
     assert "chamber" in pdf_text(fail_run / "certificate.pdf", page=1)

@@ -98,3 +98,22 @@ def test_histograms_and_trend_are_in_the_report(lot: tuple[Path, list], tmp_path
     assert "bias_dps (deg/s)" in text and "Bias written to the part" in text
     assert "Scale written to the part" in text and "Failures by measurement" in text
     assert re.search(r"Sigma = sample standard deviation \(n - 1\)", re.sub(r"\s+", " ", text))
+
+
+def test_capability_is_per_condition_not_pooled() -> None:
+    from station.results_db import MeasurementRow
+
+    def row(run: str, cond: str, v: float) -> MeasurementRow:
+        return MeasurementRow(run, "S", "2026-01-01T00:00:00+00:00", "PASS", "raw_bias_dps",
+                              cond, v, "deg/s", -10.0, 10.0, "PASS")
+
+    rows = [row(f"r{i}", c, v) for i, (c, v) in enumerate(
+        [("T25", 1.0), ("T45", 5.0), ("T25", 1.2), ("T45", 5.4), ("T25", 0.8), ("T45", 4.6)])]
+    keys = lot_stats.measurement_keys(rows)
+    assert keys == [("raw_bias_dps", "T25"), ("raw_bias_dps", "T45")]
+    cold = lot_stats.capability("raw_bias_dps", rows, "T25")
+    hot = lot_stats.capability("raw_bias_dps", rows, "T45")
+    assert cold.n == hot.n == 3
+    assert cold.mean == pytest.approx(1.0) and hot.mean == pytest.approx(5.0)
+    assert hot.cpk == pytest.approx((10 - 5.0) / (3 * 0.4))
+    assert hot.label == "raw_bias_dps @ T45"
