@@ -89,6 +89,26 @@ class ConditionResult:
     bias_dps: float | None = None
     u_bias_dps: float | None = None
     table_fit: Any = None  # procedures.analysis.rate_table.RateTableFit
+    # die temperature over the measurement windows: the bias and the scale are each paired
+    # with the temperature of their own windows (the die may still creep within a condition)
+    temp_sums: dict[str, tuple[float, int]] = field(default_factory=dict)
+
+    def note_temperature(self, kind: str, temp_c: Any) -> None:
+        """Add a window's die temperatures to `kind` ("bias" or "scale")."""
+        arr = np.asarray(temp_c, dtype=np.float64)
+        if arr.size:
+            total, n = self.temp_sums.get(kind, (0.0, 0))
+            self.temp_sums[kind] = (total + float(arr.sum()), n + int(arr.size))
+            all_sum = sum(v[0] for v in self.temp_sums.values())
+            all_n = sum(v[1] for v in self.temp_sums.values())
+            self.die_temperature_c = all_sum / all_n
+
+    def temperature_for(self, kind: str) -> float | None:
+        if kind in self.temp_sums:
+            total, n = self.temp_sums[kind]
+            return total / n
+        return self.die_temperature_c
+
     stop: dict[str, Any] | None = None  # scale, u_scale, bias, moves...
 
 

@@ -57,8 +57,15 @@ class Bias(BaseStep):
         data = samples_between(ctx, part, t0, t1)
         if not check_window(ctx, part, data, f"bias at {self.condition}", dwell):
             return
+        # the noise model from the longest static record at this condition: the stability
+        # window (die within its band, table at rest) and the dwell, so that slow terms (bias
+        # instability, the die's residual creep) reach the bias uncertainty
+        stab = part.record.analysis.get("stability", {}).get(self.condition, {})
+        static_from = stab.get("stable_at_station_s", t0) - stab.get("window_s", 0.0)
+        long = samples_between(ctx, part, min(static_from, t0), t1)
         try:
-            allan = analyze_allan(data["rate_dps"], fs)
+            allan = analyze_allan(long["rate_dps"] if long["rate_dps"].size > data["rate_dps"].size
+                                  else data["rate_dps"], fs)
             noise = allan.noise.model
             est = estimate_bias(data["rate_dps"], fs, noise)
         except AnalysisError as exc:
@@ -67,6 +74,7 @@ class Bias(BaseStep):
         part.extra["noise"] = noise
         res = part.conditions[self.condition]
         res.bias_dps, res.u_bias_dps = est.bias_dps, est.u_bias_dps
+        res.note_temperature("bias", data["temp_c"])
         ctx.measure(part, "raw_bias_dps", est.bias_dps, units="deg/s",
                     uncertainty_k2=2 * est.u_bias_dps, condition=self.condition,
                     description="uncalibrated bias at rest")

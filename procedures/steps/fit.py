@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from procedures.analysis.errors import AnalysisError
-from procedures.analysis.temp_supply_fit import ConditionMeasurement, fit_temp_supply
+from procedures.analysis.temp_supply_fit import (
+    ConditionMeasurement,
+    FirstOrderCoefficients,
+    TempSupplyFit,
+    fit_temp_supply,
+)
 from procedures.engine import ConditionResult, PartRun, RunContext, condition_record
 from procedures.record import Calibration, Verdict
 from procedures.steps.base import BaseStep
@@ -45,31 +50,58 @@ class Fit(BaseStep):
 
     def _fit(self, ctx: RunContext, part: PartRun) -> None:
         source = ctx.procedure.fit.source
-        conds = []
+        by_kind: dict[str, list[ConditionMeasurement]] = {"bias": [], "scale": []}
         try:
             for res in part.conditions.values():
-                if res.bias_dps is None or res.u_bias_dps is None or res.die_temperature_c is None:
+                if res.bias_dps is None or res.u_bias_dps is None:
                     raise AnalysisError(f"{res.name}: the bias was not measured")
                 scale, u_scale = scale_estimate(source, res)
-                conds.append(ConditionMeasurement(
-                    temp_c=res.die_temperature_c,
-                    supply_v=res.supply_measured_v if res.supply_measured_v else res.supply_v,
-                    bias_dps=res.bias_dps, u_bias_dps=res.u_bias_dps,
-                    scale=scale, u_scale=u_scale))
-            fit = fit_temp_supply(conds, ctx.product.reference_temperature_c,
-                                  ctx.product.reference_supply_v)
+                supply = res.supply_measured_v if res.supply_measured_v else res.supply_v
+                for kind, cond_list in by_kind.items():
+                    temp = res.temperature_for(kind)
+                    if temp is None:
+                        raise AnalysisError(f"{res.name}: no die temperature recorded")
+                    cond_list.append(ConditionMeasurement(
+                        temp_c=temp, supply_v=supply, bias_dps=res.bias_dps,
+                        u_bias_dps=res.u_bias_dps, scale=scale, u_scale=u_scale))
+            t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
+            # bias paired with the die temperature of its own windows, scale with its own
+            fit_b = fit_temp_supply(by_kind["bias"], t0, v0)
+            fit_s = fit_temp_supply(by_kind["scale"], t0, v0)
         except AnalysisError as exc:
             ctx.drop(part, Verdict.ERROR, f"first-order fit: {exc}")
             return
-        part.fit = fit
+        cb, cs = fit_b.coefficients, fit_s.coefficients
+        coefficients = replace(cb, scale=cs.scale, scale_temp_coeff_per_c=cs.scale_temp_coeff_per_c,
+                               scale_supply_coeff_per_v=cs.scale_supply_coeff_per_v)
+        part.fit = CombinedFit(coefficients, fit_b, fit_s)
+        cal = {k: v for k, v in fit_b.as_calibration_dict().items() if not k.startswith("scale")}
+        cal.update({k: v for k, v in fit_s.as_calibration_dict().items() if k.startswith("scale")})
+        inter_b, inter_s = fit_b.interaction, fit_s.interaction
+        if inter_b is not None and inter_s is not None:
+            cal["interaction_check"] = {
+                **{k: v for k, v in inter_b.as_dict().items() if not k.startswith("scale")},
+                **{k: v for k, v in inter_s.as_dict().items() if k.startswith("scale")},
+            }
         part.record.conditions = [condition_record(r) for r in part.conditions.values()]
-        part.record.calibration = Calibration.model_validate(fit.as_calibration_dict())
+        part.record.calibration = Calibration.model_validate(cal)
         part.record.analysis["fit"] = {"source": source, "conditions": [
-            {"name": r.name, "temp_c": c.temp_c, "supply_v": c.supply_v, "bias_dps": c.bias_dps,
-             "u_bias_dps": c.u_bias_dps, "scale": c.scale, "u_scale": c.u_scale}
-            for r, c in zip(part.conditions.values(), conds, strict=True)]}
-        co = fit.coefficients
+            {"name": r.name, "bias_temp_c": b.temp_c, "scale_temp_c": sc.temp_c,
+             "supply_v": b.supply_v, "bias_dps": b.bias_dps, "u_bias_dps": b.u_bias_dps,
+             "scale": b.scale, "u_scale": b.u_scale}
+            for r, b, sc in zip(part.conditions.values(), by_kind["bias"], by_kind["scale"],
+                                strict=True)]}
         for name, units in COEFF_UNITS.items():
-            ctx.measure(part, name, getattr(co, name), units=units,
+            fit = fit_b if name.startswith("bias") else fit_s
+            ctx.measure(part, name, getattr(coefficients, name), units=units,
                         uncertainty_k2=fit.uncertainty_k2(name),
                         description="first-order coefficient")
+
+
+@dataclass(frozen=True)
+class CombinedFit:
+    """Bias terms from the bias-temperature fit, scale terms from the scale-temperature fit."""
+
+    coefficients: FirstOrderCoefficients
+    bias_fit: TempSupplyFit
+    scale_fit: TempSupplyFit

@@ -84,6 +84,7 @@ class StopMethod(BaseStep):
         except AnalysisError as exc:
             ctx.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
             return
+        res.note_temperature("scale", data["temp_c"])
         res.stop = {"scale": scale, "u_scale": u_scale, "bias_dps": result.bias_dps,
                     "reference_angle_deg": ref, "u_reference_angle_deg": u_ref}
         for i, (a, b) in enumerate(result.static_segments_s):

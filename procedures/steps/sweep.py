@@ -85,6 +85,7 @@ class RateSweep(BaseStep):
                                 cfg.plateau_dwell_s):
                 return
             wm = window_mean(data["rate_dps"], fs, noise)
+            res.note_temperature("scale", data["temp_c"])
             ref.append(p.ref_dps)
             u_ref.append(p.u_ref_dps)
             out.append(wm.mean_dps)

@@ -140,7 +140,7 @@ class Stabilise(BaseStep):
             res = part.conditions[self.condition]
             res.stable = True
             res.time_to_stability_s = stable_at[part.socket] - start
-            res.die_temperature_c = v.mean_c
+            res.die_temperature_c = v.mean_c  # until the measurements give their own mean
             res.supply_measured_v = volts
             res.supply_current_a = amps / max(len(ctx.alive()), 1)
             assert part.stream is not None

@@ -1,0 +1,124 @@
+"""Four parts on a four-socket fixture, one run, against the simulated bench's truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from procedures.rawdata import read_raw
+from procedures.record import Verdict, read_record
+
+from .conftest import SimRun, run_on_bench, truth_series
+
+COEFFS = {  # record.calibration key -> truth parameter
+    "bias_dps": "bias_dps",
+    "scale": "scale",
+    "bias_temp_coeff_dps_per_c": "bias_temp_coeff_dps_per_c",
+    "bias_supply_coeff_dps_per_v": "bias_supply_coeff_dps_per_v",
+    "scale_temp_coeff_per_c": "scale_temp_coeff_per_c",
+    "scale_supply_coeff_per_v": "scale_supply_coeff_per_v",
+}
+
+
+@pytest.fixture(scope="module")
+def four(tmp_path_factory: pytest.TempPathFactory) -> SimRun:
+    parts = [{"socket": s, "serial": f"SIM-010{s}"} for s in (1, 2, 3)]
+    parts.append({"socket": 4, "serial": "SIM-0104", "bias_dps": 15.0})  # raw bias beyond 10
+    return run_on_bench(tmp_path_factory.mktemp("four") / "runs", parts, poll_truth=True,
+                        certificate=True)
+
+
+def test_four_records_four_verdicts_one_failing(four: SimRun) -> None:
+    res = four.result
+    assert sorted(res.folders) == [1, 2, 3, 4]
+    assert len({p.name for p in res.folders.values()}) == 4
+    for sock, folder in res.folders.items():
+        rec = read_record(folder)
+        assert rec.dut.socket == sock and rec.dut.serial == f"SIM-010{sock}"
+        assert rec.dut.part_serial_register == rec.dut.serial
+        assert rec.verdict is res.verdicts[sock]
+        assert (folder / "raw.h5").exists()
+        assert sock in res.certificates and res.certificates[sock].exists()
+    assert [res.verdicts[s] for s in (1, 2, 3)] == [Verdict.PASS] * 3, res.reasons
+    assert res.verdicts[4] is Verdict.FAIL
+    failing = read_record(res.folders[4])
+    assert any(f.startswith("raw_bias_dps") for f in failing.failed_measurements)
+    assert res.exit_code == 1
+
+
+def test_coefficients_within_k2_of_truth(four: SimRun) -> None:
+    misses, total = [], 0
+    for sock in (1, 2, 3, 4):
+        cal = read_record(four.result.folders[sock]).calibration
+        assert cal is not None and cal.readback_ok
+        truth = four.final_truth["sockets"][str(sock)]["parameters"]
+        for key, tkey in COEFFS.items():
+            c = getattr(cal, key)
+            total += 1
+            if abs(c.value - truth[tkey]) > c.uncertainty_k2:
+                misses.append((sock, key, c.value, truth[tkey], c.uncertainty_k2))
+    # k=2 covers ~95 %: allow two misses in 24 before calling the uncertainties wrong
+    assert len(misses) <= 2, misses
+
+
+def test_residual_after_correction_below_0p05_percent(four: SimRun) -> None:
+    for sock in (1, 2, 3, 4):
+        ver = read_record(four.result.folders[sock]).verification
+        assert ver is not None and len(ver["residuals"]) == 2
+        assert ver["max_error_pct"] < 0.05, ver
+
+
+def test_bench_safe_after_run(four: SimRun) -> None:
+    safe = four.final_truth["safe"]
+    assert safe["all"], safe
+
+
+def test_no_measurement_before_die_is_stable(four: SimRun) -> None:
+    """Against the truth die temperature: each condition's first measurement starts only when
+    the die itself is stable, though the air had reached its setpoint much earlier."""
+    folder = four.result.folders[1]
+    rec = read_record(folder)
+    raw = read_raw(folder / "raw.h5")
+    t_w, die, air = truth_series(four.history, 1)
+    ok = np.isfinite(die)
+    t_w, die, air = t_w[ok], die[ok], air[ok]
+    # fixture clock -> world clock: align the recorded sensor with the truth die temperature
+    ts, temp = raw["samples"]["time_s"], raw["samples"]["temp_c"]
+    offsets = np.arange(-120.0, 120.0, 0.25)
+    sel = (t_w > t_w[0] + 150)
+    cost = [np.nanmean((np.interp(t_w[sel] + o, ts, temp, left=np.nan, right=np.nan) - die[sel]) ** 2)
+            for o in offsets]
+    offset = offsets[int(np.nanargmin(cost))]
+    assert np.nanmin(cost) < 0.01  # the sensor follows the truth within its noise
+    window = 30.0
+    slope_limit = 0.3  # C/min, the short procedure's criterion
+    seg = raw["segments"]
+    checked = 0
+    for cond in rec.analysis["stability"]:
+        starts = seg["start_s"][(seg["condition"] == cond) & (seg["kind"] == "static")]
+        t_meas = float(starts.min()) - offset
+        m = (t_w >= t_meas - window) & (t_w <= t_meas)
+        assert m.sum() >= 4
+        slope = np.polyfit(t_w[m], die[m], 1)[0] * 60.0
+        assert abs(slope) <= slope_limit * 1.2, (cond, slope)
+        checked += 1
+    assert checked == 4
+    # the temperature change: air at setpoint long before the die was stable
+    setpoint = max(c.temperature_c for c in rec.conditions)
+    t_air = t_w[np.argmax(np.abs(air - setpoint) <= 0.5)]
+    m = (t_w >= t_air - window) & (t_w <= t_air)
+    slope_at_air = np.polyfit(t_w[m], die[m], 1)[0] * 60.0
+    assert abs(slope_at_air) > slope_limit, slope_at_air
+
+
+def test_raw_data_is_self_describing(four: SimRun) -> None:
+    raw = read_raw(four.result.folders[2] / "raw.h5")
+    assert raw.attrs["serial"] == "SIM-0102"
+    s = raw["samples"]
+    assert s["time_s"].size > 10_000 and np.all(np.diff(s["time_s"]) > 0)
+    kinds = set(raw["segments"]["kind"])
+    assert {"stabilise", "static", "plateau", "stop_static", "stop_move", "verify"} <= kinds
+    assert raw["table"]["station_time_s"].size > 20 and raw["chamber"]["temp_c"].size > 20
+    _ = Path
