@@ -61,7 +61,7 @@ def _safe(title: str, width: float, height: float, build: Callable[[], list[Flow
           ) -> list[Flowable]:
     try:
         return build()
-    except record_keys.MissingData as exc:
+    except record_keys.MissingAnalysisError as exc:
         return [message_box(width, height, title, f"Not drawn: {exc}.")]
     except Exception as exc:  # a plot must never stop a certificate being issued
         log.exception("plot %r failed", title)
@@ -78,12 +78,12 @@ def stop_method(inputs: CertificateInputs) -> list[Flowable]:
     def build() -> list[Flowable]:
         raw = inputs.raw
         if raw is None:
-            raise record_keys.MissingData("the raw data file could not be read")
+            raise record_keys.MissingAnalysisError("the raw data file could not be read")
         rec = inputs.record
         summaries = record_keys.stop_method(rec.analysis) if rec else {}
         conds = sorted(set(_conditions_with(raw, ("stop_static", "stop_move"))) | set(summaries))
         if not conds:
-            raise record_keys.MissingData(
+            raise record_keys.MissingAnalysisError(
                 "raw.h5 has no stop_static/stop_move segments and record.analysis has no "
                 "'stop_method'")
         out: list[Flowable] = []
@@ -118,7 +118,8 @@ def _stop_chart(raw: RawData, cond: str, summary: record_keys.StopSummary | None
                   f"(t = 0 at {origin:.1f} s fixture time)",
                   x_label="time (s)", y_label="rate (deg/s)")
     for i, (a, b) in enumerate(static):
-        chart.shade_x(a - origin, b - origin, STATIC_FILL, "static (bias) window" if i == 0 else None)
+        chart.shade_x(a - origin, b - origin, STATIC_FILL,
+                      "static (bias) window" if i == 0 else None)
     for i, (a, b) in enumerate(integ):
         chart.shade_x(a - origin, b - origin, INTEGRATION_FILL,
                       "integration window" if i == 0 else None)
@@ -153,7 +154,7 @@ def _rate_points_from_raw(raw: RawData) -> list[record_keys.RatePoints]:
             out.append(record_keys.RatePoints(cond, rin, rout, resid, float(slope), float(icpt),
                                               from_raw=True))
     if not out:
-        raise record_keys.MissingData(
+        raise record_keys.MissingAnalysisError(
             "record.analysis has no 'rate_table' and raw.h5 has no plateau segments")
     return out
 
@@ -165,7 +166,7 @@ def rate_table(inputs: CertificateInputs) -> list[Flowable]:
         rec = inputs.record
         try:
             points = record_keys.rate_table(rec.analysis if rec else {})
-        except record_keys.MissingData:
+        except record_keys.MissingAnalysisError:
             if inputs.raw is None:
                 raise
             points = _rate_points_from_raw(inputs.raw)
@@ -215,7 +216,8 @@ def allan(inputs: CertificateInputs) -> list[Flowable]:
             chart.title += " (bias instability not resolved: record too short)"
         elif a.bias_instability_deg_per_h is not None:
             floor = 0.664 * a.bias_instability_deg_per_h / 3600.0
-            chart.hline(floor, PALETTE[2], f"bias instability {fmt(a.bias_instability_deg_per_h, 3)}"
+            chart.hline(floor, PALETTE[2],
+                        f"bias instability {fmt(a.bias_instability_deg_per_h, 3)}"
                         " deg/h (x 0.664)", dash=(1, 2))
         text = ("Overlapping Allan deviation of the static record (IEEE 952). The angle random "
                 "walk line is N/sqrt(tau), read at tau = 1 s; the bias instability floor is "
@@ -234,13 +236,13 @@ def stabilisation(inputs: CertificateInputs) -> list[Flowable]:
     def build() -> list[Flowable]:
         raw = inputs.raw
         if raw is None:
-            raise record_keys.MissingData("the raw data file could not be read")
+            raise record_keys.MissingAnalysisError("the raw data file could not be read")
         rec = inputs.record
         crit = record_keys.stability(rec.analysis) if rec else {}
         tts = {c.name: c.time_to_stability_s for c in rec.conditions} if rec else {}
         conds = _conditions_with(raw, ("stabilise",))
         if not conds:
-            raise record_keys.MissingData("raw.h5 has no segments of kind stabilise")
+            raise record_keys.MissingAnalysisError("raw.h5 has no segments of kind stabilise")
         left = Chart(HALF_W, 62 * mm, title="Die temperature", x_label="time from start (s)",
                      y_label="die temperature (C)")
         right = Chart(HALF_W, 62 * mm, title="Deviation from settled value, criterion",

@@ -8,9 +8,11 @@ sparse record.
 from __future__ import annotations
 
 from datetime import date, datetime
+from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from reportlab.lib import colors
+from reportlab.lib.styles import ParagraphStyle
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
 
@@ -40,7 +42,7 @@ from reports.styles import (
 CONTENT_WIDTH = 182 * mm
 
 
-def _p(text: object, style=CELL) -> Paragraph:  # type: ignore[no-untyped-def]
+def _p(text: object, style: ParagraphStyle = CELL) -> Paragraph:
     return Paragraph(escape(text), style)
 
 
@@ -240,16 +242,16 @@ def conditions(inputs: CertificateInputs) -> list[Flowable]:
     story.append(t)
     if crit:
         texts: list[tuple[str, str]] = []
-        for name, c in crit.items():
+        for name, crit_c in crit.items():
             parts = []
-            if c.band_c is not None:
-                parts.append(f"peak-to-peak below {fmt(c.band_c)} C")
-            if c.max_rate_c_per_min is not None:
-                parts.append(f"|slope| below {fmt(c.max_rate_c_per_min)} C/min")
-            if c.window_s is not None and parts:
-                parts[-1] += f" over the last {fmt(c.window_s)} s"
-            if c.tolerance_c is not None:
-                parts.append(f"within {fmt(c.tolerance_c)} C of the setpoint")
+            if crit_c.band_c is not None:
+                parts.append(f"peak-to-peak below {fmt(crit_c.band_c)} C")
+            if crit_c.max_rate_c_per_min is not None:
+                parts.append(f"|slope| below {fmt(crit_c.max_rate_c_per_min)} C/min")
+            if crit_c.window_s is not None and parts:
+                parts[-1] += f" over the last {fmt(crit_c.window_s)} s"
+            if crit_c.tolerance_c is not None:
+                parts.append(f"within {fmt(crit_c.tolerance_c)} C of the setpoint")
             texts.append((name, ' and '.join(parts) or 'criterion not stated'))
         by_text: dict[str, list[str]] = {}
         for name, text in texts:
@@ -345,7 +347,8 @@ def calibration(inputs: CertificateInputs) -> list[Flowable]:
         f"{fmt(cal.reference_temperature_c)} C and dV = supply - {fmt(cal.reference_supply_v)} V. "
         f"<b>Sign conventions:</b> the bias is what the part outputs at zero rate; the bias "
         f"correction is minus the bias ({fmt(-bias)} deg/s here). The scale is output divided by "
-        f"input; the scale correction is input divided by output ({fmt(1 / scale if scale else None)} "
+        f"input; the scale correction is input divided by output "
+        f"({fmt(1 / scale if scale else None)} "
         f"here). Corrected rate = (output + bias correction) x scale correction. "
         f"Uncertainties are expanded, k = 2 (about 95 %). <b>Read-back check:</b> {rb}.", BODY))
     if cal.interaction_check:
@@ -364,7 +367,7 @@ def verification(rec: RunRecord | None) -> list[Flowable]:
     rows = [[_p(h) for h in ("Condition", "Input rate (deg/s)", "Residual (deg/s)",
                              "Residual (%)")]]
     for r in rows_in:
-        def num(key: str, r: dict = r) -> float | None:  # type: ignore[type-arg]
+        def num(key: str, r: dict[str, Any] = r) -> float | None:
             v = r.get(key)
             return float(v) if isinstance(v, int | float) else None
         rows.append([_p(r.get("condition", "-")), _p(fmt(num("rate_in_dps"))),

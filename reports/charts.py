@@ -17,12 +17,14 @@ cannot be drawn and says why.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 from reportlab.graphics.shapes import Drawing, Group, Line, PolyLine, Rect, String
 from reportlab.lib import colors
+from reportlab.lib.colors import Color
 from reportlab.pdfbase.pdfmetrics import stringWidth
 
 from reports.styles import FONT, FONT_BOLD
@@ -41,6 +43,8 @@ LIMIT_RED = colors.HexColor("#c0141c")
 GRID = colors.HexColor("#e3e6ea")
 
 _LEFT, _RIGHT, _BOTTOM, _TOP = 46.0, 8.0, 26.0, 16.0
+_Map = Callable[[ArrayLike], np.ndarray]  # data -> page coordinates
+_Range = tuple[float, float]
 
 
 @dataclass
@@ -121,7 +125,7 @@ class Chart:
         used = sum(1 for s in self._series if s.kind in ("line", "scatter"))
         return PALETTE[used % len(PALETTE)]
 
-    def _clean(self, xs: Sequence[float], ys: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    def _clean(self, xs: ArrayLike, ys: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         x = np.asarray(xs, dtype=float).ravel()
         y = np.asarray(ys, dtype=float).ravel()
         if x.size != y.size:
@@ -133,35 +137,45 @@ class Chart:
             ok &= y > 0
         return x[ok], y[ok]
 
-    def line(self, xs, ys, color=None, label=None, width=0.8, dash=None) -> Chart:  # type: ignore[no-untyped-def]
+    def line(self, xs: ArrayLike, ys: ArrayLike, color: Color | None = None,
+             label: str | None = None, width: float = 0.8,
+             dash: tuple[float, ...] | None = None) -> Chart:
         x, y = self._clean(xs, ys)
         self._series.append(_Series("line", x, y, color or self._next_colour(), label, width, dash))
         return self
 
-    def scatter(self, xs, ys, color=None, label=None, size=2.0) -> Chart:  # type: ignore[no-untyped-def]
+    def scatter(self, xs: ArrayLike, ys: ArrayLike, color: Color | None = None,
+                label: str | None = None, size: float = 2.0) -> Chart:
         x, y = self._clean(xs, ys)
         self._series.append(
             _Series("scatter", x, y, color or self._next_colour(), label, size=size)
         )
         return self
 
-    def shade_x(self, x0: float, x1: float, color=STATIC_FILL, label=None) -> Chart:  # type: ignore[no-untyped-def]
+    def shade_x(self, x0: float, x1: float, color: Color = STATIC_FILL,
+                label: str | None = None) -> Chart:
         self._series.append(_Series("shade_x", np.array([x0, x1]), np.array([]), color, label))
         return self
 
-    def band_y(self, y0: float, y1: float, color=STATIC_FILL, label=None) -> Chart:  # type: ignore[no-untyped-def]
+    def band_y(self, y0: float, y1: float, color: Color = STATIC_FILL,
+               label: str | None = None) -> Chart:
         self._series.append(_Series("band_y", np.array([]), np.array([y0, y1]), color, label))
         return self
 
-    def hline(self, y: float, color=LIMIT_RED, label=None, dash=(3, 2), width=0.8) -> Chart:  # type: ignore[no-untyped-def]
-        self._series.append(_Series("hline", np.array([]), np.array([y]), color, label, width, dash))
+    def hline(self, y: float, color: Color = LIMIT_RED, label: str | None = None,
+              dash: tuple[float, ...] | None = (3, 2), width: float = 0.8) -> Chart:
+        self._series.append(
+            _Series("hline", np.array([]), np.array([y]), color, label, width, dash))
         return self
 
-    def vline(self, x: float, color=LIMIT_RED, label=None, dash=(3, 2), width=0.8) -> Chart:  # type: ignore[no-untyped-def]
-        self._series.append(_Series("vline", np.array([x]), np.array([]), color, label, width, dash))
+    def vline(self, x: float, color: Color = LIMIT_RED, label: str | None = None,
+              dash: tuple[float, ...] | None = (3, 2), width: float = 0.8) -> Chart:
+        self._series.append(
+            _Series("vline", np.array([x]), np.array([]), color, label, width, dash))
         return self
 
-    def bars(self, edges, counts, color=None, label=None) -> Chart:  # type: ignore[no-untyped-def]
+    def bars(self, edges: ArrayLike, counts: ArrayLike, color: Color | None = None,
+             label: str | None = None) -> Chart:
         """Histogram bars: len(edges) == len(counts) + 1."""
         e = np.asarray(edges, dtype=float)
         c = np.asarray(counts, dtype=float)
@@ -207,17 +221,17 @@ class Chart:
         xr = self.x_range or self._data_range("x")
         yr = self.y_range or self._data_range("y")
 
-        def tx(v: np.ndarray | float) -> np.ndarray | float:
+        def tx(v: ArrayLike) -> np.ndarray:
             if self.log_x:
                 a, b = math.log10(xr[0]), math.log10(xr[1])
-                return x0 + (np.log10(v) - a) / (b - a) * pw
-            return x0 + (np.asarray(v) - xr[0]) / (xr[1] - xr[0]) * pw
+                return np.asarray(x0 + (np.log10(v) - a) / (b - a) * pw)
+            return np.asarray(x0 + (np.asarray(v) - xr[0]) / (xr[1] - xr[0]) * pw)
 
-        def ty(v: np.ndarray | float) -> np.ndarray | float:
+        def ty(v: ArrayLike) -> np.ndarray:
             if self.log_y:
                 a, b = math.log10(yr[0]), math.log10(yr[1])
-                return y0 + (np.log10(v) - a) / (b - a) * ph
-            return y0 + (np.asarray(v) - yr[0]) / (yr[1] - yr[0]) * ph
+                return np.asarray(y0 + (np.log10(v) - a) / (b - a) * ph)
+            return np.asarray(y0 + (np.asarray(v) - yr[0]) / (yr[1] - yr[0]) * ph)
 
         self._draw_axes(d, tx, ty, xr, yr, x0, y0, pw, ph)
         # Fills first so lines and points stay visible over them.
@@ -229,9 +243,10 @@ class Chart:
         d.add(String(x0, self.height - 11, self.title, fontName=FONT_BOLD, fontSize=8))
         return d
 
-    def _draw_axes(self, d, tx, ty, xr, yr, x0, y0, pw, ph) -> None:  # type: ignore[no-untyped-def]
+    def _draw_axes(self, d: Drawing, tx: _Map, ty: _Map, xr: _Range, yr: _Range, x0: float,
+                   y0: float, pw: float, ph: float) -> None:
         xt = log_ticks(*xr) if self.log_x else nice_ticks(*xr)
-        yt = log_ticks(*yr) if self.log_y else nice_ticks(*yr, target=4)
+        yt = log_ticks(*yr) if self.log_y else nice_ticks(yr[0], yr[1], target=4)
         for v in xt:
             px = float(tx(v))
             if x0 - 0.5 <= px <= x0 + pw + 0.5:
@@ -254,7 +269,8 @@ class Chart:
         g.rotate(90)
         d.add(g)
 
-    def _draw_series(self, d, s, tx, ty, xr, yr, x0, y0, pw, ph) -> None:  # type: ignore[no-untyped-def]
+    def _draw_series(self, d: Drawing, s: _Series, tx: _Map, ty: _Map, xr: _Range, yr: _Range,
+                     x0: float, y0: float, pw: float, ph: float) -> None:
         top, right = y0 + ph, x0 + pw
         if s.kind == "shade_x":
             a = float(np.clip(tx(max(min(s.xs), xr[0]) if not self.log_x else s.xs[0]), x0, right))
@@ -291,20 +307,21 @@ class Chart:
                            strokeColor=None, strokeWidth=0))
         elif s.kind == "line" and s.xs.size:
             xs, ys = decimate(s.xs, s.ys, int(pw))
-            px, py = np.asarray(tx(xs), dtype=float), np.asarray(ty(ys), dtype=float)
-            inside = (px >= x0 - 0.01) & (px <= right + 0.01) & (py >= y0 - 0.01) & (py <= top + 0.01)
+            lx, ly = np.asarray(tx(xs), dtype=float), np.asarray(ty(ys), dtype=float)
+            tol = 0.01
+            inside = (lx >= x0 - tol) & (lx <= right + tol) & (ly >= y0 - tol) & (ly <= top + tol)
             # Points outside the axes break the line rather than being pinned to the frame.
             breaks = np.flatnonzero(np.diff(inside.astype(int)) != 0) + 1
-            for run in np.split(np.arange(px.size), breaks):
+            for run in np.split(np.arange(lx.size), breaks):
                 if run.size < 2 or not inside[run[0]]:
                     continue
-                pts = [round(float(v), 2) for i in run for v in (px[i], py[i])]
+                pts = [round(float(v), 2) for i in run for v in (lx[i], ly[i])]
                 d.add(PolyLine(pts, strokeColor=s.color, strokeWidth=s.width,
                                strokeDashArray=list(s.dash) if s.dash else None))
         elif s.kind == "scatter" and s.xs.size:
-            px, py = tx(s.xs), ty(s.ys)
+            lx, ly = tx(s.xs), ty(s.ys)
             h = s.size
-            for a, b in zip(np.atleast_1d(px), np.atleast_1d(py), strict=True):
+            for a, b in zip(np.atleast_1d(lx), np.atleast_1d(ly), strict=True):
                 if x0 <= a <= right and y0 <= b <= top:
                     d.add(Rect(float(a) - h / 2, float(b) - h / 2, h, h, fillColor=s.color,
                                strokeColor=None, strokeWidth=0))

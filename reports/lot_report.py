@@ -128,8 +128,11 @@ def _pairs(items: list[Flowable]) -> list[Flowable]:
 
 
 def _trend(runs: list[RunRow]) -> list[Flowable]:
-    pts = [(parse_utc(r.started_utc), r) for r in runs if r.verdict in lot_stats.COMPLETED]
-    pts = [(t, r) for t, r in pts if t is not None]
+    pts: list[tuple[datetime, RunRow]] = []
+    for r in runs:
+        t = parse_utc(r.started_utc)
+        if t is not None and r.verdict in lot_stats.COMPLETED:
+            pts.append((t, r))
     if len(pts) < 2:
         return [message_box(FULL_W, 50 * mm, "Trend of bias and scale",
                             f"Not drawn: {len(pts)} completed run(s) with a start time.")]
@@ -139,7 +142,7 @@ def _trend(runs: list[RunRow]) -> list[Flowable]:
                               ("scale", "Scale written to the part", "1")):
         hours = [(t - t0).total_seconds() / 3600 for t, r in pts
                  if r.calibration.get(key) is not None]
-        vals = [r.calibration[key] for _t, r in pts if r.calibration.get(key) is not None]
+        vals = [float(v) for _t, r in pts if (v := r.calibration.get(key)) is not None]
         if len(vals) < 2:
             charts.append(message_box(HALF_W, 55 * mm, label,
                                       f"Not drawn: {len(vals)} run(s) with a written {key}."))

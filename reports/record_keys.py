@@ -50,19 +50,19 @@ ALLAN = "allan"
 STABILITY = "stability"
 
 
-class MissingData(ValueError):
+class MissingAnalysisError(ValueError):
     """A piece of analysis the certificate wanted is not in the record; says which key."""
 
 
 def _finite_list(value: Any, key: str) -> list[float]:
     if not isinstance(value, list | tuple):
-        raise MissingData(f"{key} is not a list of numbers")
+        raise MissingAnalysisError(f"{key} is not a list of numbers")
     out: list[float] = []
     for v in value:
         try:
             f = float(v)
         except (TypeError, ValueError) as exc:
-            raise MissingData(f"{key} holds a non-number ({v!r})") from exc
+            raise MissingAnalysisError(f"{key} holds a non-number ({v!r})") from exc
         out.append(f)
     return out
 
@@ -79,10 +79,10 @@ def _opt_float(d: dict[str, Any], key: str) -> float | None:
 
 
 def section(analysis: dict[str, Any], key: str) -> dict[str, Any]:
-    """`analysis[key]` as a dict, or MissingData naming the key."""
+    """`analysis[key]` as a dict, or MissingAnalysisError naming the key."""
     value = analysis.get(key)
     if not isinstance(value, dict) or not value:
-        raise MissingData(f"record.analysis[{key!r}] is not in the record")
+        raise MissingAnalysisError(f"record.analysis[{key!r}] is not in the record")
     return value
 
 
@@ -101,7 +101,7 @@ def allan(analysis: dict[str, Any]) -> AllanSummary:
     tau = _finite_list(a.get("tau_s"), "analysis.allan.tau_s")
     adev = _finite_list(a.get("adev_dps"), "analysis.allan.adev_dps")
     if len(tau) != len(adev) or len(tau) < 2:
-        raise MissingData(
+        raise MissingAnalysisError(
             f"analysis.allan: tau_s ({len(tau)}) and adev_dps ({len(adev)}) must be equal "
             "length, at least 2"
         )
@@ -142,12 +142,13 @@ def rate_table(analysis: dict[str, Any]) -> list[RatePoints]:
         res = d.get("residual_dps")
         resid = _finite_list(res, f"{key}.residual_dps") if res is not None else []
         if len(rin) != len(rout) or (resid and len(resid) != len(rin)):
-            raise MissingData(f"{key}: rate_in_dps, rate_out_dps, residual_dps differ in length")
+            raise MissingAnalysisError(
+                f"{key}: rate_in_dps, rate_out_dps, residual_dps differ in length")
         out.append(
             RatePoints(cond, rin, rout, resid, _opt_float(d, "scale"), _opt_float(d, "bias_dps"))
         )
     if not out:
-        raise MissingData("record.analysis['rate_table'] holds no condition")
+        raise MissingAnalysisError("record.analysis['rate_table'] holds no condition")
     return out
 
 

@@ -136,7 +136,7 @@ def cmd_lot_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("report", help="render a run folder's certificate again")
     p.add_argument("run_folder", metavar="RUN_FOLDER")
     p.add_argument("--index", action="store_true", help="also (re)index it in the database")

@@ -69,7 +69,8 @@ def _output(part: Part, w: np.ndarray, d_t: float, d_v: float, rng: np.random.Ge
             ) -> np.ndarray:
     sigma = part.arw_deg_per_sqrt_h / 60.0 * math.sqrt(RATE_HZ)
     k = part.scale * (1 + part.scale_temp_coeff_per_c * d_t + part.scale_supply_coeff_per_v * d_v)
-    b = part.bias_dps + part.bias_temp_coeff_dps_per_c * d_t + part.bias_supply_coeff_dps_per_v * d_v
+    b = (part.bias_dps + part.bias_temp_coeff_dps_per_c * d_t
+         + part.bias_supply_coeff_dps_per_v * d_v)
     return k * w + b + rng.normal(0.0, sigma, w.size)
 
 
@@ -142,7 +143,7 @@ def _write_raw(path: Path, part: Part, run_id: str) -> dict[str, Any]:
                 seg("stop_move", i, a, b, ang=90.0 if i == 0 else -90.0)
             bias = float(np.mean(y[: int(3 * RATE_HZ)]))
             mv = []
-            for i, (a, b) in enumerate(moves):
+            for a, b in moves:
                 sel = (tt >= a) & (tt <= b)
                 ang = float(np.sum(y[sel] - bias) / RATE_HZ)
                 mv.append({"start_s": a, "end_s": b, "measured_angle_deg": ang,
