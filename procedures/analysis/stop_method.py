@@ -117,11 +117,11 @@ def detect_moves(
     settings: StopMethodSettings,
 ) -> tuple[list[tuple[int, int]], float, float]:
     """Index ranges [i0, i1] of the moves, margins included, plus the bias and sigma used."""
-    e_all = rate_dps - np.median(rate_dps)
     # noise from sample-to-sample steps: smooth motion barely moves their median
     steps = np.diff(rate_dps)
     sigma = MAD_TO_SIGMA * float(np.median(np.abs(steps - np.median(steps)))) / math.sqrt(2.0)
-    bias = float(np.median(rate_dps))
+    bias = _static_level(rate_dps, max(sigma, settings.min_leave_dps))
+    e_all = rate_dps - bias
     for _ in range(3):  # static level and noise from the samples that are clearly static
         enter = max(settings.enter_sigma * sigma, settings.min_enter_dps)
         static = np.abs(e_all) < enter
@@ -157,6 +157,16 @@ def detect_moves(
         i1 = int(np.searchsorted(time_s, hi_t, side="right")) - 1
         out.append((max(i0, 0), min(i1, n - 1)))
     return out, bias, sigma
+
+
+def _static_level(rate_dps: NDArray[np.float64], sigma: float) -> float:
+    """The most populated level of the record: at rest the output clusters within a few
+    sigma, while moves spread over the range, so this holds even when moves fill most of it."""
+    lo, hi = float(rate_dps.min()), float(rate_dps.max())
+    n_bins = int(min(max((hi - lo) / (2.0 * sigma), 1), 20_000))
+    counts, edges = np.histogram(rate_dps, bins=n_bins)
+    k = int(np.argmax(counts))
+    return 0.5 * float(edges[k] + edges[k + 1])
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:

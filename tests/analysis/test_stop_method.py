@@ -100,3 +100,15 @@ def test_record_ending_inside_a_move_gives_no_scale_for_it() -> None:
     r = analyze_stop_method(t[keep], y[keep])
     assert r.moves[-1].complete is False and r.moves[-1].scale_correction is None
     assert r.scale_correction == r.moves[0].scale_correction
+
+
+def test_moves_filling_most_of_the_record_are_still_found() -> None:
+    """Static only 35 % of the time: a plain median would sit inside a move."""
+    rng = np.random.default_rng(9)
+    t = np.arange(0.0, 16.0, 0.01)
+    y = (8.6 + raised_cosine(t, 2.0, 5.0, 95.0) + raised_cosine(t, 8.0, 5.0, 95.0)
+         + 0.05 * rng.standard_normal(t.size))
+    assert abs(np.median(y) - 8.6) > 1.0
+    r = analyze_stop_method(t, y)
+    assert r.bias_dps == pytest.approx(8.6, abs=0.02)
+    assert [round(m.measured_angle_deg) for m in r.moves] == [95, 95]
