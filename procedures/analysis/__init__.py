@@ -34,6 +34,7 @@ temp_supply_fit.py
         .as_calibration_dict() gives record.json's pinned `calibration` block
 verification.py
     correct_rate(raw_dps, temp_c, supply_v, coefficients) -> corrected deg/s
+    correction_uncertainty_dps(fit, rate_dps, temp_c, supply_v) -> u (k=1) the fit adds
     verify_correction(reference_rate_dps, u_reference_rate_dps, corrected_rate_dps,
                       u_corrected_rate_dps, full_scale_dps) -> VerificationResult
 consistency.py
@@ -86,6 +87,7 @@ from procedures.analysis.temp_supply_fit import (
 from procedures.analysis.verification import (
     VerificationResult,
     correct_rate,
+    correction_uncertainty_dps,
     verify_correction,
 )
 
@@ -110,6 +112,7 @@ __all__ = [
     "analyze_allan",
     "analyze_stop_method",
     "correct_rate",
+    "correction_uncertainty_dps",
     "estimate_bias",
     "fit_noise_model",
     "fit_rate_table",

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from procedures.analysis._checks import finite_1d, positive
 from procedures.analysis.errors import AnalysisError
-from procedures.analysis.temp_supply_fit import FirstOrderCoefficients
+from procedures.analysis.temp_supply_fit import FirstOrderCoefficients, TempSupplyFit
 
 
 def correct_rate(
@@ -32,6 +32,33 @@ def correct_rate(
     if np.any(scale == 0):
         raise AnalysisError("the coefficients give a zero scale factor: refit them")
     return np.asarray((raw - bias) / scale)
+
+
+def correction_uncertainty_dps(
+    fit: TempSupplyFit, rate_dps: ArrayLike, temp_c: ArrayLike, supply_v: ArrayLike
+) -> NDArray[np.float64]:
+    """Standard uncertainty the fitted coefficients add to a corrected rate (k=1).
+
+    Propagates both coefficient covariances through w = (y - bias(T, V)) / scale(T, V);
+    add it in quadrature to the measurement's own uncertainty.
+    """
+    c = fit.coefficients
+    w = np.asarray(rate_dps, dtype=np.float64)
+    dt = np.asarray(temp_c, dtype=np.float64) - c.reference_temperature_c
+    dv = np.asarray(supply_v, dtype=np.float64) - c.reference_supply_v
+    w, dt, dv = np.broadcast_arrays(w, dt, dv)
+    scale = c.scale_at(c.reference_temperature_c + dt, c.reference_supply_v + dv)
+    ones = np.ones_like(w)
+    g_bias = -np.stack([ones, dt, dv], axis=-1) / scale[..., None]
+    # d scale / d (s0, sT, sV), then d w / d scale = -w / scale
+    ds = np.stack(
+        [scale / c.scale, c.scale * dt, c.scale * dv], axis=-1
+    )
+    g_scale = -(w / scale)[..., None] * ds
+    var = np.einsum("...i,ij,...j->...", g_bias, fit.bias_covariance, g_bias) + np.einsum(
+        "...i,ij,...j->...", g_scale, fit.scale_covariance, g_scale
+    )
+    return np.asarray(np.sqrt(var))
 
 
 @dataclass(frozen=True)

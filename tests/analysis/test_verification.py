@@ -47,3 +47,32 @@ def test_a_stale_coefficient_shows_up_as_error_at_verification() -> None:
     good = verify_correction(ref, np.full(4, 1e-3), correct_rate(raw, 60.0, 5.0, COEFFS),
                              np.full(4, 1e-3), 250.0)
     assert bad.max_abs_error_pct_fs > 0.5 and good.max_abs_error_pct_fs < 1e-8
+
+
+def test_coefficient_uncertainty_propagates_to_the_corrected_rate() -> None:
+    """MC: refit from noisy conditions many times; the scatter of the corrected rate at
+    one (rate, T, V) point matches the propagated uncertainty."""
+    from procedures.analysis import (
+        ConditionMeasurement,
+        correction_uncertainty_dps,
+        fit_temp_supply,
+    )
+
+    rng = np.random.default_rng(1)
+    design = [(25.0, 4.75), (25.0, 5.25), (60.0, 4.75), (60.0, 5.25)]
+    w_true, temp_c, supply_v = 200.0, 40.0, 5.1
+    raw = float(COEFFS.scale_at(temp_c, supply_v)) * w_true + float(COEFFS.bias_at(temp_c,
+                                                                                   supply_v))
+    got, us = [], []
+    for _ in range(1500):
+        conds = [
+            ConditionMeasurement(
+                tc, v, float(COEFFS.bias_at(tc, v)) + 0.002 * rng.standard_normal(), 0.002,
+                float(COEFFS.scale_at(tc, v)) + 3e-5 * rng.standard_normal(), 3e-5)
+            for tc, v in design
+        ]
+        fit = fit_temp_supply(conds)
+        got.append(float(correct_rate(raw, temp_c, supply_v, fit.coefficients)))
+        us.append(float(correction_uncertainty_dps(fit, w_true, temp_c, supply_v)))
+    assert np.std(got) == pytest.approx(np.mean(us), rel=0.1)
+    assert abs(np.mean(got) - w_true) < 4 * np.std(got) / np.sqrt(len(got))
