@@ -290,7 +290,7 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
         rows.append([_p(m.name), _p(m.condition or "-"), _p(fmt(m.value)),
                      _p(fmt(m.uncertainty_k2, 3)), _p(m.units), _p(fmt(m.low)), _p(fmt(m.high)),
                      _p(f"{fmt(d, 3)} {pct}".strip() if d is not None else pct),
-                     _p(m.outcome.value)])
+                     _p(m.outcome.value.replace("_", " "))])
         if m.outcome == Outcome.FAIL:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
             style.add("FONT", (0, i), (-1, i), FONT_BOLD, 7.5)
@@ -298,8 +298,8 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
             style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
         elif m.outcome == Outcome.NOT_MEASURED:
             style.add("TEXTCOLOR", (0, i), (-1, i), colors.grey)
-    t = Table(rows, repeatRows=1, colWidths=[40 * mm, 22 * mm, 18 * mm, 16 * mm, 18 * mm,
-                                             16 * mm, 16 * mm, 20 * mm, 16 * mm])
+    t = Table(rows, repeatRows=1, colWidths=[38 * mm, 21 * mm, 17 * mm, 15 * mm, 17 * mm,
+                                             15 * mm, 15 * mm, 21 * mm, 23 * mm])
     t.setStyle(style)
     n_fail = sum(m.outcome == Outcome.FAIL for m in rec.measurements)
     n_marg = sum(m.outcome == Outcome.MARGINAL for m in rec.measurements)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import read_record, write_record
+from procedures.record import Verdict, read_record, write_record
 from reports.certificate import certificate_bytes, render_certificate
 from reports.styles import fmt
 from tests.reports.conftest import need_poppler, pdf_pages, pdf_text
@@ -197,3 +197,24 @@ def test_missing_analysis_draws_boxes_saying_why(fresh_run: Path) -> None:
     assert "computed from raw.h5 plateau means" in text
     assert "Stop method, condition T45_V5.25" in text
     assert re.search(r"\bPASS\b", text)
+
+
+def test_unfinished_run_is_an_error_certificate(fresh_run: Path) -> None:
+    rec = read_record(fresh_run)
+    write_record(fresh_run, rec.model_copy(update={"verdict": Verdict.RUNNING, "finished_utc": None}))
+    page1 = _flat(pdf_text(render_certificate(fresh_run), page=1))
+    assert "ERROR" in page1 and "never finished" in page1 and "RUNNING" in page1
+
+
+def test_unmeasured_values_and_markup_in_text_render(fresh_run: Path) -> None:
+    from procedures.record import Measurement, Outcome
+
+    rec = read_record(fresh_run)
+    extra = Measurement(name="g_sensitivity_<dps/g>", value=None, units="deg/s/g", low=0.0,
+                        high=0.02, outcome=Outcome.NOT_MEASURED)
+    write_record(fresh_run, rec.model_copy(update={
+        "verdict": "ABORTED", "reason": "operator <stop> & e-stop",
+        "measurements": [*rec.measurements, extra]}))
+    text = _flat(pdf_text(render_certificate(fresh_run), layout=False))
+    assert "operator <stop> & e-stop" in text
+    assert "g_sensitivity_<dps/g>" in text and "NOT MEASURED" in text
