@@ -79,7 +79,8 @@ class Command:
     OUTPUT_RATE = "ODR {hz:d}"  # -> OK         | ERR 3 rate not supported
     START = "START"  # -> OK, then sample frames
     STOP = "STOP"  # -> OK after the last sample frame
-    CAL_READ = "CAL?"  # -> OK bias=.. scale=.. bias_tc=.. scale_tc=.. bias_vc=.. scale_vc=.. t0=.. v0=..
+    # CAL? -> OK bias=.. scale=.. bias_tc=.. scale_tc=.. bias_vc=.. scale_vc=.. t0=.. v0=..
+    CAL_READ = "CAL?"
     CAL_WRITE = "CAL {assignments}"  # key=value pairs as CAL? gives them -> OK | ERR 4 ...
     COMPENSATION = "COMP {on:d}"  # -> OK
     STOP_ANGLE = "STOPANGLE?"  # -> OK <angle_deg> <std_uncertainty_deg>

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -31,7 +32,7 @@ EXCEPTION_TEXT = {
 }
 
 
-class ModbusRefused(ProtocolError):
+class ModbusRefused(ProtocolError):  # noqa: N818 - named like drivers.errors
     """The device answered a request with a Modbus exception response."""
 
     def __init__(self, message: str, *, exception_code: int, instrument: str | None = None) -> None:
@@ -136,7 +137,7 @@ class ModbusLink:
                 instrument=self.instrument,
             )
 
-    def _call(self, what: str, func, /, *args, **kwargs):  # noqa: ANN001, ANN202
+    def _call(self, what: str, func: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Any:
         with self._lock:
             self._ensure_connected()
             try:

@@ -10,11 +10,13 @@ While streaming, a part that sends nothing for `silent_after_s` of station time 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import queue
 import threading
 import time
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +65,7 @@ class NoReply(PartAbsent, InstrumentTimeout):
     """The fixture did not answer a command at all."""
 
 
-class FixtureRefused(InstrumentError):
+class FixtureRefused(InstrumentError):  # noqa: N818 - named like drivers.errors
     """The fixture answered a command with ERR <code> <text>."""
 
     def __init__(self, message: str, *, code: int, instrument: str | None = None) -> None:
@@ -128,7 +130,7 @@ class SerialPartLink:
         self._thread.start()
 
     @classmethod
-    def open(cls, path: str, clock: Clock, **kwargs) -> SerialPartLink:  # noqa: ANN003
+    def open(cls, path: str, clock: Clock, **kwargs: Any) -> SerialPartLink:
         return cls(open_serial(path, read_timeout_s=0.02), clock, **kwargs)
 
     # ------------------------------------------------------------ reader thread
@@ -224,10 +226,10 @@ class SerialPartLink:
                     f"no part in the {self.name} ({detail}): seat a part and retry",
                     instrument=self.name,
                 )
-            advice = {
-                ReplyError.NOT_POWERED: "switch the supply output on first",
-                ReplyError.BUSY_STREAMING: "stop streaming first",
-                ReplyError.OUT_OF_RANGE: "use a supported value",
+            advice: str = {
+                int(ReplyError.NOT_POWERED): "switch the supply output on first",
+                int(ReplyError.BUSY_STREAMING): "stop streaming first",
+                int(ReplyError.OUT_OF_RANGE): "use a supported value",
             }.get(code, "check the command against drivers/fixture_protocol.py")
             raise FixtureRefused(
                 f"the {self.name} refused {text!r}: ERR {code} {detail}; {advice}",
@@ -368,8 +370,8 @@ class SerialPartLink:
                                 p.lost, p.corrupted, p.discarded)
         else:
             cols = [np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*p.chunks, strict=True)]
-            block = SampleBlock(*cols, frames_lost=p.lost, frames_corrupted=p.corrupted,
-                                bytes_discarded=p.discarded)
+            block = SampleBlock(cols[0], cols[1], cols[2], cols[3], cols[4], frames_lost=p.lost,
+                                frames_corrupted=p.corrupted, bytes_discarded=p.discarded)
         return block
 
     def read_samples(self, max_wait_s: float = 0.0) -> SampleBlock:
@@ -413,10 +415,8 @@ class SerialPartLink:
         self._stop.set()
         cancel = getattr(self._port, "cancel_read", None)
         if cancel is not None:
-            try:
+            with contextlib.suppress(Exception):  # best effort on the way out
                 cancel()
-            except Exception:  # noqa: BLE001 - best effort on the way out
-                pass
         self._thread.join(1.0)
         try:
             self._port.close()

@@ -9,10 +9,19 @@ clock; each Modbus reply has its own wall timeout in `ModbusLink`.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 from drivers.clock import Clock
 from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
-from drivers.modbus_link import ModbusLink, ModbusRefused, Unwrapper, i32_to_regs, regs_to_i32, regs_to_str, regs_to_u32
+from drivers.modbus_link import (
+    ModbusLink,
+    ModbusRefused,
+    Unwrapper,
+    i32_to_regs,
+    regs_to_i32,
+    regs_to_str,
+    regs_to_u32,
+)
 from drivers.protocols import InstrumentIdentity, TableStatus
 from drivers.rate_table_map import (
     COUNTS_PER_REV,
@@ -30,6 +39,7 @@ from drivers.rate_table_map import (
 log = logging.getLogger(__name__)
 
 NAME = "rate table"
+_NO_BITS = Control(0)
 _STATUS_FIRST = Reg.STATUS
 _STATUS_COUNT = Reg.SNAPSHOT_TIME + 2 - Reg.STATUS  # 20..29: status, fault, snapshot
 _CMD_FIRST = Reg.MODE
@@ -142,7 +152,7 @@ class ModbusRateTable:
 
     # ------------------------------------------------------------ control
 
-    def _control(self, set_bits: Control, clear_bits: Control = Control(0)) -> None:
+    def _control(self, set_bits: Control, clear_bits: Control = _NO_BITS) -> None:
         current = Control(self._link.read(Reg.CONTROL, 1)[0] & 0x0F)
         current &= ~(Control.FAULT_RESET | Control.ZERO_ENCODER)  # edge bits: never re-send
         self._link.write(Reg.CONTROL, int((current | set_bits) & ~clear_bits))
@@ -232,7 +242,9 @@ class ModbusRateTable:
 
     # ------------------------------------------------------------ waits
 
-    def _wait(self, done, timeout_s: float, what: str) -> TableStatus:  # noqa: ANN001
+    def _wait(
+        self, done: Callable[[TableStatus], bool], timeout_s: float, what: str
+    ) -> TableStatus:
         deadline = self._clock.now_s() + timeout_s
         while True:
             status = self.check()
@@ -252,7 +264,8 @@ class ModbusRateTable:
         cmd = self._rate_cmd_dps
 
         def done(s: TableStatus) -> bool:
-            near = cmd is None or abs(s.rate_dps - cmd) <= _RATE_MATCH_DPS + _RATE_MATCH_REL * abs(cmd)
+            tolerance_dps = _RATE_MATCH_DPS + _RATE_MATCH_REL * abs(cmd or 0.0)
+            near = cmd is None or abs(s.rate_dps - cmd) <= tolerance_dps
             return s.at_rate and near
 
         return self._wait(done, timeout_s, f"reach {cmd} deg/s")

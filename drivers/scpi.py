@@ -11,7 +11,7 @@ import logging
 import re
 import threading
 import time
-from typing import Protocol
+from typing import Any, Protocol
 
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError, ScpiError
 
@@ -37,7 +37,7 @@ class SerialLike(Protocol):
     def close(self) -> None: ...
 
 
-def open_serial(path: str, *, baudrate: int = 115200, read_timeout_s: float = 0.02):  # noqa: ANN201
+def open_serial(path: str, *, baudrate: int = 115200, read_timeout_s: float = 0.02) -> Any:
     """Open a serial port (or pty) without touching DTR/RTS beyond what pyserial tolerates."""
     import serial  # local: byte-level tests do not need pyserial
 
@@ -124,7 +124,9 @@ class ScpiPort:
         instrument: name used in error messages.
     """
 
-    def __init__(self, port: SerialLike, *, timeout_s: float = 1.0, instrument: str = "supply") -> None:
+    def __init__(
+        self, port: SerialLike, *, timeout_s: float = 1.0, instrument: str = "supply"
+    ) -> None:
         self._port = port
         self.timeout_s = timeout_s
         self.instrument = instrument
@@ -160,7 +162,8 @@ class ScpiPort:
         deadline = time.monotonic() + self.timeout_s
         while not self._lines:
             if time.monotonic() >= deadline:
-                partial = f" ({self._reader.pending} bytes of an unfinished line)" if self._reader.pending else ""
+                pending = self._reader.pending
+                partial = f" ({pending} bytes of an unfinished line)" if pending else ""
                 raise InstrumentTimeout(
                     f"the {self.instrument} did not answer {command!r} within "
                     f"{self.timeout_s:g} s{partial}: check that it is on, its serial cable and "

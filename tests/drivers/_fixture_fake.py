@@ -7,6 +7,7 @@ stream (`mangle`), stop the frames (`go_silent`), or make the fixture deaf (`dea
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import threading
@@ -36,6 +37,7 @@ class FakeFixture:
         self.sent = 0
         self.wall_streaming_s = 0.0  # START to STOP, wall seconds
         self._t_start = 0.0
+        self.write_blocked_s = 0.0  # wall time spent waiting for the reader to drain the pty
         self._streaming = threading.Event()
         self._stop = threading.Event()
         self._wlock = threading.Lock()
@@ -125,7 +127,8 @@ class FakeFixture:
                     continue
                 idx = np.arange(seq, seq + due, dtype=np.int64)
                 data = fp.encode_samples(
-                    idx, idx * 1000, fp.RATE_ZERO_CODE + (idx % 1000), np.full(due, fp.TEMP_ZERO_CODE),
+                    idx, idx * 1000, fp.RATE_ZERO_CODE + (idx % 1000),
+                    np.full(due, fp.TEMP_ZERO_CODE),
                     np.zeros(due, dtype=np.int64),
                 )
                 if self.mangle is not None:
@@ -134,18 +137,18 @@ class FakeFixture:
                     if not self._streaming.is_set():
                         break
                     view = memoryview(data)
+                    t_write = time.monotonic()
                     while view:
                         view = view[os.write(self.master, view):]
+                    self.write_blocked_s += time.monotonic() - t_write
                 seq += due
                 self.sent = seq
 
     def close(self) -> None:
         self._stop.set()
         self._streaming.clear()
-        try:
+        with contextlib.suppress(OSError):
             os.close(self.master)
-        except OSError:
-            pass
         for t in self._threads:
             t.join(1.0)
         os.close(self.slave)
@@ -161,7 +164,8 @@ def serve_main(rates: list[float]) -> None:
     fixtures = [FakeFixture(rate_fps=r) for r in rates]
     print(json.dumps([f.path for f in fixtures]), flush=True)
     for _ in sys.stdin:
-        print(json.dumps([[f.sent, f.wall_streaming_s] for f in fixtures]), flush=True)
+        stats = [[f.sent, f.wall_streaming_s, f.write_blocked_s] for f in fixtures]
+        print(json.dumps(stats), flush=True)
     for f in fixtures:
         f.close()
 

@@ -3,6 +3,7 @@ every injected fault surfacing as its documented exception within its timeout.""
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -73,10 +74,8 @@ def clean(rig: Rig) -> Iterator[Rig]:
     rig.supply.output(True)
     yield rig
     rig.bench.control.clear_faults()
-    try:
+    with contextlib.suppress(Exception):  # the fault under test may still be draining
         rig.link.stop_stream()
-    except Exception:  # noqa: BLE001 - the fault under test may still be draining
-        pass
     rig.link.read_samples()
     rig.table.reset_fault()
     rig.table.disable()

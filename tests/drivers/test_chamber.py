@@ -130,7 +130,8 @@ def test_stuck_chamber_times_out_in_station_time_with_the_temperatures():
     clock = ManualClock()
     polls = [e for _ in range(5) for e in (_pv(400), _state(State.RAMPING))]
     server, chamber = make(
-        [Exchange(read_pdu(300, 1), read_reply([850])), Exchange(read_pdu(1000, 1), read_reply([1])),
+        [Exchange(read_pdu(300, 1), read_reply([850])),
+         Exchange(read_pdu(1000, 1), read_reply([1])),
          *polls], clock=clock, poll_s=0.5)
     with pytest.raises(ChamberSetpointNotReached, match=r"85 \+/- 0.5 C within 2 s \(now 40 C\)"):
         chamber.wait_setpoint(0.5, 2.0)

@@ -77,7 +77,8 @@ def test_seq_and_time_wrap_and_are_unwrapped():
 def test_code_conversions_match_the_adis16130_numbers():
     assert fp.rate_dps_to_code(np.array([0.0, 250.0]))[1] == 14_260_608
     assert fp.rate_code_to_dps(8_388_608) == 0.0
-    assert fp.temp_code_to_c(fp.temp_c_to_code(np.array([25.0])))[0] == pytest.approx(25.0, abs=1e-4)
+    back_c = fp.temp_code_to_c(fp.temp_c_to_code(np.array([25.0])))[0]
+    assert back_c == pytest.approx(25.0, abs=1e-4)
 
 
 # ---------------------------------------------------------------- 10^6 frames
@@ -127,9 +128,12 @@ def test_million_frames_with_corruption_and_drops_counted_exactly():
 def test_resynchronises_on_the_very_next_frame_after_each_kind_of_damage():
     data, *_ = _stream(5)
     size = fp.SAMPLE_FRAME_SIZE
+    def flip(at: int, mask: int) -> bytes:
+        return data[:at] + bytes([data[at] ^ mask]) + data[at + 1 :]
+
     cases = {
-        "flip crc": (data[: 2 * size + 20] + bytes([data[2 * size + 20] ^ 1]) + data[3 * size :], 1),
-        "flip payload": (data[: 2 * size + 9] + bytes([data[2 * size + 9] ^ 0x80]) + data[3 * size :], 1),
+        "flip crc": (flip(2 * size + 20, 1), 1),
+        "flip payload": (flip(2 * size + 9, 0x80), 1),
         "truncate": (data[: 2 * size + 9] + data[3 * size :], 1),
         "flip sync": (data[: 2 * size] + b"\xa4" + data[2 * size + 1 :], 0),
     }

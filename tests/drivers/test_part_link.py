@@ -15,7 +15,13 @@ import pytest
 
 from drivers import fixture_protocol as fp
 from drivers.clock import ScaledClock
-from drivers.errors import InstrumentTimeout, PartAbsent, PartSilent, StreamCorrupted, InstrumentError
+from drivers.errors import (
+    InstrumentError,
+    InstrumentTimeout,
+    PartAbsent,
+    PartSilent,
+    StreamCorrupted,
+)
 from drivers.part_link import FixtureRefused, NoReply, SerialPartLink
 from drivers.protocols import CalibrationRegisters
 from tests.drivers._fixture_fake import FakeFixture
@@ -219,7 +225,7 @@ def test_keeps_up_with_eight_sockets_at_5k_and_one_at_100k_frames_per_s():
         cpu_s = time.process_time() - cpu0
         proc.stdin.write("stats\n")
         proc.stdin.flush()
-        sent, wall = zip(*json.loads(proc.stdout.readline()), strict=True)
+        sent, wall, blocked = zip(*json.loads(proc.stdout.readline()), strict=True)
     finally:
         for link in links:
             link.close()
@@ -228,5 +234,7 @@ def test_keeps_up_with_eight_sockets_at_5k_and_one_at_100k_frames_per_s():
     achieved = [s / w for s, w in zip(sent, wall, strict=True)]
     print(f"frames {sum(got)}, station CPU {cpu_s:.2f} s, rates {[round(a) for a in achieved]}")
     assert list(got) == list(sent) and lost == [0] * len(links)
-    # the fixtures were never held back by a reader that fell behind
-    assert all(a >= 0.9 * r for a, r in zip(achieved, rates, strict=True))
+    # a pty holds ~4 KB: a reader that falls behind holds its fixture's writes back (a reader
+    # pausing 2 ms after every read let the 100k fixture reach only 45-60k). Not 0.95: the
+    # machine is shared and the fixtures' own process can be starved too.
+    assert all(a >= 0.8 * r for a, r in zip(achieved, rates, strict=True))
