@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
@@ -30,6 +29,32 @@ FloatArray = NDArray[np.float64]
 T_REF_C = 25.0
 V_REF_V = 5.0
 GM_TAUS_S = (3.0, 30.0, 300.0)
+
+
+def first_order_filter(x: FloatArray, a: float, b: float, y_prev: float) -> FloatArray:
+    """y[n] = a y[n-1] + b x[n] from y[-1] = y_prev, vectorised (0 < a < 1).
+
+    Uses y[n] = a^(n+1) (y_prev + b sum_k a^-(k+1) x[k]) in chunks short enough that
+    a^-n stays finite; rounding stays at machine precision relative to |x|.
+    """
+    n = x.size
+    out = np.empty(n)
+    if n == 0:
+        return out
+    decay = -math.log(a) if 0 < a < 1 else 0.0
+    chunk = n if decay == 0 else max(1, int(200.0 / decay))
+    y = y_prev
+    for start in range(0, n, chunk):
+        seg = x[start : start + chunk]
+        k = np.arange(1, seg.size + 1)
+        if decay == 0:
+            vals = y * a**k + b * np.cumsum(seg)
+        else:
+            grow = np.exp(decay * k)
+            vals = (y + b * np.cumsum(seg * grow)) / grow
+        out[start : start + seg.size] = vals
+        y = float(vals[-1])
+    return out
 
 
 def gauss_markov_avar(tau_s: FloatArray, corr_s: float, sigma: float = 1.0) -> FloatArray:
@@ -126,7 +151,7 @@ class PartModel:
             for i, corr in enumerate(GM_TAUS_S):
                 a = math.exp(-dt_s / corr)
                 e = self.rng.normal(0.0, self._gm_sigma * math.sqrt(1 - a * a), n)
-                x, _ = lfilter([1.0], [1.0, -a], e, zi=[a * self._gm_state[i]])
+                x = first_order_filter(e, a, 1.0, float(self._gm_state[i]))
                 self._gm_state[i] = x[-1]
                 out = out + x
         k_si = p.rrw_deg_per_h_per_sqrt_h / 216000.0
@@ -162,7 +187,7 @@ class PartModel:
         if self._lag_tau is not None:
             a = math.exp(-dt_s / self._lag_tau)
             prev = float(y[0]) if self._lag_state is None else self._lag_state
-            y, _ = lfilter([1.0 - a], [1.0, -a], y, zi=[a * prev])
+            y = first_order_filter(y, a, 1.0 - a, prev)
             self._lag_state = float(y[-1])
         return y + self._noise(len(t_s), dt_s), die
 

@@ -80,6 +80,18 @@ class BenchHandle:
         return self.endpoints.speed
 
 
+def _die_with_parent() -> None:
+    """Child side: get SIGTERM if the launching process dies without cleaning up (Linux)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_pdeathsig = 1
+        libc.prctl(pr_set_pdeathsig, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
 def _env() -> dict[str, str]:
     env = dict(os.environ)
     parts = [str(REPO_ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
@@ -120,7 +132,7 @@ def launch_bench(
         with open(err_path, "wb") as err:
             proc = subprocess.Popen(
                 cmd, cwd=str(REPO_ROOT), env=_env(), stdout=subprocess.DEVNULL, stderr=err,
-                stdin=subprocess.DEVNULL,
+                stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent,
             )
         control: ControlClient | None = None
         try:

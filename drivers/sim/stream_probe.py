@@ -1,0 +1,137 @@
+"""Read fixture sample streams straight off the bench's ptys (tests and benchmarks).
+
+Deliberately independent of the station's part-link driver: it opens each port with
+pyserial (raw mode), sends fixture commands, and decodes with `FrameParser`, reading every
+port from one thread with select().
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import serial
+
+from drivers.fixture_protocol import FrameParser
+
+
+@dataclass
+class StreamCount:
+    """What one port delivered."""
+
+    path: str
+    frames_ok: int = 0
+    frames_lost: int = 0
+    frames_corrupted: int = 0
+    bytes_discarded: int = 0
+    replies: list[str] = field(default_factory=list)
+    first_time_s: float | None = None
+    last_time_s: float | None = None
+    rate_code_sum: int = 0
+
+
+def scpi(path: str, *lines: str, timeout_s: float = 2.0) -> list[str]:
+    """Send SCPI lines to the supply port; return the reply of every query (ending in ?)."""
+    replies = []
+    with serial.Serial(path, timeout=timeout_s) as port:
+        for line in lines:
+            port.write(line.encode("ascii") + b"\n")
+            if line.strip().endswith("?"):
+                reply = port.readline()
+                if not reply.endswith(b"\n"):
+                    raise TimeoutError(f"no answer to {line!r} on {path} within {timeout_s} s")
+                replies.append(reply.decode("ascii").strip())
+    return replies
+
+
+def power_parts(path: str, supply_v: float = 5.0, current_limit_a: float = 0.5) -> None:
+    """Set the supply and switch its output on (the parts in the fixture power up)."""
+    scpi(path, f"VOLT {supply_v}", f"CURR {current_limit_a}", "OUTP ON", "OUTP?")
+
+
+class StreamProbe:
+    """Several fixture ports opened at once."""
+
+    def __init__(self, paths: list[str]) -> None:
+        self.ports = [serial.Serial(p, baudrate=921600, timeout=0) for p in paths]
+        self.parsers = [FrameParser() for _ in paths]
+        self.counts = [StreamCount(p) for p in paths]
+
+    def close(self) -> None:
+        for port in self.ports:
+            port.close()
+
+    def __enter__(self) -> StreamProbe:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _feed(self, i: int, data: bytes) -> None:
+        res = self.parsers[i].feed(data)
+        c = self.counts[i]
+        c.frames_ok += len(res.seq)
+        c.frames_lost += res.frames_lost
+        c.frames_corrupted += res.frames_corrupted
+        c.bytes_discarded += res.bytes_discarded
+        c.replies.extend(res.replies)
+        if len(res.seq):
+            if c.first_time_s is None:
+                c.first_time_s = float(res.time_s[0])
+            c.last_time_s = float(res.time_s[-1])
+            c.rate_code_sum += int(np.sum(res.rate_code))
+
+    def pump(self, timeout_s: float = 0.05) -> int:
+        """Read whatever is waiting on every port; returns the bytes read."""
+        fds = [p.fileno() for p in self.ports]
+        ready, _, _ = select.select(fds, [], [], timeout_s)
+        total = 0
+        for fd in ready:
+            i = fds.index(fd)
+            try:
+                data = os.read(fd, 1 << 20)
+            except BlockingIOError:
+                continue
+            total += len(data)
+            self._feed(i, data)
+        return total
+
+    def command(self, i: int, line: str, timeout_s: float = 5.0) -> str:
+        """Send a command to port `i` and wait for its reply (samples keep being decoded)."""
+        before = len(self.counts[i].replies)
+        self.ports[i].write(line.encode("ascii") + b"\n")
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.pump(0.02)
+            if len(self.counts[i].replies) > before:
+                return self.counts[i].replies[before]
+        raise TimeoutError(f"no reply to {line!r} on {self.ports[i].port} within {timeout_s} s")
+
+    def command_all(self, line: str) -> list[str]:
+        return [self.command(i, line) for i in range(len(self.ports))]
+
+    def stream(self, odr_hz: int, frames: int | None = None, wall_s: float | None = None) -> None:
+        """START every port, read until each delivered `frames` (or `wall_s` passed), STOP."""
+        for i, parser in enumerate(self.parsers):
+            self.command(i, "STOP")
+            parser.reset_sequence()
+            self.command(i, f"ODR {odr_hz}")
+        for i in range(len(self.ports)):
+            reply = self.command(i, "START")
+            if not reply.startswith("OK"):
+                raise RuntimeError(f"{self.ports[i].port}: START refused: {reply}")
+        start = time.monotonic()
+        base = [c.frames_ok for c in self.counts]
+        while True:
+            self.pump(0.02)
+            done_frames = frames is not None and all(
+                c.frames_ok - b >= frames for c, b in zip(self.counts, base, strict=True)
+            )
+            done_time = wall_s is not None and time.monotonic() - start >= wall_s
+            if done_frames or done_time:
+                break
+        for i in range(len(self.ports)):
+            self.command(i, "STOP")
