@@ -238,3 +238,10 @@ def test_keeps_up_with_eight_sockets_at_5k_and_one_at_100k_frames_per_s():
     # pausing 2 ms after every read let the 100k fixture reach only 45-60k). Not 0.95: the
     # machine is shared and the fixtures' own process can be starved too.
     assert all(a >= 0.8 * r for a, r in zip(achieved, rates, strict=True))
+
+
+def test_part_link_satisfies_the_protocol(rig):
+    from drivers.protocols import PartLink
+
+    _, link = rig()
+    assert isinstance(link, PartLink)

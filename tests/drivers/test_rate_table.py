@@ -248,3 +248,12 @@ def test_next_request_after_a_drop_reconnects():
         table.read_status()
     assert table.read_status().rate_dps == 2.5
     finish(server, table)
+
+
+def test_drivers_satisfy_their_protocols():
+    from drivers.chamber import ModbusChamber
+    from drivers.protocols import Chamber, RateTable
+
+    link = ModbusLink("127.0.0.1", 1, timeout_s=0.1)
+    assert isinstance(ModbusRateTable(link, ManualClock()), RateTable)
+    assert isinstance(ModbusChamber(link, ManualClock()), Chamber)

@@ -255,3 +255,9 @@ def test_scpi_query_on_noise_returns_a_line_or_a_typed_error_in_time(noise):
         first = next(p for p in noise.split(b"\n")[:-1] if len(p) <= MAX_LINE_BYTES)
         assert line == first.decode("ascii", "replace").rstrip("\r")
     assert time.monotonic() - t0 < 0.5
+
+
+def test_supply_driver_satisfies_the_supply_protocol():
+    from drivers.protocols import Supply
+
+    assert isinstance(ScpiSupply(ExpectedSerial([])), Supply)
