@@ -249,6 +249,9 @@ class RunContext:
             if stream is None:
                 continue
             if stream.error is not None:
+                # a silent part is often a shorted one: a current-limiting supply is the
+                # real reason, and it concerns every part on that supply
+                self.supply_reading()
                 self.drop(part, Verdict.ERROR, str(stream.error))
                 continue
             lost, total = stream.frames_lost, stream.frames_lost + stream.frames_ok
@@ -299,11 +302,19 @@ class RunContext:
         t = self.clock.now_s()
         chamber_c = self.bench.chamber.read_temperature()
         setpoint = self.bench.chamber.read_setpoint()
-        volts = self.bench.supply.measure_voltage()
-        amps = self.bench.supply.measure_current()
+        volts, amps = self.supply_reading()
         self.append_all("chamber", station_time_s=t, setpoint_c=setpoint, temp_c=chamber_c)
         self.append_all("supply", station_time_s=t, voltage_v=volts, current_a=amps)
         return chamber_c, volts, amps
+
+    def supply_reading(self) -> tuple[float, float]:
+        """(volts, amps); raises SupplyCurrentLimit when the supply is current-limiting."""
+        supply = self.bench.supply
+        check = getattr(supply, "check_current_limit", None)
+        if check is not None:
+            volts, amps = check()
+            return float(volts), float(amps)
+        return supply.measure_voltage(), supply.measure_current()
 
     # ------------------------------------------------------------ records and events
 

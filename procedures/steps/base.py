@@ -52,9 +52,11 @@ def check_window(ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]], 
     n = int(data["time_s"].size)
     expected = expected_s * fs
     if expected > 0 and n < 0.5 * expected:
+        ctx.supply_reading()  # a shorted part browns out: say so, for every part on the supply
         ctx.drop(part, Verdict.ERROR,
-                 f"{what}: only {n} samples where about {expected:.0f} were expected; the "
-                 "stream is losing data (check the fixture cable) ")
+                 f"{what}: only {n} samples where about {expected:.0f} were expected: the part "
+                 "stopped streaming or the stream is losing data; check the part's seating "
+                 "and the fixture cable")
         return False
     over = int(np.count_nonzero(data["status"] & (SampleStatus.OVER_RANGE | SampleStatus.SATURATED)))
     if over:
