@@ -1,0 +1,160 @@
+"""Engine mechanics with in-process fakes: cleanup on every exit path, abort, timeout, retry,
+progress, one part dropping without stopping the others. (End-to-end runs are in test_e2e_*.)"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from drivers.clock import ScaledClock
+from drivers.errors import InstrumentTimeout, PartAbsent, TableFault
+from procedures.config import load_procedure, load_product
+from procedures.engine import Bench, Engine, PartRun, RunContext
+from procedures.progress import ProgressEvent
+from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
+from procedures.steps.base import BaseStep
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class FakeInstrument:
+    def __init__(self, calls: list[str], name: str) -> None:
+        self.calls, self.name = calls, name
+
+    def safe_state(self, *args: Any) -> None:
+        self.calls.append(f"{self.name}.safe_state")
+
+
+@dataclass
+class Scripted(BaseStep):
+    """A step that sleeps, then does what it is told."""
+
+    sleep_s: float = 1.0
+    action: Any = None
+    attempts: list[int] = field(default_factory=list)
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        return self.sleep_s
+
+    def main(self, ctx: RunContext) -> None:
+        self.attempts.append(1)
+        ctx.sleep(self.sleep_s)
+        if self.action is not None:
+            self.action(ctx, len(self.attempts))
+
+    def cleanup(self, ctx: RunContext) -> None:
+        ctx.parts[0].extra.setdefault("cleanups", []).append(self.name)
+
+
+def _ctx(tmp_path: Path, n_parts: int = 1, speed: float = 1000.0) -> tuple[RunContext, list[str]]:
+    proc, _ = load_procedure(ROOT / "config/procedures/eol-rate-table.yaml")
+    prod, _ = load_product(ROOT / "config/products/gyr130.yaml")
+    calls: list[str] = []
+    bench = Bench(chamber=FakeInstrument(calls, "chamber"), supply=FakeInstrument(calls, "supply"),  # type: ignore[arg-type]
+                  links={}, clock=ScaledClock(speed), table=FakeInstrument(calls, "table"))  # type: ignore[arg-type]
+    parts = []
+    for s in range(1, n_parts + 1):
+        ref = FileRef(path="x", sha256="0" * 64)
+        rec = RunRecord(run_id=f"r{s}", verdict=Verdict.RUNNING, started_utc="t",
+                        dut=Dut(serial=f"SIM-000{s}", socket=s), product=ref, procedure=ref)
+        parts.append(PartRun(socket=s, serial=f"SIM-000{s}", folder=tmp_path / f"p{s}", record=rec))
+    return RunContext(bench, proc, prod, parts), calls
+
+
+SAFE = ["table.safe_state", "supply.safe_state", "chamber.safe_state"]
+
+
+def test_pass_path_cleans_up_and_judges(tmp_path: Path) -> None:
+    ctx, calls = _ctx(tmp_path)
+    steps = [Scripted(name="a"), Scripted(name="b")]
+    verdicts = Engine(ctx, steps).run()  # type: ignore[arg-type]
+    assert verdicts == {1: Verdict.PASS}
+    assert calls == SAFE
+    assert ctx.parts[0].extra["cleanups"] == ["a", "b"]
+    rec = read_record(tmp_path / "p1")
+    assert rec.verdict is Verdict.PASS and "a" in rec.timings and rec.analysis["safe_state"]["supply"] == "safe"
+
+
+def test_instrument_error_ends_in_error_with_cleanup(tmp_path: Path) -> None:
+    ctx, calls = _ctx(tmp_path)
+
+    def boom(ctx: RunContext, n: int) -> None:
+        raise TableFault("following error", fault_code=2, instrument="rate table")
+
+    verdicts = Engine(ctx, [Scripted(name="sweep", action=boom), Scripted(name="never")]).run()  # type: ignore[arg-type]
+    assert verdicts == {1: Verdict.ERROR}
+    assert calls == SAFE
+    rec = read_record(tmp_path / "p1")
+    assert "following error" in rec.reason and "sweep" in rec.reason
+    assert "never" not in rec.timings
+
+
+def test_bug_in_a_step_still_cleans_up(tmp_path: Path) -> None:
+    ctx, calls = _ctx(tmp_path)
+
+    def bug(ctx: RunContext, n: int) -> None:
+        raise ZeroDivisionError("oops")
+
+    assert Engine(ctx, [Scripted(name="x", action=bug)]).run() == {1: Verdict.ERROR}  # type: ignore[arg-type]
+    assert calls == SAFE
+    assert "internal error" in read_record(tmp_path / "p1").reason
+
+
+def test_abort_from_another_thread_stops_a_long_dwell(tmp_path: Path) -> None:
+    ctx, calls = _ctx(tmp_path, speed=1.0)  # a 3600 s dwell at real speed: only abort ends it
+    engine = Engine(ctx, [Scripted(name="dwell", sleep_s=3600.0)])  # type: ignore[arg-type]
+    events: list[ProgressEvent] = []
+    ctx.progress.subscribe(events.append)
+    threading.Timer(0.3, engine.abort, args=("operator pressed abort",)).start()
+    verdicts = engine.run()
+    assert verdicts == {1: Verdict.ABORTED}
+    assert calls == SAFE
+    assert "operator pressed abort" in read_record(tmp_path / "p1").reason
+    assert events[-1].kind == "finished"
+
+
+def test_step_timeout_and_retry_policy(tmp_path: Path) -> None:
+    ctx, calls = _ctx(tmp_path)
+    # power has retries: 1 in the procedure file: one timeout is retried, then it passes
+    flaky = Scripted(name="power", policy="power",
+                     action=lambda c, n: (_ for _ in ()).throw(InstrumentTimeout("slow")) if n == 1 else None)
+    assert Engine(ctx, [flaky]).run() == {1: Verdict.PASS}  # type: ignore[arg-type]
+    assert len(flaky.attempts) == 2
+    ctx2, _ = _ctx(tmp_path / "t")
+    # power's timeout is 60 s: a 100 s dwell times out (twice, with the retry)
+    slow = Scripted(name="power", policy="power", sleep_s=100.0)
+    assert Engine(ctx2, [slow]).run() == {1: Verdict.ERROR}  # type: ignore[arg-type]
+    assert "timeout" in read_record(tmp_path / "t" / "p1").reason
+    assert len(slow.attempts) == 2
+
+
+def test_one_part_dropping_does_not_stop_the_others(tmp_path: Path) -> None:
+    ctx, _ = _ctx(tmp_path, n_parts=3)
+
+    def absent_two(ctx: RunContext, n: int) -> None:
+        def go(part: PartRun) -> None:
+            if part.socket == 2:
+                raise PartAbsent("socket 2: no part", instrument="fixture on socket 2")
+            part.extra["ok"] = True
+        ctx.each(go)
+
+    verdicts = Engine(ctx, [Scripted(name="identify", action=absent_two), Scripted(name="more")]).run()  # type: ignore[arg-type]
+    assert verdicts == {1: Verdict.PASS, 2: Verdict.ERROR, 3: Verdict.PASS}
+    assert read_record(tmp_path / "p2").reason == "socket 2: no part"
+    assert "more" in read_record(tmp_path / "p3").timings
+
+
+def test_progress_fraction_rises_to_one(tmp_path: Path) -> None:
+    ctx, _ = _ctx(tmp_path)
+    events: list[ProgressEvent] = []
+    ctx.progress.subscribe(events.append)
+    Engine(ctx, [Scripted(name=f"s{i}", sleep_s=50.0) for i in range(4)]).run()  # type: ignore[arg-type]
+    fractions = [e.fraction for e in events]
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    assert {e.step for e in events if e.kind == "step"} == {"s0", "s1", "s2", "s3"}
+    mid = [e for e in events if e.step == "s2" and e.kind == "step"][0]
+    assert mid.fraction == pytest.approx(0.5, abs=0.02) and mid.remaining_s == pytest.approx(100, abs=5)
