@@ -105,7 +105,7 @@ class SerialPartLink:
         reply_timeout_s: float = 1.0,
         silent_after_s: float = 2.0,
         loss_limit: int | None = None,
-        batch_s: float = 0.002,
+        batch_s: float = 0.005,
     ) -> None:
         self._port = port
         self._clock = clock
