@@ -44,7 +44,8 @@ class CertificateInputs:
                     0, "the run never finished: record.json still says RUNNING (station crash?)"
                 )
             if self.record.reason:
-                parts.append(f"run reason: {self.record.reason}")
+                parts.append(f"the run's own reason: {self.record.reason}" if parts
+                             else self.record.reason)
             if self.problems and self.record.verdict not in (Verdict.ERROR, Verdict.RUNNING):
                 parts.append(
                     f"the run itself recorded {self.record.verdict.value}, which cannot be "

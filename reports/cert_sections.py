@@ -115,6 +115,10 @@ def header(inputs: CertificateInputs) -> list[Flowable]:
     elif verdict != "PASS":
         story.append(Paragraph(f"<b>Reason:</b> {escape(inputs.reason or 'not recorded')}",
                                WARNING))
+        if rec is not None and failing(rec):
+            story.append(Paragraph("<b>Measurements already outside their limits:</b> " + escape(
+                "; ".join(f"{m.name}{' @ ' + m.condition if m.condition else ''} = "
+                          f"{fmt(m.value)} {m.units}" for m in failing(rec))), WARNING))
     if rec is not None:
         for late in overdue_instruments(rec):
             story.append(Paragraph(

@@ -185,7 +185,7 @@ def test_aborted_run_states_its_reason(tmp_path: Path) -> None:
 
     folder, _ = make_run(tmp_path, Part(serial="SIM-ABT-4", verdict="ABORTED"))
     page1 = _flat(pdf_text(render_certificate(folder), page=1))
-    assert "ABORTED" in page1 and "Reason: run reason: operator pressed stop" in page1
+    assert "ABORTED" in page1 and "Reason: operator pressed stop" in page1
 
 
 def test_missing_analysis_draws_boxes_saying_why(fresh_run: Path) -> None:
@@ -218,3 +218,12 @@ def test_unmeasured_values_and_markup_in_text_render(fresh_run: Path) -> None:
     text = _flat(pdf_text(render_certificate(fresh_run), layout=False))
     assert "operator <stop> & e-stop" in text
     assert "g_sensitivity_<dps/g>" in text and "NOT MEASURED" in text
+
+
+def test_error_run_still_names_measurements_already_failed(tmp_path: Path) -> None:
+    from tests.reports.synth_run import Part, make_run
+
+    folder, _ = make_run(tmp_path, Part(serial="SIM-ERR-5", verdict="ERROR", bias_dps=12.5))
+    page1 = _flat(pdf_text(render_certificate(folder), page=1))
+    assert "Reason: operator pressed stop" in page1
+    assert "Measurements already outside their limits: bias_dps = 12.5 deg/s" in page1
