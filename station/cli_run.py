@@ -133,6 +133,8 @@ def run_cycle(args: argparse.Namespace, duts: dict[int, str], *, sim: bool,
             out=Path(args.out) if args.out else None,
         )
         probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
+        for folder in probe.recover():
+            print(f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr)
         probe.validate(duts)  # bad serials: refuse before a bench or a folder exists
     except ConfigError as exc:
         raise UserError(str(exc)) from None

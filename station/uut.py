@@ -209,6 +209,12 @@ class UutRunner:
 
     # ------------------------------------------------------------ API for the CLI and the UI
 
+    def recover(self) -> list[Path]:
+        """Mark ERROR the runs a crashed station left RUNNING in the output folder."""
+        folders = recover_crashed_runs(self.out)
+        self._mark_crashed_in_db(folders)
+        return folders
+
     def validate(self, duts: dict[int, str]) -> dict[int, str]:
         """Check sockets and serials before anything is written; UserError says what to fix."""
         if not duts:
@@ -277,7 +283,7 @@ class UutRunner:
         self._abort_requested = ""
         self._state = "running"
         wall0 = dt.datetime.now(dt.UTC)
-        self._mark_crashed_in_db(recover_crashed_runs(self.out))
+        self.recover()
         parts = [self._new_part(sock, serial) for sock, serial in sorted(duts.items())]
         result = UutResult(folders={p.socket: p.folder for p in parts})
         opened: OpenBench | None = None
