@@ -111,7 +111,8 @@ def _histogram(c: lot_stats.Capability) -> Flowable:
         chart.vline(c.high, LIMIT_RED, None if c.low is not None else "limit", dash=None,
                     width=1.0)
     if c.mean is not None:
-        chart.vline(c.mean, PALETTE[2], f"mean, Cpk {fmt(c.cpk, 3)}", dash=(3, 2))
+        chart.vline(c.mean, PALETTE[2], f"mean {fmt(c.mean, 4)}, sigma {fmt(c.sigma, 3)}, "
+                    f"Cpk {fmt(c.cpk, 3)}", dash=(3, 2))
     return chart.drawing()
 
 

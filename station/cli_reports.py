@@ -2,7 +2,7 @@
 
     station report RUN_FOLDER [--index] [--db PATH]
     station history [--since DATE] [--until DATE] [--product P] [--verdict V] [--serial S]
-                    [--db PATH] [--json]
+                    [--db PATH] [--json] [--reindex RUNS_DIR]
     station lot-report [same filters] --out FILE.pdf [--db PATH]
 
 The database defaults to the one named in config/station.yaml (`results_db`), or
@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -90,7 +91,18 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_history(args: argparse.Namespace) -> int:
-    db = _open_db(args, must_exist=True)
+    if args.reindex:
+        root = Path(args.reindex)
+        if not root.is_dir():
+            raise UserError(f"--reindex {root}: no such folder; give the folder holding the "
+                            "run folders (station.yaml's output_folder)")
+        db = _open_db(args, must_exist=False)
+        added, problems = db.reindex(root)
+        for p in problems:
+            print(f"skipped: {p}", file=sys.stderr)
+        print(f"indexed {added} run folders from {root} into {db.path}", file=sys.stderr)
+    else:
+        db = _open_db(args, must_exist=True)
     try:
         runs = db.runs(**_filters(args))
     except ResultsDBError as exc:
@@ -146,6 +158,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p = subparsers.add_parser("history", help="list runs from the results database")
     _add_filters(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--reindex", metavar="RUNS_DIR",
+                   help="first (re)index every run folder under RUNS_DIR into the database")
     p.set_defaults(handler=cmd_history)
 
     p = subparsers.add_parser("lot-report", help="write a lot summary PDF")

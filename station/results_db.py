@@ -23,7 +23,7 @@ from datetime import UTC, date, datetime
 from pathlib import Path
 from typing import Any
 
-from procedures.record import RunRecord, read_record
+from procedures.record import RECORD_FILE, RunRecord, read_record
 
 SCHEMA_VERSION = 1
 
@@ -221,6 +221,22 @@ class ResultsDB:
                     for i, m in enumerate(rec.measurements)
                 ],
             )
+
+    def reindex(self, root: Path | str) -> tuple[int, list[str]]:
+        """Index every run folder under root (a folder holding record.json, any depth).
+
+        Returns (number indexed, one line per folder that could not be read). A folder whose
+        record is unreadable is skipped and reported, never guessed at.
+        """
+        added, problems = 0, []
+        for record_path in sorted(Path(root).rglob(RECORD_FILE)):
+            folder = record_path.parent
+            try:
+                self.add_run(folder, read_record(folder))
+                added += 1
+            except ValueError as exc:
+                problems.append(str(exc))
+        return added, problems
 
     def mark_error(self, run_id: str, reason: str) -> None:
         """Set a run's verdict to ERROR with the reason (e.g. a crash found on restart)."""

@@ -201,7 +201,8 @@ def test_missing_analysis_draws_boxes_saying_why(fresh_run: Path) -> None:
 
 def test_unfinished_run_is_an_error_certificate(fresh_run: Path) -> None:
     rec = read_record(fresh_run)
-    write_record(fresh_run, rec.model_copy(update={"verdict": Verdict.RUNNING, "finished_utc": None}))
+    write_record(fresh_run, rec.model_copy(update={"verdict": Verdict.RUNNING,
+                                                   "finished_utc": None}))
     page1 = _flat(pdf_text(render_certificate(fresh_run), page=1))
     assert "ERROR" in page1 and "never finished" in page1 and "RUNNING" in page1
 

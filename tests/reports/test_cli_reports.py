@@ -105,3 +105,19 @@ def test_lot_report_writes_pdf_and_prints_yield(tmp_path: Path) -> None:
     assert out_pdf.read_bytes().startswith(b"%PDF")
     bad = station("lot-report", "--db", str(db), "--out", str(tmp_path / "lot.txt"))
     assert bad.returncode == 2 and ".pdf" in bad.stderr
+
+
+def test_history_reindex_rebuilds_the_database_from_run_folders(
+        pass_run: Path, fail_run: Path, tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    for f in (pass_run, fail_run):
+        shutil.copytree(f, root / f.name)
+    broken = root / "20261121T120000Z_BROKEN"
+    broken.mkdir()
+    (broken / "record.json").write_text("{", encoding="utf-8")
+    db = tmp_path / "new.sqlite"
+    out = station("history", "--db", str(db), "--reindex", str(root), "--json")
+    assert out.returncode == 0, out.stderr
+    assert sorted(r["serial"] for r in json.loads(out.stdout)) == ["SIM-FAIL-2", "SIM-PASS-1"]
+    assert "indexed 2 run folders" in out.stderr and "skipped:" in out.stderr
+    assert "BROKEN" in out.stderr
