@@ -341,7 +341,11 @@ def _covariance(w_basis: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray
     free = p > 0
     if free.any():
         a = w_basis[:, free]
-        cov[np.ix_(free, free)] = np.linalg.pinv(a.T @ a)
+        normal = a.T @ a
+        try:
+            cov[np.ix_(free, free)] = np.linalg.inv(normal)
+        except np.linalg.LinAlgError:
+            cov[np.ix_(free, free)] = np.linalg.pinv(normal)
     return cov
 
 
