@@ -232,15 +232,18 @@ def conditions(inputs: CertificateInputs) -> list[Flowable]:
     story: list[Flowable] = [Paragraph("Test conditions", H2)]
     if rec is None or not rec.conditions:
         return story + [Paragraph("No conditions recorded.", NOTE)]
-    heads = ["Condition", "Chamber (C)", "Supply (V)", "Die temp (C)", "Time to stability (s)",
-             "Stable", "Supply current (A)"]
+    heads = ["Condition", "Chamber set (C)", "Die temp (C)", "Supply set (V)",
+             "Supply measured (V)", "Supply current (A)", "Time to stability (s)", "Stable"]
     rows = [[_p(h) for h in heads]]
     for c in rec.conditions:
-        rows.append([_p(c.name), _p(fmt(c.temperature_c)), _p(fmt(c.supply_v)),
-                     _p(fmt(c.die_temperature_c)), _p(fmt(c.time_to_stability_s)),
-                     _p(fmt(c.stable) if c.stable is not None else "-"),
-                     _p(fmt(c.supply_current_a))])
-    t = Table(rows, repeatRows=1, colWidths=[30 * mm] + [25 * mm] * 6)
+        extra = c.model_extra or {}
+        measured = extra.get("supply_measured_v")
+        rows.append([_p(c.name), _p(fmt(c.temperature_c)), _p(fmt(c.die_temperature_c)),
+                     _p(fmt(c.supply_v)),
+                     _p(fmt(float(measured)) if isinstance(measured, int | float) else "-"),
+                     _p(fmt(c.supply_current_a)), _p(fmt(c.time_to_stability_s)),
+                     _p(fmt(c.stable) if c.stable is not None else "-")])
+    t = Table(rows, repeatRows=1, colWidths=[28 * mm] + [22 * mm] * 7)
     t.setStyle(grid_style())
     crit = record_keys.stability(rec.analysis)
     story.append(t)

@@ -261,7 +261,8 @@ def make_record(part: Part, analysis: dict[str, Any] | None = None,
                                     die_temperature_c=t + 1.2,
                                     time_to_stability_s=analysis.get("stability", {}).get(
                                         c, {}).get("time_to_stability_s"), stable=True,
-                                    supply_current_a=0.006) for c, t, v in CONDITIONS],
+                                    supply_current_a=0.006, supply_measured_v=v - 0.0004)
+                    for c, t, v in CONDITIONS],
         measurements=measurements, calibration=cal,
         verification={"residuals": [{"condition": "T25_V5.25", "rate_in_dps": r,
                                      "error_dps": 0.001 * r, "error_pct": 0.1}

@@ -56,6 +56,9 @@ def test_page_one_summarises_how_tested_and_the_outcome(fail_run: Path) -> None:
     assert f"{len(rec.measurements)} measurements: {n_fail} failed, {n_marg} marginal" in page1
     assert "4 conditions (25/45 C, 4.75/5.25 V)" in page1
     assert "read-back PASSED" in page1
+    conditions = [ln for ln in pdf_text(fail_run / "certificate.pdf", page=1).splitlines()
+                  if ln.strip().startswith("T45_V5.25 ")]
+    assert conditions and conditions[0].split()[1:5] == ["45", "46.2", "5.25", "5.2496"]
 
 
 def test_overdue_instrument_is_stated_on_page_one(fail_run: Path, pass_run: Path) -> None:
