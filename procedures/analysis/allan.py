@@ -247,6 +247,8 @@ def fit_noise_model(
     every uncertainty read from the model.
     """
     active = np.asarray(terms, dtype=bool)
+    if not np.any(adev.adev_dps > 0.0):  # a constant record: no noise to fit
+        return NoiseFit(NoiseModel(), 0.0, 0.0, 0.0, None, None, None, 0.0)
     while True:
         fit, p, u_p = _fit_terms(adev, active, iterations)
         weak = active & (p < min_significance * u_p)

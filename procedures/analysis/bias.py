@@ -72,6 +72,12 @@ def window_mean(
     """Mean of a window of samples; uncertainty = Allan deviation at the window length."""
     rate = finite_1d(rate_dps, "rate_dps", MIN_SAMPLES)
     fs = positive(sample_rate_hz, "sample_rate_hz")
+    if noise is None and np.all(rate == rate[0]):
+        raise AnalysisError(
+            f"rate_dps is constant ({float(rate[0])!r}) over all {rate.size} samples, so its "
+            "uncertainty cannot be judged: the output is stuck or its resolution is coarser "
+            "than its noise; check the part and the fixture"
+        )
     duration_s = rate.size / fs
     if noise is None:
         noise = fit_noise_model(overlapping_adev(rate, fs, "octave")).model

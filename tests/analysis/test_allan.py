@@ -89,3 +89,8 @@ def test_noise_model_units() -> None:
 def test_bad_input_is_named(rate: object, needle: str) -> None:
     with pytest.raises(AnalysisError, match=needle):
         overlapping_adev(rate, 100.0)  # type: ignore[arg-type]
+
+
+def test_constant_record_fits_no_noise_without_crashing() -> None:
+    result = analyze_allan(np.full(200, 3.0), 10.0)
+    assert result.noise.model == NoiseModel()

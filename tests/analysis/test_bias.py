@@ -78,3 +78,8 @@ def test_estimate_carries_its_averaging_time_helper() -> None:
 def test_short_window_is_refused_with_a_clear_message() -> None:
     with pytest.raises(AnalysisError, match="record longer"):
         estimate_bias([1.0, 2.0, 3.0], FS)
+
+
+def test_stuck_output_is_refused() -> None:
+    with pytest.raises(AnalysisError, match="stuck"):
+        estimate_bias(np.full(500, 8.6), FS)
