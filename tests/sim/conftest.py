@@ -45,12 +45,13 @@ TWO_PARTS = {
     "parts": [
         {"socket": 1, "serial": "SIM-T001", "bias_dps": 8.6, "scale": 1.0567},
         {"socket": 2, "serial": "SIM-T002"},
-    ]
+    ],
+    "table": {"bounce": {"amplitude_deg": 0.02, "frequency_hz": 4.0, "decay_s": 0.15}},
 }
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def bench() -> Iterator[BenchHandle]:
-    """A bench at 100x with two loaded sockets, shared by a test module."""
+    """A bench at 100x with two loaded sockets, shared by the tests that leave it sane."""
     with launch_bench(config=TWO_PARTS, speed=100) as handle:
         yield handle
