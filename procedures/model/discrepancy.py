@@ -196,6 +196,7 @@ def run_discrepancy(
     not_separable: list[dict[str, Any]] = []
     not_identifiable: list[str] = []
     tests: list[CandidateTest] = []
+    tests, not_identifiable = test_candidates(fitter, current, alpha) if max_iterations == 0 else ([], [])
     for _ in range(max_iterations):
         tests, not_identifiable = test_candidates(fitter, current, alpha)
         significant = [c for c in tests if c.significant]

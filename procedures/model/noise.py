@@ -5,9 +5,10 @@ input is constant (static, plateau, stop_static, verify): the Allan variance ign
 constant offsets, so what remains is the part's noise, whatever the model gets wrong about
 bias or scale. A white + flat model, sigma^2(T) = N^2/T + F^2, is fitted to it; sigma(T) is
 then the expected scatter of the mean of a T-second block. For the significance tests the
-bias instability is represented by a first-order Gauss-Markov process whose Allan deviation
-peaks at F (the peak of a Gauss-Markov Allan deviation is 0.617 sigma_GM at T = 1.89 tau_c),
-so slow wander of the bias is not mistaken for an effect.
+bias instability (flicker, flat Allan deviation) is represented by a sum of first-order
+Gauss-Markov processes one decade apart in correlation time (10, 100, 1000 s), scaled so
+their combined Allan deviation peaks at F; slow wander of the bias is then not mistaken for
+an effect.
 """
 
 from __future__ import annotations
@@ -22,8 +23,25 @@ from procedures.model.blocks import Blocks
 from procedures.model.trajectory import FloatArray
 
 CONSTANT_INPUT_KINDS = ("static", "plateau", "stop_static", "verify")
-GM_PEAK_RATIO = 0.6174  # max Allan deviation of a Gauss-Markov process / its sigma
-GM_CORRELATION_TIME_S = 100.0
+GM_CORRELATION_TIMES_S = (10.0, 100.0, 1000.0)
+
+
+def _gm_avar(t: FloatArray, tau_c: float) -> FloatArray:
+    """Allan variance of a unit-variance first-order Gauss-Markov process."""
+    x = t / tau_c
+    return (2 * x - 3 + 4 * np.exp(-x) - np.exp(-2 * x)) / x**2
+
+
+def _flicker_gm_sigma() -> float:
+    """Per-process sigma (in units of F) so the summed Allan deviation peaks at F."""
+    t = np.logspace(-1, 5, 400)
+    total = sum(_gm_avar(t, tc) for tc in GM_CORRELATION_TIMES_S)
+    return float(1.0 / np.sqrt(np.max(total)))
+
+
+GM_SIGMA_PER_F = _flicker_gm_sigma()
+# Extra factor on the wander level of the covariance (1: as measured).
+WANDER_MARGIN = 1.0
 
 
 @dataclass(frozen=True)
@@ -32,7 +50,6 @@ class NoiseModel:
     floor_dps: float  # F: the flat part of the Allan deviation, deg/s
     tau_s: FloatArray  # measured Allan curve, for the report
     adev_dps: FloatArray
-    correlation_time_s: float = GM_CORRELATION_TIME_S
 
     @property
     def arw_deg_per_sqrt_h(self) -> float:
@@ -42,6 +59,13 @@ class NoiseModel:
     def bias_instability_deg_per_h(self) -> float:
         return self.floor_dps / 0.664 * 3600.0
 
+    @property
+    def wander_dps(self) -> float:
+        """Flat level used for the bias wander in the covariance (the fitted F). Raising it
+        to the Allan deviation at the longest measured tau was tried: it suppresses false
+        alarms of slow effects but makes fast contrasts overconfident, so it is not done."""
+        return self.floor_dps
+
     def sigma_dps(self, duration_s: FloatArray) -> FloatArray:
         """Expected scatter of the mean of a block of the given duration."""
         t = np.asarray(duration_s, dtype=float)
@@ -50,10 +74,12 @@ class NoiseModel:
     def block_covariance(self, blocks: Blocks) -> FloatArray:
         """Covariance of block-mean noise: white per block plus a Gauss-Markov bias wander."""
         cov = np.diag(self.white_dps_rt_s**2 / blocks.duration_s)
-        if self.floor_dps > 0:
-            s2 = (self.floor_dps / GM_PEAK_RATIO) ** 2
+        wander = self.wander_dps
+        if wander > 0:
+            s2 = (wander * GM_SIGMA_PER_F * WANDER_MARGIN) ** 2
             dt = np.abs(blocks.center_s[:, None] - blocks.center_s[None, :])
-            cov = cov + s2 * np.exp(-dt / self.correlation_time_s)
+            for tau_c in GM_CORRELATION_TIMES_S:
+                cov = cov + s2 * np.exp(-dt / tau_c)
         return cov
 
 
@@ -104,7 +130,7 @@ def measure_noise(
     ms = [1]
     while 2 * ms[-1] <= longest // 4:
         ms.append(2 * ms[-1])
-    taus, avars = [], []
+    taus, avars, dofs = [], [], []
     for m in ms:
         num, den = 0.0, 0
         for p in pieces:
@@ -115,11 +141,14 @@ def measure_noise(
         if den > 0:
             taus.append(m * dt)
             avars.append(num / den)
+            dofs.append(max(den / m, 1.0))  # about one independent term per m samples
     tau = np.asarray(taus)
     avar = np.asarray(avars)
-    # weighted fit of avar = N^2 / tau + F^2 with relative errors, non-negative terms
-    design = np.stack([1.0 / tau, np.ones_like(tau)], axis=1) / avar[:, None]
-    coef, _ = nnls(design, np.ones_like(tau))
+    # fit of avar = N^2 / tau + F^2, each point weighted by its relative precision
+    # (~ sqrt(dof)), non-negative terms
+    weight = np.sqrt(np.asarray(dofs)) / avar
+    design = np.stack([1.0 / tau, np.ones_like(tau)], axis=1) * weight[:, None]
+    coef, _ = nnls(design, weight * avar)
     return NoiseModel(
         white_dps_rt_s=float(math.sqrt(coef[0])),
         floor_dps=float(math.sqrt(coef[1])),
