@@ -59,8 +59,13 @@ def fail_run(runs_root: Path) -> Path:
     return folder
 
 
-@pytest.fixture
-def fresh_run(tmp_path: Path) -> Path:
-    """A run folder of its own, for tests that damage it."""
-    folder, _ = make_run(tmp_path, Part(serial="SIM-DMG-3", seed=3))
+@pytest.fixture(scope="session")
+def _pristine_run(runs_root: Path) -> Path:
+    folder, _ = make_run(runs_root / "pristine", Part(serial="SIM-DMG-3", seed=3))
     return folder
+
+
+@pytest.fixture
+def fresh_run(tmp_path: Path, _pristine_run: Path) -> Path:
+    """A run folder of its own (a copy), for tests that damage it."""
+    return Path(shutil.copytree(_pristine_run, tmp_path / _pristine_run.name))
