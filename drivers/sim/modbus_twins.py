@@ -10,6 +10,7 @@ close every connection) and delay (answer late).
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 from collections.abc import Awaitable, Callable
 
@@ -48,6 +49,11 @@ class ModbusTwin:
         sockets = getattr(self._server.transport, "sockets", None)
         if sockets:
             self.port = sockets[0].getsockname()[1]
+        # listen again on the same port after a drop fault (pymodbus bound port 0 at init)
+        self._server.call_create = functools.partial(
+            asyncio.get_running_loop().create_server, self._server.handle_new_connection,
+            self.host, self.port, reuse_address=True, start_serving=True,
+        )
 
     @property
     def endpoint(self) -> str:

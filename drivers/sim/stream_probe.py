@@ -99,6 +99,14 @@ class StreamProbe:
             self._feed(i, data)
         return total
 
+    def drain(self, quiet_s: float = 0.05, timeout_s: float = 5.0) -> None:
+        """Read until no port has delivered anything for `quiet_s` wall seconds."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.pump(quiet_s) == 0:
+                return
+        raise TimeoutError(f"the ports kept sending for {timeout_s} s")
+
     def command(self, i: int, line: str, timeout_s: float = 5.0) -> str:
         """Send a command to port `i` and wait for its reply (samples keep being decoded)."""
         before = len(self.counts[i].replies)
