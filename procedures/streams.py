@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 _COLUMNS = ("time_s", "seq", "rate_code", "temp_code", "status", "rate_dps", "temp_c", "station_time_s")
 _FLUSH_SAMPLES = 2000
+FIXTURE_WRAP_S = (1 << 32) * 1e-6  # the fixture's u32 microsecond timestamp
 _FLUSH_WALL_S = 0.5
 
 
@@ -94,6 +95,7 @@ class PartStream:
         self.frames_lost = 0
         self.frames_corrupted = 0
         self._last_data_station_s = 0.0
+        self._wrap_s = 0.0
 
     # ------------------------------------------------------------ control (main thread)
 
@@ -156,12 +158,19 @@ class PartStream:
         if n == 0:
             return 0
         self.frames_ok += n
+        time_s = np.asarray(block.time_s, dtype=np.float64) + self._wrap_s
+        last = self._data.column("time_s")
+        if last.size and time_s[0] < last[-1] - FIXTURE_WRAP_S / 2:
+            # the fixture clock wrapped (2^32 us) while the stream was stopped and the link
+            # forgot its unwrap state on restart: keep one continuous time base per part
+            self._wrap_s += FIXTURE_WRAP_S
+            time_s = time_s + FIXTURE_WRAP_S
         now = self.clock.now_s()
-        candidate = now - float(block.time_s[-1])
+        candidate = now - float(time_s[-1])
         if self.offset_s is None or candidate < self.offset_s:
             self.offset_s = candidate
         cols = {
-            "time_s": np.asarray(block.time_s, dtype=np.float64),
+            "time_s": time_s,
             "seq": np.asarray(block.seq, dtype=np.int64),
             "rate_code": np.asarray(block.rate_code, dtype=np.int64),
             "temp_code": np.asarray(block.temp_code, dtype=np.int64),

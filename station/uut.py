@@ -452,3 +452,28 @@ def procedure_product(procedure_path: Path, product_path: Path | None) -> tuple[
         product_path = (procedure_path.parent / procedure.product).resolve()
     product, _ = load_product(product_path)
     return procedure, product
+
+
+def run_simulated(parts: list[dict[str, Any]], *, procedure_path: Path | None = None,
+                  out: Path, speed: float = 100.0, settings: LoadedSettings | None = None,
+                  certificate: bool = False,
+                  on_progress: Callable[[ProgressEvent], None] | None = None,
+                  ) -> tuple[UutResult, dict[str, Any]]:
+    """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
+    entries); returns the result and the bench's truth at the end (for benchmarks and tests)."""
+    from drivers.sim.launcher import launch_bench
+    from station.settings import load_settings
+
+    sockets = max(int(p["socket"]) for p in parts)
+    with launch_bench(config={"parts": parts}, speed=speed, sockets=sockets) as bench:
+        e = bench.endpoints
+        runner = UutRunner(settings or load_settings(), procedure_path=procedure_path, out=out,
+                           endpoints=Endpoints(speed=e.speed, rate_table=e.rate_table,
+                                               chamber=e.chamber, supply=e.supply,
+                                               duts=dict(e.duts)),
+                           certificate=certificate, operator="benchmark")
+        if on_progress is not None:
+            runner.progress.subscribe(on_progress)
+        result = runner.run({int(p["socket"]): str(p["serial"]) for p in parts})
+        truth = bench.control.truth()
+    return result, truth

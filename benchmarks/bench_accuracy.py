@@ -1,0 +1,91 @@
+"""Accuracy against the simulated bench's truth, over many simulated parts.
+
+For each part: every fitted coefficient against the truth of the bench, in units of its own
+k = 2 uncertainty (|fit - truth| / U; <= 1 means covered), and the residual scale error after
+correction at the verification rates. Prints one row per part and a summary.
+
+    python3 benchmarks/bench_accuracy.py [--parts 24] [--sockets 8] [--speed 100]
+                                         [--procedure config/procedures/eol-rate-table.yaml]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from procedures.record import read_record  # noqa: E402
+from station.uut import run_simulated  # noqa: E402
+
+COEFFS = ("bias_dps", "bias_temp_coeff_dps_per_c", "bias_supply_coeff_dps_per_v", "scale",
+          "scale_temp_coeff_per_c", "scale_supply_coeff_per_v")
+SHORT = {"bias_dps": "b0", "bias_temp_coeff_dps_per_c": "bT", "bias_supply_coeff_dps_per_v": "bV",
+         "scale": "s0", "scale_temp_coeff_per_c": "sT", "scale_supply_coeff_per_v": "sV"}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--parts", type=int, default=24)
+    ap.add_argument("--sockets", type=int, default=8)
+    ap.add_argument("--speed", type=float, default=100.0)
+    ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
+    ap.add_argument("--first-serial", type=int, default=5001)
+    args = ap.parse_args()
+    rows = []
+    out = Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
+    serial = args.first_serial
+    t0 = time.monotonic()
+    while len(rows) < args.parts:
+        n = min(args.sockets, args.parts - len(rows))
+        parts = [{"socket": s, "serial": f"SIM-{serial + s - 1:04d}"} for s in range(1, n + 1)]
+        serial += n
+        result, truth = run_simulated(parts, procedure_path=Path(args.procedure), out=out,
+                                      speed=args.speed)
+        for s in sorted(result.folders):
+            rec = read_record(result.folders[s])
+            tr = truth["sockets"][str(s)]["parameters"]
+            row = {"serial": rec.dut.serial, "verdict": str(rec.verdict), "z": {}, "res": None}
+            if rec.calibration is not None:
+                for k in COEFFS:
+                    c = getattr(rec.calibration, k)
+                    row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
+            if rec.verification:
+                row["res"] = rec.verification["max_error_pct"]
+            rows.append(row)
+        print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)
+    head = f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS) + "  resid%"
+    print("\n|fit - truth| / U(k=2) per coefficient (<= 1: covered), residual scale error after correction")
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        zs = " ".join(f"{r['z'][k]:6.2f}" if k in r["z"] else f"{'-':>6}" for k in COEFFS)
+        res = f"{r['res']:.4f}" if r["res"] is not None else "-"
+        print(f"{r['serial']:<10} {r['verdict']:<7} {zs}  {res}")
+    fitted = [r for r in rows if r["z"]]
+    print("-" * len(head))
+    total = covered = 0
+    for k in COEFFS:
+        zs = [r["z"][k] for r in fitted]
+        c = sum(z <= 1.0 for z in zs)
+        total += len(zs)
+        covered += c
+        print(f"coverage {SHORT[k]}: {c}/{len(zs)} = {100 * c / max(len(zs), 1):.0f} %")
+    print(f"coverage all coefficients: {covered}/{total} = {100 * covered / max(total, 1):.1f} % "
+          f"(target >= 95 %)")
+    res = [r["res"] for r in rows if r["res"] is not None]
+    if res:
+        print(f"residual scale error after correction: max {max(res):.4f} %, "
+              f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %")
+    print(f"parts {len(rows)}, fitted {len(fitted)}, verdicts "
+          + ", ".join(f"{v}: {sum(r['verdict'] == v for r in rows)}" for v in sorted({r['verdict'] for r in rows})))
+    print(f"wall time {time.monotonic() - t0:.0f} s; run folders in {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
