@@ -265,8 +265,6 @@ def stabilisation(inputs: CertificateInputs) -> list[Flowable]:
                 right.vline(when, colour, dash=(2, 2), width=0.6)
             if c and c.band_c is not None:
                 tol = c.band_c / 2
-            elif c and c.tolerance_c is not None and tol is None:
-                tol = c.tolerance_c
         if tol is not None:
             right.band_y(-tol, tol, STATIC_FILL, f"criterion band {fmt(2 * tol)} C")
             right.y_range = (-8 * tol, 8 * tol)  # zoomed on the criterion; the left plot shows all

@@ -389,6 +389,18 @@ def verification(rec: RunRecord | None) -> list[Flowable]:
     return story
 
 
+def sign_off() -> Table:
+    """Boxes for the quality engineer's review, filled in by hand or by a signing tool."""
+    rows = [[_p("Reviewed by (quality)"), _p(""), _p("Date"), _p(""), _p("Signature"), _p("")]]
+    t = Table(rows, colWidths=[34 * mm, 46 * mm, 12 * mm, 28 * mm, 18 * mm, 44 * mm],
+              rowHeights=[10 * mm])
+    style = grid_style(header_rows=0)
+    for col in (0, 2, 4):
+        style.add("BACKGROUND", (col, 0), (col, 0), HEADER_GREY)
+    t.setStyle(style)
+    return t
+
+
 def generated_note(inputs: CertificateInputs, when: datetime) -> Paragraph:
     return Paragraph(
         f"Rendered from {escape(inputs.folder.name)}/record.json and {escape(inputs.raw_path.name)}"

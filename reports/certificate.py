@@ -19,7 +19,7 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from reportlab.platypus import Flowable, Spacer
+from reportlab.platypus import Flowable, KeepTogether, Spacer
 
 from procedures.record import CERTIFICATE_FILE
 from reports import cert_plots, cert_sections
@@ -52,7 +52,8 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story += cert_sections.calibration(inputs)
     if inputs.record is not None:
         story += cert_plots.all_plots(inputs)
-    story += [Spacer(1, 4), cert_sections.generated_note(inputs, when)]
+    story += [Spacer(1, 8), KeepTogether([cert_sections.sign_off(), Spacer(1, 4),
+                                          cert_sections.generated_note(inputs, when)])]
     return story
 
 

@@ -111,7 +111,8 @@ def _write_raw(path: Path, part: Part, run_id: str) -> dict[str, Any]:
             stable_at = float(60.0 * math.log(max(abs(start_temp - temp_c - 1.2), 0.2) / 0.1))
             stable_at = min(stable_at, 390.0)
             seg("stabilise", 0, t_now, t_now + 400)
-            analysis["stability"][cond] = {"tolerance_c": 0.1, "window_s": 60.0,
+            analysis["stability"][cond] = {"band_c": 0.2, "max_rate_c_per_min": 0.05,
+                                           "window_s": 60.0,
                                            "time_to_stability_s": stable_at, "stable": True}
             t_now += 400.0
             die = temp_c + 1.2
