@@ -67,6 +67,15 @@ class StopMove:
     def usable(self) -> bool:
         return self.scale_correction is not None
 
+    def require_scale_correction(self) -> float:
+        """This move's scale correction, or an AnalysisError saying why it has none."""
+        if self.scale_correction is None:
+            why = "it has over-range samples" if self.clipped else "the record cuts it off"
+            raise AnalysisError(
+                f"the move at {self.start_s:.3g}-{self.end_s:.3g} s gives no scale: {why}"
+            )
+        return self.scale_correction
+
 
 @dataclass(frozen=True)
 class StopMethodResult:

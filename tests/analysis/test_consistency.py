@@ -5,6 +5,7 @@ import pytest
 
 from procedures.analysis import (
     AnalysisError,
+    Consistency,
     analyze_stop_method,
     fit_rate_table,
     normalised_difference,
@@ -26,7 +27,7 @@ def test_normalised_difference_arithmetic() -> None:
         normalised_difference(1.0, 0.0, 1.0, 0.0)
 
 
-def _both(rng: np.random.Generator, scale_stop: float, scale_table: float):  # type: ignore[no-untyped-def]
+def _both(rng: np.random.Generator, scale_stop: float, scale_table: float) -> Consistency:
     fs = 50.0
     t = np.arange(0.0, 21.0, 1.0 / fs)
     motion = raised_cosine(t, 4.5, 3.5, 90.0) + raised_cosine(t, 12.5, 3.5, -90.0)

@@ -42,6 +42,7 @@ def test_stop_method_finds_every_move_and_integrates_it(
         # a hair for the samples of motion under the noise band
         assert abs(move.measured_angle_deg - sign * scale * angle) < (
             5 * move.u_measured_angle_deg + 1e-3 * angle), move
+    assert r.scale_correction is not None and r.u_scale_correction is not None
     assert abs(r.scale_correction - 1 / scale) < 6 * r.u_scale_correction + 2e-5
 
 

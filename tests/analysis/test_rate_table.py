@@ -12,7 +12,7 @@ FS_DPS = 250.0
 def _plateaus(
     rng: np.random.Generator, k: float = 1.0567, b: float = 8.6, k2: float = 0.0,
     asym: float = 0.0, u_out: float = 0.003, u_in: float = 2e-4,
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     w_true = RATES
     scale = k * (1.0 + 0.5 * asym * np.sign(w_true))
     y = scale * w_true + b + k2 * w_true**2 + u_out * rng.standard_normal(w_true.size)

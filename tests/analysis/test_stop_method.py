@@ -12,8 +12,8 @@ def test_article_worked_example_numbers() -> None:
     t, y = article_record(np.random.default_rng(0))
     r = analyze_stop_method(t, y, reference_angle_deg=90.0)
     assert round(r.bias_correction_dps, 1) == -8.6
-    assert [round(m.scale_correction, 3) for m in r.moves] == [0.946, 0.944]
-    assert round(r.scale_correction, 3) == 0.945
+    assert [round(m.require_scale_correction(), 3) for m in r.moves] == [0.946, 0.944]
+    assert round(r.require_scale_correction(), 3) == 0.945
     # integration brackets the motion (4.5-8 s, 12.5-16 s) as the article's 4-9 s, 12-16 s
     (m1, m2) = r.moves
     assert 4.0 < m1.start_s < 4.5 and 8.0 < m1.end_s < 9.0
@@ -53,8 +53,10 @@ def test_k2_intervals_of_the_scale_cover_93_to_97_percent() -> None:
         y = 8.6 + scale * motion + 0.1 * rng.standard_normal(t.size)
         ref = angle + u_ref * rng.standard_normal()  # the inclinometer's own error
         r = analyze_stop_method(t, y, ref, u_ref)
+        assert r.scale_correction is not None and r.u_scale_correction_k2 is not None
         hits[0] += abs(r.scale_correction - 1 / scale) <= r.u_scale_correction_k2
         for k, m in enumerate(r.moves):
+            assert m.scale_correction is not None and m.u_scale_correction is not None
             hits[1 + k] += abs(m.scale_correction - 1 / scale) <= 2 * m.u_scale_correction
     cover = hits / trials
     assert np.all((cover >= 0.93) & (cover <= 0.97)), cover
