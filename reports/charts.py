@@ -363,26 +363,33 @@ def bar_chart(
     title: str = "",
     y_label: str = "",
     color: colors.Color = PALETTE[4],
+    value_labels: Sequence[str] | None = None,
 ) -> Drawing:
-    """Vertical bars with category labels (e.g. a failure pareto, largest first)."""
+    """Vertical bars with category labels (e.g. a failure pareto, largest first).
+
+    `value_labels` replaces the number printed above each bar (e.g. "7 (41 %)").
+    """
     d = Drawing(width, height)
     x0, y0 = _LEFT, _BOTTOM + 22
     pw, ph = width - _LEFT - _RIGHT, height - y0 - _TOP
     vmax = max([float(v) for v in values] + [1.0])
     ticks = nice_ticks(0.0, max(vmax, 4.0), target=4)
-    ymax = max(ticks[-1], vmax)
+    if all(float(v).is_integer() for v in values):
+        ticks = [t for t in ticks if float(t).is_integer()]  # counts: no 2.5 ticks
+    ymax = max(ticks[-1], vmax * 1.12)  # room for the label above the tallest bar
     for t in ticks:
         py = y0 + t / ymax * ph
         d.add(Line(x0, py, x0 + pw, py, strokeColor=GRID, strokeWidth=0.4))
         d.add(String(x0 - 4, py - 2.2, tick_label(t), fontName=FONT, fontSize=6.5,
                      textAnchor="end"))
     n = max(len(categories), 1)
-    slot = pw / n
+    slot = min(pw / n, 70.0)  # a few categories stay narrow bars, not slabs
     for i, (cat, v) in enumerate(zip(categories, values, strict=True)):
         bx = x0 + i * slot + slot * 0.15
         bh = float(v) / ymax * ph
         d.add(Rect(bx, y0, slot * 0.7, bh, fillColor=color, strokeColor=None, strokeWidth=0))
-        d.add(String(bx + slot * 0.35, y0 + bh + 2, tick_label(float(v)), fontName=FONT,
+        text = value_labels[i] if value_labels is not None else tick_label(float(v))
+        d.add(String(bx + slot * 0.35, y0 + bh + 2, text, fontName=FONT,
                      fontSize=6.5, textAnchor="middle"))
         label = cat if len(cat) <= 22 else cat[:21] + "."
         g = Group(String(0, 0, label, fontName=FONT, fontSize=6.2, textAnchor="end"))

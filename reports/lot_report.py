@@ -192,8 +192,11 @@ def build_lot(db: ResultsDB, **filters: object) -> tuple[list[Flowable], LotSumm
         story.append(Paragraph(f"{sims} of {len(runs)} runs used the SIMULATED bench.", BODY))
     story.append(Paragraph("Failure pareto (runs failing each measurement)", H2))
     if pareto:
-        story.append(bar_chart(FULL_W, 62 * mm, [n for n, _ in pareto], [c for _, c in pareto],
-                               title="Failures by measurement", y_label="failing runs"))
+        total = max(y.failed, 1)
+        story.append(bar_chart(
+            FULL_W, 62 * mm, [n for n, _ in pareto], [c for _, c in pareto],
+            title="Failures by measurement (count, % of failed runs)", y_label="failing runs",
+            value_labels=[f"{c} ({c / total * 100:.0f} %)" for _, c in pareto]))
     else:
         story.append(Paragraph("No failing measurement in this lot.", BODY))
     story += [Paragraph("Capability", H2), _capability_table(caps), Paragraph(
