@@ -54,6 +54,8 @@ def _ui(args: argparse.Namespace) -> int:
               f"review: http://{args.host}:{args.port}/review   (Ctrl-C stops)", flush=True)
         try:
             serve_forever(station.app, args.host, args.port)
+        except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled: a normal stop
+            pass
         except OSError as exc:
             raise UserError(f"cannot listen on {args.host}:{args.port} ({exc.strerror}); "
                             "choose another --port") from None

@@ -147,6 +147,7 @@ class Controller:
                 raise RunRefused("the same serial is scanned in two sockets; rescan each part")
             self._generation += 1
             generation = self._generation
+            self._last = None  # the previous verdict stays on screen until the next Start
             self._run = {
                 "run_id": "",
                 "serials": {str(k): v for k, v in clean.items()},

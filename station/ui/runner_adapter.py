@@ -72,6 +72,7 @@ class StationInfo:
     sockets: list[int] = field(default_factory=lambda: [1])
     simulated: bool = False
     out_dir: str = "runs"
+    bench_control: str = ""  # the simulated bench's control endpoint (host:port), sim only
 
 
 class Runner(Protocol):
@@ -163,6 +164,7 @@ class EngineRunner:
             sockets=list(range(1, n_sockets + 1)),
             simulated=endpoints is not None,
             out_dir=str(self.out),
+            bench_control=str(getattr(control, "endpoint", "") or ""),
         )
         self._uut: Any = None
         self._thread: threading.Thread | None = None
@@ -291,6 +293,9 @@ class EngineRunner:
         if self.control is None:
             return
         with self._control_lock:
+            for sock in self.info.sockets:
+                if sock not in serials:  # the operator took that part out: it draws no current
+                    self.control.unload(sock)
             for sock, serial in serials.items():
                 part = {k: v for k, v in self.sim_parts.get(serial, {}).items() if k != "socket"}
                 part["serial"] = serial

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import httpx
 import pytest
 
 from station.ui.app import create_app
@@ -13,7 +19,7 @@ from station.ui.auth import hash_password
 from station.ui.controller import Controller
 from station.ui.history import History
 from station.ui.hub import Hub
-from station.ui.server import BackgroundServer, serve_in_thread
+from station.ui.server import BackgroundServer, free_port, serve_in_thread
 
 ENGINEER_PASSWORD = "line-eng-42"
 _HASH = hash_password(ENGINEER_PASSWORD)
@@ -70,7 +76,7 @@ def page(browser: object) -> Iterator[object]:
 
 # ---------------------------------------------------------------- the real station, simulated bench
 
-SIM_SPEED = 300.0
+SIM_SPEED = 100.0
 PASS_SERIAL = "SIM-0001"
 FAIL_SERIAL = "SIM-0666"  # raw bias 14 deg/s, outside the product's +/-10 deg/s
 REPO = Path(__file__).resolve().parents[2]
@@ -108,24 +114,59 @@ def make_station_config(folder: Path, password_hash: str | None = _HASH) -> Path
 
 @dataclass
 class SimStation:
-    station: object  # station.ui.launch.UiStation
-    server: BackgroundServer
+    url: str
     config: Path
+    process: subprocess.Popen[bytes]
+    bench_control: str  # host:port of the bench's control channel (the twins' truth)
 
-    @property
-    def url(self) -> str:
-        return self.server.url
+    def truth(self) -> dict:
+        from drivers.sim.control_client import ControlClient
+
+        with ControlClient(self.bench_control) as control:
+            return control.truth()
+
+
+def start_ui_process(config: Path, log_path: Path, speed: float = SIM_SPEED) -> SimStation:
+    """`station ui --sim` as its own process, as on the line; returns once it answers."""
+    port = free_port()
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    cmd = [sys.executable, "-m", "station", "ui", "--sim", "--port", str(port),
+           "--station", str(config / "station.yaml"), "--sim-config", str(config / "sim.yaml"),
+           "--speed", str(speed)]
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(cmd, cwd=str(REPO), env=env, stdout=log, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    while True:
+        if proc.poll() is not None:
+            raise RuntimeError(f"station ui exited ({proc.returncode}): {log_path.read_text()[-2000:]}")
+        try:
+            state = httpx.get(url + "/api/state", timeout=2).json()
+            return SimStation(url, config, proc, state["station"]["bench_control"])
+        except httpx.HTTPError:
+            if time.monotonic() > deadline:
+                proc.kill()
+                raise RuntimeError(f"station ui did not answer: {log_path.read_text()[-2000:]}")
+            time.sleep(0.1)
+
+
+def stop_ui_process(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)  # uvicorn shuts down, the bench is stopped
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
 
 
 @pytest.fixture(scope="module")
 def sim_station(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimStation]:
-    from station.ui.launch import ui_station
-
     folder = tmp_path_factory.mktemp("station") / "config"
-    station_file = make_station_config(folder)
-    with ui_station(station_file, sim=True, sim_config=folder / "sim.yaml", speed=SIM_SPEED) as st:
-        server = serve_in_thread(st.app, before_stop=st.controller.hub.close)
-        try:
-            yield SimStation(st, server, folder)
-        finally:
-            server.stop()
+    make_station_config(folder)
+    station = start_ui_process(folder, folder.parent / "ui.log")
+    try:
+        yield station
+    finally:
+        stop_ui_process(station.process)

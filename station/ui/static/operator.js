@@ -108,6 +108,15 @@ function renderRemaining() {
 function renderLast() {
   for (const n in sockets) sockets[n].box.hidden = true;
   const last = S.last;
+  const safe = $("safe-state");
+  safe.hidden = !(last && last.safe_state);
+  if (last && last.safe_state) {
+    const st = last.safe_state;
+    safe.className = "safe-state " + (st.all ? "ok" : "bad");
+    safe.textContent = st.all ? "Bench safe: table stopped, supply off, chamber safe"
+      : "Bench NOT safe: " + Object.keys(st).filter((k) => k !== "all" && !st[k]).join(", ").replace(/_/g, " ");
+  }
+  if (last && last.message) $("message").textContent = last.message;
   if (!last) return;
   for (const r of last.results) {
     const s = sockets[r.socket];
