@@ -247,6 +247,10 @@ class ProductConfig(_Strict):
     reference_temperature_c: float = Field(25.0, description="T0 of the calibration")
     reference_supply_v: float = Field(5.0, gt=0, description="V0 of the calibration")
     current_limit_a: float = Field(0.05, gt=0, description="supply current limit per part, A")
+    bias_instability_deg_per_h: float = Field(
+        15.0, ge=0, description="typical bias instability of the product: the bias wanders by "
+        "about this much between conditions (a floor for the bias uncertainty when the record "
+        "is too short to resolve it)")
     limits: Limits = Field(default_factory=Limits, description="acceptance limits")
 
     @field_validator("serial_pattern")
@@ -319,6 +323,9 @@ class BiasConfig(_Strict):
     target_accuracy_dps: float = Field(0.005, gt=0, description="k=2 target for 'auto'")
     min_dwell_s: float = Field(10.0, gt=0, description="pilot dwell for 'auto'")
     max_dwell_s: float = Field(300.0, gt=0, description="cap for 'auto'")
+    wander_factor: float = Field(
+        1.5, ge=0, description="bias wander between conditions, in units of the bias "
+        "instability, added to each condition's bias uncertainty (0: white noise only)")
 
     @field_validator("dwell_s")
     @classmethod

@@ -73,10 +73,14 @@ class Bias(BaseStep):
             return
         part.extra["noise"] = noise
         res = part.conditions[self.condition]
-        res.bias_dps, res.u_bias_dps = est.bias_dps, est.u_bias_dps
+        # the bias wanders between conditions (bias instability): a short record cannot see
+        # it, so the product's typical value is its floor
+        b_dps = max(noise.bias_instability_dps, ctx.product.bias_instability_deg_per_h / 3600.0)
+        u_wander = ctx.procedure.bias.wander_factor * b_dps
+        res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
         res.note_temperature("bias", data["temp_c"])
         ctx.measure(part, "raw_bias_dps", est.bias_dps, units="deg/s",
-                    uncertainty_k2=2 * est.u_bias_dps, condition=self.condition,
+                    uncertainty_k2=2 * res.u_bias_dps, condition=self.condition,
                     description="uncalibrated bias at rest")
         ctx.segment(part, "static", 0, float(data["time_s"][0]), float(data["time_s"][-1]),
                     ref_rate_dps=0.0, temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
