@@ -54,9 +54,17 @@ CAL_FIELDS = {
     "v0": "v0_v",
 }
 assert tuple(CAL_FIELDS) == CAL_KEYS
-# a pty passes at most about 4 KB per read: pausing after bigger reads would cap the link
-# near 1 MB/s, so the reader pauses only when little arrived
-_BATCH_BELOW_BYTES = 1024
+# The reader pauses between reads so frames arrive in batches (the parser's cost is mostly
+# per call). A pty buffers only about 4 KB, so the pause is sized from the measured byte
+# rate to let no more than _PAUSE_FILL_BYTES pile up: at 100k frames/s (2.1 MB/s) a fixed
+# 5 ms pause would hold the fixture back to about 40k frames/s.
+_PAUSE_FILL_BYTES = 1024
+_RATE_WINDOW_S = 0.05
+
+
+def _pause_for(rate_bytes_per_s: float, longest_s: float) -> float:
+    return min(longest_s, _PAUSE_FILL_BYTES / max(rate_bytes_per_s, 1.0))
+
 _CAL_TOLERANCE_REL = 1e-5
 _CAL_TOLERANCE_ABS = 1e-9
 
@@ -137,6 +145,9 @@ class SerialPartLink:
 
     def _read_loop(self) -> None:
         port = self._port
+        window_t0 = time.monotonic()
+        window_bytes = 0
+        pause_s = self._batch_s
         try:
             while not self._stop.is_set():
                 waiting = port.in_waiting
@@ -148,8 +159,13 @@ class SerialPartLink:
                     if more:
                         data += port.read(more)
                 self._consume(data)
-                if len(data) < _BATCH_BELOW_BYTES and self._batch_s > 0:
-                    time.sleep(self._batch_s)
+                window_bytes += len(data)
+                now = time.monotonic()
+                if now - window_t0 >= _RATE_WINDOW_S:
+                    pause_s = _pause_for(window_bytes / (now - window_t0), self._batch_s)
+                    window_t0, window_bytes = now, 0
+                if pause_s > 0 and len(data) < _PAUSE_FILL_BYTES:
+                    time.sleep(pause_s)
         except Exception as exc:  # noqa: BLE001 - reported to the caller by _check_reader
             if not self._stop.is_set():
                 log.error("%s: reader stopped: %s", self.name, exc)
