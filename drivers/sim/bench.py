@@ -228,6 +228,8 @@ class Bench:
         }
         for index, fixture in self.fixtures.items():
             out["sockets"][str(index)]["fifo_pending_bytes"] = fixture.port.pending_bytes
+            out["sockets"][str(index)]["fifo_peak_bytes"] = fixture.fifo_peak_bytes
+            out["sockets"][str(index)]["fifo_bytes"] = fixture.fifo_bytes
         out["ticks"] = self.ticks
         return out
 

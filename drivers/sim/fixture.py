@@ -185,9 +185,8 @@ class FixtureSocket:
         assert part is not None
         times = self._t_start + k * dt
         supply_v = self.world.supply.output_v()
-        table = self.world.table
-        raw, die = part.raw_output_dps(times, table.rate_dps(times), table.angle_deg(times),
-                                       supply_v, dt)
+        angle, rate = self.world.table.kinematics(times)
+        raw, die = part.raw_output_dps(times, rate, angle, supply_v, dt)
         status = np.zeros(k.size, dtype=np.int64)
         out = raw
         if part.compensation:

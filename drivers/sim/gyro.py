@@ -145,20 +145,24 @@ class PartModel:
 
     def _noise(self, n: int, dt_s: float) -> FloatArray:
         p = self.params
-        white = self.rng.normal(0.0, p.arw_deg_per_sqrt_h / 60.0 / math.sqrt(dt_s), n)
-        out = white
-        if self._gm_sigma > 0:
+        k_si = p.rrw_deg_per_h_per_sqrt_h / 216000.0
+        use_gm = self._gm_sigma > 0
+        rows = 1 + (len(GM_TAUS_S) if use_gm else 0) + (1 if k_si > 0 else 0)
+        e = self.rng.standard_normal((rows, n))  # one draw for every noise term
+        out = e[0] * (p.arw_deg_per_sqrt_h / 60.0 / math.sqrt(dt_s))
+        row = 1
+        if use_gm:
             for i, corr in enumerate(GM_TAUS_S):
                 a = math.exp(-dt_s / corr)
-                e = self.rng.normal(0.0, self._gm_sigma * math.sqrt(1 - a * a), n)
-                x = first_order_filter(e, a, 1.0, float(self._gm_state[i]))
+                x = first_order_filter(e[row], a, self._gm_sigma * math.sqrt(1 - a * a),
+                                       float(self._gm_state[i]))
                 self._gm_state[i] = x[-1]
-                out = out + x
-        k_si = p.rrw_deg_per_h_per_sqrt_h / 216000.0
+                out += x
+                row += 1
         if k_si > 0:
-            walk = self._rrw_state + np.cumsum(self.rng.normal(0.0, k_si * math.sqrt(dt_s), n))
+            walk = self._rrw_state + np.cumsum(e[row]) * (k_si * math.sqrt(dt_s))
             self._rrw_state = float(walk[-1])
-            out = out + walk
+            out += walk
         return out
 
     def raw_output_dps(self, t_s: FloatArray, rate_dps: FloatArray, angle_deg: FloatArray,

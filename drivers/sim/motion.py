@@ -83,12 +83,17 @@ class Profile:
 
     def _eval(self, t_s: ArrayLike, velocity: bool) -> FloatArray:
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        out = np.empty_like(t)
-        idx = self._index(t)
-        for i in np.unique(idx):
-            sel = idx == i
-            piece = self.pieces[int(i)]
-            out[sel] = piece.velocity_dps(t[sel]) if velocity else piece.position_deg(t[sel])
+        idx = self._index(t[[0, -1]]) if t.size else np.zeros(2, dtype=np.intp)
+        if idx[0] == idx[1]:  # the usual case: the whole batch inside one piece (t sorted)
+            piece = self.pieces[int(idx[0])]
+            out = piece.velocity_dps(t) if velocity else piece.position_deg(t)
+        else:
+            out = np.empty_like(t)
+            idx = self._index(t)
+            for i in np.unique(idx):
+                sel = idx == i
+                piece = self.pieces[int(i)]
+                out[sel] = piece.velocity_dps(t[sel]) if velocity else piece.position_deg(t[sel])
         if self.bounce is not None:
             out += self.bounce.velocity_dps(t) if velocity else self.bounce.position_deg(t)
         return out

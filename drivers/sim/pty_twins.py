@@ -126,6 +126,7 @@ class FixtureTwin:
         self.world = world
         self.socket = socket
         self.fifo_bytes = fifo_bytes
+        self.fifo_peak_bytes = 0
         self.port = PtyPort(loop, self._line)
 
     def _line(self, line: str) -> None:
@@ -146,6 +147,7 @@ class FixtureTwin:
             self.socket.frames_overflowed += (len(frames) - keep) // SAMPLE_FRAME_SIZE
             frames = frames[:keep]
         self.port.write(frames)
+        self.fifo_peak_bytes = max(self.fifo_peak_bytes, self.port.pending_bytes)
 
     def close(self) -> None:
         self.port.close()

@@ -91,12 +91,20 @@ class StreamProbe:
         total = 0
         for fd in ready:
             i = fds.index(fd)
-            try:
-                data = os.read(fd, 1 << 20)
-            except BlockingIOError:
-                continue
-            total += len(data)
-            self._feed(i, data)
+            chunks = []
+            size = 0
+            while size < (1 << 20):  # a pty hands out ~4 KB per read: gather, then parse once
+                try:
+                    data = os.read(fd, 1 << 20)
+                except BlockingIOError:
+                    break
+                if not data:
+                    break
+                chunks.append(data)
+                size += len(data)
+            if chunks:
+                total += size
+                self._feed(i, b"".join(chunks))
         return total
 
     def drain(self, quiet_s: float = 0.05, timeout_s: float = 5.0) -> None:

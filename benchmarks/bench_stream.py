@@ -1,0 +1,106 @@
+"""How fast can the simulated bench run with no frame lost?
+
+For each output data rate (200 Hz, 1 kHz) and socket count (1, 8) this starts the bench at
+increasing world speed factors, streams every socket for a few wall seconds through real ptys
+(decoded with FrameParser by one reader thread in this process, like the station would), and
+reports the highest speed with zero frames lost and the FIFO never more than half full, plus
+the CPU time the bench process and the reader spent.
+
+    python3 benchmarks/bench_stream.py [--wall-s 4] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from drivers.sim.launcher import launch_bench  # noqa: E402
+from drivers.sim.stream_probe import StreamProbe, power_parts  # noqa: E402
+
+SPEEDS = (25, 50, 100, 200, 400, 800, 1600)
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _proc_cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK  # utime + stime
+
+
+def _self_cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def run_once(odr_hz: int, sockets: int, speed: float, wall_s: float) -> dict[str, object]:
+    parts = [{"socket": i, "serial": f"BENCH-{i:04d}"} for i in range(1, sockets + 1)]
+    with launch_bench(config={"parts": parts, "fixture": {"sockets": sockets}}, speed=speed) as b:
+        power_parts(b.endpoints.supply)
+        with StreamProbe([b.endpoints.duts[i] for i in range(1, sockets + 1)]) as probe:
+            bench_cpu0, self_cpu0, t0 = _proc_cpu_s(b.endpoints.pid), _self_cpu_s(), time.monotonic()
+            probe.stream(odr_hz, wall_s=wall_s)
+            wall = time.monotonic() - t0
+            bench_cpu = _proc_cpu_s(b.endpoints.pid) - bench_cpu0
+            reader_cpu = _self_cpu_s() - self_cpu0
+            truth = b.control.truth()
+        counts = probe.counts
+    socks = [truth["sockets"][str(i)] for i in range(1, sockets + 1)]
+    sent = sum(s["frames_sent"] for s in socks)
+    received = sum(c.frames_ok for c in counts)
+    lost = sum(c.frames_lost for c in counts) + sum(s["frames_dropped"] for s in socks)
+    peak = max(s["fifo_peak_bytes"] / s["fifo_bytes"] for s in socks)
+    ok = lost == 0 and received == sent and peak < 0.5
+    return {
+        "odr_hz": odr_hz, "sockets": sockets, "speed": speed, "ok": ok,
+        "frames_sent": sent, "frames_received": received, "frames_lost": lost,
+        "fifo_peak_fraction": round(peak, 4), "wall_s": round(wall, 3),
+        "frames_per_wall_s": round(received / wall),
+        "bench_cpu_s": round(bench_cpu, 3), "reader_cpu_s": round(reader_cpu, 3),
+        "bench_cpu_per_wall_s": round(bench_cpu / wall, 3),
+        "bench_cpu_us_per_frame": round(1e6 * bench_cpu / max(received, 1), 2),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--wall-s", type=float, default=4.0, help="streaming time per trial")
+    ap.add_argument("--json", type=Path, help="also write every trial as JSON")
+    args = ap.parse_args()
+    trials: list[dict[str, object]] = []
+    summary = []
+    for odr in (200, 1000):
+        for sockets in (1, 8):
+            best = None
+            for speed in SPEEDS:
+                r = run_once(odr, sockets, speed, args.wall_s)
+                trials.append(r)
+                print(json.dumps(r), flush=True)
+                if not r["ok"]:
+                    break
+                best = r
+            summary.append((odr, sockets, best))
+    print("\nhighest speed with zero frames lost (FIFO < 50 %), "
+          f"{args.wall_s:g} s wall per trial, {os.cpu_count()} cores:")
+    print(f"{'ODR':>6} {'sockets':>7} {'speed':>6} {'frames/s':>9} {'bench CPU/wall':>14} "
+          f"{'reader CPU/wall':>15} {'bench us/frame':>14}")
+    for odr, sockets, best in summary:
+        if best is None:
+            print(f"{odr:>6} {sockets:>7}   none at {SPEEDS[0]}x")
+            continue
+        print(f"{odr:>6} {sockets:>7} {best['speed']:>6} {best['frames_per_wall_s']:>9} "
+              f"{best['bench_cpu_per_wall_s']:>14} "
+              f"{round(best['reader_cpu_s'] / best['wall_s'], 3):>15} "
+              f"{best['bench_cpu_us_per_frame']:>14}")
+    if args.json:
+        args.json.write_text(json.dumps(trials, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
