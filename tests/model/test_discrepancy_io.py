@@ -1,0 +1,93 @@
+"""Data loading (CSV, run folder) and the `station discrepancy` command."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fake_run_folder import write_run_folder
+from helpers_model import TINY, as_trajectory
+from synth_gyro import SHORT, Part, generate, realistic_part
+
+from procedures.model.data import load_csv, write_csv
+from procedures.model.discrepancy import run_discrepancy
+from procedures.model.gyro_model import first_order_model
+from procedures.model.run_folder import load_data
+
+ROOT = Path(__file__).resolve().parents[2]
+PINNED = {"gap_initial_dps", "noise_floor_dps", "iterations", "effects_added", "gap_final_dps"}
+
+
+def _station(*args: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "station", "discrepancy", *args],
+                          capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+
+
+def test_csv_round_trip_and_inferred_windows(tmp_path: Path) -> None:
+    traj = as_trajectory(generate(Part(), 3, TINY))
+    back = load_csv(write_csv(tmp_path / "a.csv", traj, with_kinds=True))
+    assert np.allclose(back.gyro_dps, traj.gyro_dps, rtol=1e-8)
+    assert [s.kind for s in back.segments] == [s.kind for s in traj.segments if
+                                               s.end_s - s.start_s > 0.05][: len(back.segments)]
+    inferred = load_csv(write_csv(tmp_path / "b.csv", traj, with_kinds=False))
+    kinds = {s.kind for s in inferred.segments}
+    assert {"static", "plateau", "transition", "stop_move"} <= kinds
+    plateau_rates = {round(float(np.median(traj.ref_rate_dps[(traj.time_s >= s.start_s)
+                                                              & (traj.time_s < s.end_s)])))
+                     for s in inferred.segments if s.kind == "plateau"}
+    assert plateau_rates == {20, -20, 200, -200}
+
+
+def test_bad_csv_is_refused_with_a_clear_message(tmp_path: Path) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text("time_s,gyro_dps,ref_rate_dps\n0,1,2\n")
+    with pytest.raises(ValueError, match="columns .*ref_angle_deg.* are missing"):
+        load_csv(p)
+    out = _station(str(p))
+    assert out.returncode == 2
+    assert "missing" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_cli_on_csv_writes_pinned_json_model_and_pdf(tmp_path: Path) -> None:
+    traj = as_trajectory(generate(realistic_part().with_effect("k3_cubic"), 21, SHORT))
+    csv_path = write_csv(tmp_path / "run.csv", traj, with_kinds=False)
+    out = _station(str(csv_path), "--model", "first_order", "--out", str(tmp_path / "o"),
+                   "--json", str(tmp_path / "r.json"))
+    assert out.returncode == 0, out.stderr
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert PINNED <= set(data)
+    assert data["effects_added"][0] == "k3_cubic"
+    it = data["iterations"][0]
+    assert {"effect", "gap_before_dps", "gap_after_dps", "parameters", "evidence"} <= set(it)
+    assert it["parameters"]["k3_per_dps2"] == pytest.approx(8e-9, rel=0.2)
+    assert data["gap_final_dps"] <= 1.5 * data["noise_floor_dps"] < data["gap_initial_dps"]
+    pdf = (tmp_path / "o" / "discrepancy_report.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF") and b"/Image" not in pdf
+    # the extended model is a valid starting model: nothing more to name
+    again = _station(str(csv_path), "--model", str(tmp_path / "o" / "model.yaml"),
+                     "--out", str(tmp_path / "o2"))
+    assert again.returncode == 0, again.stderr
+    d2 = json.loads((tmp_path / "o2" / "discrepancy.json").read_text())
+    assert d2["effects_added"] == []
+    assert d2["gap_initial_dps"] <= 1.5 * d2["noise_floor_dps"]
+
+
+def test_run_folder_input_names_the_hidden_effect(tmp_path: Path) -> None:
+    run = generate(realistic_part().with_effect("k2_quadratic"), 22, SHORT)
+    folder = write_run_folder(tmp_path / "results" / "20260101T000000Z_SYN-0001", run)
+    traj = load_data(tmp_path / "results", dut="SYN-0001")
+    assert traj.serial == "SYN-0001"
+    assert {s.kind for s in traj.segments} <= {"static", "plateau", "stop_static", "stabilise"}
+    plateau = [s for s in traj.segments if s.kind == "plateau"]
+    assert len(plateau) == 4 * 2 * 4
+    res = run_discrepancy(traj, first_order_model())
+    assert res.effects_added[:1] == ["k2_quadratic"]
+    assert res.gap_final_dps <= 1.5 * res.noise_floor_dps
+    with pytest.raises(ValueError, match="not SYN-0002"):
+        load_data(folder, dut="SYN-0002")
