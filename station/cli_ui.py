@@ -48,31 +48,46 @@ def _ui(args: argparse.Namespace) -> int:
         out=Path(args.out) if args.out else None,
     ) as station:
         if station.bench is not None:
-            print(f"simulated bench running at {station.bench.speed:g}x "
-                  f"(pid {station.bench.endpoints.pid})", flush=True)
-        print(f"operator screen: http://{args.host}:{args.port}/   "
-              f"review: http://{args.host}:{args.port}/review   (Ctrl-C stops)", flush=True)
+            print(
+                f"simulated bench running at {station.bench.speed:g}x "
+                f"(pid {station.bench.endpoints.pid})",
+                flush=True,
+            )
+        print(
+            f"operator screen: http://{args.host}:{args.port}/   "
+            f"review: http://{args.host}:{args.port}/review   (Ctrl-C stops)",
+            flush=True,
+        )
         try:
             serve_forever(station.app, args.host, args.port)
         except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled: a normal stop
             pass
         except OSError as exc:
-            raise UserError(f"cannot listen on {args.host}:{args.port} ({exc.strerror}); "
-                            "choose another --port") from None
+            raise UserError(
+                f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port"
+            ) from None
     return 0
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("ui", help="serve the operator and review screens (browser)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default loopback only; 0.0.0.0 for the line network)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default loopback only; 0.0.0.0 for the line network)",
+    )
     p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080)")
     p.add_argument("--sim", action="store_true", help="start the simulated bench and run on it")
     p.add_argument("--sim-config", help="simulated bench configuration (YAML), with --sim")
     p.add_argument("--speed", type=float, help="simulated bench speed factor (default 100)")
-    p.add_argument("--sockets", type=int, help="simulated fixture sockets (default: the sim config's)")
+    p.add_argument(
+        "--sockets", type=int, help="simulated fixture sockets (default: the sim config's)"
+    )
     p.add_argument("--station", help="station file (default config/station.yaml)")
     p.add_argument("--out", help="run folders go here (default: station.yaml output_folder)")
-    p.add_argument("--hash-password", action="store_true",
-                   help="read an engineer password (stdin) and print the station.yaml line")
+    p.add_argument(
+        "--hash-password",
+        action="store_true",
+        help="read an engineer password (stdin) and print the station.yaml line",
+    )
     p.set_defaults(handler=_ui)

@@ -18,7 +18,7 @@ from pydantic import BaseModel, Field, ValidationError
 
 from station.errors import UserError
 from station.ui.auth import Sessions, verify_password
-from station.ui.controller import Controller, RunRefused, SerialRejected
+from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
 from station.ui.history import History, RunFilter, yield_summary
 
 log = logging.getLogger(__name__)
@@ -73,9 +73,9 @@ def create_app(
 
     @app.exception_handler(UserError)
     async def user_error(_: Request, exc: UserError) -> JSONResponse:
-        if isinstance(exc, SerialRejected):
+        if isinstance(exc, SerialRejectedError):
             return _error(422, str(exc), socket=exc.socket)
-        if isinstance(exc, RunRefused):
+        if isinstance(exc, RunRefusedError):
             return _error(409, str(exc))
         return _error(422, str(exc))
 
@@ -110,7 +110,10 @@ def create_app(
     @app.post("/api/validate")
     async def validate(request: Request) -> dict[str, Any]:
         body = await _body(request, ValidateBody)
-        return {"socket": body.socket, "serial": controller.validate_serial(body.socket, body.serial)}
+        return {
+            "socket": body.socket,
+            "serial": controller.validate_serial(body.socket, body.serial),
+        }
 
     @app.post("/api/start")
     async def start(request: Request) -> dict[str, Any]:

@@ -28,11 +28,11 @@ CHART_MAX_POINTS = 1200  # per socket; older points are thinned, never the newes
 SAMPLE_PUSH_INTERVAL_S = 0.2  # live chart updates at most 5 times a second
 
 
-class RunRefused(UserError):
+class RunRefusedError(UserError):
     """Start refused: a run is in progress, or the request is incomplete."""
 
 
-class SerialRejected(UserError):
+class SerialRejectedError(UserError):
     """A scanned serial does not fit the product's pattern."""
 
     def __init__(self, socket: int, message: str) -> None:
@@ -110,20 +110,20 @@ class Controller:
     # ------------------------------------------------------------------ commands
 
     def validate_serial(self, socket: int, serial: str) -> str:
-        """Return the serial as it will be used (trimmed) or raise SerialRejected with why."""
+        """Return the serial as it will be used (trimmed) or raise SerialRejectedError with why."""
         if socket not in self.runner.info.sockets:
-            raise SerialRejected(socket, f"socket {socket} does not exist on this fixture")
+            raise SerialRejectedError(socket, f"socket {socket} does not exist on this fixture")
         text = serial.strip()
         if not text:
-            raise SerialRejected(socket, f"socket {socket}: no serial; scan the part's label")
+            raise SerialRejectedError(socket, f"socket {socket}: no serial; scan the part's label")
         if len(text) > SERIAL_MAX_CHARS:
-            raise SerialRejected(
+            raise SerialRejectedError(
                 socket, f"socket {socket}: serial longer than {SERIAL_MAX_CHARS} characters; rescan"
             )
         product = self.product()
         if not re.fullmatch(product.serial_pattern, text):
             example = f" such as {product.serial_example}" if product.serial_example else ""
-            raise SerialRejected(
+            raise SerialRejectedError(
                 socket,
                 f"socket {socket}: serial {text!r} is not a {product.name} serial "
                 f"(expected {product.serial_pattern}{example}); check the part and rescan",
@@ -131,20 +131,22 @@ class Controller:
         return text
 
     def start(self, serials: dict[int, str], operator: str = "") -> str:
-        """Validate and start a run; raises RunRefused or SerialRejected with the reason."""
+        """Validate and start a run; RunRefusedError or SerialRejectedError says why not."""
         with self._lock:
             if self._run is not None:
                 serial_list = ", ".join(self._run["serials"].values())
-                raise RunRefused(
+                raise RunRefusedError(
                     f"a run is already in progress on this fixture ({serial_list}, "
                     f"run {self._run['run_id']}); wait for it to finish or abort it first"
                 )
             loaded = {s: v for s, v in serials.items() if v.strip()}
             if not loaded:
-                raise RunRefused("no serial scanned; scan the label of each part in the fixture")
+                raise RunRefusedError(
+                    "no serial scanned; scan the label of each part in the fixture"
+                )
             clean = {s: self.validate_serial(s, v) for s, v in sorted(loaded.items())}
             if len(set(clean.values())) != len(clean):
-                raise RunRefused("the same serial is scanned in two sockets; rescan each part")
+                raise RunRefusedError("the same serial is scanned in two sockets; rescan each part")
             self._generation += 1
             generation = self._generation
             self._last = None  # the previous verdict stays on screen until the next Start
@@ -182,7 +184,7 @@ class Controller:
                 log.exception("the engine refused to start")
                 self._run = None
                 self.hub.publish({"type": "run", "run": None})
-                raise RunRefused(f"the station could not start the run: {exc}") from exc
+                raise RunRefusedError(f"the station could not start the run: {exc}") from exc
             if self._run is not None and self._generation == generation:
                 self._run["run_id"] = run_id
                 self.hub.publish({"type": "run", "run": self._run_view()})
@@ -191,7 +193,7 @@ class Controller:
     def abort(self) -> None:
         with self._lock:
             if self._run is None:
-                raise RunRefused("no run in progress: nothing to abort")
+                raise RunRefusedError("no run in progress: nothing to abort")
             self._run["aborting"] = True
             self.hub.publish({"type": "run", "run": self._run_view()})
         self.runner.abort()
@@ -200,7 +202,7 @@ class Controller:
         """Change procedure and/or product (the app checks the engineer role first)."""
         with self._lock:
             if self._run is not None:
-                raise RunRefused("a run is in progress; change the selection after it ends")
+                raise RunRefusedError("a run is in progress; change the selection after it ends")
             if procedure is not None:
                 if procedure not in {p.path for p in self.runner.procedures()}:
                     raise UserError(f"unknown procedure {procedure!r}; pick one from the list")

@@ -8,6 +8,7 @@ far behind is dropped: its EventSource reconnects and starts again from a fresh 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
@@ -47,10 +48,8 @@ class Hub:
         with self._lock:
             targets, self._subscribers = list(self._subscribers), []
         for loop, queue in targets:
-            try:
+            with contextlib.suppress(RuntimeError, asyncio.QueueFull):
                 loop.call_soon_threadsafe(queue.put_nowait, None)
-            except (RuntimeError, asyncio.QueueFull):
-                pass
 
     def _offer(
         self, loop: asyncio.AbstractEventLoop, queue: asyncio.Queue[str | None], message: str

@@ -8,6 +8,7 @@ instruments and is not disturbed: the lights keep their last state.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import logging
 import os
@@ -53,7 +54,9 @@ def _table_fault(address: str) -> str:
 
     host, _, port = address.rpartition(":")
     try:
-        table = ModbusRateTable.connect(host, int(port), ScaledClock(1.0), timeout_s=_PROBE_TIMEOUT_S)
+        table = ModbusRateTable.connect(
+            host, int(port), ScaledClock(1.0), timeout_s=_PROBE_TIMEOUT_S
+        )
     except Exception as exc:  # noqa: BLE001 - any failure to talk is "not connected"
         return f"cannot connect: {exc}"
     try:
@@ -61,10 +64,8 @@ def _table_fault(address: str) -> str:
     except Exception as exc:  # noqa: BLE001
         return f"status unreadable: {exc}"
     finally:
-        try:
+        with contextlib.suppress(Exception):
             table.close()
-        except Exception:  # noqa: BLE001
-            pass
     if status.fault:
         return f"fault code {status.fault_code}"
     if status.interlock_open:
@@ -72,7 +73,9 @@ def _table_fault(address: str) -> str:
     return ""
 
 
-def probe(instruments: list[InstrumentAddress], today: dt.date | None = None) -> list[InstrumentLight]:
+def probe(
+    instruments: list[InstrumentAddress], today: dt.date | None = None
+) -> list[InstrumentLight]:
     """One light per instrument, probed now."""
     today = today or dt.date.today()
     lights = []
@@ -81,7 +84,9 @@ def probe(instruments: list[InstrumentAddress], today: dt.date | None = None) ->
         cal = _in_calibration(inst.calibration_due, today)
         detail = "" if cal is not False else f"calibration overdue since {due}"
         if not inst.address:
-            lights.append(InstrumentLight(inst.name, False, cal, False, due, "no address configured"))
+            lights.append(
+                InstrumentLight(inst.name, False, cal, False, due, "no address configured")
+            )
             continue
         faulted = False
         if _is_tcp(inst.address):

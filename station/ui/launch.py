@@ -44,7 +44,9 @@ def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int]
     try:
         data = yaml.safe_load(sim_config.read_text(encoding="utf-8")) or {}
     except (OSError, yaml.YAMLError) as exc:
-        raise UserError(f"--sim-config {sim_config}: cannot read it ({exc}); check the file") from None
+        raise UserError(
+            f"--sim-config {sim_config}: cannot read it ({exc}); check the file"
+        ) from None
     parts = data.get("parts") or [] if isinstance(data, dict) else []
     by_serial = {str(p["serial"]): dict(p) for p in parts if isinstance(p, dict) and "serial" in p}
     sockets = max([int(p.get("socket", 1)) for p in parts if isinstance(p, dict)], default=0)
@@ -78,8 +80,10 @@ def ui_station(
         except ValueError as exc:
             raise UserError(str(exc)) from None
     else:
-        log.warning("no ui.engineer_password_hash in %s: the engineer role is disabled",
-                    settings.source.path)
+        log.warning(
+            "no ui.engineer_password_hash in %s: the engineer role is disabled",
+            settings.source.path,
+        )
     if sim_config is None and sim and settings.settings.sim_config:
         sim_config = settings.resolve(settings.settings.sim_config)
     if sim_config is not None and not sim_config.is_file():
@@ -100,11 +104,17 @@ def ui_station(
             from station.uut import Endpoints
 
             e = bench.endpoints
-            endpoints = Endpoints(speed=e.speed, rate_table=e.rate_table, chamber=e.chamber,
-                                  supply=e.supply, duts=dict(e.duts))
+            endpoints = Endpoints(
+                speed=e.speed,
+                rate_table=e.rate_table,
+                chamber=e.chamber,
+                supply=e.supply,
+                duts=dict(e.duts),
+            )
             control = bench.control
-        runner = EngineRunner(settings, out=out, endpoints=endpoints, control=control,
-                              sim_parts=parts)
+        runner = EngineRunner(
+            settings, out=out, endpoints=endpoints, control=control, sim_parts=parts
+        )
         controller = Controller(runner, Hub())
         app = create_app(controller, History(runner.out), engineer_password_hash=password_hash)
         try:

@@ -179,7 +179,10 @@ class EngineRunner:
     def procedures(self) -> list[Choice]:
         from procedures.config import ConfigError, load_procedure
 
-        paths = {self.settings.procedure.resolve(), *(p.resolve() for p in self._yaml_files("procedures"))}
+        paths = {
+            self.settings.procedure.resolve(),
+            *(p.resolve() for p in self._yaml_files("procedures")),
+        }
         choices = []
         for path in sorted(paths):
             try:
@@ -204,8 +207,14 @@ class EngineRunner:
             except (ConfigError, OSError) as exc:
                 log.warning("product list skips %s: %s", path, exc)
                 continue
-            choices.append(ProductChoice(prod.product, str(path), prod.serial_pattern,
-                                         _example_serial(prod.serial_pattern)))
+            choices.append(
+                ProductChoice(
+                    prod.product,
+                    str(path),
+                    prod.serial_pattern,
+                    _example_serial(prod.serial_pattern),
+                )
+            )
         return choices
 
     def _default_product(self) -> Path | None:
@@ -233,16 +242,23 @@ class EngineRunner:
         cfg = self.settings.settings.instruments
         e = self.endpoints
         addresses = [
-            InstrumentAddress("rate table", e.rate_table if e else cfg.rate_table.address,
-                              cfg.rate_table.calibration_due),
-            InstrumentAddress("chamber", e.chamber if e else cfg.chamber.address,
-                              cfg.chamber.calibration_due),
-            InstrumentAddress("supply", e.supply if e else cfg.supply.address,
-                              cfg.supply.calibration_due),
+            InstrumentAddress(
+                "rate table",
+                e.rate_table if e else cfg.rate_table.address,
+                cfg.rate_table.calibration_due,
+            ),
+            InstrumentAddress(
+                "chamber", e.chamber if e else cfg.chamber.address, cfg.chamber.calibration_due
+            ),
+            InstrumentAddress(
+                "supply", e.supply if e else cfg.supply.address, cfg.supply.calibration_due
+            ),
         ]
         for sock in self.info.sockets:
             port = e.duts.get(sock, "") if e else cfg.fixture.ports.get(sock, "")
-            addresses.append(InstrumentAddress(f"fixture {sock}", port, cfg.fixture.calibration_due))
+            addresses.append(
+                InstrumentAddress(f"fixture {sock}", port, cfg.fixture.calibration_due)
+            )
         return probe(addresses)
 
     # ------------------------------------------------------------ running
@@ -319,28 +335,35 @@ class EngineRunner:
                 if ev.kind == "log" and ev.message:
                     sink({"type": "log", "level": "INFO", "message": ev.message})
                 return
-            sink({
-                "type": "progress",
-                "step": _label(ev.step, ev.condition) or "starting",
-                "step_index": state["index"],
-                "step_count": len(labels),
-                "condition": ev.condition,
-                "fraction": float(ev.fraction),
-                "remaining_s": None if ev.remaining_s is None else float(ev.remaining_s) / speed,
-                "sockets": {str(k): v for k, v in ev.sockets.items()},
-            })
+            sink(
+                {
+                    "type": "progress",
+                    "step": _label(ev.step, ev.condition) or "starting",
+                    "step_index": state["index"],
+                    "step_count": len(labels),
+                    "condition": ev.condition,
+                    "fraction": float(ev.fraction),
+                    "remaining_s": None
+                    if ev.remaining_s is None
+                    else float(ev.remaining_s) / speed,
+                    "sockets": {str(k): v for k, v in ev.sockets.items()},
+                }
+            )
 
         unsubscribe = uut.progress.subscribe(on_progress)
         stop_samples = threading.Event()
-        sampler = threading.Thread(target=self._sample_loop, args=(uut, sink, stop_samples),
-                                   name="ui-samples", daemon=True)
+        sampler = threading.Thread(
+            target=self._sample_loop, args=(uut, sink, stop_samples), name="ui-samples", daemon=True
+        )
         sampler.start()
         results: list[dict[str, Any]] = []
         message = ""
         try:
             result = uut.run(serials)
-            results = [self._result(sock, serials[sock], result.folders.get(sock))
-                       for sock in sorted(serials)]
+            results = [
+                self._result(sock, serials[sock], result.folders.get(sock))
+                for sock in sorted(serials)
+            ]
         except Exception as exc:  # the UI must always get its "finished"
             log.exception("the run failed")
             message = f"the run stopped with an error: {exc}"
@@ -349,10 +372,18 @@ class EngineRunner:
             stop_samples.set()
             sampler.join(2)
             unsubscribe()
-        sink({"type": "finished", "results": results, "safe_state": self._safe_state(),
-              "message": message})
+        sink(
+            {
+                "type": "finished",
+                "results": results,
+                "safe_state": self._safe_state(),
+                "message": message,
+            }
+        )
 
-    def _result(self, sock: int, serial: str, folder: Path | None, error: str = "") -> dict[str, Any]:
+    def _result(
+        self, sock: int, serial: str, folder: Path | None, error: str = ""
+    ) -> dict[str, Any]:
         from procedures.record import read_record
         from station.ui.history import result_from_record
 
@@ -361,8 +392,14 @@ class EngineRunner:
                 return result_from_record(read_record(folder), folder)
             except ValueError as exc:
                 error = str(exc)
-        return {"socket": sock, "serial": serial, "verdict": "ERROR", "reason": error,
-                "failed": [], "run_folder": str(folder) if folder else None}
+        return {
+            "socket": sock,
+            "serial": serial,
+            "verdict": "ERROR",
+            "reason": error,
+            "failed": [],
+            "run_folder": str(folder) if folder else None,
+        }
 
     def _safe_state(self) -> dict[str, bool] | None:
         if self.control is None:
@@ -398,12 +435,15 @@ class EngineRunner:
                 if n == 0:
                     continue
                 step = max(1, n // 50)
-                sink({
-                    "type": "samples", "socket": part.socket,
-                    "t_s": win["time_s"][::step].tolist(),
-                    "rate_dps": win["rate_dps"][::step].tolist(),
-                    "temp_c": win["temp_c"][::step].tolist(),
-                })
+                sink(
+                    {
+                        "type": "samples",
+                        "socket": part.socket,
+                        "t_s": win["time_s"][::step].tolist(),
+                        "rate_dps": win["rate_dps"][::step].tolist(),
+                        "temp_c": win["temp_c"][::step].tolist(),
+                    }
+                )
 
 
 def _example_serial(pattern: str) -> str:

@@ -35,7 +35,11 @@ def free_port(host: str = "127.0.0.1") -> int:
 def _config(app: FastAPI, host: str, port: int, log_level: str) -> uvicorn.Config:
     # Short graceful shutdown: open event streams would otherwise hold it up.
     return uvicorn.Config(
-        app, host=host, port=port, log_level=log_level, timeout_graceful_shutdown=1,
+        app,
+        host=host,
+        port=port,
+        log_level=log_level,
+        timeout_graceful_shutdown=1,
         access_log=False,
     )
 

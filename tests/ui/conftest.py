@@ -98,16 +98,20 @@ def make_station_config(folder: Path, password_hash: str | None = _HASH) -> Path
     short = short.replace("product: ../../../config/products/", "product: ../products/")
     (folder / "procedures" / "ui-short.yaml").write_text(short, encoding="utf-8")
     station = yaml.safe_load((REPO / "config" / "station.yaml").read_text(encoding="utf-8"))
-    station.update(output_folder="runs", results_db="runs/results.sqlite",
-                   procedure="procedures/ui-short.yaml")
+    station.update(
+        output_folder="runs", results_db="runs/results.sqlite", procedure="procedures/ui-short.yaml"
+    )
     station["instruments"]["fixture"]["sockets"] = 2
     if password_hash:
         station["ui"] = {"engineer_password_hash": password_hash}
     (folder / "station.yaml").write_text(yaml.safe_dump(station), encoding="utf-8")
-    sim = {"speed": SIM_SPEED, "parts": [
-        {"socket": 1, "serial": PASS_SERIAL},
-        {"socket": 2, "serial": FAIL_SERIAL, "bias_dps": 14.0},
-    ]}
+    sim = {
+        "speed": SIM_SPEED,
+        "parts": [
+            {"socket": 1, "serial": PASS_SERIAL},
+            {"socket": 2, "serial": FAIL_SERIAL, "bias_dps": 14.0},
+        ],
+    }
     (folder / "sim.yaml").write_text(yaml.safe_dump(sim), encoding="utf-8")
     return folder / "station.yaml"
 
@@ -130,24 +134,46 @@ def start_ui_process(config: Path, log_path: Path, speed: float = SIM_SPEED) -> 
     """`station ui --sim` as its own process, as on the line; returns once it answers."""
     port = free_port()
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [sys.executable, "-m", "station", "ui", "--sim", "--port", str(port),
-           "--station", str(config / "station.yaml"), "--sim-config", str(config / "sim.yaml"),
-           "--speed", str(speed)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "station",
+        "ui",
+        "--sim",
+        "--port",
+        str(port),
+        "--station",
+        str(config / "station.yaml"),
+        "--sim-config",
+        str(config / "sim.yaml"),
+        "--speed",
+        str(speed),
+    ]
     with open(log_path, "wb") as log:
-        proc = subprocess.Popen(cmd, cwd=str(REPO), env=env, stdout=log, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL)
+        proc = subprocess.Popen(
+            cmd,
+            cwd=str(REPO),
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+        )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 60
     while True:
         if proc.poll() is not None:
-            raise RuntimeError(f"station ui exited ({proc.returncode}): {log_path.read_text()[-2000:]}")
+            raise RuntimeError(
+                f"station ui exited ({proc.returncode}): {log_path.read_text()[-2000:]}"
+            )
         try:
             state = httpx.get(url + "/api/state", timeout=2).json()
             return SimStation(url, config, proc, state["station"]["bench_control"])
-        except httpx.HTTPError:
+        except httpx.HTTPError as exc:
             if time.monotonic() > deadline:
                 proc.kill()
-                raise RuntimeError(f"station ui did not answer: {log_path.read_text()[-2000:]}")
+                raise RuntimeError(
+                    f"station ui did not answer: {log_path.read_text()[-2000:]}"
+                ) from exc
             time.sleep(0.1)
 
 

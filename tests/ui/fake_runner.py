@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -33,7 +32,10 @@ from station.ui.runner_adapter import (
 )
 
 STEPS = ["connect", "power", "stabilise", "rate table", "stop method", "fit", "verify"]
-PDF = b"%PDF-1.4\n1 0 obj<</Type/Catalog/Pages 2 0 R>>endobj\n2 0 obj<</Type/Pages/Kids[]/Count 0>>endobj\ntrailer<</Root 1 0 R>>\n%%EOF\n"
+PDF = (
+    b"%PDF-1.4\n1 0 obj<</Type/Catalog/Pages 2 0 R>>endobj\n"
+    b"2 0 obj<</Type/Pages/Kids[]/Count 0>>endobj\ntrailer<</Root 1 0 R>>\n%%EOF\n"
+)
 
 
 class FakeRunner:
@@ -96,20 +98,41 @@ class FakeRunner:
                 aborted = True
                 break
             remaining = (len(STEPS) - i) * self.step_s
-            sink({"type": "progress", "step": step, "step_index": i, "step_count": len(STEPS),
-                  "condition": "T25_V5.00" if i >= 2 else "", "fraction": i / len(STEPS),
-                  "remaining_s": remaining})
+            sink(
+                {
+                    "type": "progress",
+                    "step": step,
+                    "step_index": i,
+                    "step_count": len(STEPS),
+                    "condition": "T25_V5.00" if i >= 2 else "",
+                    "fraction": i / len(STEPS),
+                    "remaining_s": remaining,
+                }
+            )
             for socket in request.serials:
                 ts = [t + k * 0.1 for k in range(10)]
-                sink({"type": "samples", "socket": socket, "t_s": ts,
-                      "rate_dps": [100 * math.sin(x) for x in ts],
-                      "temp_c": [25 + 0.1 * x for x in ts]})
+                sink(
+                    {
+                        "type": "samples",
+                        "socket": socket,
+                        "t_s": ts,
+                        "rate_dps": [100 * math.sin(x) for x in ts],
+                        "temp_c": [25 + 0.1 * x for x in ts],
+                    }
+                )
             t += 1.0
             self._abort.wait(self.step_s)
         self.safe_state_calls += 1
-        results = [self._write(s, serial, request, aborted) for s, serial in request.serials.items()]
-        sink({"type": "finished", "results": results,
-              "safe_state": {"rate_table": True, "chamber": True, "supply": True}})
+        results = [
+            self._write(s, serial, request, aborted) for s, serial in request.serials.items()
+        ]
+        sink(
+            {
+                "type": "finished",
+                "results": results,
+                "safe_state": {"rate_table": True, "chamber": True, "supply": True},
+            }
+        )
 
     def _write(self, socket: int, serial: str, request: StartRequest, aborted: bool) -> dict:
         now = datetime.now(UTC)
@@ -119,14 +142,31 @@ class FakeRunner:
         outcome = Outcome.FAIL if bad else Outcome.PASS
         verdict = Verdict.ABORTED if aborted else Verdict.FAIL if bad else Verdict.PASS
         record = RunRecord(
-            run_id=folder.name, verdict=verdict, started_utc=now.isoformat(),
-            finished_utc=now.isoformat(), operator=request.operator,
-            reason="aborted by the operator" if aborted else "raw_bias_dps out of limits" if bad else "",
+            run_id=folder.name,
+            verdict=verdict,
+            started_utc=now.isoformat(),
+            finished_utc=now.isoformat(),
+            operator=request.operator,
+            reason="aborted by the operator"
+            if aborted
+            else "raw_bias_dps out of limits"
+            if bad
+            else "",
             dut=Dut(serial=serial, socket=socket),
             product=FileRef(path=request.product_path, name="GYR-130", sha256="0" * 64),
             procedure=FileRef(path=request.procedure_path, name="eol-full", sha256="0" * 64),
-            measurements=[] if aborted else [Measurement(
-                name="raw_bias_dps", value=bias, units="deg/s", low=-10, high=10, outcome=outcome)],
+            measurements=[]
+            if aborted
+            else [
+                Measurement(
+                    name="raw_bias_dps",
+                    value=bias,
+                    units="deg/s",
+                    low=-10,
+                    high=10,
+                    outcome=outcome,
+                )
+            ],
         )
         write_record(folder, record)
         if not aborted:

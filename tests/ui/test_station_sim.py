@@ -33,10 +33,13 @@ def _scan(page: Page, socket: int, serial: str) -> None:
     field.press("Enter")
 
 
-def test_pass_and_fail_parts_with_progress_and_certificates(sim_station: SimStation, page: Page) -> None:
+def test_pass_and_fail_parts_with_progress_and_certificates(
+    sim_station: SimStation, page: Page
+) -> None:
     page.goto(sim_station.url)
     expect(page.locator(".inst[data-name='rate table'] [data-light=connected]")).to_have_class(
-        re.compile(r"\bon\b"))
+        re.compile(r"\bon\b")
+    )
     _scan(page, 1, PASS_SERIAL)
     expect(page.locator("#serial-2")).to_be_focused()  # Enter moved on to the next socket
     _scan(page, 2, FAIL_SERIAL)
@@ -59,7 +62,9 @@ def test_pass_and_fail_parts_with_progress_and_certificates(sim_station: SimStat
     assert verdict == "FAIL", reasons
     expect(fail_box).to_have_class(re.compile(r"\bFAIL\b"))
     expect(fail_box.locator(".reasons")).to_contain_text("raw_bias_dps")
-    expect(fail_box.locator(".reasons")).to_contain_text(re.compile(r"14\.\d+ deg/s \(limits -10 .. 10\)"))
+    expect(fail_box.locator(".reasons")).to_contain_text(
+        re.compile(r"14\.\d+ deg/s \(limits -10 .. 10\)")
+    )
     # Certificates one touch away, and they are real PDFs of those parts.
     for socket, serial in ((1, PASS_SERIAL), (2, FAIL_SERIAL)):
         link = page.locator(f"#socket-{socket} a.certificate")
@@ -119,8 +124,10 @@ def test_operator_cannot_reach_procedure_selection(sim_station: SimStation, page
     expect(page.locator("#procedure-name")).to_have_text("ui-test-short")
     expect(page.locator("#engineer-panel")).to_be_hidden()
     expect(page.locator("#procedure-select option")).to_have_count(0)
-    r = page.request.post(sim_station.url + "/api/select",
-                          data={"procedure": str(sim_station.config / "procedures/eol-rate-table.yaml")})
+    r = page.request.post(
+        sim_station.url + "/api/select",
+        data={"procedure": str(sim_station.config / "procedures/eol-rate-table.yaml")},
+    )
     assert r.status == 403
     expect(page.locator("#procedure-name")).to_have_text("ui-test-short")
 

@@ -60,7 +60,9 @@ def test_second_start_while_running_is_refused(fake_station: FakeStation) -> Non
 
 
 def test_duplicate_serial_in_two_sockets_is_refused(fake_station: FakeStation) -> None:
-    r = httpx.post(fake_station.url + "/api/start", json={"serials": {"1": "AB-1111", "2": "AB-1111"}})
+    r = httpx.post(
+        fake_station.url + "/api/start", json={"serials": {"1": "AB-1111", "2": "AB-1111"}}
+    )
     assert r.status_code == 409 and "same serial" in r.json()["error"]
 
 
@@ -132,7 +134,9 @@ def test_operator_cannot_select_engineer_can_after_password(fake_station: FakeSt
         assert client.get("/api/whoami").json()["role"] == "engineer"
         choices = client.get("/api/choices").json()
         assert {p["name"] for p in choices["procedures"]} == {"eol-full", "eol-short"}
-        r = client.post("/api/select", json={"procedure": "/cfg/short.yaml", "product": "/cfg/gyr200.yaml"})
+        r = client.post(
+            "/api/select", json={"procedure": "/cfg/short.yaml", "product": "/cfg/gyr200.yaml"}
+        )
         assert r.status_code == 200 and r.json()["selection"]["procedure_name"] == "eol-short"
         bad = client.post("/api/select", json={"procedure": "/etc/passwd"})
         assert bad.status_code == 422 and "unknown procedure" in bad.json()["error"]

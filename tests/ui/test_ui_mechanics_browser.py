@@ -92,7 +92,9 @@ def test_second_start_refused_and_reload_mid_run(fake_station: FakeStation, page
     expect(page.locator("#socket-1 .verdict")).to_have_text("PASS", timeout=15_000)
 
 
-def test_operator_cannot_reach_selection_engineer_can(fake_station: FakeStation, page: Page) -> None:
+def test_operator_cannot_reach_selection_engineer_can(
+    fake_station: FakeStation, page: Page
+) -> None:
     page.goto(fake_station.url)
     expect(page.locator("#procedure-name")).to_have_text("eol-full")
     expect(page.locator("#engineer-panel")).to_be_hidden()
