@@ -290,14 +290,15 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
         return story + [Paragraph("No measurements recorded.", NOTE)]
     heads = ["Measurement", "Condition", "Value", "U (k=2)", "Units", "Low", "High",
              "Margin", "Outcome"]
-    rows = [[_p(h) for h in heads]]
+    rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
     style = grid_style()
     for i, m in enumerate(rec.measurements, start=1):
         d, pct = margin(m)
-        rows.append([_p(m.name), _p(m.condition or "-"), _p(fmt(m.value)),
-                     _p(fmt(m.uncertainty_k2, 3)), _p(m.units), _p(fmt(m.low)), _p(fmt(m.high)),
-                     _p(f"{fmt(d, 3)} {pct}".strip() if d is not None else pct),
-                     _p(m.outcome.value.replace("_", " "))])
+        # Numbers as plain strings (fast, never wrap); names and units as paragraphs.
+        rows.append([_p(m.name), _p(m.condition or "-"), fmt(m.value),
+                     fmt(m.uncertainty_k2, 3), _p(m.units), fmt(m.low), fmt(m.high),
+                     f"{fmt(d, 3)} {pct}".strip() if d is not None else pct,
+                     m.outcome.value.replace("_", " ")])
         if m.outcome == Outcome.FAIL:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
             style.add("FONT", (0, i), (-1, i), FONT_BOLD, 7.5)
