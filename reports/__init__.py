@@ -1,0 +1,13 @@
+"""PDF documents the station issues; they read run folders and the results database only.
+
+    certificate.py    render_certificate(run_folder): certificate.pdf for every verdict
+    cert_inputs.py    loading record.json and raw.h5, every defect becomes a stated problem
+    cert_sections.py  header, traceability, conditions, results, calibration tables
+    cert_plots.py     stop method, rate table, Allan deviation, stabilisation plots
+    record_keys.py    the record.analysis keys the certificate reads (the engine's contract)
+    lot_report.py     render_lot_report(db, out, **filters): yield, pareto, Cpk, trends
+    lot_stats.py      yield, pareto and capability arithmetic (sigma estimator stated there)
+    charts.py         general vector charts (line, scatter, shaded windows, log axes, bars)
+    pdfdoc.py         reproducible A4 documents: page N of M, SIMULATED BENCH mark, dates
+    styles.py         fonts, colours, table styles, number formatting
+"""
