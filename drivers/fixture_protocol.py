@@ -234,6 +234,8 @@ _EMPTY_I = np.zeros(0, dtype=np.int64)
 _EMPTY_F = np.zeros(0, dtype=np.float64)
 _SYNC_WORD = 0xA55A
 _HALF_TIME_US = TIME_MODULO_US >> 1
+_TYPE_SAMPLE = int(FrameType.SAMPLE)  # plain ints: enum lookups cost per frame
+_TYPE_REPLY = int(FrameType.REPLY)
 _NOT_TEXT = re.compile(rb"[^\x20-\x7e]")
 
 
@@ -307,8 +309,8 @@ class FrameParser:
             ftype = buf[start + 2]
             plen = buf[start + 3]
             end = start + HEADER_SIZE + plen + CRC_SIZE
-            valid_header = (ftype == FrameType.SAMPLE and plen == SAMPLE_PAYLOAD_SIZE) or (
-                ftype == FrameType.REPLY
+            valid_header = (ftype == _TYPE_SAMPLE and plen == SAMPLE_PAYLOAD_SIZE) or (
+                ftype == _TYPE_REPLY
                 and plen <= MAX_REPLY_PAYLOAD
                 # replies are printable ASCII: a false sync inside sample data announcing a
                 # long reply is rejected at its first non-text byte, not after 250 bytes
@@ -379,7 +381,7 @@ class FrameParser:
         frames = np.frombuffer(chunk, dtype=_SAMPLE_DTYPE)
         header_ok = (
             (frames["sync"] == _SYNC_WORD)
-            & (frames["type"] == FrameType.SAMPLE)
+            & (frames["type"] == _TYPE_SAMPLE)
             & (frames["len"] == SAMPLE_PAYLOAD_SIZE)
         )
         good = count if bool(header_ok.all()) else int(np.argmin(header_ok))
