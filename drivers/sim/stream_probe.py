@@ -107,6 +107,14 @@ class StreamProbe:
                 self._feed(i, b"".join(chunks))
         return total
 
+    def wait_frames(self, i: int, frames: int = 1, timeout_s: float = 5.0) -> None:
+        """Read until port `i` has delivered at least `frames` sample frames."""
+        deadline = time.monotonic() + timeout_s
+        while self.counts[i].frames_ok < frames:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.ports[i].port}: fewer than {frames} frames in {timeout_s} s")
+            self.pump(0.02)
+
     def drain(self, quiet_s: float = 0.05, timeout_s: float = 5.0) -> None:
         """Read until no port has delivered anything for `quiet_s` wall seconds."""
         deadline = time.monotonic() + timeout_s
@@ -131,9 +139,12 @@ class StreamProbe:
 
     def stream(self, odr_hz: int, frames: int | None = None, wall_s: float | None = None) -> None:
         """START every port, read until each delivered `frames` (or `wall_s` passed), STOP."""
-        for i, parser in enumerate(self.parsers):
+        for i in range(len(self.ports)):
             self.command(i, "STOP")
+        self.drain()  # whatever an earlier stream left in the ports is not this stream's
+        for i, parser in enumerate(self.parsers):
             parser.reset_sequence()
+            self.counts[i] = StreamCount(self.counts[i].path)
             self.command(i, f"ODR {odr_hz}")
         for i in range(len(self.ports)):
             reply = self.command(i, "START")

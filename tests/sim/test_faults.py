@@ -129,6 +129,7 @@ def test_supply_short_goes_constant_current_and_parts_brown_out(fbench: BenchHan
     power_parts(fbench.endpoints.supply, 5.0, 0.3)
     with StreamProbe([fbench.endpoints.duts[1]]) as probe:
         assert probe.command(0, "START") == "OK"
+        probe.wait_frames(0)
         fbench.control.fault("supply_short", socket=2)
         probe.drain()
         got = probe.counts[0].frames_ok
@@ -172,7 +173,7 @@ def test_part_silent_stops_the_stream_and_absent_part(fbench: BenchHandle) -> No
     power_parts(fbench.endpoints.supply)
     with StreamProbe([fbench.endpoints.duts[1]]) as probe:
         assert probe.command(0, "START") == "OK"
-        time.sleep(0.05)
+        probe.wait_frames(0)
         fbench.control.fault("part_silent", socket=1)
         probe.drain()
         got = probe.counts[0].frames_ok
