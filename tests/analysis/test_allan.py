@@ -94,3 +94,19 @@ def test_bad_input_is_named(rate: object, needle: str) -> None:
 def test_constant_record_fits_no_noise_without_crashing() -> None:
     result = analyze_allan(np.full(200, 3.0), 10.0)
     assert result.noise.model == NoiseModel()
+
+
+def test_noise_term_uncertainties_match_their_monte_carlo_scatter() -> None:
+    arw, bi = [], []
+    u_arw, u_bi = [], []
+    for seed in range(60):
+        rng = np.random.default_rng(100 + seed)
+        fit = analyze_allan(gyro_noise(rng, 30_000, 100.0, 0.3, 25.0), 100.0).noise
+        arw.append(fit.arw_deg_per_sqrt_h)
+        u_arw.append(fit.u_arw_deg_per_sqrt_h)
+        bi.append(fit.bias_instability_deg_per_h)
+        u_bi.append(fit.u_bias_instability_deg_per_h)
+    # 60 records pin a standard deviation to about +/- 9 %
+    assert np.std(arw, ddof=1) == pytest.approx(np.mean(u_arw), rel=0.3)
+    assert np.std(bi, ddof=1) == pytest.approx(np.mean(u_bi), rel=0.3)
+    assert abs(np.mean(bi) / 25.0 - 1) < 3 * np.std(bi) / np.sqrt(60)
