@@ -188,7 +188,7 @@ _mutation = st.one_of(
 )
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(_mutation, max_size=8), st.integers(1, 200), st.integers(0, 999))
 def test_mutated_stream_never_passes_a_damaged_frame(mutations, chunk, seed):
     n = 60
@@ -217,7 +217,7 @@ def test_mutated_stream_never_passes_a_damaged_frame(mutations, chunk, seed):
         assert parser.frames_lost == int(got_seq[-1] - got_seq[0] + 1 - got_seq.size)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(
     st.integers(1, 18),
     st.sampled_from(["flip", "delete", "insert"]),

@@ -204,7 +204,7 @@ def test_line_reader_on_arbitrary_bytes(data, chunk):
     assert lines == expected
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(st.text(max_size=80))
 def test_error_reply_parser_either_parses_or_says_protocol_error(text):
     try:
