@@ -307,3 +307,22 @@ def test_silent_fixture_raises_no_reply_within_the_reply_timeout(clean: Rig):
     with pytest.raises(NoReply):
         timed(clean.link.identify)
     assert clean.link.reply_timeout_s <= timed.elapsed < clean.link.reply_timeout_s + 0.3
+
+
+def test_safe_state_leaves_the_bench_safe(clean: Rig):
+    table = clean.table
+    table.reset_fault()
+    table.enable()
+    table.set_rate(100.0, accel_dps2=200.0)
+    table.wait_at_rate(30.0)
+    clean.chamber.set_setpoint(60.0)
+    clean.chamber.run()
+    table.safe_state()
+    clean.chamber.safe_state(25.0)
+    clean.supply.safe_state()
+    truth = clean.bench.control.truth()
+    assert not truth["table"]["enabled"] and truth["table"]["rate_dps"] == 0.0
+    assert truth["chamber"]["setpoint_c"] == 25.0 and truth["chamber"]["running"]
+    assert truth["supply"]["output"] is False
+    table.safe_state()  # already safe: must not raise
+    clean.supply.safe_state()
