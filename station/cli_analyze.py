@@ -165,6 +165,7 @@ def stop_method_json(r: StopMethodResult) -> dict[str, Any]:
         "reference_angle_deg": r.reference_angle_deg,
         "u_reference_angle_deg": r.u_reference_angle_deg,
         "n_over_range": r.n_over_range,
+        "over_range_intervals_s": [list(span) for span in r.over_range_intervals_s],
         "warnings": list(r.warnings),
     }
 

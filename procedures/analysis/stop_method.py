@@ -89,6 +89,7 @@ class StopMethodResult:
     noise_sigma_dps: float
     n_over_range: int
     warnings: tuple[str, ...] = field(default=())
+    over_range_intervals_s: tuple[tuple[float, float], ...] = field(default=())  # flagged spans
 
     @property
     def bias_dps(self) -> float:
@@ -289,6 +290,7 @@ def analyze_stop_method(
         noise_sigma_dps=sigma,
         n_over_range=int(clip.sum()),
         warnings=tuple(warnings),
+        over_range_intervals_s=tuple((float(t[a]), float(t[b])) for a, b in _runs(clip)),
     )
 
 

@@ -72,6 +72,8 @@ def test_over_range_move_is_refused_and_flagged() -> None:
     assert not second.clipped and second.scale_correction is not None
     assert r.scale_correction == second.scale_correction
     assert r.n_over_range == int((status != 0).sum())
+    (span,) = r.over_range_intervals_s
+    assert 6.0 < span[0] <= span[1] < 6.1
     assert any("over-range" in w for w in r.warnings)
 
 
