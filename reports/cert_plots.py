@@ -205,6 +205,10 @@ def allan(inputs: CertificateInputs) -> list[Flowable]:
         chart = Chart(HALF_W + 20 * mm, 62 * mm, title=f"Allan deviation {a.condition}".strip(),
                       x_label="averaging time tau (s)", y_label="Allan deviation (deg/s)",
                       log_x=True, log_y=True)
+        measured = [v for v in a.adev_dps if v > 0 and math.isfinite(v)]
+        if measured:  # the fitted-term lines must not stretch the axes away from the data
+            chart.y_range = (10 ** math.floor(math.log10(min(measured) / 2)),
+                             10 ** math.ceil(math.log10(max(measured) * 1.5)))
         chart.line(a.tau_s, a.adev_dps, PALETTE[0], "measured", width=0.8)
         chart.scatter(a.tau_s, a.adev_dps, PALETTE[0], size=1.8)
         tau = np.asarray(a.tau_s)
@@ -219,9 +223,14 @@ def allan(inputs: CertificateInputs) -> list[Flowable]:
             chart.hline(floor, PALETTE[2],
                         f"bias instability {fmt(a.bias_instability_deg_per_h, 3)}"
                         " deg/h (x 0.664)", dash=(1, 2))
+        rrw = a.rate_random_walk_deg_per_h_per_sqrt_h
+        if rrw is not None and rrw > 0:
+            k_dps = rrw / (3600.0 * 60.0)  # deg/h/sqrt(h) -> (deg/s)/sqrt(s)
+            chart.line(tau, k_dps * np.sqrt(tau / 3.0), PALETTE[3],
+                       f"RRW {fmt(rrw, 3)} deg/h/sqrt(h)", dash=(4, 1, 1, 1))
         text = ("Overlapping Allan deviation of the static record (IEEE 952). The angle random "
                 "walk line is N/sqrt(tau), read at tau = 1 s; the bias instability floor is "
-                "0.664 B.")
+                "0.664 B; rate random walk, when resolved, is K sqrt(tau/3).")
         if a.rate_random_walk_deg_per_h_per_sqrt_h:
             text += f" Rate random walk {fmt(a.rate_random_walk_deg_per_h_per_sqrt_h, 3)} "\
                     "deg/h/sqrt(h)."

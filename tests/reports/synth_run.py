@@ -171,7 +171,8 @@ def _write_raw(path: Path, part: Part, run_id: str) -> dict[str, Any]:
     analysis["allan"] = {
         "condition": "T25_V5.25", "tau_s": tau.tolist(),
         "adev_dps": (np.sqrt((n / np.sqrt(tau)) ** 2 + (0.664 * 12.0 / 3600) ** 2)).tolist(),
-        "arw_deg_per_sqrt_h": part.arw_deg_per_sqrt_h, "bias_instability_deg_per_h": 12.0}
+        "arw_deg_per_sqrt_h": part.arw_deg_per_sqrt_h, "bias_instability_deg_per_h": 12.0,
+        "rate_random_walk_deg_per_h_per_sqrt_h": 30.0}
     return analysis
 
 

@@ -118,7 +118,8 @@ def test_plots_are_drawn_with_their_captions(pass_run: Path) -> None:
     for title in ("Stop method, condition T25_V4.75", "Output versus input",
                   "Residual from the fitted line", "Allan deviation T25_V5.25", "Die temperature",
                   "static (bias) window", "integration window", "ARW 0.6 deg/sqrt(h)",
-                  "criterion band 0.2 C", "Reviewed by (quality)",
+                  "criterion band 0.2 C", "Reviewed by (quality)", "RRW 30 deg/h/sqrt(h)",
+                  "bias instability 12 deg/h (x 0.664)",
                   "T25_V4.75, T25_V5.25, T45_V4.75, T45_V5.25: peak-to-peak below 0.2 C and "
                   "|slope| below 0.05 C/min over the last 60 s"):
         assert title in text, title
