@@ -15,7 +15,7 @@ from reportlab.platypus import Paragraph, SimpleDocTemplate, Spacer, Table, Tabl
 
 from procedures.model.discrepancy import DiscrepancyResult, Iteration
 from procedures.model.residuals import BinSummary
-from reports.charts import PALETTE, Chart, bar_chart
+from reports.charts import PALETTE, Chart
 from reports.styles import BODY, CELL, HEADER_GREY, NOTE
 
 H1 = BODY.clone("h1", fontSize=14, leading=17, fontName="Helvetica-Bold")
@@ -61,10 +61,28 @@ def _fmt(x: float) -> str:
 
 
 def _gap_chart(res: DiscrepancyResult) -> Any:
-    cats = ["start", *[it.effect for it in res.iterations]]
+    steps = np.arange(len(res.iterations) + 1, dtype=float)
     vals = [res.gap_initial_dps, *[it.gap_after_dps for it in res.iterations]]
-    return bar_chart(WIDTH, 150, cats, vals, title="Gap after each step (deg/s)",
-                     y_label="gap (deg/s)")
+    ch = Chart(WIDTH, 150, title="Gap at each step against the noise floor",
+               x_label="step (0 = starting model; names in the table)", y_label="deg/s",
+               log_y=True, x_range=(-0.5, len(res.iterations) + 0.5))
+    ch.hline(res.noise_floor_dps, color=PALETTE[2], label="noise floor")
+    ch.hline(1.5 * res.noise_floor_dps, label="1.5 x floor")
+    ch.line(steps, vals, color=PALETTE[0], label="gap")
+    ch.scatter(steps, vals, color=PALETTE[0], size=3)
+    return ch.drawing()
+
+
+def _gap_table(res: DiscrepancyResult) -> Table:
+    f = res.noise_floor_dps
+    rows: list[list[Any]] = [["step", "effect named", "gap before (deg/s)", "gap after (deg/s)",
+                              "after / floor"]]
+    rows.append(["0", f"(starting model {res.initial_model.name})", "",
+                 _fmt(res.gap_initial_dps), f"{res.gap_initial_dps / f:.2f}"])
+    for k, it in enumerate(res.iterations, start=1):
+        rows.append([str(k), it.effect, _fmt(it.gap_before_dps), _fmt(it.gap_after_dps),
+                     f"{it.gap_after_dps / f:.2f}"])
+    return _table(rows)
 
 
 def _allan_chart(res: DiscrepancyResult) -> Any:
@@ -167,7 +185,8 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
             f"{', '.join(res.not_identifiable)}.", BODY))
     for note in res.notes:
         story.append(Paragraph(f"Note: {note}", NOTE))
-    story += [Spacer(1, 4), _gap_chart(res), _allan_chart(res)]
+    story += [Spacer(1, 4), _gap_chart(res), _gap_table(res), Spacer(1, 4),
+              _allan_chart(res)]
     story.append(_residual_chart(res, res.blocks.center_s, "time (s)",
                                  "Residuals over the record: starting model vs final model",
                                  res.residual_initial_dps, res.residual_final_dps))
