@@ -145,6 +145,8 @@ class FakeFixture:
                 self.sent = seq
 
     def close(self) -> None:
+        if self._stop.is_set():
+            return
         self._stop.set()
         self._streaming.clear()
         with contextlib.suppress(OSError):

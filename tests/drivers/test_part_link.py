@@ -256,3 +256,16 @@ def test_part_link_satisfies_the_protocol(rig):
 
     _, link = rig()
     assert isinstance(link, PartLink)
+
+
+def test_port_that_dies_raises_connection_lost(rig):
+    from drivers.errors import ConnectionLost
+
+    fixture, link = rig(reply_timeout_s=0.3)
+    assert link.read_part_serial() == "SIM-0001"
+    fixture.close()  # the fixture's end of the line goes away (cable pulled)
+    t0 = time.monotonic()
+    with pytest.raises(ConnectionLost, match="cable"):
+        while time.monotonic() - t0 < 2.0:
+            link.read_samples(max_wait_s=0.05)
+    assert time.monotonic() - t0 < 1.0
