@@ -18,6 +18,7 @@ import resource
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -38,12 +39,16 @@ def _self_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run_once(odr_hz: int, sockets: int, speed: float, wall_s: float) -> dict[str, object]:
+def run_once(odr_hz: int, sockets: int, speed: float, wall_s: float) -> dict[str, Any]:
     parts = [{"socket": i, "serial": f"BENCH-{i:04d}"} for i in range(1, sockets + 1)]
     with launch_bench(config={"parts": parts, "fixture": {"sockets": sockets}}, speed=speed) as b:
         power_parts(b.endpoints.supply)
         with StreamProbe([b.endpoints.duts[i] for i in range(1, sockets + 1)]) as probe:
-            bench_cpu0, self_cpu0, t0 = _proc_cpu_s(b.endpoints.pid), _self_cpu_s(), time.monotonic()
+            bench_cpu0, self_cpu0, t0 = (
+                _proc_cpu_s(b.endpoints.pid),
+                _self_cpu_s(),
+                time.monotonic(),
+            )
             probe.stream(odr_hz, wall_s=wall_s)
             wall = time.monotonic() - t0
             bench_cpu = _proc_cpu_s(b.endpoints.pid) - bench_cpu0
@@ -57,11 +62,18 @@ def run_once(odr_hz: int, sockets: int, speed: float, wall_s: float) -> dict[str
     peak = max(s["fifo_peak_bytes"] / s["fifo_bytes"] for s in socks)
     ok = lost == 0 and received == sent and peak < 0.5
     return {
-        "odr_hz": odr_hz, "sockets": sockets, "speed": speed, "ok": ok,
-        "frames_sent": sent, "frames_received": received, "frames_lost": lost,
-        "fifo_peak_fraction": round(peak, 4), "wall_s": round(wall, 3),
+        "odr_hz": odr_hz,
+        "sockets": sockets,
+        "speed": speed,
+        "ok": ok,
+        "frames_sent": sent,
+        "frames_received": received,
+        "frames_lost": lost,
+        "fifo_peak_fraction": round(peak, 4),
+        "wall_s": round(wall, 3),
         "frames_per_wall_s": round(received / wall),
-        "bench_cpu_s": round(bench_cpu, 3), "reader_cpu_s": round(reader_cpu, 3),
+        "bench_cpu_s": round(bench_cpu, 3),
+        "reader_cpu_s": round(reader_cpu, 3),
         "bench_cpu_per_wall_s": round(bench_cpu / wall, 3),
         "bench_cpu_us_per_frame": round(1e6 * bench_cpu / max(received, 1), 2),
     }
@@ -72,7 +84,7 @@ def main() -> int:
     ap.add_argument("--wall-s", type=float, default=4.0, help="streaming time per trial")
     ap.add_argument("--json", type=Path, help="also write every trial as JSON")
     args = ap.parse_args()
-    trials: list[dict[str, object]] = []
+    trials: list[dict[str, Any]] = []
     summary = []
     for odr in (200, 1000):
         for sockets in (1, 8):
@@ -85,18 +97,24 @@ def main() -> int:
                     break
                 best = r
             summary.append((odr, sockets, best))
-    print("\nhighest speed with zero frames lost (FIFO < 50 %), "
-          f"{args.wall_s:g} s wall per trial, {os.cpu_count()} cores:")
-    print(f"{'ODR':>6} {'sockets':>7} {'speed':>6} {'frames/s':>9} {'bench CPU/wall':>14} "
-          f"{'reader CPU/wall':>15} {'bench us/frame':>14}")
+    print(
+        "\nhighest speed with zero frames lost (FIFO < 50 %), "
+        f"{args.wall_s:g} s wall per trial, {os.cpu_count()} cores:"
+    )
+    print(
+        f"{'ODR':>6} {'sockets':>7} {'speed':>6} {'frames/s':>9} {'bench CPU/wall':>14} "
+        f"{'reader CPU/wall':>15} {'bench us/frame':>14}"
+    )
     for odr, sockets, best in summary:
         if best is None:
             print(f"{odr:>6} {sockets:>7}   none at {SPEEDS[0]}x")
             continue
-        print(f"{odr:>6} {sockets:>7} {best['speed']:>6} {best['frames_per_wall_s']:>9} "
-              f"{best['bench_cpu_per_wall_s']:>14} "
-              f"{round(best['reader_cpu_s'] / best['wall_s'], 3):>15} "
-              f"{best['bench_cpu_us_per_frame']:>14}")
+        print(
+            f"{odr:>6} {sockets:>7} {best['speed']:>6} {best['frames_per_wall_s']:>9} "
+            f"{best['bench_cpu_per_wall_s']:>14} "
+            f"{round(float(best['reader_cpu_s']) / float(best['wall_s']), 3):>15} "
+            f"{best['bench_cpu_us_per_frame']:>14}"
+        )
     if args.json:
         args.json.write_text(json.dumps(trials, indent=2))
     return 0

@@ -8,7 +8,7 @@ from pathlib import Path
 from station.errors import UserError
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "bench",
         help="run the simulated bench (instrument twins on loopback and ptys)",

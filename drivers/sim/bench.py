@@ -31,8 +31,16 @@ log = logging.getLogger(__name__)
 TICK_WALL_S = 0.005
 
 FAULT_KINDS = (
-    "modbus_drop", "modbus_delay", "table_fault", "interlock_open", "chamber_stuck",
-    "supply_short", "stream_corrupt", "stream_drop", "part_silent", "fixture_silent",
+    "modbus_drop",
+    "modbus_delay",
+    "table_fault",
+    "interlock_open",
+    "chamber_stuck",
+    "supply_short",
+    "stream_corrupt",
+    "stream_drop",
+    "part_silent",
+    "fixture_silent",
     "part_absent",
 )
 _TABLE_FAULTS = {
@@ -46,8 +54,15 @@ _TABLE_FAULTS = {
 class Bench:
     """Everything the bench process serves, on one asyncio loop."""
 
-    def __init__(self, config: SimConfig, speed: float | None = None, host: str = "127.0.0.1",
-                 table_port: int = 0, chamber_port: int = 0, control_port: int = 0) -> None:
+    def __init__(
+        self,
+        config: SimConfig,
+        speed: float | None = None,
+        host: str = "127.0.0.1",
+        table_port: int = 0,
+        chamber_port: int = 0,
+        control_port: int = 0,
+    ) -> None:
         self.world = World(config, speed)
         self.host = host
         self.table = TableTwin(self.world, host, table_port)
@@ -161,7 +176,9 @@ class Bench:
     async def _fault(self, req: dict[str, Any]) -> dict[str, Any]:
         kind = req.get("kind")
         if kind not in FAULT_KINDS:
-            raise ControlRequestError(f"unknown fault kind {kind!r}; use one of {', '.join(FAULT_KINDS)}")
+            raise ControlRequestError(
+                f"unknown fault kind {kind!r}; use one of {', '.join(FAULT_KINDS)}"
+            )
         w = self.world
         if kind in ("modbus_drop", "modbus_delay"):
             for twin in self._modbus_targets(req.get("target", "all")):
@@ -175,7 +192,9 @@ class Bench:
         elif kind == "table_fault":
             code = req.get("code", "following_error")
             if code not in _TABLE_FAULTS:
-                raise ControlRequestError(f"table_fault code {code!r}; use one of {', '.join(_TABLE_FAULTS)}")
+                raise ControlRequestError(
+                    f"table_fault code {code!r}; use one of {', '.join(_TABLE_FAULTS)}"
+                )
             w.trip_table(_TABLE_FAULTS[code])
         elif kind == "interlock_open":
             w.set_interlock(True)
@@ -193,7 +212,9 @@ class Bench:
         self.world.advance()
         if kind == "supply_short":
             if sock.part is None:
-                raise ControlRequestError(f"socket {sock.socket} has no part to short; load one first")
+                raise ControlRequestError(
+                    f"socket {sock.socket} has no part to short; load one first"
+                )
             sock.part.shorted = True
         elif kind == "stream_corrupt":
             sock.corrupt_byte_rate = _rate(req, "byte_error_rate", 1e-3)
@@ -207,7 +228,11 @@ class Bench:
             sock.absent = True
 
     def _modbus_targets(self, target: str) -> list[ModbusTwin]:
-        options = {"table": [self.table], "chamber": [self.chamber], "all": [self.table, self.chamber]}
+        options: dict[str, list[ModbusTwin]] = {
+            "table": [self.table],
+            "chamber": [self.chamber],
+            "all": [self.table, self.chamber],
+        }
         if target not in options:
             raise ControlRequestError(f"target {target!r}; use table, chamber or all")
         return options[target]
@@ -221,10 +246,16 @@ class Bench:
     def truth(self) -> dict[str, Any]:
         out = self.world.truth()
         out["modbus"] = {
-            "table": {"dropped": self.table.dropped, "delay_s": self.table.delay_s,
-                      "requests": self.table.requests},
-            "chamber": {"dropped": self.chamber.dropped, "delay_s": self.chamber.delay_s,
-                        "requests": self.chamber.requests},
+            "table": {
+                "dropped": self.table.dropped,
+                "delay_s": self.table.delay_s,
+                "requests": self.table.requests,
+            },
+            "chamber": {
+                "dropped": self.chamber.dropped,
+                "delay_s": self.chamber.delay_s,
+                "requests": self.chamber.requests,
+            },
         }
         for index, fixture in self.fixtures.items():
             out["sockets"][str(index)]["fifo_pending_bytes"] = fixture.port.pending_bytes
@@ -248,12 +279,21 @@ def write_state(path: Path, state: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
-async def serve(config: SimConfig, state_path: Path | None, speed: float | None = None,
-                ports: dict[str, int] | None = None) -> None:
+async def serve(
+    config: SimConfig,
+    state_path: Path | None,
+    speed: float | None = None,
+    ports: dict[str, int] | None = None,
+) -> None:
     """Run the bench until SIGINT or SIGTERM."""
     ports = ports or {}
-    bench = Bench(config, speed, table_port=ports.get("rate_table", 0),
-                  chamber_port=ports.get("chamber", 0), control_port=ports.get("control", 0))
+    bench = Bench(
+        config,
+        speed,
+        table_port=ports.get("rate_table", 0),
+        chamber_port=ports.get("chamber", 0),
+        control_port=ports.get("control", 0),
+    )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -275,8 +315,12 @@ async def serve(config: SimConfig, state_path: Path | None, speed: float | None 
             loop.remove_signal_handler(sig)
 
 
-def run_bench(config: SimConfig, state_path: Path | None, speed: float | None = None,
-              ports: dict[str, int] | None = None) -> int:
+def run_bench(
+    config: SimConfig,
+    state_path: Path | None,
+    speed: float | None = None,
+    ports: dict[str, int] | None = None,
+) -> int:
     asyncio.run(serve(config, state_path, speed, ports))
     sys.stdout.flush()
     return 0

@@ -24,8 +24,11 @@ class ChamberModel:
         self.ramped_sp_c = config.ambient_c
         self.stuck = False
         self.stuck_reports_fault = False
-        self._strings = {Reg.MODEL: config.model, Reg.SERIAL: config.serial,
-                         Reg.FIRMWARE: config.firmware}
+        self._strings = {
+            Reg.MODEL: config.model,
+            Reg.SERIAL: config.serial,
+            Reg.FIRMWARE: config.firmware,
+        }
 
     def step(self, dt_s: float) -> None:
         if dt_s <= 0:
@@ -61,7 +64,7 @@ class ChamberModel:
         def tenths(c: float) -> int:
             return int(round(c * TENTHS)) & 0xFFFF
 
-        regs = {
+        regs: dict[int, int] = {
             Reg.PROCESS_VALUE: tenths(self.air_c),
             Reg.STATE: int(self.state()),
             Reg.SETPOINT: tenths(self.setpoint_c),

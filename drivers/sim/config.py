@@ -114,7 +114,9 @@ class ChamberConfig(_Model):
     serial: str = "CH-0001"
     firmware: str = "1.9"
     ambient_c: float = 25.0
-    air_tau_s: float = Field(default=60.0, gt=0.0, description="air response to the ramped setpoint")
+    air_tau_s: float = Field(
+        default=60.0, gt=0.0, description="air response to the ramped setpoint"
+    )
     idle_tau_s: float = Field(default=900.0, gt=0.0, description="drift to ambient when stopped")
     max_ramp_c_per_min: float = Field(default=5.0, gt=0.0)
     setpoint_low_c: float = -40.0
@@ -195,7 +197,9 @@ def parse_sim_config(data: Any, source: str = "<sim config>") -> SimConfig:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise SimConfigError(f"{source}: the sim config must be a YAML mapping, got {type(data).__name__}")
+        raise SimConfigError(
+            f"{source}: the sim config must be a YAML mapping, got {type(data).__name__}"
+        )
     try:
         return SimConfig.model_validate(data)
     except ValidationError as exc:
@@ -210,7 +214,9 @@ def load_sim_config(path: str | Path | None) -> SimConfig:
     try:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
-        raise SimConfigError(f"{p}: cannot read the sim config ({exc.strerror}); check the path") from None
+        raise SimConfigError(
+            f"{p}: cannot read the sim config ({exc.strerror}); check the path"
+        ) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

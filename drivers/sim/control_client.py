@@ -1,9 +1,9 @@
 """A small typed client for the simulated bench's control channel (tests and benchmarks).
 
-    with ControlClient("127.0.0.1:5029") as ctl:
-        ctl.load(1, {"serial": "SIM-0001", "bias_dps": 8.6})
-        ctl.fault("stream_drop", socket=1, frame_drop_rate=0.01)
-        truth = ctl.truth()
+with ControlClient("127.0.0.1:5029") as ctl:
+    ctl.load(1, {"serial": "SIM-0001", "bias_dps": 8.6})
+    ctl.fault("stream_drop", socket=1, frame_drop_rate=0.01)
+    truth = ctl.truth()
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ class ControlClient:
             self._sock = socket.create_connection((host, port), timeout=timeout_s)
         except OSError as exc:
             raise ControlError(
-                f"cannot reach the bench's control channel at {endpoint} ({exc}); is the bench running?"
+                f"cannot reach the bench's control channel at {endpoint} ({exc}); "
+                "is the bench running?"
             ) from None
         self._file = self._sock.makefile("rwb")
         self._lock = threading.Lock()
@@ -95,6 +96,10 @@ class ControlClient:
     def __enter__(self) -> ControlClient:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()

@@ -32,8 +32,14 @@ def _err(code: fp.ReplyError, text: str) -> str:
 class FixtureSocket:
     """A socket of the fixture: its microcontroller, and the part loaded in it (if any)."""
 
-    def __init__(self, world: World, socket: int, stop_angle_deg: float, stop_angle_u_deg: float,
-                 clock_offset_s: float) -> None:
+    def __init__(
+        self,
+        world: World,
+        socket: int,
+        stop_angle_deg: float,
+        stop_angle_u_deg: float,
+        clock_offset_s: float,
+    ) -> None:
         self.world = world
         self.socket = socket
         self.stop_angle_deg = stop_angle_deg
@@ -151,7 +157,9 @@ class FixtureSocket:
             if not sep:
                 return _err(_ERR.SYNTAX, f"expected key=value, got {item[:30]!r}")
             if key.lower() not in _CAL_FIELDS:
-                return _err(_ERR.BAD_REGISTER, f"no register {key[:20]!r}; use {','.join(fp.CAL_KEYS)}")
+                return _err(
+                    _ERR.BAD_REGISTER, f"no register {key[:20]!r}; use {','.join(fp.CAL_KEYS)}"
+                )
             try:
                 number = float(value)
             except ValueError:
@@ -183,7 +191,7 @@ class FixtureSocket:
             return b""  # a silent or unpowered part sends nothing
         part = self.part
         assert part is not None
-        times = self._t_start + k * dt
+        times = (self._t_start + k * dt).astype(np.float64)
         supply_v = self.world.supply.output_v()
         angle, rate = self.world.table.kinematics(times)
         raw, die = part.raw_output_dps(times, rate, angle, supply_v, dt)

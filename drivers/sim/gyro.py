@@ -74,8 +74,9 @@ def _gm_sigma_for_bias_instability(bi_dps: float) -> float:
 class PartModel:
     """One part: parameters, calibration registers, die temperature, power and noise state."""
 
-    def __init__(self, params: PartParams, physics: PartPhysicsConfig, seed: int, t_s: float,
-                 air_c: float) -> None:
+    def __init__(
+        self, params: PartParams, physics: PartPhysicsConfig, seed: int, t_s: float, air_c: float
+    ) -> None:
         self.params = params
         self.physics = physics
         self.rng = np.random.default_rng([serial_seed(params.serial, "noise"), seed])
@@ -99,9 +100,9 @@ class PartModel:
         self._asym = fx.get("scale_asymmetry", {}).get("asymmetry", 0.0)
         g = fx.get("g_sensitivity_tilt")
         self._g_tilt = (
-            (g["g_sens_dps_per_g"] * math.sin(math.radians(g["tilt_deg"])),
-             g.get("phase_deg", 0.0))
-            if g else None
+            (g["g_sens_dps_per_g"] * math.sin(math.radians(g["tilt_deg"])), g.get("phase_deg", 0.0))
+            if g
+            else None
         )
         self._lag_tau = fx.get("sensor_lag", {}).get("tau_s")
         w = fx.get("warmup_drift")
@@ -154,8 +155,9 @@ class PartModel:
         if use_gm:
             for i, corr in enumerate(GM_TAUS_S):
                 a = math.exp(-dt_s / corr)
-                x = first_order_filter(e[row], a, self._gm_sigma * math.sqrt(1 - a * a),
-                                       float(self._gm_state[i]))
+                x = first_order_filter(
+                    e[row], a, self._gm_sigma * math.sqrt(1 - a * a), float(self._gm_state[i])
+                )
                 self._gm_state[i] = x[-1]
                 out += x
                 row += 1
@@ -165,8 +167,14 @@ class PartModel:
             out += walk
         return out
 
-    def raw_output_dps(self, t_s: FloatArray, rate_dps: FloatArray, angle_deg: FloatArray,
-                       supply_v: float, dt_s: float) -> tuple[FloatArray, FloatArray]:
+    def raw_output_dps(
+        self,
+        t_s: FloatArray,
+        rate_dps: FloatArray,
+        angle_deg: FloatArray,
+        supply_v: float,
+        dt_s: float,
+    ) -> tuple[FloatArray, FloatArray]:
         """(raw output deg/s, die temperature C) at sample times `t_s` spaced `dt_s`."""
         p = self.params
         die = self.die_temp_at(t_s)

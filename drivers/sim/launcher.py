@@ -131,8 +131,13 @@ def launch_bench(
         err_path = tmp_dir / "bench.err"
         with open(err_path, "wb") as err:
             proc = subprocess.Popen(
-                cmd, cwd=str(REPO_ROOT), env=_env(), stdout=subprocess.DEVNULL, stderr=err,
-                stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent,
+                cmd,
+                cwd=str(REPO_ROOT),
+                env=_env(),
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                stdin=subprocess.DEVNULL,
+                preexec_fn=_die_with_parent,
             )
         control: ControlClient | None = None
         try:
@@ -146,8 +151,9 @@ def launch_bench(
             stop_process(proc, stop_timeout_s)
 
 
-def _wait_for_state(proc: subprocess.Popen[bytes], state_path: Path, err_path: Path,
-                    timeout_s: float) -> dict[str, Any]:
+def _wait_for_state(
+    proc: subprocess.Popen[bytes], state_path: Path, err_path: Path, timeout_s: float
+) -> dict[str, Any]:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:

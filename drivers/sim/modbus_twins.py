@@ -20,13 +20,14 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers import chamber_map as cm
 from drivers import rate_table_map as rm
-from drivers.sim.table import REGISTER_COUNT, CommandRefused
+from drivers.sim.table import REGISTER_COUNT, CommandRefusedError
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
 
-Action = Callable[[int, int, int, int, list[int], list[int] | list[bool] | None],
-                  Awaitable[ExcCodes | None]]
+Action = Callable[
+    [int, int, int, int, list[int], list[int] | list[bool] | None], Awaitable[ExcCodes | None]
+]
 
 
 class ModbusTwin:
@@ -51,23 +52,41 @@ class ModbusTwin:
             self.port = sockets[0].getsockname()[1]
         # listen again on the same port after a drop fault (pymodbus bound port 0 at init)
         self._server.call_create = functools.partial(
-            asyncio.get_running_loop().create_server, self._server.handle_new_connection,
-            self.host, self.port, reuse_address=True, start_serving=True,
+            asyncio.get_running_loop().create_server,
+            self._server.handle_new_connection,
+            self.host,
+            self.port,
+            reuse_address=True,
+            start_serving=True,
         )
 
     @property
     def endpoint(self) -> str:
         return f"{self.host}:{self.port}"
 
-    async def _action(self, fc: int, start: int, address: int, count: int,
-                      registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+    async def _action(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
         self.requests += 1
         if self.delay_s > 0:
             await asyncio.sleep(self.delay_s)
         return await self.handle(fc, start, address, count, registers, values)
 
-    async def handle(self, fc: int, start: int, address: int, count: int,
-                     registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+    async def handle(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
         raise NotImplementedError
 
     async def drop(self) -> None:
@@ -94,8 +113,15 @@ class TableTwin(ModbusTwin):
         super().__init__("rate table", blocks, host, port)
         self.world = world
 
-    async def handle(self, fc: int, start: int, address: int, count: int,
-                     registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+    async def handle(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
         table = self.world.table
         t = self.world.advance()
         if values is not None:
@@ -106,7 +132,7 @@ class TableTwin(ModbusTwin):
                 return ExcCodes.ILLEGAL_ADDRESS
             try:
                 table.write(t, address, [int(v) for v in values], table.registers(t))
-            except CommandRefused as exc:
+            except CommandRefusedError as exc:
                 log.info("rate table refused a write: %s", exc)
                 return ExcCodes.ILLEGAL_VALUE
         registers[0:REGISTER_COUNT] = table.registers(t)
@@ -129,8 +155,15 @@ class ChamberTwin(ModbusTwin):
         super().__init__("chamber", blocks, host, port)
         self.world = world
 
-    async def handle(self, fc: int, start: int, address: int, count: int,
-                     registers: list[int], values: list[int] | list[bool] | None) -> ExcCodes | None:
+    async def handle(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
         chamber = self.world.chamber
         self.world.advance()
         if values is not None:

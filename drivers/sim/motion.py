@@ -204,9 +204,9 @@ def smooth_move(
     pieces, t, p = _stop_first(t_s, p0, v0, accel_dps2)
     d = target_deg - p
     if d != 0.0:
-        T = duration_s
+        duration = duration_s
         # p(tau) = p + d (10 s^3 - 15 s^4 + 6 s^5), s = tau / T
-        coeffs = (p, 0.0, 0.0, 10 * d / T**3, -15 * d / T**4, 6 * d / T**5)
-        pieces.append(Piece(t, t + T, coeffs))
-        t += T
+        coeffs = (p, 0.0, 0.0, 10 * d / duration**3, -15 * d / duration**4, 6 * d / duration**5)
+        pieces.append(Piece(t, t + duration, coeffs))
+        t += duration
     return _with_bounce(pieces, t, target_deg, bounce, moved=d != 0.0)

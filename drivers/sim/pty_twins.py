@@ -121,8 +121,9 @@ class SupplyTwin:
 class FixtureTwin:
     """One fixture socket's serial port: commands in, reply and sample frames out."""
 
-    def __init__(self, world: World, socket: FixtureSocket, loop: asyncio.AbstractEventLoop,
-                 fifo_bytes: int) -> None:
+    def __init__(
+        self, world: World, socket: FixtureSocket, loop: asyncio.AbstractEventLoop, fifo_bytes: int
+    ) -> None:
         self.world = world
         self.socket = socket
         self.fifo_bytes = fifo_bytes

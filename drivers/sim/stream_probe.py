@@ -112,7 +112,9 @@ class StreamProbe:
         deadline = time.monotonic() + timeout_s
         while self.counts[i].frames_ok < frames:
             if time.monotonic() > deadline:
-                raise TimeoutError(f"{self.ports[i].port}: fewer than {frames} frames in {timeout_s} s")
+                raise TimeoutError(
+                    f"{self.ports[i].port}: fewer than {frames} frames in {timeout_s} s"
+                )
             self.pump(0.02)
 
     def drain(self, quiet_s: float = 0.05, timeout_s: float = 5.0) -> None:

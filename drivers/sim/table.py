@@ -32,7 +32,7 @@ REGISTER_COUNT = 64
 _I32 = {Reg.POS_CMD, Reg.RATE_CMD, Reg.ACCEL_LIMIT, Reg.MOVE_TIME}
 
 
-class CommandRefused(ValueError):
+class CommandRefusedError(ValueError):
     """A write the controller refuses (Modbus exception 3, illegal data value)."""
 
 
@@ -137,9 +137,9 @@ class TableModel:
             err = abs(float(self.angle_deg(t_s)[0]) - self._target_angle())
             if err < IN_POSITION_TOLERANCE_DEG:
                 bits |= Status.IN_POSITION
-        if self.enabled and settled and self.mode == Mode.RATE:
-            if abs(v - self.rate_cmd_mdps / 1000.0) < AT_RATE_TOLERANCE_DPS:
-                bits |= Status.AT_RATE
+        rate_err = abs(v - self.rate_cmd_mdps / 1000.0)
+        if self.enabled and settled and self.mode == Mode.RATE and rate_err < AT_RATE_TOLERANCE_DPS:
+            bits |= Status.AT_RATE
         if abs(v) > 1e-6 or t_s < self.profile.motion_end_s:
             bits |= Status.MOVING
         return int(bits)
@@ -184,7 +184,7 @@ class TableModel:
     def write(self, t_s: float, first: int, values: list[int], current: list[int]) -> None:
         """Apply one write request (registers `first`.. = `values`); `current` holds 0..63.
 
-        Raises CommandRefused for a value the controller does not accept.
+        Raises CommandRefusedError for a value the controller does not accept.
         """
         regs = list(current[:REGISTER_COUNT])
         regs[first : first + len(values)] = values
@@ -194,13 +194,16 @@ class TableModel:
             if written & {reg, reg + 1}:
                 new[reg] = _i32_from(regs[reg], regs[reg + 1])
         if Reg.MODE in written and regs[Reg.MODE] not in (0, 1, 2):
-            raise CommandRefused(f"MODE {regs[Reg.MODE]} is not 0, 1 or 2")
+            raise CommandRefusedError(f"MODE {regs[Reg.MODE]} is not 0, 1 or 2")
         if Reg.RATE_CMD in new and abs(new[Reg.RATE_CMD]) > MAX_RATE_DPS * 1000:
-            raise CommandRefused("RATE_CMD beyond the table's rate limit")
-        if Reg.ACCEL_LIMIT in new and not 0 < new[Reg.ACCEL_LIMIT] <= self.cfg.max_accel_dps2 * 1000:
-            raise CommandRefused("ACCEL_LIMIT outside 0 < a <= the table's maximum")
+            raise CommandRefusedError("RATE_CMD beyond the table's rate limit")
+        if (
+            Reg.ACCEL_LIMIT in new
+            and not 0 < new[Reg.ACCEL_LIMIT] <= self.cfg.max_accel_dps2 * 1000
+        ):
+            raise CommandRefusedError("ACCEL_LIMIT outside 0 < a <= the table's maximum")
         if Reg.MOVE_TIME in new and new[Reg.MOVE_TIME] < 0:
-            raise CommandRefused("MOVE_TIME must not be negative")
+            raise CommandRefusedError("MOVE_TIME must not be negative")
         self.pos_cmd_mdeg = new.get(Reg.POS_CMD, self.pos_cmd_mdeg)
         self.rate_cmd_mdps = new.get(Reg.RATE_CMD, self.rate_cmd_mdps)
         self.accel_mdps2 = new.get(Reg.ACCEL_LIMIT, self.accel_mdps2)

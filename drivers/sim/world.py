@@ -41,9 +41,12 @@ class World:
         for s in range(1, config.socket_count + 1):
             angle = fx.stop_angle_deg
             if angle is None:  # each fixture socket's stops, measured once: 90 +/- 0.05 deg
-                angle = 90.0 + float(np.random.default_rng([config.seed, s, 90]).uniform(-0.05, 0.05))
-            self.sockets[s] = FixtureSocket(self, s, angle, fx.stop_angle_uncertainty_deg,
-                                            fx.clock_offset_s + 0.137 * s)
+                angle = 90.0 + float(
+                    np.random.default_rng([config.seed, s, 90]).uniform(-0.05, 0.05)
+                )
+            self.sockets[s] = FixtureSocket(
+                self, s, angle, fx.stop_angle_uncertainty_deg, fx.clock_offset_s + 0.137 * s
+            )
         for spec in config.parts:
             self.load_part(spec)
 
@@ -72,7 +75,11 @@ class World:
             part = sock.part
             if part is None or not sock.part_present():
                 continue
-            g += 1.0 / self.config.supply.short_resistance_ohm if part.shorted else part.conductance_s()
+            g += (
+                1.0 / self.config.supply.short_resistance_ohm
+                if part.shorted
+                else part.conductance_s()
+            )
         return g
 
     # ------------------------------------------------------------ operator actions
@@ -85,8 +92,9 @@ class World:
     def load_part(self, spec: PartSpec) -> FixtureSocket:
         sock = self.socket(spec.socket)
         t = self.advance()
-        sock.part = PartModel(resolve_part(spec), self.config.part_physics, self.config.seed, t,
-                              self.chamber.air_c)
+        sock.part = PartModel(
+            resolve_part(spec), self.config.part_physics, self.config.seed, t, self.chamber.air_c
+        )
         sock.streaming = False
         sock.absent = False
         self.advance()

@@ -24,7 +24,10 @@ def _start(tmp_path: Path, *args: str) -> tuple[subprocess.Popen[bytes], Path]:
     state = tmp_path / "s.json"
     proc = subprocess.Popen(
         [sys.executable, "-m", "station", "bench", "--state", str(state), *args],
-        cwd=tmp_path, env=_env(), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+        cwd=tmp_path,
+        env=_env(),
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 20
     while not state.exists():
@@ -43,7 +46,7 @@ def _children(pid: int) -> list[int]:
 def test_bench_writes_endpoints_and_stops_cleanly(tmp_path: Path, sig: int) -> None:
     proc, state_path = _start(tmp_path, "--speed", "50", "--sockets", "3")
     state = json.loads(state_path.read_text())
-    assert STATE_KEYS <= set(state)
+    assert set(state) >= STATE_KEYS
     assert state["speed"] == 50.0
     assert sorted(state["duts"]) == ["1", "2", "3"]
     ptys = [state["supply"], *state["duts"].values()]
@@ -69,8 +72,20 @@ def test_bench_with_bad_config_exits_2_with_one_line(tmp_path: Path) -> None:
     cfg = tmp_path / "bad.yaml"
     cfg.write_text("parts:\n  - {socket: 1, serial: X, scale: 5}\n")
     out = subprocess.run(
-        [sys.executable, "-m", "station", "bench", "--config", str(cfg), "--state", str(tmp_path / "s.json")],
-        env=_env(), capture_output=True, text=True, timeout=30,
+        [
+            sys.executable,
+            "-m",
+            "station",
+            "bench",
+            "--config",
+            str(cfg),
+            "--state",
+            str(tmp_path / "s.json"),
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert out.returncode == 2
     assert "parts.0.scale" in out.stderr and str(cfg) in out.stderr
@@ -81,6 +96,9 @@ def test_bench_with_bad_config_exits_2_with_one_line(tmp_path: Path) -> None:
 def test_bench_rejects_bad_speed(tmp_path: Path) -> None:
     out = subprocess.run(
         [sys.executable, "-m", "station", "bench", "--speed", "-3"],
-        env=_env(), capture_output=True, text=True, timeout=30,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert out.returncode == 2 and "--speed" in out.stderr

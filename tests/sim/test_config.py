@@ -37,8 +37,13 @@ def test_population_spread_matches_method_md() -> None:
 
 
 def test_given_parameters_override_the_population() -> None:
-    spec = PartSpec(socket=1, serial="SIM-0001", bias_dps=8.6, scale=1.0567,
-                    effects={"bias_temperature": {"bias_temp_coeff_dps_per_c": 0.0}})
+    spec = PartSpec(
+        socket=1,
+        serial="SIM-0001",
+        bias_dps=8.6,
+        scale=1.0567,
+        effects={"bias_temperature": {"bias_temp_coeff_dps_per_c": 0.0}},
+    )
     p = resolve_part(spec)
     assert p.bias_dps == 8.6 and p.scale == 1.0567
     assert p.bias_temp_coeff_dps_per_c == 0.0
@@ -49,7 +54,10 @@ def test_given_parameters_override_the_population() -> None:
 @pytest.mark.parametrize(
     ("data", "needle"),
     [
-        ({"parts": [{"socket": 1, "serial": "X", "effects": {"k9": {}}}]}, "unknown effect id 'k9'"),
+        (
+            {"parts": [{"socket": 1, "serial": "X", "effects": {"k9": {}}}]},
+            "unknown effect id 'k9'",
+        ),
         ({"parts": [{"socket": 1, "serial": "X", "effects": {"k2_quadratic": {}}}]}, "k2_per_dps"),
         ({"parts": [{"socket": 1, "serial": "X", "scale": -1}]}, "parts.0.scale"),
         ({"parts": [{"socket": 1, "serial": "X"}, {"socket": 1, "serial": "Y"}]}, "socket 1"),

@@ -77,7 +77,9 @@ def _write(fbench: BenchHandle, reg: int, values: list[int]) -> None:
         client.close()
 
 
-@pytest.mark.parametrize(("code", "fault"), [("following_error", Fault.FOLLOWING_ERROR), ("estop", Fault.ESTOP)])
+@pytest.mark.parametrize(
+    ("code", "fault"), [("following_error", Fault.FOLLOWING_ERROR), ("estop", Fault.ESTOP)]
+)
 def test_table_fault_stops_and_latches(fbench: BenchHandle, code: str, fault: Fault) -> None:
     _write(fbench, Reg.CONTROL, [Control.ENABLE | Control.FAULT_RESET])
     _write(fbench, Reg.RATE_CMD, regs32(50_000))

@@ -10,8 +10,14 @@ from drivers.sim.world import World
 
 
 def _world(**part: object) -> World:
-    spec = {"socket": 1, "serial": "SIM-FX", "arw_deg_per_sqrt_h": 0.0,
-            "bias_instability_deg_per_h": 0.0, "rrw_deg_per_h_per_sqrt_h": 0.0, **part}
+    spec = {
+        "socket": 1,
+        "serial": "SIM-FX",
+        "arw_deg_per_sqrt_h": 0.0,
+        "bias_instability_deg_per_h": 0.0,
+        "rrw_deg_per_h_per_sqrt_h": 0.0,
+        **part,
+    }
     w = World(parse_sim_config({"parts": [spec], "table": {"ripple_dps": 0.0}}), speed=1.0)
     for line in ("VOLT 5.0", "CURR 0.5", "OUTP ON"):
         w.supply.handle(line)
@@ -38,15 +44,23 @@ def test_stream_timestamps_seq_and_stop_after_last_frame() -> None:
 
 
 def test_over_range_and_saturation_bits() -> None:
-    w = _world(bias_dps=0.0, scale=1.0, bias_temp_coeff_dps_per_c=0.0,
-               bias_supply_coeff_dps_per_v=0.0, scale_temp_coeff_per_c=0.0,
-               scale_supply_coeff_per_v=0.0)
+    w = _world(
+        bias_dps=0.0,
+        scale=1.0,
+        bias_temp_coeff_dps_per_c=0.0,
+        bias_supply_coeff_dps_per_v=0.0,
+        scale_temp_coeff_per_c=0.0,
+        scale_supply_coeff_per_v=0.0,
+    )
     s = w.sockets[1]
     s.handle_line("ODR 1000", 0.0)
     s.handle_line("START", 0.0)
-    for rate, expect in ((100.0, 0), (300.0, fp.SampleStatus.OVER_RANGE),
-                         (400.0, fp.SampleStatus.OVER_RANGE | fp.SampleStatus.SATURATED),
-                         (-400.0, fp.SampleStatus.OVER_RANGE | fp.SampleStatus.SATURATED)):
+    for rate, expect in (
+        (100.0, 0),
+        (300.0, fp.SampleStatus.OVER_RANGE),
+        (400.0, fp.SampleStatus.OVER_RANGE | fp.SampleStatus.SATURATED),
+        (-400.0, fp.SampleStatus.OVER_RANGE | fp.SampleStatus.SATURATED),
+    ):
         t0 = s._t_start + s._next_k / s.odr_hz
         w.table.profile = motion.Profile((motion.Piece(0.0, np.inf, (0.0, rate)),), 0.0)
         res = _decode(s.produce(t0 + 0.05))
@@ -60,9 +74,14 @@ def test_over_range_and_saturation_bits() -> None:
 
 
 def test_compensated_output_and_supply_low_bit() -> None:
-    w = _world(bias_dps=8.6, scale=1.0567, bias_temp_coeff_dps_per_c=0.0,
-               bias_supply_coeff_dps_per_v=0.0, scale_temp_coeff_per_c=0.0,
-               scale_supply_coeff_per_v=0.0)
+    w = _world(
+        bias_dps=8.6,
+        scale=1.0567,
+        bias_temp_coeff_dps_per_c=0.0,
+        bias_supply_coeff_dps_per_v=0.0,
+        scale_temp_coeff_per_c=0.0,
+        scale_supply_coeff_per_v=0.0,
+    )
     s = w.sockets[1]
     assert _decode(s.handle_line("CAL bias=8.6 scale=1.0567", 0.0)).replies == ["OK"]
     s.handle_line("COMP 1", 0.0)

@@ -7,7 +7,7 @@ from drivers.rate_table_map import Control, Fault, Mode, Reg, Status
 from drivers.sim.chamber import ChamberModel
 from drivers.sim.config import ChamberConfig, SupplyConfig, TableConfig
 from drivers.sim.supply import SupplyModel
-from drivers.sim.table import CommandRefused, TableModel
+from drivers.sim.table import CommandRefusedError, TableModel
 
 from .conftest import i32, regs32
 
@@ -25,18 +25,18 @@ def test_table_rate_mode_and_status_bits() -> None:
     assert not table.status_bits(0.1) & Status.AT_RATE  # still ramping at 100 deg/s^2
     regs = table.registers(5.0)
     assert regs[Reg.STATUS] & Status.AT_RATE
-    assert i32(*regs[Reg.RATE_FB:Reg.RATE_FB + 2]) == 50_000
+    assert i32(*regs[Reg.RATE_FB : Reg.RATE_FB + 2]) == 50_000
     # 0.5 s ramp covers 12.5 deg, then 4.5 s at 50 deg/s
-    assert i32(*regs[Reg.POS_FB:Reg.POS_FB + 2]) == pytest.approx(237_500, abs=1)
+    assert i32(*regs[Reg.POS_FB : Reg.POS_FB + 2]) == pytest.approx(237_500, abs=1)
 
 
 def test_table_refuses_bad_values_and_keeps_state() -> None:
     table = TableModel(TableConfig())
-    with pytest.raises(CommandRefused):
+    with pytest.raises(CommandRefusedError):
         _write(table, 0.0, Reg.RATE_CMD, regs32(2_000_000))
-    with pytest.raises(CommandRefused):
+    with pytest.raises(CommandRefusedError):
         _write(table, 0.0, Reg.ACCEL_LIMIT, regs32(0))
-    with pytest.raises(CommandRefused):
+    with pytest.raises(CommandRefusedError):
         _write(table, 0.0, Reg.MODE, [7])
     assert table.rate_cmd_mdps == 0 and table.accel_mdps2 == 100_000
 
@@ -77,13 +77,13 @@ def test_table_zero_encoder_and_position_move() -> None:
     _write(table, 0.0, Reg.MODE, [int(Mode.RATE)])
     _write(table, 3.0, Reg.MODE, [int(Mode.IDLE)])
     _write(table, 4.0, Reg.CONTROL, [int(Control.ENABLE | Control.ZERO_ENCODER)])
-    assert i32(*table.registers(4.0)[Reg.ENCODER_COUNTS:Reg.ENCODER_COUNTS + 2]) == 0
+    assert i32(*table.registers(4.0)[Reg.ENCODER_COUNTS : Reg.ENCODER_COUNTS + 2]) == 0
     _write(table, 4.0, Reg.MOVE_TIME, regs32(3500))
     _write(table, 4.0, Reg.POS_CMD, regs32(-45_000))
     _write(table, 4.0, Reg.MODE, [int(Mode.POSITION)])
     regs = table.registers(8.0)
     assert regs[Reg.STATUS] & Status.IN_POSITION
-    counts = i32(*regs[Reg.ENCODER_COUNTS:Reg.ENCODER_COUNTS + 2])
+    counts = i32(*regs[Reg.ENCODER_COUNTS : Reg.ENCODER_COUNTS + 2])
     assert abs(counts - (-45 / 360 * table.cpr)) <= 1
     assert not table.registers(5.0)[Reg.STATUS] & Status.IN_POSITION
 

@@ -9,20 +9,36 @@ from drivers.sim.config import PartPhysicsConfig, PartSpec
 from drivers.sim.gyro import GM_TAUS_S, PartModel, gauss_markov_avar
 from drivers.sim.population import resolve_part
 
-QUIET = {"arw_deg_per_sqrt_h": 0.0, "bias_instability_deg_per_h": 0.0, "rrw_deg_per_h_per_sqrt_h": 0.0}
-COEFFS = {"bias_dps": 8.6, "scale": 1.0567, "bias_temp_coeff_dps_per_c": 0.01,
-          "scale_temp_coeff_per_c": 2e-4, "bias_supply_coeff_dps_per_v": 0.05,
-          "scale_supply_coeff_per_v": 1e-3}
+QUIET = {
+    "arw_deg_per_sqrt_h": 0.0,
+    "bias_instability_deg_per_h": 0.0,
+    "rrw_deg_per_h_per_sqrt_h": 0.0,
+}
+COEFFS = {
+    "bias_dps": 8.6,
+    "scale": 1.0567,
+    "bias_temp_coeff_dps_per_c": 0.01,
+    "scale_temp_coeff_per_c": 2e-4,
+    "bias_supply_coeff_dps_per_v": 0.05,
+    "scale_supply_coeff_per_v": 1e-3,
+}
 
 
 def _part(effects: dict | None = None, **extra: float) -> PartModel:
-    spec = PartSpec(socket=1, serial="SIM-UNIT", **{**QUIET, **COEFFS, **extra}, effects=effects or {})
+    spec = PartSpec(
+        socket=1, serial="SIM-UNIT", **{**QUIET, **COEFFS, **extra}, effects=effects or {}
+    )
     part = PartModel(resolve_part(spec), PartPhysicsConfig(), seed=0, t_s=0.0, air_c=35.0)
     return part
 
 
-def _out(part: PartModel, w: np.ndarray, angle: np.ndarray | None = None, v: float = 5.25,
-         t: np.ndarray | None = None) -> np.ndarray:
+def _out(
+    part: PartModel,
+    w: np.ndarray,
+    angle: np.ndarray | None = None,
+    v: float = 5.25,
+    t: np.ndarray | None = None,
+) -> np.ndarray:
     t = np.linspace(0.0, 1.0, w.size) if t is None else t
     angle = np.zeros_like(w) if angle is None else angle
     y, _ = part.raw_output_dps(t, w, angle, v, 0.005)
@@ -32,8 +48,8 @@ def _out(part: PartModel, w: np.ndarray, angle: np.ndarray | None = None, v: flo
 def test_first_order_model_matches_design_formula() -> None:
     part = _part()
     w = np.array([-200.0, -10.0, 0.0, 50.0, 250.0])
-    dT, dV = 35.0 - 25.0, 0.25
-    expected = 1.0567 * (1 + 2e-4 * dT + 1e-3 * dV) * w + 8.6 + 0.01 * dT + 0.05 * dV
+    d_t, d_v = 35.0 - 25.0, 0.25
+    expected = 1.0567 * (1 + 2e-4 * d_t + 1e-3 * d_v) * w + 8.6 + 0.01 * d_t + 0.05 * d_v
     assert _out(part, w) == pytest.approx(expected, abs=1e-12)
 
 
@@ -44,7 +60,9 @@ def test_first_order_model_matches_design_formula() -> None:
         ("k3_cubic", {"k3_per_dps2": 2e-9}, -150.0, 2e-9 * (-150.0) ** 3),
     ],
 )
-def test_polynomial_effects_add_their_term(effect: str, params: dict, w: float, extra: float) -> None:
+def test_polynomial_effects_add_their_term(
+    effect: str, params: dict, w: float, extra: float
+) -> None:
     base = _out(_part(), np.array([w]))
     with_effect = _out(_part({effect: params}), np.array([w]))
     assert with_effect[0] - base[0] == pytest.approx(extra, rel=1e-9)
@@ -60,7 +78,9 @@ def test_scale_asymmetry_changes_positive_and_negative_scale_differently() -> No
 
 
 def test_g_sensitivity_follows_table_angle() -> None:
-    part = _part({"g_sensitivity_tilt": {"g_sens_dps_per_g": 0.012, "tilt_deg": 30.0, "phase_deg": 90.0}})
+    part = _part(
+        {"g_sensitivity_tilt": {"g_sens_dps_per_g": 0.012, "tilt_deg": 30.0, "phase_deg": 90.0}}
+    )
     plain = _part()
     angles = np.array([0.0, 90.0, 180.0, 270.0])
     w = np.zeros(4)
@@ -74,8 +94,8 @@ def test_sensor_lag_is_a_first_order_step_response() -> None:
     y, _ = part.raw_output_dps(np.zeros(1), np.zeros(1), np.zeros(1), 5.0, 0.005)
     w = np.full(t.size, 100.0)
     y, _ = part.raw_output_dps(t, w, np.zeros_like(w), 5.0, 0.005)
-    dT = 35.0 - 25.0
-    final = 1.0 * (1 + 2e-4 * dT) * 100 + 0.01 * dT
+    d_t = 35.0 - 25.0
+    final = 1.0 * (1 + 2e-4 * d_t) * 100 + 0.01 * d_t
     # after one time constant (20 samples at 5 ms) the step is 63 % done
     assert (y[19] - y[0] * 0) / final == pytest.approx(1 - np.exp(-0.1 / 0.1), abs=0.03)
     assert y[-1] == pytest.approx(final, rel=1e-6)
@@ -94,8 +114,14 @@ def test_warmup_drift_decays_from_power_on() -> None:
 
 def test_compensation_with_true_registers_recovers_the_rate() -> None:
     part = _part()
-    part.cal = CalibrationRegisters(bias_dps=8.6, scale=1.0567, bias_tc_dps_per_c=0.01,
-                                    scale_tc_per_c=2e-4, bias_vc_dps_per_v=0.05, scale_vc_per_v=1e-3)
+    part.cal = CalibrationRegisters(
+        bias_dps=8.6,
+        scale=1.0567,
+        bias_tc_dps_per_c=0.01,
+        scale_tc_per_c=2e-4,
+        bias_vc_dps_per_v=0.05,
+        scale_vc_per_v=1e-3,
+    )
     w = np.linspace(-250, 250, 11)
     raw, die = part.raw_output_dps(np.zeros(11), w, np.zeros(11), 5.25, 0.005)
     assert part.compensate(raw, die, 5.25) == pytest.approx(w, abs=1e-9)
@@ -120,8 +146,9 @@ def test_bias_instability_flat_part_is_0664_b() -> None:
     # and the generated noise shows it
     n, dt = 200_000, 0.1
     y, _ = part.raw_output_dps(np.arange(n) * dt, np.zeros(n), np.zeros(n), 5.0, dt)
-    taus, adev, _, _ = allantools.oadev(y, rate=1 / dt, data_type="freq",
-                                       taus=np.logspace(0.5, 3, 12))[:4]
+    taus, adev, _, _ = allantools.oadev(
+        y, rate=1 / dt, data_type="freq", taus=np.logspace(0.5, 3, 12)
+    )[:4]
     assert adev.max() == pytest.approx(0.664 * b_dph / 3600, rel=0.3)
     # it is flat within a factor of two across two decades
     assert adev.max() / adev.min() < 2.0

@@ -13,15 +13,36 @@ from drivers.sim.launcher import BenchEndpoints, BenchHandle
 def _mbpoll(bench: BenchHandle, ref: int, count: int, dtype: str) -> dict[int, str]:
     host, port = BenchEndpoints.host_port(bench.endpoints.rate_table)
     out = subprocess.run(
-        ["mbpoll", "-m", "tcp", "-a", "1", "-0", "-1", "-B", "-r", str(ref), "-c", str(count),
-         "-t", dtype, "-p", str(port), host],
-        capture_output=True, text=True, timeout=20,
+        [
+            "mbpoll",
+            "-m",
+            "tcp",
+            "-a",
+            "1",
+            "-0",
+            "-1",
+            "-B",
+            "-r",
+            str(ref),
+            "-c",
+            str(count),
+            "-t",
+            dtype,
+            "-p",
+            str(port),
+            host,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=20,
     )
     assert out.returncode == 0, out.stderr
     return {int(a): v for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out.stdout, re.MULTILINE)}
 
 
-@pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll not installed (apt install mbpoll)")
+@pytest.mark.skipif(
+    shutil.which("mbpoll") is None, reason="mbpoll not installed (apt install mbpoll)"
+)
 def test_mbpoll_reads_model_string_and_encoder(bench: BenchHandle) -> None:
     words = _mbpoll(bench, 40, 8, "4:hex")
     raw = b"".join(int(words[40 + i], 16).to_bytes(2, "big") for i in range(8))
@@ -37,7 +58,10 @@ def test_mbpoll_reads_model_string_and_encoder(bench: BenchHandle) -> None:
 def test_socat_gets_the_supply_identity(bench: BenchHandle) -> None:
     out = subprocess.run(
         ["socat", "-t", "1", "-", f"{bench.endpoints.supply},raw,echo=0"],
-        input="*IDN?\n", capture_output=True, text=True, timeout=20,
+        input="*IDN?\n",
+        capture_output=True,
+        text=True,
+        timeout=20,
     )
     assert out.returncode == 0, out.stderr
     fields = out.stdout.strip().split(",")

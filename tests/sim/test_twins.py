@@ -68,7 +68,9 @@ def test_position_move_90deg_in_3p5s_ends_within_one_count(
     table.write_register(Reg.MODE, Mode.POSITION, **DEV)
     time.sleep(1.0 / bench.speed)
     assert _status(table) & Status.MOVING
-    wait_until(lambda: bool(_status(table) & Status.IN_POSITION), 10 / bench.speed + 5, "IN_POSITION")
+    wait_until(
+        lambda: bool(_status(table) & Status.IN_POSITION), 10 / bench.speed + 5, "IN_POSITION"
+    )
     elapsed = bench.control.world_time_s() - t0
     # 3.5 s move plus the configured bounce settling (0.15 s * ln(0.02 / 0.0005) = 0.55 s)
     assert 3.5 <= elapsed < 3.5 + 0.6 + 0.3 + 0.05 * bench.speed
@@ -111,8 +113,13 @@ def test_chamber_limits_setpoint_and_air_response(bench: BenchHandle) -> None:
         pv1 = client.read_holding_registers(cm.Reg.PROCESS_VALUE, count=1, **DEV).registers[0]
         assert state == cm.State.RAMPING and pv0 < pv1 < 350
         wait_until(
-            lambda: client.read_holding_registers(cm.Reg.STATE, count=1, **DEV).registers[0]
-            == cm.State.AT_SETPOINT, 600 / bench.speed + 5, "chamber at setpoint")
+            lambda: (
+                client.read_holding_registers(cm.Reg.STATE, count=1, **DEV).registers[0]
+                == cm.State.AT_SETPOINT
+            ),
+            600 / bench.speed + 5,
+            "chamber at setpoint",
+        )
         elapsed_min = bench.control.world_time_s() / 60
         assert elapsed_min > 2.0
         client.write_register(cm.Reg.SETPOINT, 250, **DEV)
@@ -125,8 +132,20 @@ def test_chamber_limits_setpoint_and_air_response(bench: BenchHandle) -> None:
 def test_supply_scpi_over_pty(bench: BenchHandle) -> None:
     sup = bench.endpoints.supply
     scpi(sup, "*RST")
-    replies = scpi(sup, "VOLT 5.25", "CURR 0.2", "OUTP ON", "OUTP?", "MEAS:VOLT?", "MEAS:CURR?",
-                   "VOLT 100", "NONSENSE", "SYST:ERR?", "SYST:ERR?", "SYST:ERR?")
+    replies = scpi(
+        sup,
+        "VOLT 5.25",
+        "CURR 0.2",
+        "OUTP ON",
+        "OUTP?",
+        "MEAS:VOLT?",
+        "MEAS:CURR?",
+        "VOLT 100",
+        "NONSENSE",
+        "SYST:ERR?",
+        "SYST:ERR?",
+        "SYST:ERR?",
+    )
     assert replies[0] == "1"
     assert float(replies[1]) == pytest.approx(5.25, abs=0.002)
     # two parts drawing 20-30 mA each at 5 V, a little more at 5.25 V
@@ -144,6 +163,7 @@ def test_fixture_commands_over_pty(bench: BenchHandle) -> None:
     scpi(bench.endpoints.supply, "VOLT 5.0", "CURR 0.5", "OUTP ON")
     parser = FrameParser()
     with serial.Serial(bench.endpoints.duts[1], timeout=0.05) as port:
+
         def ask(line: str) -> str:
             port.write(line.encode() + b"\n")
             deadline = time.monotonic() + 3
