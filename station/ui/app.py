@@ -12,9 +12,10 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import BaseModel, Field
 
 from station.errors import UserError
 from station.ui.auth import Sessions, verify_password
@@ -50,15 +51,6 @@ def _error(status: int, message: str, **extra: Any) -> JSONResponse:
     return JSONResponse({"error": message, **extra}, status_code=status)
 
 
-async def _body(request: Request, model: type[BaseModel]) -> Any:
-    try:
-        return model.model_validate_json(await request.body())
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first.get("loc", ())) or "body"
-        raise UserError(f"bad request: {where}: {first.get('msg')}") from exc
-
-
 def create_app(
     controller: Controller,
     history: History,
@@ -70,6 +62,12 @@ def create_app(
 
     def is_engineer(request: Request) -> bool:
         return sessions.is_engineer(request.cookies.get(SESSION_COOKIE))
+
+    @app.exception_handler(RequestValidationError)
+    async def bad_request(_: Request, exc: RequestValidationError) -> JSONResponse:
+        first = exc.errors()[0] if exc.errors() else {}
+        where = ".".join(str(p) for p in first.get("loc", ()) if p != "body") or "request"
+        return _error(422, f"bad request: {where}: {first.get('msg', 'invalid')}; fix the request")
 
     @app.exception_handler(UserError)
     async def user_error(_: Request, exc: UserError) -> JSONResponse:
@@ -94,7 +92,7 @@ def create_app(
     # ------------------------------------------------------------------ live state
 
     @app.get("/api/state")
-    async def state(request: Request) -> dict[str, Any]:
+    def state(request: Request) -> dict[str, Any]:
         return {**controller.snapshot(), "role": _role(is_engineer(request))}
 
     @app.get("/api/events")
@@ -107,22 +105,21 @@ def create_app(
 
     # ------------------------------------------------------------------ operator commands
 
+    # Sync handlers run in the thread pool: the event loop stays free to push events.
     @app.post("/api/validate")
-    async def validate(request: Request) -> dict[str, Any]:
-        body = await _body(request, ValidateBody)
+    def validate(body: ValidateBody) -> dict[str, Any]:
         return {
             "socket": body.socket,
             "serial": controller.validate_serial(body.socket, body.serial),
         }
 
     @app.post("/api/start")
-    async def start(request: Request) -> dict[str, Any]:
-        body = await _body(request, StartBody)
+    def start(body: StartBody) -> dict[str, Any]:
         run_id = controller.start(body.serials, operator=body.operator.strip())
         return {"run_id": run_id}
 
     @app.post("/api/abort")
-    async def abort() -> dict[str, Any]:
+    def abort() -> dict[str, Any]:
         controller.abort()
         return {"aborting": True}
 
@@ -133,8 +130,7 @@ def create_app(
         return {"role": _role(is_engineer(request))}
 
     @app.post("/api/login")
-    async def login(request: Request) -> Response:
-        body = await _body(request, LoginBody)
+    def login(body: LoginBody) -> Response:
         if not engineer_password_hash:
             return _error(
                 403,
@@ -157,7 +153,7 @@ def create_app(
         return response
 
     @app.get("/api/choices")
-    async def choices(request: Request) -> Response:
+    def choices(request: Request) -> Response:
         if not is_engineer(request):
             return _error(403, "procedure selection needs the engineer role; log in as engineer")
         return JSONResponse(
@@ -169,17 +165,16 @@ def create_app(
         )
 
     @app.post("/api/select")
-    async def select(request: Request) -> Response:
+    def select(request: Request, body: SelectBody) -> Response:
         if not is_engineer(request):
             return _error(403, "procedure selection needs the engineer role; log in as engineer")
-        body = await _body(request, SelectBody)
         controller.select(body.procedure, body.product)
         return JSONResponse({"selection": controller.snapshot()["selection"]})
 
     # ------------------------------------------------------------------ review
 
     @app.get("/api/runs")
-    async def runs(
+    def runs(
         serial: str = "",
         verdict: str = "",
         product: str = "",

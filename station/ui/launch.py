@@ -115,6 +115,7 @@ def ui_station(
         runner = EngineRunner(
             settings, out=out, endpoints=endpoints, control=control, sim_parts=parts
         )
+        runner.warm_up()
         controller = Controller(runner, Hub())
         app = create_app(controller, History(runner.out), engineer_password_hash=password_hash)
         try:

@@ -126,6 +126,9 @@ def engine_available() -> bool:
 # ---------------------------------------------------------------- the real engine
 
 
+CONNECT_STEP = "connect instruments"
+
+
 def _label(name: str, condition: str) -> str:
     return f"{name} {condition}".strip()
 
@@ -169,8 +172,39 @@ class EngineRunner:
         self._uut: Any = None
         self._thread: threading.Thread | None = None
         self._control_lock = threading.Lock()
+        self._file_cache: dict[tuple[str, str], tuple[tuple[int, int], Any]] = {}
+        self._uut_cache: tuple[Any, Any] | None = None
 
     # ------------------------------------------------------------ choices
+
+    def _cached(self, path: Path, loader: Callable[[Path], tuple[Any, Any]]) -> Any:
+        """A config file's model, parsed again only when the file changes (a page load
+        lists every procedure and product; parsing them all each time costs ~100 ms)."""
+        st = path.stat()
+        key = (str(path), loader.__name__)
+        signature = (st.st_mtime_ns, st.st_size)
+        hit = self._file_cache.get(key)
+        if hit is None or hit[0] != signature:
+            hit = (signature, loader(path)[0])
+            self._file_cache[key] = hit
+        return hit[1]
+
+    def _uut_for(self, procedure: Path, product: Path | None) -> Any:
+        """The engine's UutRunner for this selection, reused while its files are unchanged."""
+        from station.uut import UutRunner
+
+        files = [procedure] + ([product] if product else [])
+        key = tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in files)
+        if self._uut_cache is None or self._uut_cache[0] != key:
+            uut = UutRunner(
+                self.settings,
+                procedure_path=procedure,
+                product_path=product,
+                out=self.out,
+                endpoints=self.endpoints,
+            )
+            self._uut_cache = (key, uut)
+        return self._uut_cache[1]
 
     def _yaml_files(self, sub: str) -> list[Path]:
         folder = self.settings.folder / sub
@@ -186,7 +220,7 @@ class EngineRunner:
         choices = []
         for path in sorted(paths):
             try:
-                proc, _ = load_procedure(path)
+                proc = self._cached(path, load_procedure)
             except (ConfigError, OSError) as exc:
                 log.warning("procedure list skips %s: %s", path, exc)
                 continue
@@ -203,7 +237,7 @@ class EngineRunner:
             paths.add(default_product)
         for path in sorted(paths):
             try:
-                prod, _ = load_product(path)
+                prod = self._cached(path, load_product)
             except (ConfigError, OSError) as exc:
                 log.warning("product list skips %s: %s", path, exc)
                 continue
@@ -221,7 +255,7 @@ class EngineRunner:
         from procedures.config import ConfigError, load_procedure
 
         try:
-            proc, _ = load_procedure(self.settings.procedure)
+            proc = self._cached(self.settings.procedure.resolve(), load_procedure)
         except (ConfigError, OSError):
             return None
         if not proc.product:
@@ -231,6 +265,14 @@ class EngineRunner:
     def default_selection(self) -> tuple[str, str]:
         product = self._default_product()
         return str(self.settings.procedure.resolve()), str(product) if product else ""
+
+    def warm_up(self) -> None:
+        """Load the default selection's engine now, so the first Start is as quick as the rest."""
+        procedure, product = self.default_selection()
+        try:
+            self._uut_for(Path(procedure), Path(product) if product else None)
+        except Exception as exc:  # noqa: BLE001 - Start will report it with its own message
+            log.warning("could not prepare the default procedure: %s", exc)
 
     # ------------------------------------------------------------ instruments
 
@@ -268,30 +310,24 @@ class EngineRunner:
 
     def start(self, request: StartRequest, sink: EventSink) -> str:
         from procedures.config import ConfigError
-        from station.uut import UutRunner
 
         if self.busy():
             raise UserError("a run is already in progress; wait for it or abort it")
         try:
-            uut = UutRunner(
-                self.settings,
-                procedure_path=Path(request.procedure_path),
-                product_path=Path(request.product_path) if request.product_path else None,
-                operator=request.operator,
-                out=self.out,
-                endpoints=self.endpoints,
+            uut = self._uut_for(
+                Path(request.procedure_path),
+                Path(request.product_path) if request.product_path else None,
             )
         except ConfigError as exc:
             raise UserError(str(exc)) from None
+        except OSError as exc:
+            raise UserError(f"cannot read the procedure or product file: {exc}") from None
         serials = uut.validate(dict(request.serials))
-        self._load_sim_parts(serials)
-        from procedures.steps.plan import build_plan
-
-        labels = [_label(s.name, s.condition) for s in build_plan(uut.procedure, None)]
+        uut.operator = request.operator
         self._uut = uut
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
         self._thread = threading.Thread(
-            target=self._run, args=(uut, serials, labels, sink), name="ui-run", daemon=True
+            target=self._run, args=(uut, serials, sink), name="ui-run", daemon=True
         )
         self._thread.start()
         return run_id
@@ -317,10 +353,27 @@ class EngineRunner:
                 part["serial"] = serial
                 self.control.load(sock, part)
 
-    def _run(self, uut: Any, serials: dict[int, str], labels: list[str], sink: EventSink) -> None:
+    def _run(self, uut: Any, serials: dict[int, str], sink: EventSink) -> None:
+        from procedures.steps.plan import build_plan
+
         speed = self.endpoints.speed if self.endpoints is not None else 1.0
-        state = {"index": -1}
+        labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in build_plan(uut.procedure)]
+        state = {"index": 0}
         sink({"type": "steps", "steps": list(labels)})
+        # Connecting the instruments takes the engine a moment before its first step event:
+        # the operator sees that phase at once instead of a silent screen.
+        sink(
+            {
+                "type": "progress",
+                "step": CONNECT_STEP,
+                "step_index": 0,
+                "step_count": len(labels),
+                "condition": "",
+                "fraction": 0.0,
+                "remaining_s": None,
+                "sockets": {str(k): "RUNNING" for k in serials},
+            }
+        )
 
         def on_progress(ev: Any) -> None:
             if ev.kind == "step":
@@ -359,6 +412,7 @@ class EngineRunner:
         results: list[dict[str, Any]] = []
         message = ""
         try:
+            self._load_sim_parts(serials)
             result = uut.run(serials)
             results = [
                 self._result(sock, serials[sock], result.folders.get(sock))

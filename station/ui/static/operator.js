@@ -4,7 +4,8 @@ const $ = (id) => document.getElementById(id);
 const S = { station: null, selection: null, run: null, last: null, instruments: [], chart: {}, role: "operator" };
 const sockets = {};  // socket number -> {root, input, msg, ...}
 let progressAt = 0;  // performance.now() when the last progress event arrived
-window.__ui = { startClickedAt: null, firstProgressMs: null, firstRunEventMs: null, events: 0 };
+// Timings for the benchmark: Start pressed -> run acknowledged / first progress / first engine step.
+window.__ui = { startClickedAt: null, firstProgressMs: null, firstRunEventMs: null, firstStepMs: null, events: 0 };
 
 async function api(path, body) {
   const opt = body === undefined ? {} : { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) };
@@ -160,7 +161,11 @@ function apply(ev) {
       S.run = ev.run; renderRun(); break;
     case "steps": if (S.run) { S.run.steps = ev.steps; renderRun(); } break;
     case "progress":
-      if (window.__ui.startClickedAt !== null && window.__ui.firstProgressMs === null) window.__ui.firstProgressMs = performance.now() - window.__ui.startClickedAt;
+      if (window.__ui.startClickedAt !== null) {
+        const dt = performance.now() - window.__ui.startClickedAt;
+        if (window.__ui.firstProgressMs === null) window.__ui.firstProgressMs = dt;
+        if (window.__ui.firstStepMs === null && ev.step_index >= 1) window.__ui.firstStepMs = dt;
+      }
       if (S.run) { S.run.progress = ev; progressAt = performance.now(); renderRun(); }
       break;
     case "samples": {
@@ -213,7 +218,7 @@ async function start() {
   const serials = {};
   for (const n in sockets) serials[n] = sockets[n].input.value;
   window.__ui.startClickedAt = performance.now();
-  window.__ui.firstProgressMs = null; window.__ui.firstRunEventMs = null;
+  window.__ui.firstProgressMs = null; window.__ui.firstRunEventMs = null; window.__ui.firstStepMs = null;
   const r = await api("/api/start", { serials, operator: $("operator-id").value });
   if (!r.ok) {
     window.__ui.startClickedAt = null;
