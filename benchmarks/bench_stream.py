@@ -83,14 +83,32 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--wall-s", type=float, default=4.0, help="streaming time per trial")
     ap.add_argument("--json", type=Path, help="also write every trial as JSON")
+    ap.add_argument("--odr", type=int, nargs="+", default=[200, 1000], help="output data rates")
+    ap.add_argument("--sockets", type=int, nargs="+", default=[1, 8], help="socket counts")
+    ap.add_argument(
+        "--speeds",
+        type=float,
+        nargs="+",
+        default=list(SPEEDS),
+        help="speed factors to try, ascending (stops at the first failure)",
+    )
     args = ap.parse_args()
     trials: list[dict[str, Any]] = []
     summary = []
-    for odr in (200, 1000):
-        for sockets in (1, 8):
+    for odr in args.odr:
+        for sockets in args.sockets:
             best = None
-            for speed in SPEEDS:
-                r = run_once(odr, sockets, speed, args.wall_s)
+            for speed in args.speeds:
+                try:
+                    r = run_once(odr, sockets, speed, args.wall_s)
+                except (TimeoutError, RuntimeError, OSError) as exc:
+                    r = {
+                        "odr_hz": odr,
+                        "sockets": sockets,
+                        "speed": speed,
+                        "ok": False,
+                        "error": str(exc),
+                    }
                 trials.append(r)
                 print(json.dumps(r), flush=True)
                 if not r["ok"]:
@@ -107,7 +125,7 @@ def main() -> int:
     )
     for odr, sockets, best in summary:
         if best is None:
-            print(f"{odr:>6} {sockets:>7}   none at {SPEEDS[0]}x")
+            print(f"{odr:>6} {sockets:>7}   none at {args.speeds[0]:g}x")
             continue
         print(
             f"{odr:>6} {sockets:>7} {best['speed']:>6} {best['frames_per_wall_s']:>9} "

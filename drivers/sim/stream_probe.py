@@ -163,4 +163,4 @@ class StreamProbe:
             if done_frames or done_time:
                 break
         for i in range(len(self.ports)):
-            self.command(i, "STOP")
+            self.command(i, "STOP", timeout_s=60.0)  # the reply queues behind a full FIFO
