@@ -112,6 +112,31 @@ class ConditionResult:
     stop: dict[str, Any] | None = None  # scale, u_scale, bias, moves...
 
 
+class RowBuffer:
+    """Rows for raw.h5's small groups (table, chamber, supply, segments, events), written in
+    one batch at the end of each step: an HDF5 flush per row costs wall time, which the
+    simulated bench's fast clock turns into minutes of station time."""
+
+    def __init__(self, writer: RawDataWriter | None) -> None:
+        self.writer = writer
+        self._rows: dict[str, list[dict[str, Any]]] = {}
+
+    def append(self, group: str, **columns: Any) -> None:
+        if self.writer is not None:
+            self._rows.setdefault(group, []).append(columns)
+
+    def flush(self) -> None:
+        if self.writer is None:
+            return
+        rows, self._rows = self._rows, {}
+        for group, items in rows.items():
+            merged = {k: [row[k] for row in items] for k in items[0]}
+            try:
+                self.writer.append(group, **merged)
+            except Exception:  # never lose a run over a log row
+                log.exception("could not write %d rows to raw data group %s", len(items), group)
+
+
 @dataclass
 class PartRun:
     """One socket's part: its record, data file, stream and state."""
@@ -128,6 +153,10 @@ class PartRun:
     conditions: dict[str, ConditionResult] = field(default_factory=dict)
     fit: Any = None
     extra: dict[str, Any] = field(default_factory=dict)
+    rows: RowBuffer = field(default_factory=lambda: RowBuffer(None))
+
+    def __post_init__(self) -> None:
+        self.rows = RowBuffer(self.writer)
 
     @property
     def link(self) -> PartLink:
@@ -320,17 +349,15 @@ class RunContext:
 
     def append_all(self, group: str, parts: list[PartRun] | None = None, **columns: Any) -> None:
         for part in parts if parts is not None else self.alive():
-            if part.writer is not None:
-                part.writer.append(group, **columns)
+            part.rows.append(group, **columns)
 
     def segment(self, part: PartRun, kind: str, index: int, start_s: float, end_s: float,
                 ref_rate_dps: float = np.nan, ref_angle_deg: float = np.nan,
                 temp_setpoint_c: float = np.nan, supply_v: float = np.nan) -> None:
-        if part.writer is not None:
-            part.writer.append("segments", condition=self.condition, kind=kind, index=index,
-                               start_s=start_s, end_s=end_s, ref_rate_dps=ref_rate_dps,
-                               ref_angle_deg=ref_angle_deg, temp_setpoint_c=temp_setpoint_c,
-                               supply_v=supply_v)
+        part.rows.append("segments", condition=self.condition, kind=kind, index=index,
+                         start_s=start_s, end_s=end_s, ref_rate_dps=ref_rate_dps,
+                         ref_angle_deg=ref_angle_deg, temp_setpoint_c=temp_setpoint_c,
+                         supply_v=supply_v)
 
     def event(self, message: str, level: str = "INFO", parts: list[PartRun] | None = None) -> None:
         t = self.clock.now_s()
@@ -338,11 +365,7 @@ class RunContext:
         for part in parts if parts is not None else self.alive():
             part.record.events.append(Event(time_utc=_utc(), station_time_s=round(t, 3),
                                             level=level, step=self.step_name, message=message))
-            if part.writer is not None:
-                try:
-                    part.writer.append("events", station_time_s=t, text=message)
-                except Exception:  # never lose a run over an event line
-                    log.exception("could not log event")
+            part.rows.append("events", station_time_s=t, text=message)
         self._publish("log", message=message)
 
     def measure(self, part: PartRun, name: str, value: float | None, *, units: str = "",
@@ -355,6 +378,7 @@ class RunContext:
         return m
 
     def save(self, part: PartRun) -> None:
+        part.rows.flush()
         write_record(part.folder, part.record)
 
     def save_all(self) -> None:
@@ -541,6 +565,7 @@ class Engine:
                                     level="INFO" if rec.verdict in (Verdict.PASS, Verdict.FAIL) else "ERROR",
                                     step="finish", message=f"verdict {rec.verdict}"
                                     + (f": {rec.reason}" if rec.reason else "")))
+            part.rows.flush()
             if part.writer is not None:
                 try:
                     part.writer.close()

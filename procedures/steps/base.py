@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -11,6 +12,9 @@ from numpy.typing import NDArray
 from drivers.fixture_protocol import SampleStatus
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
+
+
+DELIVERY_WAIT_WALL_S = 3.0
 
 
 @dataclass
@@ -39,10 +43,19 @@ def sample_rate_hz(ctx: RunContext) -> float:
 def samples_between(ctx: RunContext, part: PartRun, t0_station_s: float, t1_station_s: float
                     ) -> dict[str, NDArray[Any]]:
     """The part's samples between two station times (mapped to its fixture clock)."""
-    assert part.stream is not None
-    f0 = part.stream.fixture_time(t0_station_s)
-    f1 = part.stream.fixture_time(t1_station_s)
-    return part.stream.window(f0, f1)
+    stream = part.stream
+    assert stream is not None
+    f0 = stream.fixture_time(t0_station_s)
+    f1 = stream.fixture_time(t1_station_s)
+    # samples reach the station a little after they are taken: wait (wall time, bounded)
+    # until the stream has delivered the whole window before cutting it
+    deadline = time.monotonic() + DELIVERY_WAIT_WALL_S
+    while time.monotonic() < deadline and stream.streaming and stream.error is None:
+        last = stream.last_time_s()
+        if last is not None and last >= f1:
+            break
+        time.sleep(0.005)
+    return stream.window(f0, f1)
 
 
 def check_window(ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]], what: str,
