@@ -205,6 +205,7 @@ class UutRunner:
         self._thread: threading.Thread | None = None
         self._result: UutResult | None = None
         self._state = "idle"
+        self._abort_requested = ""
         self._error: BaseException | None = None
 
     # ------------------------------------------------------------ API for the CLI and the UI
@@ -257,6 +258,11 @@ class UutRunner:
         if ctx is not None:
             ctx.abort(reason)
 
+    @property
+    def context(self) -> RunContext | None:
+        """The live run's context (its parts and their streams), None between runs."""
+        return self._ctx
+
     def state(self) -> dict[str, Any]:
         last: ProgressEvent | None = self.progress.last
         out: dict[str, Any] = {"state": self._state}
@@ -280,7 +286,6 @@ class UutRunner:
     def run(self, duts: dict[int, str]) -> UutResult:
         """Validate, create run folders, run the procedure, certificates, results database."""
         duts = self.validate(duts)
-        self._abort_requested = ""
         self._state = "running"
         wall0 = dt.datetime.now(dt.UTC)
         self.recover()
@@ -300,6 +305,9 @@ class UutRunner:
             else:
                 self._run_engine(opened, parts)
         finally:
+            with self._lock:
+                self._abort_requested = ""  # consumed by this run (or too late for it)
+                self._ctx = None
             if opened is not None:
                 opened.close()
             for part in parts:
@@ -333,7 +341,7 @@ class UutRunner:
         ctx = RunContext(bench, self.procedure, self.product, parts, self.progress)
         with self._lock:
             self._ctx = ctx
-            pending_abort = getattr(self, "_abort_requested", "")
+            pending_abort = self._abort_requested
         if pending_abort:
             ctx.abort(pending_abort)
         if overdue:

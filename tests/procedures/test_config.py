@@ -91,7 +91,7 @@ def test_product_limit_order_checked(tmp_path: Path) -> None:
     path.write_text(text.replace("marginal_high: 8.0", "marginal_high: 12.0", 1))
     with pytest.raises(ConfigError, match=r"limits\.raw_bias_dps: .*must not exceed high"):
         load_product(path)
-    path.write_text(text.replace("'^[A-Z]{2,4}-[0-9]{4,8}$'", "'^[A-Z'"))
+    path.write_text(text.replace("'^[A-Z]{2,4}-[0-9]{4}$'", "'^[A-Z'"))
     with pytest.raises(ConfigError, match="serial_pattern: .*not a valid regular expression"):
         load_product(path)
 
