@@ -34,17 +34,22 @@ class StreamCount:
 
 
 def scpi(path: str, *lines: str, timeout_s: float = 2.0) -> list[str]:
-    """Send SCPI lines to the supply port; return the reply of every query (ending in ?)."""
+    """Send SCPI lines to the supply port; return the reply of every query (ending in ?).
+
+    Ends with a query of its own when the last line is a setting, so every setting has been
+    carried out when this returns.
+    """
     replies = []
+    sync = () if lines and lines[-1].strip().endswith("?") else ("OUTP?",)
     with serial.Serial(path, timeout=timeout_s) as port:
-        for line in lines:
+        for line in (*lines, *sync):
             port.write(line.encode("ascii") + b"\n")
             if line.strip().endswith("?"):
                 reply = port.readline()
                 if not reply.endswith(b"\n"):
                     raise TimeoutError(f"no answer to {line!r} on {path} within {timeout_s} s")
                 replies.append(reply.decode("ascii").strip())
-    return replies
+    return replies[: len(replies) - len(sync)]
 
 
 def power_parts(path: str, supply_v: float = 5.0, current_limit_a: float = 0.5) -> None:

@@ -298,6 +298,7 @@ class TableModel:
     def truth(self, t_s: float) -> dict[str, Any]:
         return {
             "angle_deg": float(self.angle_deg(t_s)[0]),
+            "position_deg": float(self.angle_deg(t_s)[0]) - self._zero_angle_deg(),
             "rate_dps": float(self.rate_dps(t_s)[0]),
             "enabled": self.enabled,
             "mode": self.mode.name.lower(),

@@ -49,7 +49,7 @@ def test_mbpoll_reads_model_string_and_encoder(bench: BenchHandle) -> None:
     assert raw.rstrip(b"\0").decode() == "SIM-RT-360"
     values = _mbpoll(bench, 22, 2, "4:int")  # encoder counts (22-23) and position (24-25)
     counts, pos_mdeg = int(values[22]), int(values[24])
-    truth = bench.control.truth()["table"]["angle_deg"]
+    truth = bench.control.truth()["table"]["position_deg"]  # since the last zeroing
     assert abs(counts * 360 / COUNTS_PER_REV - truth) < 1.0  # table may be moving a little
     assert abs(pos_mdeg / 1000 - counts * 360 / COUNTS_PER_REV) < 1.0
 
