@@ -504,5 +504,5 @@ def _example_serial(pattern: str) -> str:
     """A readable example for the commonest serial patterns, '' when not obvious."""
     m = re.fullmatch(r"\^?\[A-Z\]\{(\d+)(?:,\d+)?\}-\[0-9\]\{(\d+)(?:,\d+)?\}\$?", pattern)
     if m:
-        return "A" * int(m.group(1)) + "-" + "1" * int(m.group(2))
+        return "ABCD"[: int(m.group(1))] + "-" + "12345678"[: int(m.group(2))]
     return ""

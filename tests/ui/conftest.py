@@ -2,27 +2,27 @@
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import httpx
 import pytest
 
 from station.ui.app import create_app
-from station.ui.auth import hash_password
 from station.ui.controller import Controller
 from station.ui.history import History
 from station.ui.hub import Hub
-from station.ui.server import BackgroundServer, free_port, serve_in_thread
-
-ENGINEER_PASSWORD = "line-eng-42"
-_HASH = hash_password(ENGINEER_PASSWORD)
+from station.ui.server import BackgroundServer, serve_in_thread
+from tests.ui.stationkit import (  # noqa: F401 - re-exported for the tests
+    _HASH,
+    ENGINEER_PASSWORD,
+    FAIL_SERIAL,
+    PASS_SERIAL,
+    SimStation,
+    make_station_config,
+    start_ui_process,
+    stop_ui_process,
+)
 
 
 @dataclass
@@ -75,116 +75,6 @@ def page(browser: object) -> Iterator[object]:
 
 
 # ---------------------------------------------------------------- the real station, simulated bench
-
-SIM_SPEED = 100.0
-PASS_SERIAL = "SIM-0001"
-FAIL_SERIAL = "SIM-0666"  # raw bias 14 deg/s, outside the product's +/-10 deg/s
-REPO = Path(__file__).resolve().parents[2]
-
-
-def make_station_config(folder: Path, password_hash: str | None = _HASH) -> Path:
-    """A config folder like config/, with the short test procedure as the default one."""
-    import shutil
-
-    import yaml
-
-    (folder / "procedures").mkdir(parents=True)
-    (folder / "products").mkdir()
-    for p in (REPO / "config" / "procedures").glob("*.yaml"):
-        shutil.copy(p, folder / "procedures" / p.name)
-    for p in (REPO / "config" / "products").glob("*.yaml"):
-        shutil.copy(p, folder / "products" / p.name)
-    short = (Path(__file__).parent / "data" / "ui-short.yaml").read_text(encoding="utf-8")
-    short = short.replace("product: ../../../config/products/", "product: ../products/")
-    (folder / "procedures" / "ui-short.yaml").write_text(short, encoding="utf-8")
-    station = yaml.safe_load((REPO / "config" / "station.yaml").read_text(encoding="utf-8"))
-    station.update(
-        output_folder="runs", results_db="runs/results.sqlite", procedure="procedures/ui-short.yaml"
-    )
-    station["instruments"]["fixture"]["sockets"] = 2
-    if password_hash:
-        station["ui"] = {"engineer_password_hash": password_hash}
-    (folder / "station.yaml").write_text(yaml.safe_dump(station), encoding="utf-8")
-    sim = {
-        "speed": SIM_SPEED,
-        "parts": [
-            {"socket": 1, "serial": PASS_SERIAL},
-            {"socket": 2, "serial": FAIL_SERIAL, "bias_dps": 14.0},
-        ],
-    }
-    (folder / "sim.yaml").write_text(yaml.safe_dump(sim), encoding="utf-8")
-    return folder / "station.yaml"
-
-
-@dataclass
-class SimStation:
-    url: str
-    config: Path
-    process: subprocess.Popen[bytes]
-    bench_control: str  # host:port of the bench's control channel (the twins' truth)
-
-    def truth(self) -> dict:
-        from drivers.sim.control_client import ControlClient
-
-        with ControlClient(self.bench_control) as control:
-            return control.truth()
-
-
-def start_ui_process(config: Path, log_path: Path, speed: float = SIM_SPEED) -> SimStation:
-    """`station ui --sim` as its own process, as on the line; returns once it answers."""
-    port = free_port()
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    cmd = [
-        sys.executable,
-        "-m",
-        "station",
-        "ui",
-        "--sim",
-        "--port",
-        str(port),
-        "--station",
-        str(config / "station.yaml"),
-        "--sim-config",
-        str(config / "sim.yaml"),
-        "--speed",
-        str(speed),
-    ]
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen(
-            cmd,
-            cwd=str(REPO),
-            env=env,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-        )
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
-    while True:
-        if proc.poll() is not None:
-            raise RuntimeError(
-                f"station ui exited ({proc.returncode}): {log_path.read_text()[-2000:]}"
-            )
-        try:
-            state = httpx.get(url + "/api/state", timeout=2).json()
-            return SimStation(url, config, proc, state["station"]["bench_control"])
-        except httpx.HTTPError as exc:
-            if time.monotonic() > deadline:
-                proc.kill()
-                raise RuntimeError(
-                    f"station ui did not answer: {log_path.read_text()[-2000:]}"
-                ) from exc
-            time.sleep(0.1)
-
-
-def stop_ui_process(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)  # uvicorn shuts down, the bench is stopped
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
 
 
 @pytest.fixture(scope="module")

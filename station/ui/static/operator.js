@@ -59,7 +59,7 @@ function renderSelection() {
   const sel = S.selection || {};
   $("procedure-name").textContent = sel.procedure_name || sel.procedure || "-";
   $("product-name").textContent = sel.product_name || sel.product || "-";
-  $("serial-pattern").textContent = sel.serial_example ? sel.serial_example : sel.serial_pattern || "-";
+  $("serial-pattern").textContent = sel.serial_example ? "like " + sel.serial_example : sel.serial_pattern || "-";
   $("serial-pattern").title = sel.serial_pattern || "";
 }
 
@@ -128,8 +128,7 @@ function renderLast() {
     s.vserial.textContent = r.serial;
     s.reasons.textContent = "";
     const lines = r.failed.map((f) => `${f.name}${f.condition ? " @ " + f.condition : ""}: ${num(f.value)} ${f.units} (limits ${num(f.low)} .. ${num(f.high)})`);
-    if (r.reason && !lines.length) lines.push(r.reason);
-    else if (r.reason && r.verdict !== "PASS") lines.unshift(r.reason);
+    if (r.reason && !lines.length) lines.push(r.reason);  // the failing measurements say it all
     for (const line of lines) { const li = document.createElement("li"); li.textContent = line; s.reasons.appendChild(li); }
     s.cert.hidden = !r.certificate_url;
     if (r.certificate_url) s.cert.href = r.certificate_url;

@@ -24,7 +24,7 @@ async function load() {
   body.textContent = "";
   for (const run of data.runs) {
     const tr = document.createElement("tr");
-    const reason = run.failed.length ? run.failed.map((f) => f.name).join(", ") : run.reason;
+    const reason = run.reason || [...new Set(run.failed.map((f) => f.name))].join(", ");
     for (const [v, cls] of [[run.started_utc.replace("T", " ").slice(0, 19), ""], [run.serial, ""], [run.socket, ""], [run.product, ""], [run.procedure, ""], [run.operator, ""], [run.verdict, run.verdict], [reason, ""]]) {
       const td = document.createElement("td"); td.textContent = v; if (cls) td.className = cls; tr.appendChild(td);
     }
