@@ -246,6 +246,7 @@ class FixtureSocket:
             "frames_fault_dropped": self.frames_fault_dropped,
             "bytes_corrupted": self.bytes_corrupted,
             "stop_angle_deg": self.stop_angle_deg,
+            "fixture_clock_offset_s": self.clock_offset_s,  # fixture time = world time + this
             "faults": {
                 "absent": self.absent,
                 "part_silent": self.part_silent,
