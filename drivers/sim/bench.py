@@ -28,7 +28,8 @@ from drivers.sim.pty_twins import FixtureTwin, SupplyTwin
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
-TICK_WALL_S = 0.005
+TICK_WALL_S = 0.005  # while any socket streams
+IDLE_TICK_WALL_S = 0.02  # thermal states only; every request advances the world anyway
 
 FAULT_KINDS = (
     "modbus_drop",
@@ -110,7 +111,8 @@ class Bench:
             for fixture in self.fixtures.values():
                 fixture.tick(t)
             self.ticks += 1
-            await asyncio.sleep(TICK_WALL_S)
+            streaming = any(f.socket.streaming for f in self.fixtures.values())
+            await asyncio.sleep(TICK_WALL_S if streaming else IDLE_TICK_WALL_S)
 
     async def stop(self) -> None:
         if self._tick_task is not None:
