@@ -22,10 +22,22 @@ sys.path.insert(0, str(ROOT))
 from procedures.record import read_record  # noqa: E402
 from station.uut import run_simulated  # noqa: E402
 
-COEFFS = ("bias_dps", "bias_temp_coeff_dps_per_c", "bias_supply_coeff_dps_per_v", "scale",
-          "scale_temp_coeff_per_c", "scale_supply_coeff_per_v")
-SHORT = {"bias_dps": "b0", "bias_temp_coeff_dps_per_c": "bT", "bias_supply_coeff_dps_per_v": "bV",
-         "scale": "s0", "scale_temp_coeff_per_c": "sT", "scale_supply_coeff_per_v": "sV"}
+COEFFS = (
+    "bias_dps",
+    "bias_temp_coeff_dps_per_c",
+    "bias_supply_coeff_dps_per_v",
+    "scale",
+    "scale_temp_coeff_per_c",
+    "scale_supply_coeff_per_v",
+)
+SHORT = {
+    "bias_dps": "b0",
+    "bias_temp_coeff_dps_per_c": "bT",
+    "bias_supply_coeff_dps_per_v": "bV",
+    "scale": "s0",
+    "scale_temp_coeff_per_c": "sT",
+    "scale_supply_coeff_per_v": "sV",
+}
 
 
 def main() -> int:
@@ -44,8 +56,9 @@ def main() -> int:
         n = min(args.sockets, args.parts - len(rows))
         parts = [{"socket": s, "serial": f"SIM-{serial + s - 1:04d}"} for s in range(1, n + 1)]
         serial += n
-        result, truth = run_simulated(parts, procedure_path=Path(args.procedure), out=out,
-                                      speed=args.speed)
+        result, truth = run_simulated(
+            parts, procedure_path=Path(args.procedure), out=out, speed=args.speed
+        )
         for s in sorted(result.folders):
             rec = read_record(result.folders[s])
             tr = truth["sockets"][str(s)]["parameters"]
@@ -58,8 +71,13 @@ def main() -> int:
                 row["res"] = rec.verification["max_error_pct"]
             rows.append(row)
         print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)
-    head = f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS) + "  resid%"
-    print("\n|fit - truth| / U(k=2) per coefficient (<= 1: covered), residual scale error after correction")
+    head = (
+        f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS) + "  resid%"
+    )
+    print(
+        "\n|fit - truth| / U(k=2) per coefficient (<= 1: covered), "
+        "residual scale error after correction"
+    )
     print(head)
     print("-" * len(head))
     for r in rows:
@@ -75,14 +93,23 @@ def main() -> int:
         total += len(zs)
         covered += c
         print(f"coverage {SHORT[k]}: {c}/{len(zs)} = {100 * c / max(len(zs), 1):.0f} %")
-    print(f"coverage all coefficients: {covered}/{total} = {100 * covered / max(total, 1):.1f} % "
-          f"(target >= 95 %)")
+    print(
+        f"coverage all coefficients: {covered}/{total} = {100 * covered / max(total, 1):.1f} % "
+        f"(target >= 95 %)"
+    )
     res = [r["res"] for r in rows if r["res"] is not None]
     if res:
-        print(f"residual scale error after correction: max {max(res):.4f} %, "
-              f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %")
-    print(f"parts {len(rows)}, fitted {len(fitted)}, verdicts "
-          + ", ".join(f"{v}: {sum(r['verdict'] == v for r in rows)}" for v in sorted({r['verdict'] for r in rows})))
+        print(
+            f"residual scale error after correction: max {max(res):.4f} %, "
+            f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %"
+        )
+    print(
+        f"parts {len(rows)}, fitted {len(fitted)}, verdicts "
+        + ", ".join(
+            f"{v}: {sum(r['verdict'] == v for r in rows)}"
+            for v in sorted({r["verdict"] for r in rows})
+        )
+    )
     print(f"wall time {time.monotonic() - t0:.0f} s; run folders in {out}")
     return 0
 

@@ -37,7 +37,11 @@ def measurement_floor_s(proc_path: Path, arw_deg_per_sqrt_h: float) -> float:
     bias = required_averaging_time_s(noise, proc.bias.target_accuracy_dps)
     per_cond = bias
     if proc.rate_table and proc.rate_table.enabled:
-        per_cond += len(proc.rate_table.rates_dps) * proc.rate_table.repeats * proc.rate_table.plateau_dwell_s
+        per_cond += (
+            len(proc.rate_table.rates_dps)
+            * proc.rate_table.repeats
+            * proc.rate_table.plateau_dwell_s
+        )
     if proc.stop_method and proc.stop_method.enabled:
         sm = proc.stop_method
         per_cond += sm.static_s + sm.repeats * 2 * (sm.move_time_s + sm.static_s)
@@ -63,8 +67,10 @@ def main() -> int:
         wall = time.monotonic() - w0
         recs = [read_record(result.folders[s]) for s in sorted(result.folders)]
         total = max(r.timings.get("total", 0.0) for r in recs)
-        settle = min(sum(v.get("time_to_stability_s", 0.0) for v in r.analysis.get("stability", {}).values())
-                     for r in recs)
+        settle = min(
+            sum(v.get("time_to_stability_s", 0.0) for v in r.analysis.get("stability", {}).values())
+            for r in recs
+        )
         arws = [r.analysis.get("allan", {}).get("arw_deg_per_sqrt_h") for r in recs]
         arw = max(a for a in arws if a) if any(arws) else 0.6
         floor = settle + measurement_floor_s(proc_path, arw)
@@ -72,13 +78,17 @@ def main() -> int:
         rows.append((n, total, total / n, floor / n, settle, floor - settle, wall, verdicts))
         print(f"  ... {n} socket(s) done in {wall:.0f} s wall", flush=True)
     print(f"\nprocedure {proc_path.name}, bench speed {args.speed:g}x")
-    head = (f"{'sockets':>7} {'station min':>11} {'per part min':>12} {'bound/part min':>14} "
-            f"{'ratio':>6} {'settle min':>10} {'measure min':>11} {'wall s':>7}  verdicts")
+    head = (
+        f"{'sockets':>7} {'station min':>11} {'per part min':>12} {'bound/part min':>14} "
+        f"{'ratio':>6} {'settle min':>10} {'measure min':>11} {'wall s':>7}  verdicts"
+    )
     print(head)
     print("-" * len(head))
     for n, total, per, bound, settle, meas, wall, verdicts in rows:
-        print(f"{n:7d} {total / 60:11.1f} {per / 60:12.2f} {bound / 60:14.2f} {per / bound:6.2f} "
-              f"{settle / 60:10.1f} {meas / 60:11.1f} {wall:7.1f}  {verdicts}")
+        print(
+            f"{n:7d} {total / 60:11.1f} {per / 60:12.2f} {bound / 60:14.2f} {per / bound:6.2f} "
+            f"{settle / 60:10.1f} {meas / 60:11.1f} {wall:7.1f}  {verdicts}"
+        )
     print(f"run folders in {out}")
     return 0
 

@@ -59,7 +59,9 @@ def load_yaml(path: Path) -> LoadedYaml:
     try:
         raw = path.read_bytes()
     except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: file not found; give the path of an existing YAML file") from exc
+        raise ConfigError(
+            f"{path}: file not found; give the path of an existing YAML file"
+        ) from exc
     except OSError as exc:
         raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from exc
     text = raw.decode("utf-8", errors="replace")
@@ -215,18 +217,34 @@ LIMIT_NAMES = (
 class Limits(_Strict):
     """Limits per measurement name; a measurement without a limit is recorded, not judged."""
 
-    raw_bias_dps: Limit | None = Field(None, description="uncalibrated bias at each condition, deg/s")
-    raw_scale_error: Limit | None = Field(None, description="uncalibrated scale - 1 at each condition")
+    raw_bias_dps: Limit | None = Field(
+        None, description="uncalibrated bias at each condition, deg/s"
+    )
+    raw_scale_error: Limit | None = Field(
+        None, description="uncalibrated scale - 1 at each condition"
+    )
     noise_arw_deg_per_sqrt_h: Limit | None = Field(None, description="angle random walk")
     bias_instability_deg_per_h: Limit | None = Field(None, description="Allan floor / 0.664")
-    nonlinearity_pct_fs: Limit | None = Field(None, description="largest residual from the line, % FS")
+    nonlinearity_pct_fs: Limit | None = Field(
+        None, description="largest residual from the line, % FS"
+    )
     asymmetry: Limit | None = Field(None, description="(K+ - K-) / mean K")
-    bias_temp_coeff_dps_per_c: Limit | None = Field(None, description="fitted bias temperature coefficient")
-    scale_temp_coeff_per_c: Limit | None = Field(None, description="fitted relative scale temperature coefficient")
-    bias_supply_coeff_dps_per_v: Limit | None = Field(None, description="fitted bias supply coefficient")
-    scale_supply_coeff_per_v: Limit | None = Field(None, description="fitted relative scale supply coefficient")
+    bias_temp_coeff_dps_per_c: Limit | None = Field(
+        None, description="fitted bias temperature coefficient"
+    )
+    scale_temp_coeff_per_c: Limit | None = Field(
+        None, description="fitted relative scale temperature coefficient"
+    )
+    bias_supply_coeff_dps_per_v: Limit | None = Field(
+        None, description="fitted bias supply coefficient"
+    )
+    scale_supply_coeff_per_v: Limit | None = Field(
+        None, description="fitted relative scale supply coefficient"
+    )
     residual_bias_dps: Limit | None = Field(None, description="compensated output at rest, deg/s")
-    residual_scale_error: Limit | None = Field(None, description="compensated scale error at the verification rates")
+    residual_scale_error: Limit | None = Field(
+        None, description="compensated scale error at the verification rates"
+    )
     stop_table_consistency: Limit | None = Field(
         None, description="(stop scale - table scale) / combined k=2 uncertainty"
     )
@@ -248,9 +266,12 @@ class ProductConfig(_Strict):
     reference_supply_v: float = Field(5.0, gt=0, description="V0 of the calibration")
     current_limit_a: float = Field(0.05, gt=0, description="supply current limit per part, A")
     bias_instability_deg_per_h: float = Field(
-        15.0, ge=0, description="typical bias instability of the product: the bias wanders by "
+        15.0,
+        ge=0,
+        description="typical bias instability of the product: the bias wanders by "
         "about this much between conditions (a floor for the bias uncertainty when the record "
-        "is too short to resolve it)")
+        "is too short to resolve it)",
+    )
     limits: Limits = Field(default_factory=Limits, description="acceptance limits")
 
     @field_validator("serial_pattern")
@@ -308,7 +329,9 @@ class StabilityConfig(_Strict):
 
     window_s: float = Field(60.0, gt=0, description="window over which slope and band are judged")
     slope_c_per_min: float = Field(0.05, gt=0, description="largest |die temperature slope|")
-    band_c: float = Field(0.1, gt=0, description="largest peak-to-peak die temperature in the window")
+    band_c: float = Field(
+        0.1, gt=0, description="largest peak-to-peak die temperature in the window"
+    )
     target_tolerance_c: float | None = Field(
         None, gt=0, description="optional: die temperature within this of the setpoint"
     )
@@ -324,8 +347,11 @@ class BiasConfig(_Strict):
     min_dwell_s: float = Field(10.0, gt=0, description="pilot dwell for 'auto'")
     max_dwell_s: float = Field(300.0, gt=0, description="cap for 'auto'")
     wander_factor: float = Field(
-        1.5, ge=0, description="bias wander between conditions, in units of the bias "
-        "instability, added to each condition's bias uncertainty (0: white noise only)")
+        1.5,
+        ge=0,
+        description="bias wander between conditions, in units of the bias "
+        "instability, added to each condition's bias uncertainty (0: white noise only)",
+    )
 
     @field_validator("dwell_s")
     @classmethod
@@ -360,7 +386,8 @@ class StopMethodConfig(_Strict):
 
 class FitConfig(_Strict):
     source: Literal["rate_table", "stop_method", "both"] = Field(
-        "rate_table", description="which scale estimate feeds the fit (both: weighted by uncertainty)"
+        "rate_table",
+        description="which scale estimate feeds the fit (both: weighted by uncertainty)",
     )
 
 

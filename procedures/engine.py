@@ -31,7 +31,13 @@ from typing import Any, Protocol
 import numpy as np
 
 from drivers.clock import ScaledClock
-from drivers.errors import InstrumentError, InstrumentTimeout, PartAbsent, PartSilent, StreamCorrupted
+from drivers.errors import (
+    InstrumentError,
+    InstrumentTimeout,
+    PartAbsent,
+    PartSilent,
+    StreamCorrupted,
+)
 from drivers.protocols import Chamber, PartLink, RateTable, Supply, TableStatus
 from procedures.config import ProcedureConfig, ProductConfig
 from procedures.limits import judge, overall
@@ -51,15 +57,15 @@ from procedures.streams import Acquisition, PartStream
 log = logging.getLogger(__name__)
 
 
-class Aborted(Exception):
+class Aborted(Exception):  # noqa: N818 - reads as the event it is
     """The operator aborted the run."""
 
 
-class StepTimeout(Exception):
+class StepTimeout(Exception):  # noqa: N818
     """A step ran longer than its policy allows."""
 
 
-class NoPartsLeft(Exception):
+class NoPartsLeft(Exception):  # noqa: N818
     """Every part has dropped out; nothing left to measure."""
 
 
@@ -224,8 +230,11 @@ class RunContext:
         part.alive = False
         part.verdict = verdict
         part.reason = reason
-        self.event(f"socket {part.socket} ({part.serial}) dropped: {verdict}: {reason}",
-                   level="ERROR", parts=[part])
+        self.event(
+            f"socket {part.socket} ({part.serial}) dropped: {verdict}: {reason}",
+            level="ERROR",
+            parts=[part],
+        )
         if part.stream is not None:
             try:
                 part.stream.stop()
@@ -285,10 +294,15 @@ class RunContext:
                 continue
             lost, total = stream.frames_lost, stream.frames_lost + stream.frames_ok
             if lost > 10 and lost > limit * total:
-                self.drop(part, Verdict.ERROR, (
-                    f"socket {part.socket}: stream corrupted: {lost} of {total} frames lost "
-                    f"({stream.frames_corrupted} with a bad CRC), more than the "
-                    f"{limit:g} allowed: check the fixture cable and its grounding"))
+                self.drop(
+                    part,
+                    Verdict.ERROR,
+                    (
+                        f"socket {part.socket}: stream corrupted: {lost} of {total} frames lost "
+                        f"({stream.frames_corrupted} with a bad CRC), more than the "
+                        f"{limit:g} allowed: check the fixture cable and its grounding"
+                    ),
+                )
         self.require_parts()
         if self._deadline_s is not None and self.clock.now_s() > self._deadline_s:
             raise StepTimeout(
@@ -316,14 +330,24 @@ class RunContext:
         status = table.read_status()
         t = 0.5 * (t0 + self.clock.now_s())
         bits = (
-            int(status.ready) | int(status.enabled) << 1 | int(status.fault) << 2
-            | int(status.in_position) << 3 | int(status.at_rate) << 4 | int(status.moving) << 5
+            int(status.ready)
+            | int(status.enabled) << 1
+            | int(status.fault) << 2
+            | int(status.in_position) << 3
+            | int(status.at_rate) << 4
+            | int(status.moving) << 5
             | int(status.interlock_open) << 7
         )
         counts = status.encoder_counts_unwrapped or status.encoder_counts
-        self.append_all("table", station_time_s=t, controller_time_s=status.controller_time_s,
-                        encoder_counts=counts, position_deg=status.position_deg,
-                        rate_dps=status.rate_dps, status=bits)
+        self.append_all(
+            "table",
+            station_time_s=t,
+            controller_time_s=status.controller_time_s,
+            encoder_counts=counts,
+            position_deg=status.position_deg,
+            rate_dps=status.rate_dps,
+            status=bits,
+        )
         return t, status
 
     def log_environment(self) -> tuple[float, float, float]:
@@ -351,29 +375,70 @@ class RunContext:
         for part in parts if parts is not None else self.alive():
             part.rows.append(group, **columns)
 
-    def segment(self, part: PartRun, kind: str, index: int, start_s: float, end_s: float,
-                ref_rate_dps: float = np.nan, ref_angle_deg: float = np.nan,
-                temp_setpoint_c: float = np.nan, supply_v: float = np.nan) -> None:
-        part.rows.append("segments", condition=self.condition, kind=kind, index=index,
-                         start_s=start_s, end_s=end_s, ref_rate_dps=ref_rate_dps,
-                         ref_angle_deg=ref_angle_deg, temp_setpoint_c=temp_setpoint_c,
-                         supply_v=supply_v)
+    def segment(
+        self,
+        part: PartRun,
+        kind: str,
+        index: int,
+        start_s: float,
+        end_s: float,
+        ref_rate_dps: float = np.nan,
+        ref_angle_deg: float = np.nan,
+        temp_setpoint_c: float = np.nan,
+        supply_v: float = np.nan,
+    ) -> None:
+        part.rows.append(
+            "segments",
+            condition=self.condition,
+            kind=kind,
+            index=index,
+            start_s=start_s,
+            end_s=end_s,
+            ref_rate_dps=ref_rate_dps,
+            ref_angle_deg=ref_angle_deg,
+            temp_setpoint_c=temp_setpoint_c,
+            supply_v=supply_v,
+        )
 
     def event(self, message: str, level: str = "INFO", parts: list[PartRun] | None = None) -> None:
         t = self.clock.now_s()
         log.log(logging.WARNING if level != "INFO" else logging.INFO, "%s", message)
         for part in parts if parts is not None else self.alive():
-            part.record.events.append(Event(time_utc=_utc(), station_time_s=round(t, 3),
-                                            level=level, step=self.step_name, message=message))
+            part.record.events.append(
+                Event(
+                    time_utc=_utc(),
+                    station_time_s=round(t, 3),
+                    level=level,
+                    step=self.step_name,
+                    message=message,
+                )
+            )
             part.rows.append("events", station_time_s=t, text=message)
         self._publish("log", message=message)
 
-    def measure(self, part: PartRun, name: str, value: float | None, *, units: str = "",
-                limit_name: str | None = None, uncertainty_k2: float | None = None,
-                condition: str | None = None, description: str = "") -> Measurement:
+    def measure(
+        self,
+        part: PartRun,
+        name: str,
+        value: float | None,
+        *,
+        units: str = "",
+        limit_name: str | None = None,
+        uncertainty_k2: float | None = None,
+        condition: str | None = None,
+        description: str = "",
+    ) -> Measurement:
         """Record a measurement judged against the product limits, where it is made."""
-        m = judge(name, value, self.product.limits, units=units, limit_name=limit_name,
-                  uncertainty_k2=uncertainty_k2, condition=condition, description=description)
+        m = judge(
+            name,
+            value,
+            self.product.limits,
+            units=units,
+            limit_name=limit_name,
+            uncertainty_k2=uncertainty_k2,
+            condition=condition,
+            description=description,
+        )
         part.record.measurements.append(m)
         return m
 
@@ -401,7 +466,9 @@ class RunContext:
         self._step_started_s = self.clock.now_s()
         self._step_estimate_s = estimate_s
         self._deadline_s = self._step_started_s + self.procedure.steps.policy(step.policy).timeout_s
-        self._publish("step", message=f"{step.name}" + (f" at {step.condition}" if step.condition else ""))
+        self._publish(
+            "step", message=f"{step.name}" + (f" at {step.condition}" if step.condition else "")
+        )
 
     def end_step(self) -> None:
         self.done_estimate_s += self._step_estimate_s
@@ -423,10 +490,18 @@ class RunContext:
 
     def _publish(self, kind: str, message: str = "") -> None:
         fraction, remaining = self._fraction()
-        self.progress.publish(ProgressEvent(
-            kind=kind, step=self.step_name, condition=self.condition, fraction=fraction,
-            station_time_s=self.clock.now_s(), remaining_s=remaining, message=message,
-            sockets=self.socket_states()))
+        self.progress.publish(
+            ProgressEvent(
+                kind=kind,
+                step=self.step_name,
+                condition=self.condition,
+                fraction=fraction,
+                station_time_s=self.clock.now_s(),
+                remaining_s=remaining,
+                message=message,
+                sockets=self.socket_states(),
+            )
+        )
 
 
 # ---------------------------------------------------------------- the engine
@@ -461,11 +536,13 @@ class Engine:
         estimates = [max(step.estimate_s(ctx), 0.0) for step in self.steps]
         ctx.total_estimate_s = max(sum(estimates), 1.0)
         for part in ctx.parts:
-            part.record.analysis.setdefault("plan", {})["estimated_station_s"] = ctx.total_estimate_s
+            part.record.analysis.setdefault("plan", {})["estimated_station_s"] = (
+                ctx.total_estimate_s
+            )
         ctx.save_all()
         run_error: tuple[Verdict, str] | None = None
         streams = {p.socket: p.stream for p in ctx.parts if p.stream is not None}
-        acquisition = Acquisition(streams)  # type: ignore[arg-type]
+        acquisition = Acquisition(streams)
         with finalize(lambda: self._finish(acquisition, started, run_error)):
             acquisition.__enter__()
             try:
@@ -474,7 +551,10 @@ class Engine:
                         break
                     self._run_step(step, estimate)
             except Aborted as exc:
-                run_error = (Verdict.ABORTED, f"aborted by the operator ({exc}) in step {ctx.step_name}")
+                run_error = (
+                    Verdict.ABORTED,
+                    f"aborted by the operator ({exc}) in step {ctx.step_name}",
+                )
             except NoPartsLeft:
                 pass
             except StepTimeout as exc:
@@ -485,8 +565,11 @@ class Engine:
                 run_error = (Verdict.ABORTED, f"interrupted (SIGINT) in step {ctx.step_name}")
             except Exception as exc:  # a bug must still end in a safe bench and a record
                 log.exception("unexpected error in step %s", ctx.step_name)
-                run_error = (Verdict.ERROR, f"internal error in step {ctx.step_name}: "
-                             f"{type(exc).__name__}: {exc}; report this with the run folder")
+                run_error = (
+                    Verdict.ERROR,
+                    f"internal error in step {ctx.step_name}: "
+                    f"{type(exc).__name__}: {exc}; report this with the run folder",
+                )
         return {p.socket: p.verdict or Verdict.ERROR for p in ctx.parts}
 
     def _run_step(self, step: Step, estimate_s: float) -> None:
@@ -502,8 +585,10 @@ class Engine:
             except RETRYABLE as exc:
                 if attempt >= policy.retries or ctx.aborted:
                     raise
-                ctx.event(f"{step.name}: {exc}; retrying ({attempt + 1}/{policy.retries})",
-                          level="WARNING")
+                ctx.event(
+                    f"{step.name}: {exc}; retrying ({attempt + 1}/{policy.retries})",
+                    level="WARNING",
+                )
             finally:
                 try:
                     step.cleanup(ctx)
@@ -535,15 +620,19 @@ class Engine:
                 self.safe_state_report[name] = f"FAILED: {exc}"
                 log.error("could not bring %s to its safe state: %s", name, exc)
 
-    def _finish(self, acquisition: Acquisition, started_s: float,
-                run_error: tuple[Verdict, str] | None) -> None:
+    def _finish(
+        self, acquisition: Acquisition, started_s: float, run_error: tuple[Verdict, str] | None
+    ) -> None:
         ctx = self.ctx
         ctx.step_name = "cleanup"
         self._safe_state(acquisition)
         failed_safe = {k: v for k, v in self.safe_state_report.items() if v != "safe"}
         if failed_safe and run_error is None:
-            run_error = (Verdict.ERROR, "could not bring the bench to a safe state: "
-                         + "; ".join(f"{k}: {v}" for k, v in failed_safe.items()))
+            run_error = (
+                Verdict.ERROR,
+                "could not bring the bench to a safe state: "
+                + "; ".join(f"{k}: {v}" for k, v in failed_safe.items()),
+            )
         for part in ctx.parts:
             if part.alive:
                 if run_error is not None:
@@ -559,12 +648,19 @@ class Engine:
             rec.analysis["safe_state"] = dict(self.safe_state_report)
             if part.stream is not None:
                 rec.analysis["stream"] = {
-                    "frames_ok": part.stream.frames_ok, "frames_lost": part.stream.frames_lost,
-                    "frames_corrupted": part.stream.frames_corrupted}
-            rec.events.append(Event(time_utc=_utc(), station_time_s=round(ctx.clock.now_s(), 3),
-                                    level="INFO" if rec.verdict in (Verdict.PASS, Verdict.FAIL) else "ERROR",
-                                    step="finish", message=f"verdict {rec.verdict}"
-                                    + (f": {rec.reason}" if rec.reason else "")))
+                    "frames_ok": part.stream.frames_ok,
+                    "frames_lost": part.stream.frames_lost,
+                    "frames_corrupted": part.stream.frames_corrupted,
+                }
+            rec.events.append(
+                Event(
+                    time_utc=_utc(),
+                    station_time_s=round(ctx.clock.now_s(), 3),
+                    level="INFO" if rec.verdict in (Verdict.PASS, Verdict.FAIL) else "ERROR",
+                    step="finish",
+                    message=f"verdict {rec.verdict}" + (f": {rec.reason}" if rec.reason else ""),
+                )
+            )
             part.rows.flush()
             if part.writer is not None:
                 try:
@@ -573,19 +669,21 @@ class Engine:
                     log.exception("closing raw data of socket %d", part.socket)
             ctx.save(part)
         ctx.step_name = ""
-        ctx._publish("finished", message=", ".join(
-            f"{p.socket}:{p.verdict}" for p in ctx.parts))
+        ctx._publish("finished", message=", ".join(f"{p.socket}:{p.verdict}" for p in ctx.parts))
 
     def _judge(self, part: PartRun) -> None:
         ok, failed, marginal = overall(part.record.measurements)
-        not_measured = [m.name for m in part.record.measurements if m.outcome is Outcome.NOT_MEASURED]
+        not_measured = [
+            m.name for m in part.record.measurements if m.outcome is Outcome.NOT_MEASURED
+        ]
         part.record.failed_measurements = failed
         if marginal:
             part.record.analysis["marginal_measurements"] = marginal
         if ok:
             part.verdict = Verdict.PASS
             part.reason = "all measurements within limits" + (
-                f" ({len(marginal)} marginal: {', '.join(marginal)})" if marginal else "")
+                f" ({len(marginal)} marginal: {', '.join(marginal)})" if marginal else ""
+            )
         else:
             part.verdict = Verdict.FAIL
             part.reason = f"out of limits: {', '.join(failed)}"
@@ -596,15 +694,21 @@ class Engine:
 def condition_record(result: ConditionResult) -> ConditionRecord:
     fit = result.table_fit
     stop = result.stop or {}
-    return ConditionRecord(
-        name=result.name, temperature_c=result.temperature_c, supply_v=result.supply_v,
-        die_temperature_c=result.die_temperature_c, time_to_stability_s=result.time_to_stability_s,
-        stable=result.stable, bias_dps=result.bias_dps,
-        bias_uncertainty_dps=None if result.u_bias_dps is None else 2 * result.u_bias_dps,
-        scale_table=None if fit is None else fit.scale,
-        scale_table_uncertainty=None if fit is None else 2 * fit.u_scale,
-        scale_stop=stop.get("scale"),
-        scale_stop_uncertainty=None if stop.get("u_scale") is None else 2 * stop["u_scale"],
-        supply_current_a=result.supply_current_a,
-        supply_measured_v=result.supply_measured_v,
+    return ConditionRecord.model_validate(
+        dict(
+            name=result.name,
+            temperature_c=result.temperature_c,
+            supply_v=result.supply_v,
+            die_temperature_c=result.die_temperature_c,
+            time_to_stability_s=result.time_to_stability_s,
+            stable=result.stable,
+            bias_dps=result.bias_dps,
+            bias_uncertainty_dps=None if result.u_bias_dps is None else 2 * result.u_bias_dps,
+            scale_table=None if fit is None else fit.scale,
+            scale_table_uncertainty=None if fit is None else 2 * fit.u_scale,
+            scale_stop=stop.get("scale"),
+            scale_stop_uncertainty=None if stop.get("u_scale") is None else 2 * stop["u_scale"],
+            supply_current_a=result.supply_current_a,
+            supply_measured_v=result.supply_measured_v,
+        )
     )

@@ -7,6 +7,7 @@ UI thread or an asyncio bridge). A subscriber that raises is dropped, never the 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
@@ -55,8 +56,10 @@ class ProgressBus:
 
         return unsubscribe
 
-    def subscribe_queue(self, maxsize: int = 1000) -> tuple[queue.Queue[ProgressEvent], Callable[[], None]]:
-        """Events delivered into a queue (oldest dropped when full); returns (queue, unsubscribe)."""
+    def subscribe_queue(
+        self, maxsize: int = 1000
+    ) -> tuple[queue.Queue[ProgressEvent], Callable[[], None]]:
+        """Events into a queue (oldest dropped when full); returns (queue, unsubscribe)."""
         q: queue.Queue[ProgressEvent] = queue.Queue(maxsize=maxsize)
 
         def put(event: ProgressEvent) -> None:
@@ -65,10 +68,8 @@ class ProgressBus:
                     q.put_nowait(event)
                     return
                 except queue.Full:
-                    try:
+                    with contextlib.suppress(queue.Empty):
                         q.get_nowait()
-                    except queue.Empty:
-                        pass
 
         return q, self.subscribe(put)
 

@@ -33,7 +33,16 @@ from procedures.rawdata import RawDataWriter
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
-_COLUMNS = ("time_s", "seq", "rate_code", "temp_code", "status", "rate_dps", "temp_c", "station_time_s")
+_COLUMNS = (
+    "time_s",
+    "seq",
+    "rate_code",
+    "temp_code",
+    "status",
+    "rate_dps",
+    "temp_c",
+    "station_time_s",
+)
 _FLUSH_SAMPLES = 2000
 FIXTURE_WRAP_S = (1 << 32) * 1e-6  # the fixture's u32 microsecond timestamp
 _FLUSH_WALL_S = 0.5

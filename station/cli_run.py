@@ -62,13 +62,20 @@ class ProgressDisplay:
         step = f"{ev.step} {ev.condition}".strip()
         remaining = "" if ev.remaining_s is None else f"~{ev.remaining_s / 60:4.1f} min left"
         sockets = " ".join(f"{k}:{v}" for k, v in sorted(ev.sockets.items()))
-        line = f"[{100 * ev.fraction:3.0f}%] {step:<26} {remaining:<15} t={ev.station_time_s:7.0f} s  {sockets}"
+        line = (
+            f"[{100 * ev.fraction:3.0f}%] {step:<26} {remaining:<15} "
+            f"t={ev.station_time_s:7.0f} s  {sockets}"
+        )
         if self.tty:
             self.stream.write("\r" + line[:110].ljust(110))
             if ev.kind == "finished":
                 self.stream.write("\n")
             self.stream.flush()
-        elif ev.kind in ("step", "finished", "part") and step != self._last_step or ev.kind == "finished":
+        elif (
+            ev.kind in ("step", "finished", "part")
+            and step != self._last_step
+            or ev.kind == "finished"
+        ):
             self._last_step = step
             print(line, file=self.stream, flush=True)
 
@@ -116,11 +123,19 @@ def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | No
         if not p.is_file():
             raise UserError(f"--sim-config {path}: no such file")
         return p, None
-    return {"parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]}, DEFAULT_SIM_SPEED
+    return {
+        "parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
+    }, DEFAULT_SIM_SPEED
 
 
-def run_cycle(args: argparse.Namespace, duts: dict[int, str], *, sim: bool,
-              sim_config: Any = None, speed: float | None = None) -> int:
+def run_cycle(
+    args: argparse.Namespace,
+    duts: dict[int, str],
+    *,
+    sim: bool,
+    sim_config: Any = None,
+    speed: float | None = None,
+) -> int:
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
     from station.uut import Endpoints, UutRunner
 
@@ -134,7 +149,9 @@ def run_cycle(args: argparse.Namespace, duts: dict[int, str], *, sim: bool,
         )
         probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
         for folder in probe.recover():
-            print(f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr)
+            print(
+                f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr
+            )
         probe.validate(duts)  # bad serials: refuse before a bench or a folder exists
     except ConfigError as exc:
         raise UserError(str(exc)) from None
@@ -142,15 +159,23 @@ def run_cycle(args: argparse.Namespace, duts: dict[int, str], *, sim: bool,
     if sim:
         from drivers.sim.launcher import launch_bench
 
-        bench_cm = launch_bench(config=sim_config, speed=speed,
-                                sockets=max(duts) if isinstance(sim_config, dict) else None)
+        bench_cm = launch_bench(
+            config=sim_config,
+            speed=speed,
+            sockets=max(duts) if isinstance(sim_config, dict) else None,
+        )
     wall0 = time.monotonic()
     with bench_cm as bench:
         endpoints = None
         if bench is not None:
             e = bench.endpoints
-            endpoints = Endpoints(speed=e.speed, rate_table=e.rate_table, chamber=e.chamber,
-                                  supply=e.supply, duts=dict(e.duts))
+            endpoints = Endpoints(
+                speed=e.speed,
+                rate_table=e.rate_table,
+                chamber=e.chamber,
+                supply=e.supply,
+                duts=dict(e.duts),
+            )
             print(f"simulated bench running at {e.speed:g}x (pid {e.pid})", flush=True)
         runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)  # type: ignore[arg-type]
         display = ProgressDisplay()
@@ -159,8 +184,10 @@ def run_cycle(args: argparse.Namespace, duts: dict[int, str], *, sim: bool,
             result = runner.run(duts)
     wall = time.monotonic() - wall0
     for sock in sorted(result.verdicts):
-        print(f"socket {sock} {duts[sock]}: {result.verdicts[sock]}"
-              + (f" - {result.reasons[sock]}" if result.reasons[sock] else ""))
+        print(
+            f"socket {sock} {duts[sock]}: {result.verdicts[sock]}"
+            + (f" - {result.reasons[sock]}" if result.reasons[sock] else "")
+        )
         print(f"  run folder: {result.folders[sock]}")
         if sock in result.certificates:
             print(f"  certificate: {result.certificates[sock]}")
@@ -182,15 +209,25 @@ def _demo(args: argparse.Namespace) -> int:
     duts = {1: DEMO_SERIAL}
     args.station = args.station or None
     args.procedure = args.procedure or str(CONFIG_DIR / "procedures" / "eol-rate-table.yaml")
-    code = run_cycle(args, duts, sim=True, sim_config={"parts": [{"socket": 1, "serial": DEMO_SERIAL}]},
-                     speed=args.speed or DEMO_SPEED)
+    code = run_cycle(
+        args,
+        duts,
+        sim=True,
+        sim_config={"parts": [{"socket": 1, "serial": DEMO_SERIAL}]},
+        speed=args.speed or DEMO_SPEED,
+    )
     return 0 if code in (0, 1) else code
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     r = subparsers.add_parser("run", help="one UUT cycle: calibrate the scanned parts")
-    r.add_argument("--dut", action="append", required=True, metavar="SERIAL",
-                   help="scanned serial; repeat for more sockets (or SOCKET=SERIAL)")
+    r.add_argument(
+        "--dut",
+        action="append",
+        required=True,
+        metavar="SERIAL",
+        help="scanned serial; repeat for more sockets (or SOCKET=SERIAL)",
+    )
     r.add_argument("--procedure", help="procedure file (default: station.yaml's)")
     r.add_argument("--product", help="product file (default: the procedure's product)")
     r.add_argument("--station", help="station file (default: config/station.yaml)")

@@ -120,8 +120,13 @@ def recover_crashed_runs(out: Path) -> list[Path]:
         )
         record.finished_utc = record.finished_utc or now
         record.events.append(
-            Event(time_utc=now, station_time_s=0.0, level="ERROR", step="recovery",
-                  message=record.reason)
+            Event(
+                time_utc=now,
+                station_time_s=0.0,
+                level="ERROR",
+                step="recovery",
+                message=record.reason,
+            )
         )
         write_record(folder, record)
         lock.unlink(missing_ok=True)

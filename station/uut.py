@@ -7,7 +7,7 @@ The small API the CLI uses and the browser UI will use:
     runner.start({1: "SIM-0001", 2: "SIM-0002"})          # background thread; or run(...) to block
     runner.abort()                                        # operator abort (also from SIGINT)
     runner.state()                                        # {"state": "running", "step": ...}
-    result = runner.wait()                                # UutResult: folders, verdicts, certificates
+    result = runner.wait()                                # UutResult: folders, verdicts, PDFs
 
 `endpoints` (from the simulated bench's state file) replaces the addresses of station.yaml
 and sets the clock's speed; real instruments run at speed 1.
@@ -27,7 +27,13 @@ from typing import Any
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError
 from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
-from procedures.config import ConfigError, ProcedureConfig, ProductConfig, load_procedure, load_product
+from procedures.config import (
+    ConfigError,
+    ProcedureConfig,
+    ProductConfig,
+    load_procedure,
+    load_product,
+)
 from procedures.engine import Bench, Engine, PartRun, RunContext
 from procedures.progress import ProgressBus, ProgressEvent
 from procedures.rawdata import RawDataWriter, file_sha256
@@ -74,7 +80,9 @@ class UutResult:
     @property
     def exit_code(self) -> int:
         """0 all PASS, 1 any FAIL (and no error), 2 error or abort."""
-        if any(v in (Verdict.ERROR, Verdict.ABORTED, Verdict.RUNNING) for v in self.verdicts.values()):
+        if any(
+            v in (Verdict.ERROR, Verdict.ABORTED, Verdict.RUNNING) for v in self.verdicts.values()
+        ):
             return 2
         return 1 if any(v is Verdict.FAIL for v in self.verdicts.values()) else 0
 
@@ -103,14 +111,24 @@ class OpenBench:
                 log.info("closing an instrument: %s", exc)
 
 
-def _record(role: str, ident: InstrumentIdentity | None, address: str,
-            cfg: InstrumentSettings | None, due: dt.date | None = None) -> InstrumentRecord:
+def _record(
+    role: str,
+    ident: InstrumentIdentity | None,
+    address: str,
+    cfg: InstrumentSettings | None,
+    due: dt.date | None = None,
+) -> InstrumentRecord:
     due = due if due is not None else (cfg.calibration_due if cfg else None)
     return InstrumentRecord(
-        role=role, manufacturer=ident.manufacturer if ident else "", model=ident.model if ident else "",
-        serial=ident.serial if ident else "", firmware=ident.firmware if ident else "",
-        address=address, calibration_due=due.isoformat() if due else None,
-        calibration_overdue=bool(due and due < dt.date.today()))
+        role=role,
+        manufacturer=ident.manufacturer if ident else "",
+        model=ident.model if ident else "",
+        serial=ident.serial if ident else "",
+        firmware=ident.firmware if ident else "",
+        address=address,
+        calibration_due=due.isoformat() if due else None,
+        calibration_overdue=bool(due and due < dt.date.today()),
+    )
 
 
 def open_part_link(path: str, clock: ScaledClock, socket: int, silent_after_s: float) -> PartLink:
@@ -119,9 +137,13 @@ def open_part_link(path: str, clock: ScaledClock, socket: int, silent_after_s: f
 
     # frame loss is judged by the engine against the procedure's fraction, not by the driver;
     # silence needs a wall-time floor too: at 200x, 5 station s are 25 wall ms of scheduling
-    return SerialPartLink.open(path, clock, socket=socket,
-                               silent_after_s=silent_floor_s(silent_after_s, clock),
-                               loss_limit=None)
+    return SerialPartLink.open(
+        path,
+        clock,
+        socket=socket,
+        silent_after_s=silent_floor_s(silent_after_s, clock),
+        loss_limit=None,
+    )
 
 
 def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: float = 1.0) -> float:
@@ -129,8 +151,13 @@ def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: floa
     return max(silent_after_s, wall_floor_s * clock.speed)
 
 
-def open_bench(settings: LoadedSettings, sockets: list[int], endpoints: Endpoints | None,
-               needs_table: bool, silent_after_s: float = 5.0) -> OpenBench:
+def open_bench(
+    settings: LoadedSettings,
+    sockets: list[int],
+    endpoints: Endpoints | None,
+    needs_table: bool,
+    silent_after_s: float = 5.0,
+) -> OpenBench:
     """Connect every instrument the run needs; InstrumentError names the one that failed."""
     from drivers.chamber import ModbusChamber
     from drivers.rate_table import ModbusRateTable
@@ -144,31 +171,40 @@ def open_bench(settings: LoadedSettings, sockets: list[int], endpoints: Endpoint
         table: RateTable | None = None
         if needs_table:
             addr = endpoints.rate_table if endpoints else cfg.rate_table.address
-            t = ModbusRateTable.connect(*_host_port(addr, "rate_table"), clock,
-                                        timeout_s=cfg.rate_table.timeout_s)
+            t = ModbusRateTable.connect(
+                *_host_port(addr, "rate_table"), clock, timeout_s=cfg.rate_table.timeout_s
+            )
             closers.append(t.close)
             table = t
             records.append(_record("rate_table", t.identify(), addr, cfg.rate_table))
         addr = endpoints.chamber if endpoints else cfg.chamber.address
-        chamber: Chamber = ModbusChamber.connect(*_host_port(addr, "chamber"), clock,
-                                                 timeout_s=cfg.chamber.timeout_s)
+        chamber: Chamber = ModbusChamber.connect(
+            *_host_port(addr, "chamber"), clock, timeout_s=cfg.chamber.timeout_s
+        )
         closers.append(chamber.close)
         records.append(_record("chamber", chamber.identify(), addr, cfg.chamber))
         addr = endpoints.supply if endpoints else cfg.supply.address
-        supply: Supply = ScpiSupply.open(addr, baudrate=cfg.supply.baud, timeout_s=cfg.supply.timeout_s)
+        supply: Supply = ScpiSupply.open(
+            addr, baudrate=cfg.supply.baud, timeout_s=cfg.supply.timeout_s
+        )
         closers.append(supply.close)
         records.append(_record("supply", supply.identify(), addr, cfg.supply))
         links: dict[int, PartLink] = {}
         for s in sockets:
-            port = (endpoints.duts.get(s) if endpoints else cfg.fixture.ports.get(s))
+            port = endpoints.duts.get(s) if endpoints else cfg.fixture.ports.get(s)
             if not port:
-                raise UserError(f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
-                                "or the bench's sockets); load fewer parts or configure the socket")
+                raise UserError(
+                    f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
+                    "or the bench's sockets); load fewer parts or configure the socket"
+                )
             link = open_part_link(port, clock, s, silent_after_s)
             closers.append(link.close)
             links[s] = link
-        return OpenBench(Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
-                         records, closers)
+        return OpenBench(
+            Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
+            records,
+            closers,
+        )
     except BaseException:
         OpenBench(None, [], closers).close()  # type: ignore[arg-type]
         raise
@@ -180,17 +216,26 @@ def open_bench(settings: LoadedSettings, sockets: list[int], endpoints: Endpoint
 class UutRunner:
     """One UUT cycle at a time for one station; thread-safe `abort` and `state`."""
 
-    def __init__(self, settings: LoadedSettings, *, procedure_path: Path | None = None,
-                 product_path: Path | None = None, operator: str = "",
-                 out: Path | None = None, endpoints: Endpoints | None = None,
-                 certificate: bool = True) -> None:
+    def __init__(
+        self,
+        settings: LoadedSettings,
+        *,
+        procedure_path: Path | None = None,
+        product_path: Path | None = None,
+        operator: str = "",
+        out: Path | None = None,
+        endpoints: Endpoints | None = None,
+        certificate: bool = True,
+    ) -> None:
         self.settings = settings
         self.procedure_path = Path(procedure_path) if procedure_path else settings.procedure
         self.procedure, self.procedure_file = load_procedure(self.procedure_path)
         if product_path is None:
             if not self.procedure.product:
-                raise ConfigError(f"{self.procedure_path}: no product given; add 'product:' "
-                                  "to the procedure or pass --product")
+                raise ConfigError(
+                    f"{self.procedure_path}: no product given; add 'product:' "
+                    "to the procedure or pass --product"
+                )
             product_path = (self.procedure_path.parent / self.procedure.product).resolve()
         self.product_path = Path(product_path)
         self.product, self.product_file = load_product(self.product_path)
@@ -240,8 +285,9 @@ class UutRunner:
                 raise UserError("a run is already in progress; wait for it or abort it")
             self._state = "running"
             self._result = None
-        self._thread = threading.Thread(target=self._thread_main, args=(duts,), name="uut-run",
-                                        daemon=True)
+        self._thread = threading.Thread(
+            target=self._thread_main, args=(duts,), name="uut-run", daemon=True
+        )
         self._thread.start()
 
     def wait(self, timeout_s: float | None = None) -> UutResult | None:
@@ -267,8 +313,13 @@ class UutRunner:
         last: ProgressEvent | None = self.progress.last
         out: dict[str, Any] = {"state": self._state}
         if last is not None:
-            out.update(step=last.step, condition=last.condition, fraction=last.fraction,
-                       remaining_s=last.remaining_s, sockets=last.sockets)
+            out.update(
+                step=last.step,
+                condition=last.condition,
+                fraction=last.fraction,
+                remaining_s=last.remaining_s,
+                sockets=last.sockets,
+            )
         if self._result is not None:
             out["verdicts"] = {s: str(v) for s, v in self._result.verdicts.items()}
             out["folders"] = {s: str(p) for s, p in self._result.folders.items()}
@@ -294,9 +345,13 @@ class UutRunner:
         opened: OpenBench | None = None
         try:
             try:
-                opened = open_bench(self.settings, sorted(duts), self.endpoints,
-                                    self.procedure.table_enabled or self.procedure.stop_enabled,
-                                    self.procedure.stream.silent_timeout_s)
+                opened = open_bench(
+                    self.settings,
+                    sorted(duts),
+                    self.endpoints,
+                    self.procedure.table_enabled or self.procedure.stop_enabled,
+                    self.procedure.stream.silent_timeout_s,
+                )
             except (InstrumentError, OSError) as exc:
                 for part in parts:
                     part.verdict = Verdict.ERROR
@@ -319,7 +374,9 @@ class UutRunner:
             if cert is not None:
                 result.certificates[part.socket] = cert
             self._store(part)
-        result.station_time_s = max((p.record.timings.get("total", 0.0) for p in parts), default=0.0)
+        result.station_time_s = max(
+            (p.record.timings.get("total", 0.0) for p in parts), default=0.0
+        )
         result.wall_time_s = (dt.datetime.now(dt.UTC) - wall0).total_seconds()
         self._result = result
         self._state = "finished"
@@ -330,13 +387,24 @@ class UutRunner:
         cfg = self.settings.settings.instruments
         for part in parts:
             part.record.instruments = list(opened.instruments)
-            part.record.instruments.append(_record(
-                f"fixture_{part.socket}", None, self.endpoints.duts.get(part.socket, "")
-                if self.endpoints else cfg.fixture.ports.get(part.socket, ""), None,
-                cfg.fixture.calibration_due))
-            part.stream = PartStream(part.socket, bench.links[part.socket], bench.clock,
-                                     part.writer,
-                                     silent_floor_s(self.procedure.stream.silent_timeout_s, bench.clock))
+            part.record.instruments.append(
+                _record(
+                    f"fixture_{part.socket}",
+                    None,
+                    self.endpoints.duts.get(part.socket, "")
+                    if self.endpoints
+                    else cfg.fixture.ports.get(part.socket, ""),
+                    None,
+                    cfg.fixture.calibration_due,
+                )
+            )
+            part.stream = PartStream(
+                part.socket,
+                bench.links[part.socket],
+                bench.clock,
+                part.writer,
+                silent_floor_s(self.procedure.stream.silent_timeout_s, bench.clock),
+            )
         overdue = [i.role for i in opened.instruments if i.calibration_overdue]
         ctx = RunContext(bench, self.procedure, self.product, parts, self.progress)
         with self._lock:
@@ -348,8 +416,12 @@ class UutRunner:
             ctx.event(f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING")
             if self.settings.settings.refuse_overdue_instruments:
                 for part in parts:
-                    ctx.drop(part, Verdict.ERROR, f"instrument calibration overdue ({', '.join(overdue)}); "
-                             "recalibrate them or set refuse_overdue_instruments: false")
+                    ctx.drop(
+                        part,
+                        Verdict.ERROR,
+                        f"instrument calibration overdue ({', '.join(overdue)}); "
+                        "recalibrate them or set refuse_overdue_instruments: false",
+                    )
         try:
             start_temp = bench.chamber.read_temperature()
         except InstrumentError:
@@ -370,8 +442,15 @@ class UutRunner:
             part.record.verdict = part.verdict or Verdict.ERROR
             part.record.reason = part.reason
             part.record.finished_utc = now
-            part.record.events.append(Event(time_utc=now, station_time_s=0.0, level="ERROR",
-                                            step="connect", message=part.reason))
+            part.record.events.append(
+                Event(
+                    time_utc=now,
+                    station_time_s=0.0,
+                    level="ERROR",
+                    step="connect",
+                    message=part.reason,
+                )
+            )
             if part.writer is not None:
                 part.writer.close()
             write_record(part.folder, part.record)
@@ -381,28 +460,54 @@ class UutRunner:
         info = self.settings.settings.station
         now = dt.datetime.now(dt.UTC)
         record = RunRecord(
-            run_id=folder.name, verdict=Verdict.RUNNING, simulated=self.endpoints is not None,
+            run_id=folder.name,
+            verdict=Verdict.RUNNING,
+            simulated=self.endpoints is not None,
             started_utc=now.isoformat(timespec="milliseconds"),
             station_local_tz=str(dt.datetime.now().astimezone().tzinfo),
-            station={"id": info.id, "name": info.name, "location": info.location,
-                     "host": socketlib.gethostname()},
-            operator=self.operator, software_version=__version__,
+            station={
+                "id": info.id,
+                "name": info.name,
+                "location": info.location,
+                "host": socketlib.gethostname(),
+            },
+            operator=self.operator,
+            software_version=__version__,
             dut=Dut(serial=serial, socket=sock, product=self.product.product),
-            product=FileRef(path=str(self.product_path), name=self.product.product,
-                            version=self.product.part_number, sha256=self.product_file.sha256),
-            procedure=FileRef(path=str(self.procedure_path), name=self.procedure.name,
-                              version=self.procedure.version, sha256=self.procedure_file.sha256),
-            station_config=FileRef(path=str(self.settings.source.path), name=info.id,
-                                   sha256=self.settings.source.sha256),
+            product=FileRef(
+                path=str(self.product_path),
+                name=self.product.product,
+                version=self.product.part_number,
+                sha256=self.product_file.sha256,
+            ),
+            procedure=FileRef(
+                path=str(self.procedure_path),
+                name=self.procedure.name,
+                version=self.procedure.version,
+                sha256=self.procedure_file.sha256,
+            ),
+            station_config=FileRef(
+                path=str(self.settings.source.path),
+                name=info.id,
+                sha256=self.settings.source.sha256,
+            ),
             raw_data=FileRef(path=RAW_DATA_FILE, name="raw data (HDF5)", sha256=""),
         )
         write_record(folder, record)
-        writer = RawDataWriter(folder / RAW_DATA_FILE, {
-            "serial": serial, "run_id": folder.name, "socket": sock,
-            "procedure": self.procedure.name, "product": self.product.product,
-            "station": info.id, "simulated": self.endpoints is not None,
-            "software_version": __version__, "time_base": "fixture clock (s); station_time_s: "
-            "station clock estimate"})
+        writer = RawDataWriter(
+            folder / RAW_DATA_FILE,
+            {
+                "serial": serial,
+                "run_id": folder.name,
+                "socket": sock,
+                "procedure": self.procedure.name,
+                "product": self.product.product,
+                "station": info.id,
+                "simulated": self.endpoints is not None,
+                "software_version": __version__,
+                "time_base": "fixture clock (s); station_time_s: station clock estimate",
+            },
+        )
         return PartRun(socket=sock, serial=serial, folder=folder, record=record, writer=writer)
 
     # ------------------------------------------------------------ after the run
@@ -425,8 +530,11 @@ class UutRunner:
             from station.results_db import ResultsDB
         except ModuleNotFoundError:
             return None
-        return ResultsDB(self.settings.results_db if self.out == self.settings.output_folder
-                         else self.out / "results.sqlite")
+        return ResultsDB(
+            self.settings.results_db
+            if self.out == self.settings.output_folder
+            else self.out / "results.sqlite"
+        )
 
     def _store(self, part: PartRun) -> None:
         try:
@@ -451,22 +559,31 @@ class UutRunner:
             log.error("results database: could not record crashed runs: %s", exc)
 
 
-def procedure_product(procedure_path: Path, product_path: Path | None) -> tuple[ProcedureConfig, ProductConfig]:
+def procedure_product(
+    procedure_path: Path, product_path: Path | None
+) -> tuple[ProcedureConfig, ProductConfig]:
     """Load both files (ConfigError with file:line:field on any problem)."""
     procedure, _ = load_procedure(procedure_path)
     if product_path is None:
         if not procedure.product:
-            raise ConfigError(f"{procedure_path}: no product given; add 'product:' or pass --product")
+            raise ConfigError(
+                f"{procedure_path}: no product given; add 'product:' or pass --product"
+            )
         product_path = (procedure_path.parent / procedure.product).resolve()
     product, _ = load_product(product_path)
     return procedure, product
 
 
-def run_simulated(parts: list[dict[str, Any]], *, procedure_path: Path | None = None,
-                  out: Path, speed: float = 100.0, settings: LoadedSettings | None = None,
-                  certificate: bool = False,
-                  on_progress: Callable[[ProgressEvent], None] | None = None,
-                  ) -> tuple[UutResult, dict[str, Any]]:
+def run_simulated(
+    parts: list[dict[str, Any]],
+    *,
+    procedure_path: Path | None = None,
+    out: Path,
+    speed: float = 100.0,
+    settings: LoadedSettings | None = None,
+    certificate: bool = False,
+    on_progress: Callable[[ProgressEvent], None] | None = None,
+) -> tuple[UutResult, dict[str, Any]]:
     """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
     entries); returns the result and the bench's truth at the end (for benchmarks and tests)."""
     from drivers.sim.launcher import launch_bench
@@ -475,11 +592,20 @@ def run_simulated(parts: list[dict[str, Any]], *, procedure_path: Path | None = 
     sockets = max(int(p["socket"]) for p in parts)
     with launch_bench(config={"parts": parts}, speed=speed, sockets=sockets) as bench:
         e = bench.endpoints
-        runner = UutRunner(settings or load_settings(), procedure_path=procedure_path, out=out,
-                           endpoints=Endpoints(speed=e.speed, rate_table=e.rate_table,
-                                               chamber=e.chamber, supply=e.supply,
-                                               duts=dict(e.duts)),
-                           certificate=certificate, operator="benchmark")
+        runner = UutRunner(
+            settings or load_settings(),
+            procedure_path=procedure_path,
+            out=out,
+            endpoints=Endpoints(
+                speed=e.speed,
+                rate_table=e.rate_table,
+                chamber=e.chamber,
+                supply=e.supply,
+                duts=dict(e.duts),
+            ),
+            certificate=certificate,
+            operator="benchmark",
+        )
         if on_progress is not None:
             runner.progress.subscribe(on_progress)
         result = runner.run({int(p["socket"]): str(p["serial"]) for p in parts})

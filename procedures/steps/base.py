@@ -13,7 +13,6 @@ from drivers.fixture_protocol import SampleStatus
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
 
-
 DELIVERY_WAIT_WALL_S = 3.0
 
 
@@ -40,8 +39,9 @@ def sample_rate_hz(ctx: RunContext) -> float:
     return float(ctx.procedure.power.output_rate_hz)
 
 
-def samples_between(ctx: RunContext, part: PartRun, t0_station_s: float, t1_station_s: float
-                    ) -> dict[str, NDArray[Any]]:
+def samples_between(
+    ctx: RunContext, part: PartRun, t0_station_s: float, t1_station_s: float
+) -> dict[str, NDArray[Any]]:
     """The part's samples between two station times (mapped to its fixture clock)."""
     stream = part.stream
     assert stream is not None
@@ -58,23 +58,32 @@ def samples_between(ctx: RunContext, part: PartRun, t0_station_s: float, t1_stat
     return stream.window(f0, f1)
 
 
-def check_window(ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]], what: str,
-                 expected_s: float) -> bool:
+def check_window(
+    ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]], what: str, expected_s: float
+) -> bool:
     """Refuse a window with too few samples or over-range samples; drops the part if so."""
     fs = sample_rate_hz(ctx)
     n = int(data["time_s"].size)
     expected = expected_s * fs
     if expected > 0 and n < 0.5 * expected:
         ctx.supply_reading()  # a shorted part browns out: say so, for every part on the supply
-        ctx.drop(part, Verdict.ERROR,
-                 f"{what}: only {n} samples where about {expected:.0f} were expected: the part "
-                 "stopped streaming or the stream is losing data; check the part's seating "
-                 "and the fixture cable")
+        ctx.drop(
+            part,
+            Verdict.ERROR,
+            f"{what}: only {n} samples where about {expected:.0f} were expected: the part "
+            "stopped streaming or the stream is losing data; check the part's seating "
+            "and the fixture cable",
+        )
         return False
-    over = int(np.count_nonzero(data["status"] & (SampleStatus.OVER_RANGE | SampleStatus.SATURATED)))
+    over = int(
+        np.count_nonzero(data["status"] & (SampleStatus.OVER_RANGE | SampleStatus.SATURATED))
+    )
     if over:
-        ctx.drop(part, Verdict.FAIL,
-                 f"{what}: {over} samples over range or saturated; the part must never "
-                 "over-range during a measurement (reduce the rate set or check the part)")
+        ctx.drop(
+            part,
+            Verdict.FAIL,
+            f"{what}: {over} samples over range or saturated; the part must never "
+            "over-range during a measurement (reduce the rate set or check the part)",
+        )
         return False
     return True

@@ -23,7 +23,11 @@ class Bias(BaseStep):
 
     def estimate_s(self, ctx: RunContext) -> float:
         cfg = ctx.procedure.bias
-        return float(cfg.dwell_s) if cfg.dwell_s != "auto" else 0.5 * (cfg.min_dwell_s + cfg.max_dwell_s)
+        return (
+            float(cfg.dwell_s)
+            if cfg.dwell_s != "auto"
+            else 0.5 * (cfg.min_dwell_s + cfg.max_dwell_s)
+        )
 
     def main(self, ctx: RunContext) -> None:
         cfg = ctx.procedure.bias
@@ -42,7 +46,9 @@ class Bias(BaseStep):
                 except AnalysisError:
                     need = cfg.max_dwell_s
             dwell = min(max(need, cfg.min_dwell_s), cfg.max_dwell_s)
-            ctx.event(f"bias: automatic dwell {dwell:.1f} s for {cfg.target_accuracy_dps:g} deg/s (k=2)")
+            ctx.event(
+                f"bias: automatic dwell {dwell:.1f} s for {cfg.target_accuracy_dps:g} deg/s (k=2)"
+            )
             ctx.sleep(t0 + dwell - ctx.clock.now_s())
         else:
             dwell = float(cfg.dwell_s)
@@ -64,8 +70,12 @@ class Bias(BaseStep):
         static_from = stab.get("stable_at_station_s", t0) - stab.get("window_s", 0.0)
         long = samples_between(ctx, part, min(static_from, t0), t1)
         try:
-            allan = analyze_allan(long["rate_dps"] if long["rate_dps"].size > data["rate_dps"].size
-                                  else data["rate_dps"], fs)
+            allan = analyze_allan(
+                long["rate_dps"]
+                if long["rate_dps"].size > data["rate_dps"].size
+                else data["rate_dps"],
+                fs,
+            )
             noise = allan.noise.model
             est = estimate_bias(data["rate_dps"], fs, noise)
         except AnalysisError as exc:
@@ -79,11 +89,25 @@ class Bias(BaseStep):
         u_wander = ctx.procedure.bias.wander_factor * b_dps
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
         res.note_temperature("bias", data["temp_c"])
-        ctx.measure(part, "raw_bias_dps", est.bias_dps, units="deg/s",
-                    uncertainty_k2=2 * res.u_bias_dps, condition=self.condition,
-                    description="uncalibrated bias at rest")
-        ctx.segment(part, "static", 0, float(data["time_s"][0]), float(data["time_s"][-1]),
-                    ref_rate_dps=0.0, temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+        ctx.measure(
+            part,
+            "raw_bias_dps",
+            est.bias_dps,
+            units="deg/s",
+            uncertainty_k2=2 * res.u_bias_dps,
+            condition=self.condition,
+            description="uncalibrated bias at rest",
+        )
+        ctx.segment(
+            part,
+            "static",
+            0,
+            float(data["time_s"][0]),
+            float(data["time_s"][-1]),
+            ref_rate_dps=0.0,
+            temp_setpoint_c=res.temperature_c,
+            supply_v=res.supply_v,
+        )
         if self.first:
             arw = noise.arw_deg_per_sqrt_h
             bi = noise.bias_instability_deg_per_h
@@ -91,16 +115,27 @@ class Bias(BaseStep):
                 "condition": self.condition,
                 "tau_s": [float(x) for x in allan.adev.tau_s],
                 "adev_dps": [float(x) for x in allan.adev.adev_dps],
-                "arw_deg_per_sqrt_h": arw, "bias_instability_deg_per_h": bi,
+                "arw_deg_per_sqrt_h": arw,
+                "bias_instability_deg_per_h": bi,
                 "rate_random_walk_deg_per_h_per_sqrt_h": noise.rrw_deg_per_h_per_sqrt_h,
                 "record_s": float(data["time_s"][-1] - data["time_s"][0]),
             }
-            ctx.measure(part, "noise_arw_deg_per_sqrt_h", arw if math.isfinite(arw) else None,
-                        units="deg/sqrt(h)", condition=self.condition,
-                        uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
-                        description="angle random walk from the Allan deviation")
+            ctx.measure(
+                part,
+                "noise_arw_deg_per_sqrt_h",
+                arw if math.isfinite(arw) else None,
+                units="deg/sqrt(h)",
+                condition=self.condition,
+                uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
+                description="angle random walk from the Allan deviation",
+            )
             if bi > 0 and np.isfinite(bi):
-                ctx.measure(part, "bias_instability_deg_per_h", bi, units="deg/h",
-                            condition=self.condition,
-                            uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
-                            description="bias instability (short record: indicative)")
+                ctx.measure(
+                    part,
+                    "bias_instability_deg_per_h",
+                    bi,
+                    units="deg/h",
+                    condition=self.condition,
+                    uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
+                    description="bias instability (short record: indicative)",
+                )

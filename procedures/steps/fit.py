@@ -36,6 +36,8 @@ def scale_estimate(source: str, res: ConditionResult) -> tuple[float, float]:
         if stop is None:
             raise AnalysisError(f"{res.name}: no stop-method scale to fit")
         return stop
+    if stop is None:
+        return table
     w1, w2 = 1 / table[1] ** 2, 1 / stop[1] ** 2
     return (w1 * table[0] + w2 * stop[0]) / (w1 + w2), math.sqrt(1 / (w1 + w2))
 
@@ -61,9 +63,16 @@ class Fit(BaseStep):
                     temp = res.temperature_for(kind)
                     if temp is None:
                         raise AnalysisError(f"{res.name}: no die temperature recorded")
-                    cond_list.append(ConditionMeasurement(
-                        temp_c=temp, supply_v=supply, bias_dps=res.bias_dps,
-                        u_bias_dps=res.u_bias_dps, scale=scale, u_scale=u_scale))
+                    cond_list.append(
+                        ConditionMeasurement(
+                            temp_c=temp,
+                            supply_v=supply,
+                            bias_dps=res.bias_dps,
+                            u_bias_dps=res.u_bias_dps,
+                            scale=scale,
+                            u_scale=u_scale,
+                        )
+                    )
             t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
             # bias paired with the die temperature of its own windows, scale with its own
             fit_b = fit_temp_supply(by_kind["bias"], t0, v0)
@@ -72,8 +81,12 @@ class Fit(BaseStep):
             ctx.drop(part, Verdict.ERROR, f"first-order fit: {exc}")
             return
         cb, cs = fit_b.coefficients, fit_s.coefficients
-        coefficients = replace(cb, scale=cs.scale, scale_temp_coeff_per_c=cs.scale_temp_coeff_per_c,
-                               scale_supply_coeff_per_v=cs.scale_supply_coeff_per_v)
+        coefficients = replace(
+            cb,
+            scale=cs.scale,
+            scale_temp_coeff_per_c=cs.scale_temp_coeff_per_c,
+            scale_supply_coeff_per_v=cs.scale_supply_coeff_per_v,
+        )
         part.fit = CombinedFit(coefficients, fit_b, fit_s)
         cal = {k: v for k, v in fit_b.as_calibration_dict().items() if not k.startswith("scale")}
         cal.update({k: v for k, v in fit_s.as_calibration_dict().items() if k.startswith("scale")})
@@ -85,17 +98,34 @@ class Fit(BaseStep):
             }
         part.record.conditions = [condition_record(r) for r in part.conditions.values()]
         part.record.calibration = Calibration.model_validate(cal)
-        part.record.analysis["fit"] = {"source": source, "conditions": [
-            {"name": r.name, "bias_temp_c": b.temp_c, "scale_temp_c": sc.temp_c,
-             "supply_v": b.supply_v, "bias_dps": b.bias_dps, "u_bias_dps": b.u_bias_dps,
-             "scale": b.scale, "u_scale": b.u_scale}
-            for r, b, sc in zip(part.conditions.values(), by_kind["bias"], by_kind["scale"],
-                                strict=True)]}
+        part.record.analysis["fit"] = {
+            "source": source,
+            "conditions": [
+                {
+                    "name": r.name,
+                    "bias_temp_c": b.temp_c,
+                    "scale_temp_c": sc.temp_c,
+                    "supply_v": b.supply_v,
+                    "bias_dps": b.bias_dps,
+                    "u_bias_dps": b.u_bias_dps,
+                    "scale": b.scale,
+                    "u_scale": b.u_scale,
+                }
+                for r, b, sc in zip(
+                    part.conditions.values(), by_kind["bias"], by_kind["scale"], strict=True
+                )
+            ],
+        }
         for name, units in COEFF_UNITS.items():
             fit = fit_b if name.startswith("bias") else fit_s
-            ctx.measure(part, name, getattr(coefficients, name), units=units,
-                        uncertainty_k2=fit.uncertainty_k2(name),
-                        description="first-order coefficient")
+            ctx.measure(
+                part,
+                name,
+                getattr(coefficients, name),
+                units=units,
+                uncertainty_k2=fit.uncertainty_k2(name),
+                description="first-order coefficient",
+            )
 
 
 @dataclass(frozen=True)

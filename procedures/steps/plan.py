@@ -18,13 +18,20 @@ from procedures.steps.verify import Verify
 def build_plan(procedure: ProcedureConfig, start_temp_c: float | None = None) -> list[Step]:
     """Power/identify, then per condition: stabilise, bias, sweep, stop; fit, program, verify."""
     cond = procedure.conditions
-    conditions = plan_conditions(cond.temperatures_c, cond.supplies_v, order=cond.order,
-                                 start_temp_c=start_temp_c)
+    conditions = plan_conditions(
+        cond.temperatures_c, cond.supplies_v, order=cond.order, start_temp_c=start_temp_c
+    )
     steps: list[Step] = [PowerIdentify(supply_v=conditions[0].supply_v)]
     previous = start_temp_c
     for i, c in enumerate(conditions):
-        steps.append(Stabilise(target=c, first=i == 0, condition=c.name,
-                               temperature_changes=previous is None or c.temperature_c != previous))
+        steps.append(
+            Stabilise(
+                target=c,
+                first=i == 0,
+                condition=c.name,
+                temperature_changes=previous is None or c.temperature_c != previous,
+            )
+        )
         previous = c.temperature_c
         steps.append(Bias(first=i == 0, condition=c.name))
         if procedure.table_enabled:

@@ -6,11 +6,11 @@ from dataclasses import dataclass
 
 from drivers.errors import InstrumentError, PartAbsent
 from procedures.engine import PartRun, RunContext
-from procedures.record import InstrumentRecord, Verdict
+from procedures.record import InstrumentRecord
 from procedures.steps.base import BaseStep
 
 
-class SerialMismatch(InstrumentError):
+class SerialMismatch(InstrumentError):  # noqa: N818 - like drivers.errors
     """The part's own serial register does not match the scanned label."""
 
 
@@ -42,13 +42,19 @@ class PowerIdentify(BaseStep):
             raise InstrumentError(
                 f"supply measures {volts:.3f} V with {self.supply_v:.3f} V set (allowed "
                 f"+/-{tol:g} V): check the supply sense leads and the fixture wiring",
-                instrument="supply")
+                instrument="supply",
+            )
         supply.check_errors()
         ctx.each(lambda part: self._identify(ctx, part))
         per_part_a = amps / max(len(ctx.alive()), 1)
         for part in ctx.alive():
-            ctx.measure(part, "supply_current_a", per_part_a, units="A",
-                        description="supply current at power-on (shared supply, per part)")
+            ctx.measure(
+                part,
+                "supply_current_a",
+                per_part_a,
+                units="A",
+                description="supply current at power-on (shared supply, per part)",
+            )
             part.extra["power_on_station_s"] = ctx.clock.now_s()
         ctx.each(self._start)
 
@@ -56,12 +62,20 @@ class PowerIdentify(BaseStep):
         assert part.stream is not None
         link = part.stream.link
         ident = link.identify()
-        part.record.instruments.append(InstrumentRecord(
-            role=f"fixture_{part.socket}", manufacturer=ident.manufacturer, model=ident.model,
-            serial=ident.serial, firmware=ident.firmware))
+        part.record.instruments.append(
+            InstrumentRecord(
+                role=f"fixture_{part.socket}",
+                manufacturer=ident.manufacturer,
+                model=ident.model,
+                serial=ident.serial,
+                firmware=ident.firmware,
+            )
+        )
         if not link.part_present():
-            raise PartAbsent(f"socket {part.socket}: no part in the socket; seat the part "
-                             "and rescan", instrument=f"fixture_{part.socket}")
+            raise PartAbsent(
+                f"socket {part.socket}: no part in the socket; seat the part and rescan",
+                instrument=f"fixture_{part.socket}",
+            )
         register = link.read_part_serial().strip()
         part.record.dut.part_serial_register = register
         if register != part.serial:
@@ -69,7 +83,8 @@ class PowerIdentify(BaseStep):
                 f"socket {part.socket}: the part's serial register says {register!r} but the "
                 f"scanned label is {part.serial!r}: wrong part or wrong label; the part is "
                 "refused, check which part is in which socket",
-                instrument=f"fixture_{part.socket}")
+                instrument=f"fixture_{part.socket}",
+            )
         part.extra["stop_angle"] = link.stop_angle()
         link.set_compensation(False)  # calibrate on the raw output
         link.set_output_rate(ctx.procedure.power.output_rate_hz)
@@ -77,4 +92,3 @@ class PowerIdentify(BaseStep):
     def _start(self, part: PartRun) -> None:
         assert part.stream is not None
         part.stream.start()
-

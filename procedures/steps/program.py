@@ -16,10 +16,15 @@ READBACK_REL_TOL = 1e-6
 def registers_from_fit(part: PartRun) -> CalibrationRegisters:
     co = part.fit.coefficients
     return CalibrationRegisters(
-        bias_dps=co.bias_dps, scale=co.scale,
-        bias_tc_dps_per_c=co.bias_temp_coeff_dps_per_c, scale_tc_per_c=co.scale_temp_coeff_per_c,
-        bias_vc_dps_per_v=co.bias_supply_coeff_dps_per_v, scale_vc_per_v=co.scale_supply_coeff_per_v,
-        t0_c=co.reference_temperature_c, v0_v=co.reference_supply_v)
+        bias_dps=co.bias_dps,
+        scale=co.scale,
+        bias_tc_dps_per_c=co.bias_temp_coeff_dps_per_c,
+        scale_tc_per_c=co.scale_temp_coeff_per_c,
+        bias_vc_dps_per_v=co.bias_supply_coeff_dps_per_v,
+        scale_vc_per_v=co.scale_supply_coeff_per_v,
+        t0_c=co.reference_temperature_c,
+        v0_v=co.reference_supply_v,
+    )
 
 
 def readback_differences(written: CalibrationRegisters, read: CalibrationRegisters) -> list[str]:
@@ -61,8 +66,13 @@ class Program(BaseStep):
             cal.readback_ok = not diffs
             cal.readback = {k: float(v) for k, v in asdict(read).items()}
         if diffs:
-            ctx.drop(part, Verdict.FAIL, "calibration read back differs from what was written ("
-                     + "; ".join(diffs) + "): the part's calibration memory may be faulty")
+            ctx.drop(
+                part,
+                Verdict.FAIL,
+                "calibration read back differs from what was written ("
+                + "; ".join(diffs)
+                + "): the part's calibration memory may be faulty",
+            )
             return
         link.set_compensation(True)
         ctx.event(f"socket {part.socket}: coefficients written and read back", parts=[part])

@@ -66,8 +66,13 @@ class StopMethod(BaseStep):
         assert cfg is not None
         res = part.conditions[self.condition]
         data = samples_between(ctx, part, t0, t1)
-        if not check_window(ctx, part, data, f"stop method at {self.condition}",
-                            cfg.static_s * (2 * cfg.repeats + 1)):
+        if not check_window(
+            ctx,
+            part,
+            data,
+            f"stop method at {self.condition}",
+            cfg.static_s * (2 * cfg.repeats + 1),
+        ):
             return
         if cfg.reference == "fixture":
             ref, u_ref = part.extra["stop_angle"]
@@ -75,8 +80,13 @@ class StopMethod(BaseStep):
             ref, u_ref = self._encoder_angle, self._encoder_u
         try:
             result = analyze_stop_method(
-                data["time_s"], data["rate_dps"], ref, u_ref, status=data["status"],
-                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps))
+                data["time_s"],
+                data["rate_dps"],
+                ref,
+                u_ref,
+                status=data["status"],
+                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
+            )
             scale = result.scale
             u_scale = result.u_scale
             if scale is None or u_scale is None:
@@ -85,32 +95,69 @@ class StopMethod(BaseStep):
             ctx.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
             return
         res.note_temperature("scale", data["temp_c"])
-        res.stop = {"scale": scale, "u_scale": u_scale, "bias_dps": result.bias_dps,
-                    "reference_angle_deg": ref, "u_reference_angle_deg": u_ref}
+        res.stop = {
+            "scale": scale,
+            "u_scale": u_scale,
+            "bias_dps": result.bias_dps,
+            "reference_angle_deg": ref,
+            "u_reference_angle_deg": u_ref,
+        }
         for i, (a, b) in enumerate(result.static_segments_s):
-            ctx.segment(part, "stop_static", i, a, b, ref_rate_dps=0.0,
-                        temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+            ctx.segment(
+                part,
+                "stop_static",
+                i,
+                a,
+                b,
+                ref_rate_dps=0.0,
+                temp_setpoint_c=res.temperature_c,
+                supply_v=res.supply_v,
+            )
         for i, mv in enumerate(result.moves):
-            ctx.segment(part, "stop_move", i, mv.start_s, mv.end_s,
-                        ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
-                        temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+            ctx.segment(
+                part,
+                "stop_move",
+                i,
+                mv.start_s,
+                mv.end_s,
+                ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
+                temp_setpoint_c=res.temperature_c,
+                supply_v=res.supply_v,
+            )
         part.record.analysis.setdefault("stop_method", {})[self.condition] = {
-            "bias_dps": result.bias_dps, "bias_correction_dps": result.bias_correction_dps,
-            "scale_correction": result.scale_correction, "scale": scale, "u_scale": u_scale,
-            "reference_angle_deg": ref, "u_reference_angle_deg": u_ref,
+            "bias_dps": result.bias_dps,
+            "bias_correction_dps": result.bias_correction_dps,
+            "scale_correction": result.scale_correction,
+            "scale": scale,
+            "u_scale": u_scale,
+            "reference_angle_deg": ref,
+            "u_reference_angle_deg": u_ref,
             "reference": cfg.reference,
             "static_windows": [[a, b] for a, b in result.static_segments_s],
-            "moves": [{"start_s": m.start_s, "end_s": m.end_s,
-                       "measured_angle_deg": m.measured_angle_deg,
-                       "scale_correction": m.scale_correction} for m in result.moves],
+            "moves": [
+                {
+                    "start_s": m.start_s,
+                    "end_s": m.end_s,
+                    "measured_angle_deg": m.measured_angle_deg,
+                    "scale_correction": m.scale_correction,
+                }
+                for m in result.moves
+            ],
             "warnings": list(result.warnings),
         }
         if res.table_fit is not None:
             try:
                 cons = stop_vs_rate_table(result, res.table_fit)
             except AnalysisError as exc:
-                ctx.event(f"socket {part.socket}: consistency not computed: {exc}", "WARNING", [part])
+                ctx.event(
+                    f"socket {part.socket}: consistency not computed: {exc}", "WARNING", [part]
+                )
                 return
-            ctx.measure(part, "stop_table_consistency", cons.normalised_difference, units="1",
-                        condition=self.condition,
-                        description="(stop scale - table scale) / combined k=2 uncertainty")
+            ctx.measure(
+                part,
+                "stop_table_consistency",
+                cons.normalised_difference,
+                units="1",
+                condition=self.condition,
+                description="(stop scale - table scale) / combined k=2 uncertainty",
+            )

@@ -26,8 +26,14 @@ class Plateau:
     angle_deg: float
 
 
-def run_plateaus(ctx: RunContext, rates: list[float], dwell_s: float, settle_s: float,
-                 accel_dps2: float, timeout_s: float) -> list[Plateau]:
+def run_plateaus(
+    ctx: RunContext,
+    rates: list[float],
+    dwell_s: float,
+    settle_s: float,
+    accel_dps2: float,
+    timeout_s: float,
+) -> list[Plateau]:
     """Drive the table through `rates`; each plateau's reference from two encoder snapshots."""
     table = ctx.bench.table
     assert table is not None
@@ -43,8 +49,12 @@ def run_plateaus(ctx: RunContext, rates: list[float], dwell_s: float, settle_s: 
         t1, s1 = ctx.snapshot()
         c0 = s0.encoder_counts_unwrapped or s0.encoder_counts
         c1 = s1.encoder_counts_unwrapped or s1.encoder_counts
-        ref = reference_rate_from_encoder([c0, c1], [s0.controller_time_s, s1.controller_time_s], cpr,
-                                          counts_modulo=1 << 62 if s0.encoder_counts_unwrapped else 1 << 32)
+        ref = reference_rate_from_encoder(
+            [c0, c1],
+            [s0.controller_time_s, s1.controller_time_s],
+            cpr,
+            counts_modulo=1 << 62 if s0.encoder_counts_unwrapped else 1 << 32,
+        )
         out.append(Plateau(rate, t0, t1, ref.rate_dps, ref.u_rate_dps, ref.angle_deg))
     table.set_rate(0.0, accel_dps2)
     table.wait_at_rate(timeout_s)
@@ -61,15 +71,24 @@ class RateSweep(BaseStep):
         cfg = ctx.procedure.rate_table
         assert cfg is not None
         rates = cfg.rates_dps * cfg.repeats
-        ramps = sum(abs(b - a) for a, b in zip([0.0, *rates], [*rates, 0.0], strict=True)) / cfg.accel_dps2
+        ramps = (
+            sum(abs(b - a) for a, b in zip([0.0, *rates], [*rates, 0.0], strict=True))
+            / cfg.accel_dps2
+        )
         return len(rates) * (cfg.plateau_dwell_s + cfg.settle_s + 0.5) + ramps
 
     def main(self, ctx: RunContext) -> None:
         cfg = ctx.procedure.rate_table
         assert cfg is not None and ctx.bench.table is not None
         ctx.bench.table.enable()
-        self.plateaus = run_plateaus(ctx, list(cfg.rates_dps) * cfg.repeats, cfg.plateau_dwell_s,
-                                     cfg.settle_s, cfg.accel_dps2, cfg.at_rate_timeout_s)
+        self.plateaus = run_plateaus(
+            ctx,
+            list(cfg.rates_dps) * cfg.repeats,
+            cfg.plateau_dwell_s,
+            cfg.settle_s,
+            cfg.accel_dps2,
+            cfg.at_rate_timeout_s,
+        )
         ctx.each(lambda part: self._analyse(ctx, part))
 
     def _analyse(self, ctx: RunContext, part: PartRun) -> None:
@@ -81,8 +100,13 @@ class RateSweep(BaseStep):
         ref, u_ref, out, u_out = [], [], [], []
         for i, p in enumerate(self.plateaus):
             data = samples_between(ctx, part, p.t0_s, p.t1_s)
-            if not check_window(ctx, part, data, f"plateau {p.rate_cmd_dps:g} deg/s at {self.condition}",
-                                cfg.plateau_dwell_s):
+            if not check_window(
+                ctx,
+                part,
+                data,
+                f"plateau {p.rate_cmd_dps:g} deg/s at {self.condition}",
+                cfg.plateau_dwell_s,
+            ):
                 return
             wm = window_mean(data["rate_dps"], fs, noise)
             res.note_temperature("scale", data["temp_c"])
@@ -90,9 +114,17 @@ class RateSweep(BaseStep):
             u_ref.append(p.u_ref_dps)
             out.append(wm.mean_dps)
             u_out.append(wm.u_mean_dps)
-            ctx.segment(part, "plateau", i, float(data["time_s"][0]), float(data["time_s"][-1]),
-                        ref_rate_dps=p.ref_dps, ref_angle_deg=p.angle_deg,
-                        temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
+            ctx.segment(
+                part,
+                "plateau",
+                i,
+                float(data["time_s"][0]),
+                float(data["time_s"][-1]),
+                ref_rate_dps=p.ref_dps,
+                ref_angle_deg=p.angle_deg,
+                temp_setpoint_c=res.temperature_c,
+                supply_v=res.supply_v,
+            )
         try:
             fit = fit_rate_table(ref, u_ref, out, u_out, ctx.product.range_dps)
         except AnalysisError as exc:
@@ -100,18 +132,41 @@ class RateSweep(BaseStep):
             return
         res.table_fit = fit
         nominal = ctx.product.nominal_scale
-        ctx.measure(part, "raw_scale_error", fit.scale / nominal - 1.0, units="1",
-                    uncertainty_k2=2 * fit.u_scale / nominal, condition=self.condition,
-                    description="uncalibrated scale / nominal - 1 (rate table)")
-        ctx.measure(part, "nonlinearity_pct_fs", fit.nonlinearity_pct_fs, units="% FS",
-                    uncertainty_k2=2 * fit.u_nonlinearity_pct_fs, condition=self.condition)
-        ctx.measure(part, "asymmetry", fit.asymmetry_ppm * 1e-6, units="1",
-                    uncertainty_k2=2 * fit.u_asymmetry_ppm * 1e-6, condition=self.condition)
+        ctx.measure(
+            part,
+            "raw_scale_error",
+            fit.scale / nominal - 1.0,
+            units="1",
+            uncertainty_k2=2 * fit.u_scale / nominal,
+            condition=self.condition,
+            description="uncalibrated scale / nominal - 1 (rate table)",
+        )
+        ctx.measure(
+            part,
+            "nonlinearity_pct_fs",
+            fit.nonlinearity_pct_fs,
+            units="% FS",
+            uncertainty_k2=2 * fit.u_nonlinearity_pct_fs,
+            condition=self.condition,
+        )
+        ctx.measure(
+            part,
+            "asymmetry",
+            fit.asymmetry_ppm * 1e-6,
+            units="1",
+            uncertainty_k2=2 * fit.u_asymmetry_ppm * 1e-6,
+            condition=self.condition,
+        )
         part.record.analysis.setdefault("rate_table", {})[self.condition] = {
-            "rate_in_dps": [float(x) for x in ref], "u_rate_in_dps": [float(x) for x in u_ref],
-            "rate_out_dps": [float(x) for x in out], "u_rate_out_dps": [float(x) for x in u_out],
+            "rate_in_dps": [float(x) for x in ref],
+            "u_rate_in_dps": [float(x) for x in u_ref],
+            "rate_out_dps": [float(x) for x in out],
+            "u_rate_out_dps": [float(x) for x in u_out],
             "residual_dps": [float(x) for x in fit.residual_dps],
-            "scale": fit.scale, "u_scale": fit.u_scale, "bias_dps": fit.bias_dps,
-            "u_bias_dps": fit.u_bias_dps, "nonlinearity_pct_fs": fit.nonlinearity_pct_fs,
+            "scale": fit.scale,
+            "u_scale": fit.u_scale,
+            "bias_dps": fit.bias_dps,
+            "u_bias_dps": fit.u_bias_dps,
+            "nonlinearity_pct_fs": fit.nonlinearity_pct_fs,
             "asymmetry_ppm": fit.asymmetry_ppm,
         }

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from procedures.conditions import Condition
-from procedures.engine import ConditionResult, PartRun, RunContext
+from procedures.engine import ConditionResult, RunContext
 from procedures.record import Verdict
 from procedures.steps.base import BaseStep
 
@@ -30,19 +30,29 @@ class StabilityVerdict:
     span_s: float
 
 
-def judge_stability(time_s: NDArray[np.float64], temp_c: NDArray[np.float64], window_s: float,
-                    slope_c_per_min: float, band_c: float,
-                    target_c: float | None = None, tolerance_c: float | None = None
-                    ) -> StabilityVerdict:
+def judge_stability(
+    time_s: NDArray[np.float64],
+    temp_c: NDArray[np.float64],
+    window_s: float,
+    slope_c_per_min: float,
+    band_c: float,
+    target_c: float | None = None,
+    tolerance_c: float | None = None,
+) -> StabilityVerdict:
     """Is the last `window_s` of a die temperature record stable? (needs a full window)."""
     if time_s.size < 3 or time_s[-1] - time_s[0] < window_s * 0.98:
-        return StabilityVerdict(False, float("nan"), float("nan"), float("nan"),
-                                float(time_s[-1] - time_s[0]) if time_s.size else 0.0)
+        return StabilityVerdict(
+            False,
+            float("nan"),
+            float("nan"),
+            float("nan"),
+            float(time_s[-1] - time_s[0]) if time_s.size else 0.0,
+        )
     sel = time_s >= time_s[-1] - window_s
     t, y = time_s[sel], temp_c[sel]
     slope = float(np.polyfit(t - t[0], y, 1)[0]) * 60.0
     # peak-to-peak of 1 s means: the band is about drift, not sensor noise
-    bins = np.floor((t - t[0])).astype(np.int64)
+    bins = np.floor(t - t[0]).astype(np.int64)
     counts = np.bincount(bins)
     sums = np.bincount(bins, weights=y)
     means = sums[counts > 0] / counts[counts > 0]
@@ -82,8 +92,10 @@ class Stabilise(BaseStep):
         ctx.bench.supply.check_errors()
         for part in ctx.alive():
             part.conditions[self.condition] = ConditionResult(
-                name=self.condition, temperature_c=self.target.temperature_c,
-                supply_v=self.target.supply_v)
+                name=self.condition,
+                temperature_c=self.target.temperature_c,
+                supply_v=self.target.supply_v,
+            )
 
     def main(self, ctx: RunContext) -> None:
         st, cfg = ctx.procedure.stability, ctx.procedure.chamber
@@ -95,10 +107,12 @@ class Stabilise(BaseStep):
                 break
             if ctx.clock.now_s() - start > cfg.setpoint_timeout_s:
                 from drivers.errors import ChamberSetpointNotReached
+
                 raise ChamberSetpointNotReached(
                     f"chamber air at {air:.1f} C did not reach {self.target.temperature_c:g} C "
                     f"within {cfg.setpoint_timeout_s:g} s: check the chamber (door, compressor)",
-                    instrument="chamber")
+                    instrument="chamber",
+                )
             ctx.sleep(st.check_interval_s)
         air_at = ctx.clock.now_s()
         window_start = max(start, air_at - 0.0)
@@ -114,9 +128,15 @@ class Stabilise(BaseStep):
                 assert part.stream is not None
                 f0 = part.stream.fixture_time(window_start)
                 data = part.stream.window(f0, np.inf)
-                v = judge_stability(data["time_s"], data["temp_c"], st.window_s,
-                                    st.slope_c_per_min, st.band_c,
-                                    self.target.temperature_c, st.target_tolerance_c)
+                v = judge_stability(
+                    data["time_s"],
+                    data["temp_c"],
+                    st.window_s,
+                    st.slope_c_per_min,
+                    st.band_c,
+                    self.target.temperature_c,
+                    st.target_tolerance_c,
+                )
                 verdicts[part.socket] = v
                 if v.stable:
                     stable_at[part.socket] = ctx.clock.now_s()
@@ -126,12 +146,19 @@ class Stabilise(BaseStep):
             if ctx.clock.now_s() - start > st.timeout_s:
                 for part in alive:
                     if part.socket not in stable_at:
-                        v = verdicts.get(part.socket)
-                        ctx.drop(part, Verdict.ERROR, (
-                            f"die temperature not stable within {st.timeout_s:g} s at "
-                            f"{self.condition} (slope {v.slope_c_per_min if v else float('nan'):.3f} "
-                            f"C/min, band {v.band_c if v else float('nan'):.3f} C): check the "
-                            "part's seating and the chamber; or relax stability in the procedure"))
+                        last = verdicts.get(part.socket)
+                        slope = last.slope_c_per_min if last else float("nan")
+                        band = last.band_c if last else float("nan")
+                        ctx.drop(
+                            part,
+                            Verdict.ERROR,
+                            (
+                                f"die temperature not stable within {st.timeout_s:g} s at "
+                                f"{self.condition} (slope {slope:.3f} C/min, band {band:.3f} C): "
+                                "check the part's seating and the chamber; or relax stability "
+                                "in the procedure"
+                            ),
+                        )
                 ctx.require_parts()
                 break
         end = ctx.clock.now_s()
@@ -144,16 +171,28 @@ class Stabilise(BaseStep):
             res.supply_measured_v = volts
             res.supply_current_a = amps / max(len(ctx.alive()), 1)
             assert part.stream is not None
-            ctx.segment(part, "stabilise", 0, part.stream.fixture_time(start),
-                        part.stream.fixture_time(stable_at[part.socket]),
-                        temp_setpoint_c=self.target.temperature_c, supply_v=self.target.supply_v)
+            ctx.segment(
+                part,
+                "stabilise",
+                0,
+                part.stream.fixture_time(start),
+                part.stream.fixture_time(stable_at[part.socket]),
+                temp_setpoint_c=self.target.temperature_c,
+                supply_v=self.target.supply_v,
+            )
             part.record.analysis.setdefault("stability", {})[self.condition] = {
-                "window_s": st.window_s, "max_rate_c_per_min": st.slope_c_per_min,
-                "band_c": st.band_c, "tolerance_c": st.target_tolerance_c,
-                "time_to_stability_s": res.time_to_stability_s, "stable": True,
-                "slope_c_per_min": v.slope_c_per_min, "measured_band_c": v.band_c,
-                "die_temperature_c": v.mean_c, "stable_at_station_s": stable_at[part.socket],
+                "window_s": st.window_s,
+                "max_rate_c_per_min": st.slope_c_per_min,
+                "band_c": st.band_c,
+                "tolerance_c": st.target_tolerance_c,
+                "time_to_stability_s": res.time_to_stability_s,
+                "stable": True,
+                "slope_c_per_min": v.slope_c_per_min,
+                "measured_band_c": v.band_c,
+                "die_temperature_c": v.mean_c,
+                "stable_at_station_s": stable_at[part.socket],
                 "stable_at_fixture_s": part.stream.fixture_time(stable_at[part.socket]),
-                "condition_set_station_s": start, "measurement_start_station_s": end,
+                "condition_set_station_s": start,
+                "measurement_start_station_s": end,
             }
         ctx.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")

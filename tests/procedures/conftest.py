@@ -30,11 +30,18 @@ class SimRun:
     injected_at: dict[str, Any] | None = None
 
 
-def run_on_bench(out: Path, parts: list[dict[str, Any]], *, procedure: Path = SHORT,
-                 speed: float = 200.0, inject: tuple[str, Callable[[ControlClient], None]] | None = None,
-                 poll_truth: bool = False, sim_extra: dict[str, Any] | None = None,
-                 certificate: bool = False, runner_hook: Callable[[UutRunner], None] | None = None,
-                 ) -> SimRun:
+def run_on_bench(
+    out: Path,
+    parts: list[dict[str, Any]],
+    *,
+    procedure: Path = SHORT,
+    speed: float = 200.0,
+    inject: tuple[str, Callable[[ControlClient], None]] | None = None,
+    poll_truth: bool = False,
+    sim_extra: dict[str, Any] | None = None,
+    certificate: bool = False,
+    runner_hook: Callable[[UutRunner], None] | None = None,
+) -> SimRun:
     """Start a bench with `parts`, run `procedure` on them, return results and truth.
 
     `inject=(step_name, action)`: `action(control)` runs when the step first starts.
@@ -43,10 +50,20 @@ def run_on_bench(out: Path, parts: list[dict[str, Any]], *, procedure: Path = SH
     sockets = max(p["socket"] for p in parts)
     with launch_bench(config=config, speed=speed, sockets=sockets) as bench:
         e = bench.endpoints
-        runner = UutRunner(load_settings(), procedure_path=procedure, out=out,
-                           endpoints=Endpoints(speed=e.speed, rate_table=e.rate_table,
-                                               chamber=e.chamber, supply=e.supply, duts=dict(e.duts)),
-                           certificate=certificate, operator="pytest")
+        runner = UutRunner(
+            load_settings(),
+            procedure_path=procedure,
+            out=out,
+            endpoints=Endpoints(
+                speed=e.speed,
+                rate_table=e.rate_table,
+                chamber=e.chamber,
+                supply=e.supply,
+                duts=dict(e.duts),
+            ),
+            certificate=certificate,
+            operator="pytest",
+        )
         run = SimRun(result=UutResult(), final_truth={})
         fired = threading.Event()
 
@@ -63,11 +80,13 @@ def run_on_bench(out: Path, parts: list[dict[str, Any]], *, procedure: Path = SH
         stop = threading.Event()
         poller = None
         if poll_truth:
+
             def poll() -> None:
                 with ControlClient(e.control) as client:
                     while not stop.is_set():
                         run.history.append(client.truth())
                         stop.wait(0.01)
+
             poller = threading.Thread(target=poll, daemon=True)
             poller.start()
         try:
@@ -80,7 +99,9 @@ def run_on_bench(out: Path, parts: list[dict[str, Any]], *, procedure: Path = SH
     return run
 
 
-def truth_series(history: list[dict[str, Any]], socket: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def truth_series(
+    history: list[dict[str, Any]], socket: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(world time, die temperature, chamber air) from polled truth."""
     t = np.array([h["time_s"] for h in history])
     die = np.array([h["sockets"][str(socket)].get("die_temp_c", np.nan) for h in history])

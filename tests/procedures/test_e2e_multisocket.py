@@ -26,8 +26,9 @@ COEFFS = {  # record.calibration key -> truth parameter
 def four(tmp_path_factory: pytest.TempPathFactory) -> SimRun:
     parts = [{"socket": s, "serial": f"SIM-010{s}"} for s in (1, 2, 3)]
     parts.append({"socket": 4, "serial": "SIM-0104", "bias_dps": 15.0})  # raw bias beyond 10
-    return run_on_bench(tmp_path_factory.mktemp("four") / "runs", parts, poll_truth=True,
-                        certificate=True)
+    return run_on_bench(
+        tmp_path_factory.mktemp("four") / "runs", parts, poll_truth=True, certificate=True
+    )
 
 
 def test_four_records_four_verdicts_one_failing(four: SimRun) -> None:
@@ -87,9 +88,11 @@ def test_no_measurement_before_die_is_stable(four: SimRun) -> None:
     # fixture clock -> world clock: align the recorded sensor with the truth die temperature
     ts, temp = raw["samples"]["time_s"], raw["samples"]["temp_c"]
     offsets = np.arange(-120.0, 120.0, 0.25)
-    sel = (t_w > t_w[0] + 150)
-    cost = [np.nanmean((np.interp(t_w[sel] + o, ts, temp, left=np.nan, right=np.nan) - die[sel]) ** 2)
-            for o in offsets]
+    sel = t_w > t_w[0] + 150
+    cost = [
+        np.nanmean((np.interp(t_w[sel] + o, ts, temp, left=np.nan, right=np.nan) - die[sel]) ** 2)
+        for o in offsets
+    ]
     offset = offsets[int(np.nanargmin(cost))]
     assert np.nanmin(cost) < 0.01  # the sensor follows the truth within its noise
     window = 30.0

@@ -54,13 +54,24 @@ def _ctx(tmp_path: Path, n_parts: int = 1, speed: float = 1000.0) -> tuple[RunCo
     proc, _ = load_procedure(ROOT / "config/procedures/eol-rate-table.yaml")
     prod, _ = load_product(ROOT / "config/products/gyr130.yaml")
     calls: list[str] = []
-    bench = Bench(chamber=FakeInstrument(calls, "chamber"), supply=FakeInstrument(calls, "supply"),  # type: ignore[arg-type]
-                  links={}, clock=ScaledClock(speed), table=FakeInstrument(calls, "table"))  # type: ignore[arg-type]
+    bench = Bench(
+        chamber=FakeInstrument(calls, "chamber"),
+        supply=FakeInstrument(calls, "supply"),  # type: ignore[arg-type]
+        links={},
+        clock=ScaledClock(speed),
+        table=FakeInstrument(calls, "table"),
+    )  # type: ignore[arg-type]
     parts = []
     for s in range(1, n_parts + 1):
         ref = FileRef(path="x", sha256="0" * 64)
-        rec = RunRecord(run_id=f"r{s}", verdict=Verdict.RUNNING, started_utc="t",
-                        dut=Dut(serial=f"SIM-000{s}", socket=s), product=ref, procedure=ref)
+        rec = RunRecord(
+            run_id=f"r{s}",
+            verdict=Verdict.RUNNING,
+            started_utc="t",
+            dut=Dut(serial=f"SIM-000{s}", socket=s),
+            product=ref,
+            procedure=ref,
+        )
         parts.append(PartRun(socket=s, serial=f"SIM-000{s}", folder=tmp_path / f"p{s}", record=rec))
     return RunContext(bench, proc, prod, parts), calls
 
@@ -76,7 +87,11 @@ def test_pass_path_cleans_up_and_judges(tmp_path: Path) -> None:
     assert calls == SAFE
     assert ctx.parts[0].extra["cleanups"] == ["a", "b"]
     rec = read_record(tmp_path / "p1")
-    assert rec.verdict is Verdict.PASS and "a" in rec.timings and rec.analysis["safe_state"]["supply"] == "safe"
+    assert (
+        rec.verdict is Verdict.PASS
+        and "a" in rec.timings
+        and rec.analysis["safe_state"]["supply"] == "safe"
+    )
 
 
 def test_instrument_error_ends_in_error_with_cleanup(tmp_path: Path) -> None:
@@ -120,8 +135,11 @@ def test_abort_from_another_thread_stops_a_long_dwell(tmp_path: Path) -> None:
 def test_step_timeout_and_retry_policy(tmp_path: Path) -> None:
     ctx, calls = _ctx(tmp_path)
     # power has retries: 1 in the procedure file: one timeout is retried, then it passes
-    flaky = Scripted(name="power", policy="power",
-                     action=lambda c, n: (_ for _ in ()).throw(InstrumentTimeout("slow")) if n == 1 else None)
+    flaky = Scripted(
+        name="power",
+        policy="power",
+        action=lambda c, n: (_ for _ in ()).throw(InstrumentTimeout("slow")) if n == 1 else None,
+    )
     assert Engine(ctx, [flaky]).run() == {1: Verdict.PASS}  # type: ignore[arg-type]
     assert len(flaky.attempts) == 2
     ctx2, _ = _ctx(tmp_path / "t")
@@ -140,9 +158,12 @@ def test_one_part_dropping_does_not_stop_the_others(tmp_path: Path) -> None:
             if part.socket == 2:
                 raise PartAbsent("socket 2: no part", instrument="fixture on socket 2")
             part.extra["ok"] = True
+
         ctx.each(go)
 
-    verdicts = Engine(ctx, [Scripted(name="identify", action=absent_two), Scripted(name="more")]).run()  # type: ignore[arg-type]
+    verdicts = Engine(
+        ctx, [Scripted(name="identify", action=absent_two), Scripted(name="more")]
+    ).run()  # type: ignore[arg-type]
     assert verdicts == {1: Verdict.PASS, 2: Verdict.ERROR, 3: Verdict.PASS}
     assert read_record(tmp_path / "p2").reason == "socket 2: no part"
     assert "more" in read_record(tmp_path / "p3").timings
@@ -157,4 +178,6 @@ def test_progress_fraction_rises_to_one(tmp_path: Path) -> None:
     assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
     assert {e.step for e in events if e.kind == "step"} == {"s0", "s1", "s2", "s3"}
     mid = [e for e in events if e.step == "s2" and e.kind == "step"][0]
-    assert mid.fraction == pytest.approx(0.5, abs=0.02) and mid.remaining_s == pytest.approx(100, abs=5)
+    assert mid.fraction == pytest.approx(0.5, abs=0.02) and mid.remaining_s == pytest.approx(
+        100, abs=5
+    )

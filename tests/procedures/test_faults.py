@@ -19,8 +19,12 @@ FAULTS = {
     "table_fault": ("rate_table", "table_fault", {"code": "following_error"}, ["following error"]),
     "chamber_stuck": ("thermal", "chamber_stuck", {}, ["chamber", "did not reach"]),
     "supply_current_limit": ("bias", "supply_short", {"socket": 1}, ["current-limiting"]),
-    "corrupted_stream": ("rate_table", "stream_corrupt", {"socket": 1, "byte_error_rate": 0.002},
-                         ["stream corrupted"]),
+    "corrupted_stream": (
+        "rate_table",
+        "stream_corrupt",
+        {"socket": 1, "byte_error_rate": 0.002},
+        ["stream corrupted"],
+    ),
     "absent_part": ("power_identify", "part_absent", {"socket": 1}, ["no part in the socket"]),
 }
 
@@ -34,8 +38,13 @@ def test_fault_ends_in_error_safe_and_keeps_data(fault_id: str, tmp_path: Path) 
 
     # faults.yaml goes to 35 C first, so a stuck chamber is caught at the first condition
     procedure = DATA / ("faults.yaml" if kind == "chamber_stuck" else "short.yaml")
-    run = run_on_bench(tmp_path / "runs", [{"socket": 1, "serial": "SIM-0401"}], speed=100,
-                       procedure=procedure, inject=(step, inject))
+    run = run_on_bench(
+        tmp_path / "runs",
+        [{"socket": 1, "serial": "SIM-0401"}],
+        speed=100,
+        procedure=procedure,
+        inject=(step, inject),
+    )
     assert run.injected_at is not None
     rec = read_record(run.result.folders[1])
     assert rec.verdict in (Verdict.ERROR, Verdict.FAIL)

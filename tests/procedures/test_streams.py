@@ -28,8 +28,13 @@ class FakeLink:
 
 def block(t: np.ndarray, rate: float) -> SampleBlock:
     n = t.size
-    return SampleBlock(np.arange(n), t, rate_dps_to_code(np.full(n, rate)),
-                       temp_c_to_code(np.full(n, 30.0)), np.zeros(n, dtype=np.int64))
+    return SampleBlock(
+        np.arange(n),
+        t,
+        rate_dps_to_code(np.full(n, rate)),
+        temp_c_to_code(np.full(n, 30.0)),
+        np.zeros(n, dtype=np.int64),
+    )
 
 
 def test_stream_keeps_one_time_base_across_a_wrap_and_writes_raw(tmp_path: Path) -> None:
@@ -62,6 +67,8 @@ def test_offset_maps_station_to_fixture_time() -> None:
     stream = PartStream(1, link, clock)  # type: ignore[arg-type]
     stream.start()
     now = clock.now_s()
-    link.blocks.append(block(np.arange(-1.0, 0.0, 0.01) + 100.01 + now, 0.0))  # fixture = station + 100
+    link.blocks.append(
+        block(np.arange(-1.0, 0.0, 0.01) + 100.01 + now, 0.0)
+    )  # fixture = station + 100
     stream.poll()
     assert abs(stream.fixture_time(now + 5.0) - (now + 105.0)) < 0.05

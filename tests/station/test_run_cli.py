@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -24,8 +25,14 @@ def _env() -> dict[str, str]:
 
 
 def station(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "station", *args], capture_output=True,
-                          text=True, env=_env(), cwd=ROOT, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "station", *args],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        cwd=ROOT,
+        timeout=timeout,
+    )
 
 
 def _tree(path: Path) -> set[str]:
@@ -44,11 +51,14 @@ def test_bad_yaml_names_file_line_field(tmp_path: Path) -> None:
     assert not out.exists()
 
 
-@pytest.mark.parametrize("serial, words", [
-    ("../../x", "not allowed"),
-    ("/etc/passwd", "not allowed"),
-    ("SIM_0001", "does not match the product's serial pattern"),
-])
+@pytest.mark.parametrize(
+    "serial, words",
+    [
+        ("../../x", "not allowed"),
+        ("/etc/passwd", "not allowed"),
+        ("SIM_0001", "does not match the product's serial pattern"),
+    ],
+)
 def test_bad_serials_refused_nothing_written(tmp_path: Path, serial: str, words: str) -> None:
     out = tmp_path / "a" / "b" / "out"
     before = _tree(tmp_path)
@@ -62,8 +72,18 @@ def test_wrong_part_in_socket_is_refused(tmp_path: Path) -> None:
     sim = tmp_path / "sim.yaml"
     sim.write_text("speed: 100\nparts:\n  - {socket: 1, serial: SIM-0002}\n")
     out = tmp_path / "out"
-    r = station("run", "--dut", "SIM-0001", "--sim", "--sim-config", str(sim),
-                "--procedure", str(SHORT), "--out", str(out))
+    r = station(
+        "run",
+        "--dut",
+        "SIM-0001",
+        "--sim",
+        "--sim-config",
+        str(sim),
+        "--procedure",
+        str(SHORT),
+        "--out",
+        str(out),
+    )
     assert r.returncode == 2, r.stdout + r.stderr
     (folder,) = list(out.glob("*_SIM-0001"))
     rec = read_record(folder)
@@ -74,8 +94,14 @@ def test_wrong_part_in_socket_is_refused(tmp_path: Path) -> None:
 
 
 def _start(args: list[str]) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "station", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
+    return subprocess.Popen(
+        [sys.executable, "-m", "station", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=ROOT,
+    )
 
 
 def _wait_for(proc: subprocess.Popen[str], pattern: str, timeout: float = 60) -> list[str]:
@@ -94,8 +120,20 @@ def _wait_for(proc: subprocess.Popen[str], pattern: str, timeout: float = 60) ->
 
 def test_sigint_aborts_cleanly(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    proc = _start(["run", "--dut", "SIM-0001", "--sim", "--speed", "100", "--procedure",
-                   str(SHORT), "--out", str(out)])
+    proc = _start(
+        [
+            "run",
+            "--dut",
+            "SIM-0001",
+            "--sim",
+            "--speed",
+            "100",
+            "--procedure",
+            str(SHORT),
+            "--out",
+            str(out),
+        ]
+    )
     try:
         _wait_for(proc, r"bias T25")
         proc.send_signal(signal.SIGINT)
@@ -112,8 +150,20 @@ def test_sigint_aborts_cleanly(tmp_path: Path) -> None:
 
 def test_killed_run_keeps_data_and_is_marked_error_next_start(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    proc = _start(["run", "--dut", "SIM-0001", "--sim", "--speed", "100", "--procedure",
-                   str(SHORT), "--out", str(out)])
+    proc = _start(
+        [
+            "run",
+            "--dut",
+            "SIM-0001",
+            "--sim",
+            "--speed",
+            "100",
+            "--procedure",
+            str(SHORT),
+            "--out",
+            str(out),
+        ]
+    )
     bench_pid = None
     try:
         lines = _wait_for(proc, r"rate_table T25")
@@ -126,10 +176,8 @@ def test_killed_run_keeps_data_and_is_marked_error_next_start(tmp_path: Path) ->
         if proc.poll() is None:
             proc.kill()
         if bench_pid:  # the station was killed: its bench child is an orphan now
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(bench_pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
     folder = next(out.glob("*_SIM-0001"))
     assert read_record(folder).verdict is Verdict.RUNNING
     raw = read_raw(folder / "raw.h5")

@@ -20,13 +20,21 @@ SHORT = ROOT / "tests/procedures/data/short.yaml"
 
 
 def test_start_state_abort_wait(tmp_path: Path) -> None:
-    with launch_bench(config={"parts": [{"socket": 1, "serial": "SIM-0601"},
-                                        {"socket": 2, "serial": "SIM-0602"}]},
-                      speed=100, sockets=2) as bench:
+    with launch_bench(
+        config={
+            "parts": [{"socket": 1, "serial": "SIM-0601"}, {"socket": 2, "serial": "SIM-0602"}]
+        },
+        speed=100,
+        sockets=2,
+    ) as bench:
         e = bench.endpoints
-        runner = UutRunner(load_settings(), procedure_path=SHORT, out=tmp_path / "runs",
-                           endpoints=Endpoints(e.speed, e.rate_table, e.chamber, e.supply,
-                                               dict(e.duts)), certificate=False)
+        runner = UutRunner(
+            load_settings(),
+            procedure_path=SHORT,
+            out=tmp_path / "runs",
+            endpoints=Endpoints(e.speed, e.rate_table, e.chamber, e.supply, dict(e.duts)),
+            certificate=False,
+        )
         with pytest.raises(UserError, match="does not match the product"):
             runner.start({1: "SIM-06011"})
         in_bias = threading.Event()

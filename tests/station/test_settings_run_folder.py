@@ -21,7 +21,9 @@ from station.run_folder import (
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("serial", ["../../x", "..", "a/b", "/etc", "a\\b", "", ".hidden", "x" * 65])
+@pytest.mark.parametrize(
+    "serial", ["../../x", "..", "a/b", "/etc", "a\\b", "", ".hidden", "x" * 65]
+)
 def test_unsafe_serials_refused(serial: str) -> None:
     with pytest.raises(UserError, match="not allowed"):
         validate_serial(serial)
@@ -44,16 +46,26 @@ def test_folder_inside_out_and_unique(tmp_path: Path) -> None:
 
 def _record(verdict: Verdict) -> RunRecord:
     ref = FileRef(path="p", sha256="0" * 64)
-    return RunRecord(run_id="r", verdict=verdict, started_utc="2026-01-01T00:00:00Z",
-                     dut=Dut(serial="SIM-0001"), product=ref, procedure=ref)
+    return RunRecord(
+        run_id="r",
+        verdict=verdict,
+        started_utc="2026-01-01T00:00:00Z",
+        dut=Dut(serial="SIM-0001"),
+        product=ref,
+        procedure=ref,
+    )
 
 
 def test_crashed_run_marked_error(tmp_path: Path) -> None:
     dead = create_run_folder(tmp_path, "SIM-0001")
     write_record(dead, _record(Verdict.RUNNING))
     # a lock naming a process that has exited
-    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                          capture_output=True, text=True, check=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     lock = json.loads((dead / LOCK_FILE).read_text())
     lock["pid"] = int(proc.stdout)
     (dead / LOCK_FILE).write_text(json.dumps(lock))
@@ -71,8 +83,13 @@ def test_crashed_run_marked_error(tmp_path: Path) -> None:
 
 def test_schema_command_writes_valid_json(tmp_path: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    out = subprocess.run([sys.executable, "-m", "station", "schema", "--out", str(tmp_path)],
-                         capture_output=True, text=True, env=env, cwd=ROOT)
+    out = subprocess.run(
+        [sys.executable, "-m", "station", "schema", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
     assert out.returncode == 0, out.stderr
     schema = json.loads((tmp_path / "procedure.schema.json").read_text())
     assert "conditions" in schema["required"]
