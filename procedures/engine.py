@@ -634,6 +634,15 @@ class Engine:
                 + "; ".join(f"{k}: {v}" for k, v in failed_safe.items()),
             )
         for part in ctx.parts:
+            if part.alive and part.stream is not None:
+                lost, ok = part.stream.frames_lost, part.stream.frames_ok
+                ctx.measure(
+                    part,
+                    "frames_lost_fraction",
+                    lost / max(lost + ok, 1),
+                    units="1",
+                    description=f"{lost} of {lost + ok} frames lost over the run",
+                )
             if part.alive:
                 if run_error is not None:
                     part.verdict, part.reason = run_error

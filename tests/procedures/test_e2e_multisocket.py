@@ -47,6 +47,17 @@ def test_four_records_four_verdicts_one_failing(four: SimRun) -> None:
     failing = read_record(res.folders[4])
     assert any(f.startswith("raw_bias_dps") for f in failing.failed_measurements)
     assert res.exit_code == 1
+    from station.results_db import ResultsDB
+
+    rows = ResultsDB(res.folders[1].parent / "results.sqlite").runs()
+    assert sorted((r.serial, r.verdict) for r in rows) == [
+        ("SIM-0101", "PASS"),
+        ("SIM-0102", "PASS"),
+        ("SIM-0103", "PASS"),
+        ("SIM-0104", "FAIL"),
+    ]
+    lost = [m for m in failing.measurements if m.name == "frames_lost_fraction"]
+    assert len(lost) == 1 and lost[0].value is not None and lost[0].value <= 0.001
 
 
 def test_coefficients_within_k2_of_truth(four: SimRun) -> None:
