@@ -53,6 +53,12 @@ def _ui(args: argparse.Namespace) -> int:
                 f"(pid {station.bench.endpoints.pid})",
                 flush=True,
             )
+        if args.host not in ("127.0.0.1", "localhost", "::1"):
+            print(
+                f"warning: listening on {args.host}: every machine on that network can reach "
+                "the station; the engineer password crosses it unencrypted",
+                flush=True,
+            )
         print(
             f"operator screen: http://{args.host}:{args.port}/   "
             f"review: http://{args.host}:{args.port}/review   (Ctrl-C stops)",

@@ -18,7 +18,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
 from station.errors import UserError
-from station.ui.auth import Sessions, verify_password
+from station.ui.auth import LoginThrottle, Sessions, verify_password
 from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
 from station.ui.history import History, RunFilter, yield_summary
 
@@ -59,6 +59,7 @@ def create_app(
 ) -> FastAPI:
     app = FastAPI(title="Gyro calibration station", docs_url=None, redoc_url=None)
     sessions = Sessions()
+    throttle = LoginThrottle()
 
     def is_engineer(request: Request) -> bool:
         return sessions.is_engineer(request.cookies.get(SESSION_COOKIE))
@@ -137,8 +138,13 @@ def create_app(
                 "no engineer password is set for this station; run `station ui --hash-password`"
                 " and put its output under ui.engineer_password_hash in station.yaml",
             )
+        wait_s = throttle.wait_s()
+        if wait_s > 0:
+            return _error(429, f"too many wrong passwords; try again in {wait_s:.0f} s")
         if not verify_password(body.password, engineer_password_hash):
+            throttle.failed()
             return _error(401, "wrong engineer password; try again")
+        throttle.reset()
         response = JSONResponse({"role": "engineer"})
         response.set_cookie(
             SESSION_COOKIE, sessions.open(), httponly=True, samesite="strict", max_age=8 * 3600

@@ -89,3 +89,27 @@ class Sessions:
     def close(self, token: str | None) -> None:
         if token:
             self._expiry.pop(token, None)
+
+
+@dataclass
+class LoginThrottle:
+    """After `limit` wrong passwords within `window_s`, refuse logins for `lockout_s`."""
+
+    limit: int = 5
+    window_s: float = 60.0
+    lockout_s: float = 60.0
+    _failures: list[float] = field(default_factory=list)
+    _locked_until: float = 0.0
+
+    def wait_s(self) -> float:
+        return max(0.0, self._locked_until - time.monotonic())
+
+    def failed(self) -> None:
+        now = time.monotonic()
+        self._failures = [t for t in self._failures if now - t < self.window_s] + [now]
+        if len(self._failures) >= self.limit:
+            self._locked_until = now + self.lockout_s
+            self._failures = []
+
+    def reset(self) -> None:
+        self._failures = []

@@ -74,6 +74,31 @@ class Controller:
                 "chart": {str(k): v for k, v in self._chart.items()},
             }
 
+    def refresh_instruments(self) -> None:
+        """Probe the instruments now (between runs only) and push the lights if they changed."""
+        if self.busy():
+            return
+        lights = [asdict(i) for i in self.runner.instruments()]
+        with self._lock:
+            if self._run is not None or lights == self._instruments:
+                return
+            self._instruments = lights
+            self.hub.publish({"type": "instruments", "instruments": lights})
+
+    def watch_instruments(self, interval_s: float, stop: threading.Event) -> threading.Thread:
+        """Refresh the lights every `interval_s` between runs until `stop` is set."""
+
+        def loop() -> None:
+            while not stop.wait(interval_s):
+                try:
+                    self.refresh_instruments()
+                except Exception:  # a probe must never take the station down
+                    log.exception("instrument probe failed")
+
+        thread = threading.Thread(target=loop, name="ui-instruments", daemon=True)
+        thread.start()
+        return thread
+
     def busy(self) -> bool:
         with self._lock:
             return self._run is not None
@@ -291,3 +316,11 @@ class Controller:
         self._run = None
         self._generation += 1  # nothing from that run may change the state any more
         self.hub.publish({"type": "finished", "last": self._last})
+        # The lights after the run (a fault the run met shows at once), off the engine's thread.
+        threading.Thread(target=self._refresh_after_run, name="ui-refresh", daemon=True).start()
+
+    def _refresh_after_run(self) -> None:
+        try:
+            self.refresh_instruments()
+        except Exception:
+            log.exception("instrument probe after the run failed")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,7 @@ from station.ui.runner_adapter import EngineRunner, engine_available
 log = logging.getLogger(__name__)
 
 DEFAULT_SIM_SPEED = 100.0
+INSTRUMENT_POLL_S = 10.0  # between runs; the engine owns the instruments during a run
 
 
 @dataclass
@@ -118,8 +120,11 @@ def ui_station(
         runner.warm_up()
         controller = Controller(runner, Hub())
         app = create_app(controller, History(runner.out), engineer_password_hash=password_hash)
+        stop_watch = threading.Event()
+        controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)
         try:
             yield UiStation(app, controller, runner, bench)
         finally:
+            stop_watch.set()
             controller.hub.close()
             runner.close()

@@ -311,6 +311,8 @@ class EngineRunner:
     def start(self, request: StartRequest, sink: EventSink) -> str:
         from procedures.config import ConfigError
 
+        if self._thread is not None:
+            self._thread.join(2.0)  # "finished" is its last act; let it end
         if self.busy():
             raise UserError("a run is already in progress; wait for it or abort it")
         try:

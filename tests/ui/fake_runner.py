@@ -49,6 +49,11 @@ class FakeRunner:
         self.safe_state_calls = 0
         self._abort = threading.Event()
         self._thread: threading.Thread | None = None
+        self.lights = [
+            InstrumentLight("rate table", True, True, False, "2027-06-30"),
+            InstrumentLight("chamber", True, False, False, "2020-01-01", "calibration overdue"),
+            InstrumentLight("supply", True, None, False),
+        ]
 
     def procedures(self) -> list[Choice]:
         return [Choice("eol-full", "/cfg/full.yaml"), Choice("eol-short", "/cfg/short.yaml")]
@@ -63,11 +68,7 @@ class FakeRunner:
         return "/cfg/full.yaml", "/cfg/gyr130.yaml"
 
     def instruments(self) -> list[InstrumentLight]:
-        return [
-            InstrumentLight("rate table", True, True, False, "2027-06-30"),
-            InstrumentLight("chamber", True, False, False, "2020-01-01", "calibration overdue"),
-            InstrumentLight("supply", True, None, False),
-        ]
+        return list(self.lights)
 
     def start(self, request: StartRequest, sink: EventSink) -> str:
         self.started.append(request)

@@ -184,3 +184,17 @@ def test_pages_are_small_and_self_hosted(fake_station: FakeStation) -> None:
         assert "http://" not in r.text.replace("http://localhost", "") and "https://" not in r.text
         total += len(r.content)
     assert total < 100_000
+
+
+def test_instrument_lights_follow_the_probe(fake_station: FakeStation) -> None:
+    from station.ui.runner_adapter import InstrumentLight
+
+    lights = httpx.get(fake_station.url + "/api/state").json()["instruments"]
+    assert [x["faulted"] for x in lights] == [False, False, False]
+    assert lights[1]["in_calibration"] is False  # chamber overdue
+    fake_station.runner.lights[0] = InstrumentLight(
+        "rate table", True, True, True, "2027-06-30", "fault code 2"
+    )
+    fake_station.controller.refresh_instruments()
+    table = httpx.get(fake_station.url + "/api/state").json()["instruments"][0]
+    assert table["faulted"] is True and table["detail"] == "fault code 2"

@@ -115,3 +115,14 @@ def test_cli_bad_options_exit_2_with_one_line(args: tuple[str, ...], message: st
     out = _station(*args)
     assert out.returncode == 2
     assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_login_throttle_locks_after_repeated_failures() -> None:
+    from station.ui.auth import LoginThrottle
+
+    throttle = LoginThrottle(limit=3, window_s=60, lockout_s=30)
+    throttle.failed()
+    throttle.failed()
+    assert throttle.wait_s() == 0
+    throttle.failed()
+    assert 29 < throttle.wait_s() <= 30
