@@ -33,9 +33,11 @@ class _Checker(FrameParser):
 def test_a_million_frames_none_lost() -> None:
     config = {
         "parts": [{"socket": 1, "serial": "SIM-STREAM", "bias_dps": 3.0}],
-        "fixture": {"fifo_bytes": 8 << 20},
+        # a deep FIFO so a starved shared machine delays frames instead of dropping them:
+        # this test checks that the chain loses nothing; bench_stream.py measures throughput
+        "fixture": {"fifo_bytes": 32 << 20},
     }
-    with launch_bench(config=config, speed=250) as bench:
+    with launch_bench(config=config, speed=200) as bench:
         power_parts(bench.endpoints.supply)
         with StreamProbe([bench.endpoints.duts[1]]) as probe:
             checker = _Checker()
