@@ -120,12 +120,18 @@ class ConditionResult:
 
 class RowBuffer:
     """Rows for raw.h5's small groups (table, chamber, supply, segments, events), written in
-    one batch at the end of each step: an HDF5 flush per row costs wall time, which the
-    simulated bench's fast clock turns into minutes of station time."""
+    batches (end of each step, and every 2 wall s): an HDF5 flush per row costs wall time,
+    which the simulated bench's fast clock turns into minutes of station time."""
 
     def __init__(self, writer: RawDataWriter | None) -> None:
         self.writer = writer
         self._rows: dict[str, list[dict[str, Any]]] = {}
+        self._last_flush_wall = time.monotonic()
+
+    def flush_if_due(self, every_wall_s: float = 2.0) -> None:
+        """Flush when rows have waited `every_wall_s` (a killed run loses at most that)."""
+        if self._rows and time.monotonic() - self._last_flush_wall > every_wall_s:
+            self.flush()
 
     def append(self, group: str, **columns: Any) -> None:
         if self.writer is not None:
@@ -135,6 +141,7 @@ class RowBuffer:
         if self.writer is None:
             return
         rows, self._rows = self._rows, {}
+        self._last_flush_wall = time.monotonic()
         for group, items in rows.items():
             merged = {k: [row[k] for row in items] for k in items[0]}
             try:
@@ -283,6 +290,7 @@ class RunContext:
             raise Aborted(self.abort_reason or "operator abort")
         limit = self.procedure.stream.max_lost_fraction
         for part in self.alive():
+            part.rows.flush_if_due()
             stream = part.stream
             if stream is None:
                 continue
