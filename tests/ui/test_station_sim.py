@@ -50,6 +50,7 @@ def test_pass_and_fail_parts_with_progress_and_certificates(
     # Progress advances: steps completed, bar moving, time remaining shown.
     expect(page.locator("#step-list li.done")).not_to_have_count(0, timeout=RUN_TIMEOUT_MS)
     expect(page.locator("#remaining")).to_contain_text("s left")
+    expect(page.locator("#socket-2 .socket-state")).to_have_text("RUNNING")
     fraction = page.evaluate("parseFloat(document.getElementById('bar-fill').style.width)")
     assert fraction > 0
     verdict, reasons = _verdict(page, 1)

@@ -78,7 +78,13 @@ function renderRun() {
   $("start-btn").disabled = running;
   $("abort-btn").disabled = !running || run.aborting;
   $("apply-selection").disabled = running;
-  for (const n in sockets) sockets[n].input.disabled = running;
+  for (const n in sockets) {
+    sockets[n].input.disabled = running;
+    // A part dropped mid-run (e.g. it stopped streaming) shows here while the others go on.
+    const st = running && run.progress && run.progress.sockets ? run.progress.sockets[n] || "" : "";
+    const badge = sockets[n].root.querySelector(".socket-state");
+    badge.textContent = st; badge.className = "socket-state " + st;
+  }
   $("progress").hidden = !running;
   if (!running) return;
   for (const [n, serial] of Object.entries(run.serials)) if (sockets[n]) sockets[n].input.value = serial;
