@@ -13,7 +13,11 @@ import re
 import httpx
 import pytest
 import yaml
-from playwright.sync_api import Page, expect
+
+pytest.importorskip(
+    "playwright.sync_api", reason="the playwright package is missing: pip install playwright"
+)
+from playwright.sync_api import Page, expect  # noqa: E402
 
 from tests.ui.conftest import ENGINEER_PASSWORD, FAIL_SERIAL, PASS_SERIAL, SimStation
 

@@ -9,7 +9,12 @@ from __future__ import annotations
 
 import re
 
-from playwright.sync_api import Page, expect
+import pytest
+
+pytest.importorskip(
+    "playwright.sync_api", reason="the playwright package is missing: pip install playwright"
+)
+from playwright.sync_api import Page, expect  # noqa: E402
 
 from tests.ui.conftest import ENGINEER_PASSWORD, FakeStation
 
