@@ -393,7 +393,12 @@ class FitConfig(_Strict):
 
 class VerifyConfig(_Strict):
     enabled: bool = True
-    rates_dps: list[float] = Field(min_length=1, description="verification rates, deg/s")
+    method: Literal["auto", "rate_table", "stop_method"] = Field(
+        "auto", description="auto: rate table if enabled, else stop moves with compensation on"
+    )
+    rates_dps: list[float] = Field(
+        default_factory=list, description="verification rates, deg/s (rate_table method)"
+    )
     dwell_s: float = Field(10.0, gt=0, description="averaging time at each rate")
     settle_s: float = Field(1.0, ge=0)
     supply_v: float | None = Field(None, description="supply during verification (default V0)")
@@ -446,6 +451,13 @@ class ProcedureConfig(_Strict):
         stop = self.stop_method is not None and self.stop_method.enabled
         if not (table or stop):
             raise ValueError("enable at least one of rate_table or stop_method")
+        method = self.verify_method
+        if method == "rate_table" and not (table and self.verify and self.verify.rates_dps):
+            raise ValueError(
+                "verify.method rate_table needs rate_table enabled and verify.rates_dps"
+            )
+        if method == "stop_method" and not stop:
+            raise ValueError("verify.method stop_method needs stop_method enabled")
         need = {"rate_table": table, "stop_method": stop, "both": table and stop}
         if not need[self.fit.source]:
             raise ValueError(
@@ -453,6 +465,16 @@ class ProcedureConfig(_Strict):
                 "enable it or choose a source that is"
             )
         return self
+
+    @property
+    def verify_method(self) -> str | None:
+        """Which verification runs after programming (None: none)."""
+        v = self.verify
+        if v is None or not v.enabled:
+            return None
+        if v.method == "auto":
+            return "rate_table" if self.table_enabled and v.rates_dps else "stop_method"
+        return v.method
 
     @property
     def table_enabled(self) -> bool:

@@ -9,7 +9,7 @@ from procedures.steps.bias import Bias
 from procedures.steps.fit import Fit
 from procedures.steps.power import PowerIdentify
 from procedures.steps.program import Program
-from procedures.steps.stop import StopMethod
+from procedures.steps.stop import StopMethod, VerifyStop
 from procedures.steps.sweep import RateSweep
 from procedures.steps.thermal import Stabilise
 from procedures.steps.verify import Verify
@@ -40,6 +40,9 @@ def build_plan(procedure: ProcedureConfig, start_temp_c: float | None = None) ->
             steps.append(StopMethod(condition=c.name))
     steps.append(Fit())
     steps.append(Program())
-    if procedure.verify is not None and procedure.verify.enabled and procedure.table_enabled:
+    method = procedure.verify_method
+    if method == "rate_table":
         steps.append(Verify())
+    elif method == "stop_method":
+        steps.append(VerifyStop())
     return steps

@@ -161,3 +161,91 @@ class StopMethod(BaseStep):
                 condition=self.condition,
                 description="(stop scale - table scale) / combined k=2 uncertainty",
             )
+
+
+@dataclass
+class VerifyStop(StopMethod):
+    """Verification without a rate table: the stop moves again, now on the part's own
+    compensated output; the residual scale error is the compensated scale minus one."""
+
+    name: str = "verify"
+    policy: str = "verify"
+
+    def setup(self, ctx: RunContext) -> None:
+        supply_v = ctx.product.reference_supply_v
+        v = ctx.procedure.verify
+        if v is not None and v.supply_v is not None:
+            supply_v = v.supply_v
+        ctx.bench.supply.set_voltage(supply_v)
+        ctx.bench.supply.check_errors()
+        self.supply_v = supply_v
+
+    def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:
+        cfg = ctx.procedure.stop_method
+        assert cfg is not None
+        data = samples_between(ctx, part, t0, t1)
+        if not check_window(ctx, part, data, "verification (stop moves)", cfg.static_s * 3):
+            return
+        if cfg.reference == "fixture":
+            ref, u_ref = part.extra["stop_angle"]
+        else:
+            ref, u_ref = self._encoder_angle, self._encoder_u
+        try:
+            result = analyze_stop_method(
+                data["time_s"],
+                data["rate_dps"],
+                ref,
+                u_ref,
+                status=data["status"],
+                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
+            )
+            scale, u_scale = result.scale, result.u_scale
+            if scale is None or u_scale is None:
+                raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+        except AnalysisError as exc:
+            ctx.drop(part, Verdict.ERROR, f"verification (stop moves): {exc}")
+            return
+        ctx.measure(
+            part,
+            "residual_bias_dps",
+            result.bias_dps,
+            units="deg/s",
+            uncertainty_k2=2 * result.bias.u_bias_dps,
+            condition="verify",
+            description="compensated output at rest (stop method)",
+        )
+        ctx.measure(
+            part,
+            "residual_scale_error",
+            scale - 1.0,
+            units="1",
+            uncertainty_k2=2 * u_scale,
+            condition="verify@stop",
+            description="compensated stop-method scale - 1",
+        )
+        for i, mv in enumerate(result.moves):
+            ctx.segment(
+                part,
+                "verify",
+                i,
+                mv.start_s,
+                mv.end_s,
+                ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
+                supply_v=self.supply_v,
+            )
+        part.record.verification = {
+            "method": "stop_method",
+            # the move's mean rate stands for "the rate" of a stop-method verification
+            "residuals": [
+                {
+                    "condition": "verify@stop",
+                    "rate_in_dps": ref / cfg.move_time_s,
+                    "error_dps": (scale - 1.0) * ref / cfg.move_time_s,
+                    "error_pct": 100 * (scale - 1.0),
+                    "u_error_pct_k2": 200 * u_scale,
+                }
+            ],
+            "residual_bias_dps": result.bias_dps,
+            "max_error_pct": abs(100 * (scale - 1.0)),
+            "supply_v": self.supply_v,
+        }
