@@ -18,6 +18,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from procedures.config import ConfigError, ProcedureConfig, ProductConfig
 from procedures.progress import ProgressEvent
 from station.errors import UserError
@@ -122,7 +124,11 @@ def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | No
         p = Path(path)
         if not p.is_file():
             raise UserError(f"--sim-config {path}: no such file")
-        return p, None
+        try:
+            has_speed = "speed" in (yaml.safe_load(p.read_text(encoding="utf-8")) or {})
+        except (yaml.YAMLError, AttributeError, TypeError):
+            has_speed = True  # let the bench report what is wrong with the file
+        return p, None if has_speed else DEFAULT_SIM_SPEED
     return {
         "parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
     }, DEFAULT_SIM_SPEED
@@ -199,7 +205,15 @@ def run_cycle(
 
 def _run(args: argparse.Namespace) -> int:
     duts = _duts(args.dut)
-    sim_config, speed = _sim_config(args.sim_config, duts) if args.sim else (None, None)
+    sim_path = args.sim_config
+    if args.sim and not sim_path:
+        try:
+            settings = load_settings(Path(args.station) if args.station else None)
+        except ConfigError as exc:
+            raise UserError(str(exc)) from None
+        if settings.settings.sim_config:
+            sim_path = str(settings.resolve(settings.settings.sim_config))
+    sim_config, speed = _sim_config(sim_path, duts) if args.sim else (None, None)
     if args.speed is not None:
         speed = args.speed
     return run_cycle(args, duts, sim=args.sim, sim_config=sim_config, speed=speed)

@@ -61,3 +61,18 @@ def test_fault_ends_in_error_safe_and_keeps_data(fault_id: str, tmp_path: Path) 
         assert "stabilise" in set(raw["segments"]["kind"])
         if step == "rate_table":
             assert "raw_bias_dps" in names
+
+
+def test_part_dropping_out_does_not_stop_the_others(tmp_path: Path) -> None:
+    def silence_two(control: Any) -> None:
+        control.fault("part_silent", socket=2)
+
+    parts = [{"socket": 1, "serial": "SIM-0411"}, {"socket": 2, "serial": "SIM-0412"}]
+    run = run_on_bench(tmp_path / "runs", parts, speed=150, inject=("rate_table", silence_two))
+    one, two = (read_record(run.result.folders[s]) for s in (1, 2))
+    assert two.verdict is Verdict.ERROR and "stopped" in two.reason, two.reason
+    assert one.verdict is Verdict.PASS, one.reason
+    assert one.calibration is not None and one.verification is not None
+    assert two.calibration is None  # dropped before the fit, with what it had measured kept
+    assert "raw_bias_dps" in {m.name for m in two.measurements}
+    assert run.final_truth["safe"]["all"]
