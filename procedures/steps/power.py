@@ -62,15 +62,13 @@ class PowerIdentify(BaseStep):
         assert part.stream is not None
         link = part.stream.link
         ident = link.identify()
-        part.record.instruments.append(
-            InstrumentRecord(
-                role=f"fixture_{part.socket}",
-                manufacturer=ident.manufacturer,
-                model=ident.model,
-                serial=ident.serial,
-                firmware=ident.firmware,
-            )
-        )
+        role = f"fixture_{part.socket}"
+        known = next((i for i in part.record.instruments if i.role == role), None)
+        if known is None:  # the station layer lists it with its address and due date
+            known = InstrumentRecord(role=role)
+            part.record.instruments.append(known)
+        known.manufacturer, known.model = ident.manufacturer, ident.model
+        known.serial, known.firmware = ident.serial, ident.firmware
         if not link.part_present():
             raise PartAbsent(
                 f"socket {part.socket}: no part in the socket; seat the part and rescan",
