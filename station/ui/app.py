@@ -8,6 +8,7 @@ code saying whose move it is (409 refused now, 422 bad input, 401/403 role).
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -20,12 +21,13 @@ from pydantic import BaseModel, Field
 from station.errors import UserError
 from station.ui.auth import LoginThrottle, Sessions, verify_password
 from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
-from station.ui.history import History, RunFilter, yield_summary
+from station.ui.history import History, RunFilter
 
 log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parent / "static"
 SESSION_COOKIE = "station_session"
+_ISO_DATE = re.compile(r"^\d{4}-\d{2}-\d{2}([T ][0-9:.]+(Z|[+-]\d{2}:?\d{2})?)?$")
 
 
 class StartBody(BaseModel):
@@ -191,9 +193,12 @@ def create_app(
     ) -> dict[str, Any]:
         if verdict and verdict.upper() not in {"PASS", "FAIL", "ERROR", "ABORTED"}:
             raise UserError(f"verdict {verdict!r} unknown; use PASS, FAIL, ERROR or ABORTED")
+        for name, value in (("since", since), ("until", until)):
+            if value and not _ISO_DATE.match(value):
+                raise UserError(f"{name} {value!r} is not a date; use YYYY-MM-DD")
         flt = RunFilter(serial, verdict, product, operator, since, until)
-        rows = history.rows(flt)
-        return {"summary": yield_summary(rows), "runs": rows[: max(1, min(limit, 5000))]}
+        summary, rows = history.query(flt, limit=max(1, min(limit, 5000)))
+        return {"summary": summary, "runs": rows}
 
     @app.get("/runs/{key}/certificate.pdf")
     async def certificate(key: str) -> Response:

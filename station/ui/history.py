@@ -6,6 +6,8 @@ there; records are cached by modification time, so a refresh only reads new or c
 
 from __future__ import annotations
 
+import contextlib
+import datetime as dt
 import logging
 import re
 import threading
@@ -14,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from procedures.record import CERTIFICATE_FILE, RECORD_FILE, RunRecord, read_record
+from station.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -69,17 +72,70 @@ class RunFilter:
 
 
 class History:
-    def __init__(self, out_dir: Path) -> None:
+    """The runs under `out_dir`; through the results database when there is one (an index
+    that stays fast over months of runs), else by reading every run folder's record."""
+
+    def __init__(self, out_dir: Path, db_path: Path | None = None) -> None:
         self.out_dir = out_dir
+        self.db_path = db_path
         self._lock = threading.Lock()
         self._cache: dict[Path, tuple[float, dict[str, Any] | None]] = {}
+
+    def query(
+        self, flt: RunFilter, limit: int = 500
+    ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        """(yield summary over every match, the newest `limit` matches) for the review."""
+        rows = self.rows(flt)
+        page = rows[:limit]
+        for row in page:
+            if "certificate_url" not in row:
+                folder = self.folder(row["key"])
+                has_pdf = folder is not None and (folder / CERTIFICATE_FILE).is_file()
+                row["certificate_url"] = f"/runs/{row['key']}/certificate.pdf" if has_pdf else None
+        return yield_summary(rows), page
 
     def rows(self, flt: RunFilter | None = None) -> list[dict[str, Any]]:
         """Every run, newest first, as flat rows for the review table."""
         flt = flt or RunFilter()
-        rows = [r for r in self._scan() if flt.matches(r)]
+        source = self._db_rows(flt) if self._use_db() else self._scan()
+        rows = [r for r in source if flt.matches(r)]
         rows.sort(key=lambda r: r["started_utc"], reverse=True)
         return rows
+
+    def _use_db(self) -> bool:
+        return self.db_path is not None and self.db_path.is_file()
+
+    def _db_rows(self, flt: RunFilter) -> list[dict[str, Any]]:
+        from station.results_db import ResultsDB, ResultsDBError
+
+        until = flt.until or None
+        if until and len(until) == 10:  # a bare date: the whole day (the database's is exclusive)
+            with contextlib.suppress(ValueError):
+                until = (dt.date.fromisoformat(until) + dt.timedelta(days=1)).isoformat()
+        try:
+            found = ResultsDB(self.db_path).runs(  # type: ignore[arg-type]
+                since=flt.since or None, until=until, verdict=flt.verdict or None
+            )
+        except ResultsDBError as exc:
+            raise UserError(str(exc)) from None
+        return [
+            {
+                "key": Path(r.folder).name,
+                "run_id": r.run_id,
+                "socket": "",
+                "serial": r.serial,
+                "verdict": r.verdict,
+                "reason": r.reason,
+                "failed": [{"name": n} for n in r.failed_measurements],
+                "started_utc": r.started_utc,
+                "finished_utc": r.finished_utc or "",
+                "operator": r.operator,
+                "product": r.product,
+                "procedure": r.procedure_name,
+                "simulated": r.simulated,
+            }
+            for r in found
+        ]
 
     def folder(self, key: str) -> Path | None:
         """The run folder named `key`, only if it is one of this station's runs."""

@@ -119,7 +119,15 @@ def ui_station(
         )
         runner.warm_up()
         controller = Controller(runner, Hub())
-        app = create_app(controller, History(runner.out), engineer_password_hash=password_hash)
+        # The engine indexes each run in the results database (station.yaml results_db, or
+        # results.sqlite next to the runs when --out moves them): the review reads it there.
+        db_path = (
+            settings.results_db
+            if runner.out.resolve() == settings.output_folder.resolve()
+            else runner.out / "results.sqlite"
+        )
+        history = History(runner.out, db_path)
+        app = create_app(controller, history, engineer_password_hash=password_hash)
         stop_watch = threading.Event()
         controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)
         try:

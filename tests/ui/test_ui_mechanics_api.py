@@ -166,6 +166,8 @@ def test_review_filters_and_yield(fake_station: FakeStation) -> None:
     assert [r["serial"] for r in one["runs"]] == ["SIM-0004"]
     none = httpx.get(url + "/api/runs", params={"until": "2000-01-01"}).json()
     assert none["runs"] == [] and none["summary"]["yield"] is None
+    bad_date = httpx.get(url + "/api/runs", params={"since": "yesterday"})
+    assert bad_date.status_code == 422 and "YYYY-MM-DD" in bad_date.json()["error"]
     bad = httpx.get(url + "/api/runs", params={"verdict": "MAYBE"})
     assert bad.status_code == 422 and "PASS, FAIL" in bad.json()["error"]
 

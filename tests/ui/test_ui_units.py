@@ -126,3 +126,45 @@ def test_login_throttle_locks_after_repeated_failures() -> None:
     assert throttle.wait_s() == 0
     throttle.failed()
     assert 29 < throttle.wait_s() <= 30
+
+
+def test_review_reads_the_results_database_when_there_is_one(tmp_path: Path) -> None:
+    """Same answers from the database index as from the run folders themselves."""
+    from procedures.record import Dut, FileRef, RunRecord, Verdict, write_record
+    from station.results_db import ResultsDB
+    from station.ui.history import History
+
+    out = tmp_path / "runs"
+    db = ResultsDB(tmp_path / "results.sqlite")
+    for i, (verdict, day) in enumerate(
+        [(Verdict.PASS, "2026-11-20"), (Verdict.FAIL, "2026-11-21"), (Verdict.PASS, "2026-11-21")]
+    ):
+        folder = out / f"{day.replace('-', '')}T10000{i}Z_AB-000{i}"
+        record = RunRecord(
+            run_id=folder.name,
+            verdict=verdict,
+            started_utc=f"{day}T10:00:0{i}+00:00",
+            dut=Dut(serial=f"AB-000{i}"),
+            operator="ana",
+            product=FileRef(path="p.yaml", name="GYR-130", sha256="0" * 64),
+            procedure=FileRef(path="q.yaml", name="eol", sha256="0" * 64),
+        )
+        write_record(folder, record)
+        db.add_run(folder, record)
+    (out / "20261121T100001Z_AB-0001" / "certificate.pdf").write_bytes(b"%PDF-1.4")
+    by_db = History(out, tmp_path / "results.sqlite")
+    by_folder = History(out)
+    for flt in (
+        RunFilter(),
+        RunFilter(until="2026-11-20"),
+        RunFilter(since="2026-11-21"),
+        RunFilter(verdict="FAIL"),
+        RunFilter(serial="0002"),
+    ):
+        db_summary, db_rows = by_db.query(flt)
+        folder_summary, folder_rows = by_folder.query(flt)
+        assert [r["serial"] for r in db_rows] == [r["serial"] for r in folder_rows], flt
+        assert db_summary == folder_summary
+    summary, rows = by_db.query(RunFilter())
+    assert summary["yield"] == pytest.approx(2 / 3)
+    assert [r["certificate_url"] is not None for r in rows] == [False, True, False]
