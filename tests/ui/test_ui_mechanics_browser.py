@@ -117,3 +117,18 @@ def test_operator_cannot_reach_selection_engineer_can(
     expect(page.locator("#procedure-name")).to_have_text("eol-short")
     page.click("#engineer-btn")  # log out
     expect(page.locator("#engineer-panel")).to_be_hidden()
+
+
+def test_scan_without_focus_lands_in_the_first_empty_socket(
+    fake_station: FakeStation, page: Page
+) -> None:
+    page.goto(fake_station.url)
+    expect(page.locator("#serial-1")).to_be_visible()
+    page.locator("#procedure-name").click()  # a touch somewhere else: nothing focused
+    page.keyboard.type("SIM-0005")
+    page.keyboard.press("Enter")
+    expect(page.locator("#serial-1")).to_have_value("SIM-0005")
+    expect(page.locator("#serial-1")).to_have_class(re.compile(r"\bok\b"))
+    page.locator("#procedure-name").click()
+    page.keyboard.type("SIM-0006")
+    expect(page.locator("#serial-2")).to_have_value("SIM-0006")

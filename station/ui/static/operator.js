@@ -283,6 +283,15 @@ $("login-cancel").addEventListener("click", () => $("login-dialog").close());
 $("apply-selection").addEventListener("click", applySelection);
 $("operator-id").value = localStorage.getItem("operator") || "";
 $("operator-id").addEventListener("change", () => localStorage.setItem("operator", $("operator-id").value));
+// A scan while no field has the focus (after a touch elsewhere) goes to the first empty socket.
+document.addEventListener("keydown", (e) => {
+  const t = e.target;
+  if (e.key.length !== 1 || e.ctrlKey || e.altKey || e.metaKey) return;
+  if (t instanceof HTMLInputElement || t instanceof HTMLSelectElement || t instanceof HTMLTextAreaElement) return;
+  if (document.querySelector("dialog[open]")) return;
+  const empty = Object.values(sockets).find((s) => !s.input.disabled && !s.input.value);
+  if (empty) empty.input.focus();
+});
 setInterval(renderRemaining, 1000);
 window.addEventListener("resize", scheduleCharts);
 api("/api/whoami").then((r) => { if (r.ok) { S.role = r.data.role; renderRole(); } });
