@@ -174,7 +174,7 @@ class Controller:
                 raise RunRefusedError("the same serial is scanned in two sockets; rescan each part")
             self._generation += 1
             generation = self._generation
-            self._last = None  # the previous verdict stays on screen until the next Start
+            previous_last, self._last = self._last, None  # shown until the next Start
             self._run = {
                 "run_id": "",
                 "serials": {str(k): v for k, v in clean.items()},
@@ -202,18 +202,24 @@ class Controller:
             try:
                 run_id = self.runner.start(request, sink)
             except UserError:
-                self._run = None
-                self.hub.publish({"type": "run", "run": None})
+                self._undo_start(previous_last)
                 raise
             except Exception as exc:
                 log.exception("the engine refused to start")
-                self._run = None
-                self.hub.publish({"type": "run", "run": None})
+                self._undo_start(previous_last)
                 raise RunRefusedError(f"the station could not start the run: {exc}") from exc
             if self._run is not None and self._generation == generation:
                 self._run["run_id"] = run_id
                 self.hub.publish({"type": "run", "run": self._run_view()})
             return run_id
+
+    def _undo_start(self, previous_last: dict[str, Any] | None) -> None:
+        """The engine refused: no run, and the previous verdict back on the screen."""
+        self._run = None
+        self._generation += 1
+        self._last = previous_last
+        self.hub.publish({"type": "run", "run": None})
+        self.hub.publish({"type": "last", "last": previous_last})
 
     def abort(self) -> None:
         with self._lock:

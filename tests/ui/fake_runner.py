@@ -21,6 +21,7 @@ from procedures.record import (
     Verdict,
     write_record,
 )
+from station.errors import UserError
 from station.ui.history import result_from_record
 from station.ui.runner_adapter import (
     Choice,
@@ -71,6 +72,9 @@ class FakeRunner:
         return list(self.lights)
 
     def start(self, request: StartRequest, sink: EventSink) -> str:
+        refused = [s for s in request.serials.values() if s.startswith("NO-")]
+        if refused:  # as the engine does for a part it will not run
+            raise UserError(f"serial {refused[0]} is refused by the engine; rescan the label")
         self.started.append(request)
         self._abort.clear()
         run_id = f"fake-{len(self.started)}"

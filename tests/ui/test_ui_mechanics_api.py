@@ -200,3 +200,16 @@ def test_instrument_lights_follow_the_probe(fake_station: FakeStation) -> None:
     fake_station.controller.refresh_instruments()
     table = httpx.get(fake_station.url + "/api/state").json()["instruments"][0]
     assert table["faulted"] is True and table["detail"] == "fault code 2"
+
+
+def test_start_refused_by_the_engine_keeps_the_last_verdict(fake_station: FakeStation) -> None:
+    url = fake_station.url
+    assert httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0008"}}).status_code == 200
+    _wait_idle(fake_station)
+    r = httpx.post(url + "/api/start", json={"serials": {"1": "NO-0001"}})
+    assert r.status_code == 422 and "refused by the engine" in r.json()["error"]
+    state = httpx.get(url + "/api/state").json()
+    assert state["run"] is None
+    assert state["last"]["results"][0]["serial"] == "SIM-0008"
+    assert httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0009"}}).status_code == 200
+    _wait_idle(fake_station)

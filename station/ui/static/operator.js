@@ -181,6 +181,7 @@ function apply(ev) {
       break;
     }
     case "instruments": S.instruments = ev.instruments; renderInstruments(); break;
+    case "last": S.last = ev.last; renderLast(); break;
     case "selection": S.selection = ev.selection; renderSelection(); if (S.role === "engineer") loadChoices(); break;
     case "finished":
       S.run = null; S.last = ev.last; renderRun(); renderLast(); readyForNext(); break;
