@@ -472,7 +472,7 @@ class EngineRunner:
         """Forward each part's new samples (the engine keeps them in its PartStreams)."""
         seen: dict[int, float] = {}
         while not stop.wait(self.sample_interval_s):
-            ctx = getattr(uut, "_ctx", None)  # the live run context (None before/after)
+            ctx = uut.context  # the live run's context, None before and after
             for part in getattr(ctx, "parts", None) or []:
                 stream = getattr(part, "stream", None)
                 if stream is None:
