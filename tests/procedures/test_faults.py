@@ -41,7 +41,7 @@ def test_fault_ends_in_error_safe_and_keeps_data(fault_id: str, tmp_path: Path) 
     run = run_on_bench(
         tmp_path / "runs",
         [{"socket": 1, "serial": "SIM-0401"}],
-        speed=100,
+        speed=150,
         procedure=procedure,
         inject=(step, inject),
     )
