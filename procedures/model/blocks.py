@@ -38,6 +38,11 @@ class Blocks:
     def count(self) -> int:
         return int(self.start.shape[0])
 
+    @property
+    def has_motion_changes(self) -> bool:
+        """True if any block holds a change of rate (transitions, stop moves)."""
+        return any(k in ("transition", "stop_move") for k in self.kind)
+
     def mean(self, values: FloatArray) -> FloatArray:
         """Block means of a per-sample array (n,) or (n, k)."""
         return block_mean(values, self.start, self.stop)
@@ -45,11 +50,15 @@ class Blocks:
 
 def block_mean(values: FloatArray, start: NDArray[np.int64], stop: NDArray[np.int64]) -> FloatArray:
     x = np.asarray(values, dtype=float)
-    csum = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(x, axis=0)], axis=0)
+    padded = np.concatenate([x, np.zeros((1, *x.shape[1:]))], axis=0)
+    edges = np.empty(2 * start.size, dtype=np.int64)
+    edges[0::2] = start
+    edges[1::2] = stop
+    sums = np.add.reduceat(padded, edges, axis=0)[0::2]
     counts = (stop - start).astype(float)
     if x.ndim > 1:
         counts = counts[:, None]
-    return (csum[stop] - csum[start]) / counts
+    return sums / counts
 
 
 def _sample_labels(traj: Trajectory) -> NDArray[np.int64]:

@@ -25,6 +25,7 @@ from procedures.model.blocks import Blocks, make_blocks
 from procedures.model.fit import FitResult, Fitter
 from procedures.model.gyro_model import GyroModel, zero_params
 from procedures.model.noise import NoiseModel, measure_noise
+from procedures.model.reml import estimate_slow_noise
 from procedures.model.residuals import BinSummary, floor_dps, gap_dps, summarize, worst_z
 from procedures.model.trajectory import FloatArray, Trajectory
 
@@ -180,23 +181,19 @@ def run_discrepancy(
 ) -> DiscrepancyResult:
     """Fit, find the gap, name effects one at a time until none is significant."""
     blocks = make_blocks(traj, max_block_s=max_block_s)
-    # noise from the residual of the starting model's fit with white weights
+    # white noise and the short-term flat level from the Allan deviation of the residual
     white_only = NoiseModel(1.0, 0.0, np.zeros(0), np.zeros(0))
     first = Fitter(traj, blocks, white_only).fit(model)
-    noise = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
-    log.info(
-        "noise: N %.4g deg/s*sqrt(s), flat %.4g deg/s", noise.white_dps_rt_s, noise.floor_dps
-    )
-    fitter = Fitter(traj, blocks, noise)
-    sigma = noise.sigma_dps(blocks.duration_s)
-    floor = floor_dps(sigma, blocks.duration_s)
+    allan = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
+    fitter = _noise_from_full_model(traj, blocks, allan, model)
     current = fitter.fit(model)
     initial = current
     iterations: list[Iteration] = []
     not_separable: list[dict[str, Any]] = []
     not_identifiable: list[str] = []
     tests: list[CandidateTest] = []
-    tests, not_identifiable = test_candidates(fitter, current, alpha) if max_iterations == 0 else ([], [])
+    if max_iterations == 0:
+        tests, not_identifiable = test_candidates(fitter, current, alpha)
     for _ in range(max_iterations):
         tests, not_identifiable = test_candidates(fitter, current, alpha)
         significant = [c for c in tests if c.significant]
@@ -224,9 +221,10 @@ def run_discrepancy(
                 }
             )
             break
-        new = fitter.fit(best.fit.model, local=True)  # refit every time constant together
-        summary_before = summarize(blocks, current.residual_dps, sigma)
-        summary_after = summarize(blocks, new.residual_dps, sigma)
+        sigma_now = fitter.noise.floor_per_block_dps(blocks)
+        new = fitter.fit(best.fit.model, local=True)  # every time constant refitted together
+        summary_before = summarize(blocks, current.residual_dps, sigma_now)
+        summary_after = summarize(blocks, new.residual_dps, sigma_now)
         zb, za = worst_z(summary_before), worst_z(summary_after)
         pattern = max(zb, key=lambda k: zb[k] - za[k])
         runner = significant[1] if len(significant) > 1 else None
@@ -256,8 +254,12 @@ def run_discrepancy(
                 effect=best.effect,
                 gap_before_dps=gap_dps(current.residual_dps, blocks.duration_s),
                 gap_after_dps=gap_dps(new.residual_dps, blocks.duration_s),
-                parameters=best.parameters,
-                uncertainties=best.uncertainties,
+                parameters=dict(new.model.effects[best.effect]),
+                uncertainties={
+                    k.split(".", 1)[1]: v
+                    for k, v in new.model.uncertainties.items()
+                    if k.startswith(best.effect + ".")
+                },
                 evidence=evidence,
                 candidates=tuple(tests),
                 residual_before_dps=current.residual_dps,
@@ -267,6 +269,9 @@ def run_discrepancy(
         log.info("named %s: gap %.4g -> %.4g", best.effect, iterations[-1].gap_before_dps,
                  iterations[-1].gap_after_dps)
         current = new
+    noise = fitter.noise
+    sigma = noise.floor_per_block_dps(blocks)
+    floor = floor_dps(sigma, blocks.duration_s)
     final_model = GyroModel(
         name=_model_name(model.name, [it.effect for it in iterations]),
         bias_dps=current.model.bias_dps,
@@ -294,6 +299,26 @@ def run_discrepancy(
         alpha=alpha,
         notes=traj.notes,
     )
+
+
+def _noise_from_full_model(
+    traj: Trajectory, blocks: Blocks, allan: NoiseModel, model: GyroModel
+) -> Fitter:
+    """Slow noise by REML from the residual of the full model (every catalog effect but the
+    lag), so
+    an effect the current model lacks is not taken for bias wander; a Fitter using it."""
+    full = model
+    # sensor_lag is left out: its signature is fast (transitions), never taken for wander,
+    # and low-passing the whole design upsets the restricted likelihood
+    for e in fx.CATALOG:
+        if e not in full.effects and e != "sensor_lag":
+            full = full.with_effect(e, zero_params(e))
+    fitter = Fitter(traj, blocks, allan)
+    full_fit = fitter.fit(full)
+    noise = estimate_slow_noise(allan, blocks, fitter.design(full_fit.model), fitter.y_block)
+    log.info("slow noise (REML, full model): F %.3g deg/s, K %.3g deg/s/sqrt(s)",
+             noise.floor_dps, noise.rrw_dps_per_rt_s)
+    return Fitter(traj, blocks, noise)
 
 
 def _model_name(start: str, added: list[str]) -> str:

@@ -52,6 +52,7 @@ class _Solution:
     fitted_white: FloatArray
     residual_dps: FloatArray
     layout: tuple[tuple[str, int, int], ...]  # (effect, first column, number of columns)
+    x_block: FloatArray  # unwhitened block design
 
 
 class Fitter:
@@ -133,12 +134,19 @@ class Fitter:
             fitted_white=fitted,
             residual_dps=self.y_block - x_block @ theta,
             layout=tuple(layout),
+            x_block=x_block,
         )
+
+    def design(self, model: GyroModel) -> FloatArray:
+        """Block design of a model at its current time constants (for noise estimation)."""
+        structure = {e: fx.nonlinear_of(e, p) for e, p in model.effects.items()}
+        return self.solve(structure).x_block
 
     def column_rank_gain(self, base: Mapping[str, Mapping[str, float]], effect_id: str) -> float:
         """Fraction of an effect's whitened regressor not explained by the base model's."""
         if effect_id == "sensor_lag":
-            return 1.0
+            # a lag shows only where the rate changes; without such windows it is invisible
+            return 1.0 if self.blocks.has_motion_changes else 0.0
         nl = fx.nonlinear_of(effect_id, zero_params(effect_id))
         terms = [e for e in ["bias", "scale", *base] if e != "sensor_lag"]
         xb = self._whiten(

@@ -50,6 +50,12 @@ class NoiseModel:
     floor_dps: float  # F: the flat part of the Allan deviation, deg/s
     tau_s: FloatArray  # measured Allan curve, for the report
     adev_dps: FloatArray
+    rrw_dps_per_rt_s: float = 0.0  # K: rate random walk, sigma(T)^2 += K^2 T / 3
+    slow_from: str = "allan"  # "allan" (windows only) or "reml" (between-block residuals)
+
+    @property
+    def rrw_deg_per_h_per_sqrt_h(self) -> float:
+        return self.rrw_dps_per_rt_s * 216000.0
 
     @property
     def arw_deg_per_sqrt_h(self) -> float:
@@ -69,7 +75,9 @@ class NoiseModel:
     def sigma_dps(self, duration_s: FloatArray) -> FloatArray:
         """Expected scatter of the mean of a block of the given duration."""
         t = np.asarray(duration_s, dtype=float)
-        return np.sqrt(self.white_dps_rt_s**2 / t + self.floor_dps**2)
+        return np.sqrt(
+            self.white_dps_rt_s**2 / t + self.floor_dps**2 + self.rrw_dps_per_rt_s**2 * t / 3
+        )
 
     def block_covariance(self, blocks: Blocks) -> FloatArray:
         """Covariance of block-mean noise: white per block plus a Gauss-Markov bias wander."""
@@ -80,7 +88,19 @@ class NoiseModel:
             dt = np.abs(blocks.center_s[:, None] - blocks.center_s[None, :])
             for tau_c in GM_CORRELATION_TIMES_S:
                 cov = cov + s2 * np.exp(-dt / tau_c)
+        if self.rrw_dps_per_rt_s > 0:
+            t = blocks.center_s - blocks.center_s.min()
+            cov = cov + self.rrw_dps_per_rt_s**2 * np.minimum(t[:, None], t[None, :])
         return cov
+
+    def floor_per_block_dps(self, blocks: Blocks) -> FloatArray:
+        """Scatter of each block's noise mean about the record's duration-weighted mean:
+        what noise alone leaves in a block-mean residual once a bias is fitted."""
+        cov = self.block_covariance(blocks)
+        w = blocks.duration_s / blocks.duration_s.sum()
+        cw = cov @ w
+        var = np.diag(cov) - 2 * cw + w @ cw
+        return np.sqrt(np.maximum(var, 0.0))
 
 
 def overlapping_avar(rate: FloatArray, dt_s: float, m: int) -> tuple[float, int]:

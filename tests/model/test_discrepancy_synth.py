@@ -3,6 +3,7 @@ of the model code): each hidden effect is named first and the gap falls to the f
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from helpers_model import SPARSE, TINY, as_trajectory
 from synth_gyro import FIRST_ORDER_EFFECTS, SHORT, Part, Profile, generate, realistic_part
@@ -53,10 +54,14 @@ def test_named_parameters_match_the_hidden_values() -> None:
 
 def test_two_hidden_effects_both_named_larger_first() -> None:
     part = Part().with_effect("k2_quadratic").with_effect("warmup_drift")
-    res = run_discrepancy(as_trajectory(generate(part, 14, SHORT)), base_model())
+    traj = as_trajectory(generate(part, 14, SHORT))
+    # sizes of the two hidden signatures over the record (RMS, deg/s)
+    k2_rms = np.sqrt(np.mean((2.0e-6 * traj.ref_rate_dps**2) ** 2))
+    warm_rms = np.sqrt(np.mean((0.05 * np.exp(-traj.time_s / 120.0)) ** 2))
+    assert k2_rms > 1.5 * warm_rms
+    res = run_discrepancy(traj, base_model())
     assert res.effects_added[:2] == ["k2_quadratic", "warmup_drift"]
-    first, second = res.iterations[0], res.iterations[1]
-    assert first.gap_before_dps - first.gap_after_dps > second.gap_before_dps - second.gap_after_dps
+    assert res.iterations[0].evidence["delta_chi2"] > res.iterations[1].evidence["delta_chi2"]
     assert res.gap_final_dps <= 1.5 * res.noise_floor_dps
 
 
