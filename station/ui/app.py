@@ -27,6 +27,12 @@ log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parent / "static"
 SESSION_COOKIE = "station_session"
+# Everything the pages use comes from the station itself (no network on the line): the
+# browser is told to refuse anything else.
+PAGE_HEADERS = {
+    "Cache-Control": "no-cache",
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+}
 _ISO_DATE = re.compile(r"^\d{4}-\d{2}-\d{2}([T ][0-9:.]+(Z|[+-]\d{2}:?\d{2})?)?$")
 
 
@@ -84,11 +90,11 @@ def create_app(
 
     @app.get("/", include_in_schema=False)
     async def operator_page() -> FileResponse:
-        return FileResponse(STATIC_DIR / "operator.html", headers={"Cache-Control": "no-cache"})
+        return FileResponse(STATIC_DIR / "operator.html", headers=PAGE_HEADERS)
 
     @app.get("/review", include_in_schema=False)
     async def review_page() -> FileResponse:
-        return FileResponse(STATIC_DIR / "review.html", headers={"Cache-Control": "no-cache"})
+        return FileResponse(STATIC_DIR / "review.html", headers=PAGE_HEADERS)
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 

@@ -179,6 +179,9 @@ def test_certificate_route_refuses_paths_outside_the_runs(fake_station: FakeStat
 
 
 def test_pages_are_small_and_self_hosted(fake_station: FakeStation) -> None:
+    for page in ("/", "/review"):
+        csp = httpx.get(fake_station.url + page).headers["content-security-policy"]
+        assert "default-src 'self'" in csp
     total = 0
     for path in ("/", "/static/style.css", "/static/operator.js", "/static/chart.js"):
         r = httpx.get(fake_station.url + path)
