@@ -9,6 +9,8 @@ station serves every test; the bench's own truth is read over its control channe
 from __future__ import annotations
 
 import re
+import shutil
+import subprocess
 
 import httpx
 import pytest
@@ -30,6 +32,13 @@ def _verdict(page: Page, socket: int) -> tuple[str, str]:
     verdict = page.locator(f"#socket-{socket} .verdict")
     expect(verdict).to_have_text(re.compile(r"^(PASS|FAIL|ERROR|ABORTED)$"), timeout=RUN_TIMEOUT_MS)
     return verdict.inner_text(), page.locator(f"#socket-{socket} .reasons").inner_text()
+
+
+def _pdf_text(pdf: bytes) -> str | None:
+    if shutil.which("pdftotext") is None:
+        return None
+    out = subprocess.run(["pdftotext", "-", "-"], input=pdf, capture_output=True, timeout=30)
+    return out.stdout.decode("utf-8", errors="replace")
 
 
 def _scan(page: Page, socket: int, serial: str) -> None:
@@ -81,6 +90,9 @@ def test_pass_and_fail_parts_with_progress_and_certificates(
         pdf = httpx.get(sim_station.url + (link.get_attribute("href") or ""))
         assert pdf.status_code == 200 and pdf.content.startswith(b"%PDF")
         assert serial in (pdf.headers.get("content-disposition") or "")
+        text = _pdf_text(pdf.content)
+        if text is not None:  # poppler-utils present (CI installs them): it is that part's
+            assert serial in text and ("PASS" if socket == 1 else "FAIL") in text
     # Ready for the next part, the last result still visible.
     expect(page.locator("#serial-1")).to_have_value("")
     expect(page.locator("#start-btn")).to_be_enabled()
