@@ -86,7 +86,8 @@ def _gap_table(res: DiscrepancyResult) -> Table:
 
 
 def _allan_chart(res: DiscrepancyResult) -> Any:
-    ch = Chart(WIDTH, 170, title="Allan deviation of the residual (constant-input windows)",
+    ch = Chart(WIDTH, 170, title="Allan deviation of the residual (constant-input windows) "
+               "and the noise model",
                x_label="tau (s)", y_label="deg/s", log_x=True, log_y=True)
     if res.noise.tau_s.size:
         ch.scatter(res.noise.tau_s, res.noise.adev_dps, label="measured")
@@ -167,12 +168,15 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
             f"Gap {res.gap_initial_dps:.4g} deg/s at the start, {res.gap_final_dps:.4g} deg/s "
             f"at the end ({res.gap_final_dps / res.noise_floor_dps:.2f} x the noise floor of "
             f"{res.noise_floor_dps:.4g} deg/s). Noise measured from the data: ARW "
-            f"{n.arw_deg_per_sqrt_h:.3g} deg/sqrt(h), flat Allan level {n.floor_dps:.3g} deg/s "
-            f"(bias instability {n.bias_instability_deg_per_h:.3g} deg/h); "
+            f"{n.arw_deg_per_sqrt_h:.3g} deg/sqrt(h) (Allan deviation); bias wander between "
+            f"windows (REML): flat level {n.floor_dps:.3g} deg/s (bias instability "
+            f"{n.bias_instability_deg_per_h:.3g} deg/h), rate random walk "
+            f"{n.rrw_deg_per_h_per_sqrt_h:.3g} deg/h/sqrt(h); "
             f"{res.blocks.count} averaging blocks.", BODY),
         Paragraph(
             "Gap: duration-weighted RMS of the block-mean residuals. Noise floor: the same RMS "
-            "of the Allan deviation at each block's duration. See docs/discrepancy.md.", NOTE),
+            "of what the measured noise alone leaves in a block mean about the record mean. "
+            "See docs/discrepancy.md.", NOTE),
     ]
     for ns in res.not_separable:
         story.append(Paragraph(
