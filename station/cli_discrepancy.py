@@ -7,13 +7,17 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from station.errors import UserError
+
+if TYPE_CHECKING:
+    from procedures.model.discrepancy import DiscrepancyResult
 
 log = logging.getLogger(__name__)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "discrepancy",
         help="find where the model and the data disagree and name the effect",
@@ -85,7 +89,9 @@ def handler(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_summary(result, json_path: Path, model_path: Path, report: str | None) -> None:  # type: ignore[no-untyped-def]
+def _print_summary(
+    result: DiscrepancyResult, json_path: Path, model_path: Path, report: str | None
+) -> None:
     print(
         f"gap {result.gap_initial_dps:.4g} deg/s at start, noise floor "
         f"{result.noise_floor_dps:.4g} deg/s"
@@ -99,7 +105,8 @@ def _print_summary(result, json_path: Path, model_path: Path, report: str | None
         print(f"not separable: {' / '.join(ns['effects'])} (nothing added)")
     if not result.iterations and not result.not_separable:
         print("nothing named: no candidate effect is significant")
-    print(f"gap {result.gap_final_dps:.4g} deg/s at end ({result.gap_final_dps / result.noise_floor_dps:.2f} x floor)")
+    ratio = result.gap_final_dps / result.noise_floor_dps
+    print(f"gap {result.gap_final_dps:.4g} deg/s at end ({ratio:.2f} x floor)")
     print(f"json: {json_path}")
     print(f"model: {model_path}")
     if report:

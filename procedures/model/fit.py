@@ -123,10 +123,10 @@ class Fitter:
             first += c.shape[1]
         x_block = np.concatenate(blocks_cols, axis=1)
         x_white = self._whiten(x_block)
-        theta, _, rank, sv = np.linalg.lstsq(x_white, self.y_white, rcond=None)
+        theta = np.asarray(np.linalg.lstsq(x_white, self.y_white, rcond=None)[0], dtype=float)
         fitted = x_white @ theta
         chi2 = float(np.sum((self.y_white - fitted) ** 2))
-        cov = np.linalg.pinv(x_white.T @ x_white)
+        cov = np.asarray(np.linalg.pinv(x_white.T @ x_white), dtype=float)
         return _Solution(
             theta=theta,
             cov=cov,

@@ -128,7 +128,7 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
     p = profile or Profile()
     rng = np.random.default_rng(seed)
     dtf = 1.0 / (p.rate_hz * OVERSAMPLE)
-    rates, chamber, supply, kinds_f = [], [], [], []
+    rates, chamber, supply = [], [], []
     segments: list[tuple[str, float, float]] = []
     t_now, temp_set, supply_set = 0.0, p.temperatures_c[0], p.supplies_v[0]
     for kind, dur, a, b in _rate_program(p):
@@ -162,7 +162,9 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
     d_t = die - 25.0
     d_v = supply_v - 5.0
     e = part.effects
-    k_scale = part.scale * (1 + part.scale_temp_coeff_per_c * d_t + part.scale_supply_coeff_per_v * d_v)
+    k_scale = part.scale * (
+        1 + part.scale_temp_coeff_per_c * d_t + part.scale_supply_coeff_per_v * d_v
+    )
     if "scale_asymmetry" in e:
         k_scale = k_scale * (1 + e["scale_asymmetry"]["asymmetry"] / 2 * np.sign(w))
     y = k_scale * w + part.bias_dps + part.bias_temp_coeff_dps_per_c * d_t

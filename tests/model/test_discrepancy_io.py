@@ -61,7 +61,7 @@ def test_cli_on_csv_writes_pinned_json_model_and_pdf(tmp_path: Path) -> None:
                    "--json", str(tmp_path / "r.json"))
     assert out.returncode == 0, out.stderr
     data = json.loads((tmp_path / "r.json").read_text())
-    assert PINNED <= set(data)
+    assert set(data) >= PINNED
     assert data["effects_added"][0] == "k3_cubic"
     it = data["iterations"][0]
     assert {"effect", "gap_before_dps", "gap_after_dps", "parameters", "evidence"} <= set(it)

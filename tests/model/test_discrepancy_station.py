@@ -111,6 +111,6 @@ def test_effect_hidden_in_a_station_run_is_named(run_folders: dict[str, Path], s
         # not observable without the table reference in transitions: nothing may be named
         assert res.effects_added == [], res.effects_added
         return
-    assert res.effects_added, f"nothing named; gap {res.gap_initial_dps} floor {res.noise_floor_dps}"
+    assert res.effects_added, f"nothing named: gap {res.gap_initial_dps}, {res.noise_floor_dps}"
     assert res.effects_added[0] == effect
     assert res.gap_final_dps <= 1.5 * res.noise_floor_dps

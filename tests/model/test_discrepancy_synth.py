@@ -20,7 +20,7 @@ DOCUMENTED_FALSE_ALARM_RATE = 0.05  # docs/discrepancy.md
 
 
 def _check_named(res, effect: str) -> None:
-    assert res.effects_added, f"nothing named; gap {res.gap_initial_dps} floor {res.noise_floor_dps}"
+    assert res.effects_added, f"nothing named: gap {res.gap_initial_dps}, {res.noise_floor_dps}"
     assert res.effects_added[0] == effect
     assert res.gap_final_dps < res.gap_initial_dps  # naming it closed part of the gap
     assert res.gap_final_dps <= 1.5 * res.noise_floor_dps
