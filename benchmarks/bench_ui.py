@@ -30,7 +30,7 @@ import httpx
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from station.ui.headless import chromium, chromium_missing_reason  # noqa: E402
+from station.ui.headless import chromium, chromium_missing_reason, wait_js  # noqa: E402
 from station.ui.server import free_port  # noqa: E402
 
 TARGET_MS = 300.0
@@ -110,10 +110,10 @@ def main() -> int:
                     page.press("#serial-1", "Enter")
                     page.wait_for_selector("#serial-1.ok")
                     page.click("#start-btn")
-                    page.wait_for_function("window.__ui.firstProgressMs !== null", timeout=30_000)
+                    wait_js(page, "window.__ui.firstProgressMs !== null")
                     acks.append(page.evaluate("window.__ui.firstRunEventMs"))
                     firsts.append(page.evaluate("window.__ui.firstProgressMs"))
-                    page.wait_for_function("window.__ui.firstStepMs !== null", timeout=30_000)
+                    wait_js(page, "window.__ui.firstStepMs !== null")
                     steps.append(page.evaluate("window.__ui.firstStepMs"))
                     page.click("#abort-btn")
                     page.click("#abort-confirm")

@@ -17,7 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from station.ui.headless import chromium, chromium_missing_reason  # noqa: E402
+from station.ui.headless import chromium, chromium_missing_reason, wait_js  # noqa: E402
 from tests.ui.stationkit import (  # noqa: E402
     ENGINEER_PASSWORD,
     FAIL_SERIAL,
@@ -70,9 +70,8 @@ def main() -> int:
                 shoot(page, out, "operator-ready")
                 # Mid-run: progress per step and condition, live chart.
                 page.click("#start-btn")
-                page.wait_for_function(
-                    "document.querySelectorAll('#step-list li.done').length >= 6"
-                )
+                done_steps = "document.querySelectorAll('#step-list li.done').length >= 6"
+                wait_js(page, done_steps, timeout_s=120)
                 shoot(page, out, "operator-running")
                 page.click("#abort-btn")
                 shoot(page, out, "operator-abort-confirm")

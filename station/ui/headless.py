@@ -49,3 +49,21 @@ def chromium() -> Iterator[Any]:
             yield browser
         finally:
             browser.close()
+
+
+def wait_js(page: Any, expression: str, timeout_s: float = 30.0, poll_s: float = 0.01) -> Any:
+    """Poll `expression` in the page until it is truthy; returns its value.
+
+    Playwright's wait_for_function compiles its predicate inside the page, which the pages'
+    Content-Security-Policy (no eval) forbids; page.evaluate is not subject to it.
+    """
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = page.evaluate(expression)
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{expression!r} still false after {timeout_s:g} s")
+        time.sleep(poll_s)
