@@ -65,6 +65,22 @@ def load_data(path: Path, dut: str | None = None) -> Trajectory:
     return load_run_folder(find_run_folder(path, dut), dut)
 
 
+def _static_angle(
+    tab_t: FloatArray, tab_pos: FloatArray, tab_rate: FloatArray, start_s: float, end_s: float
+) -> float:
+    """Where the table rests during a static window: the engine snapshots the encoder at the
+    end of a static wait, so the first row from the window's start (up to 2 s past its end)
+    is at the window's angle; failing that, the last row before it if the table was at rest."""
+    if tab_t.size == 0:
+        return 0.0
+    i = int(np.searchsorted(tab_t, start_s, side="left"))
+    if i < tab_t.size and tab_t[i] <= end_s + 2.0:
+        return float(tab_pos[i])
+    if i > 0 and abs(tab_rate[i - 1]) < 0.01:
+        return float(tab_pos[i - 1])
+    return float(np.interp(start_s, tab_t, tab_pos))
+
+
 def _plateau_angle(
     table_t: FloatArray, table_pos: FloatArray, t_station: FloatArray, rate: float
 ) -> FloatArray:
@@ -128,9 +144,7 @@ def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
         seg_v = float(segs["supply_v"][k])
         if kind in STATIC_KINDS:
             ref_rate[a:b] = 0.0
-            ref_angle[a:b] = (
-                np.interp(ts, tab_t, tab_pos) if tab_t.size else 0.0
-            )
+            ref_angle[a:b] = _static_angle(tab_t, tab_pos, tab_rate, float(ts[0]), float(ts[-1]))
         elif kind == "plateau":
             rate = float(segs["ref_rate_dps"][k])
             if not np.isfinite(rate):
