@@ -6,10 +6,15 @@ before the motion starts to after it stops (margins), so that a bounce at the st
 the integral; scale correction = reference angle / measured angle for each move, and their
 mean. A move holding an over-range or saturated sample gets no scale.
 
-Uncertainty of each correction and of the mean combines, with their correlations: the noise
-integrated over each move (Allan variance at the integration time x time^2), the bias
-uncertainty x integration time (common to all moves: it cancels to first order between an out
-and a back move), and the reference angle's own uncertainty (common to all moves).
+Uncertainty of each correction and of the mean combines, with their correlations: the error
+of each bias-corrected angle (the noise integrated over the move minus the move's time x the
+bias window's mean noise), and the reference angle's own uncertainty (common to all moves).
+The angle errors' covariance comes from the noise model (`angle_error_covariance`): for white
+noise it is the noise over each move plus the bias uncertainty x time (common to all moves,
+cancelling to first order between an out and a back move); bias instability and rate random
+walk add the bias's drift between its window and each move, which grows with their distance
+and does not cancel. A noise model from the bias window alone cannot see that drift (the
+window is a few seconds long): pass the part's own model from a longer record (`noise`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from drivers.fixture_protocol import SampleStatus
 from procedures.analysis._checks import finite_1d, monotonic_time, non_negative, positive
+from procedures.analysis.allan import FLICKER_AVAR_FACTOR, NoiseModel
 from procedures.analysis.bias import BiasEstimate, estimate_bias
 from procedures.analysis.errors import AnalysisError
 
@@ -51,7 +57,7 @@ class StopMove:
     start_s: float
     end_s: float
     measured_angle_deg: float
-    u_measured_angle_deg: float  # noise and bias only
+    u_measured_angle_deg: float  # noise, bias and the bias's drift; not the reference
     direction: int  # +1 or -1, the sign of the measured angle
     peak_rate_dps: float
     n_over_range: int
@@ -194,8 +200,13 @@ def analyze_stop_method(
     u_reference_angle_deg: float = 0.0,
     status: ArrayLike | None = None,
     settings: StopMethodSettings | None = None,
+    noise: NoiseModel | None = None,
 ) -> StopMethodResult:
-    """Bias and scale correction from a stop-method record (time, rate and optional status)."""
+    """Bias and scale correction from a stop-method record (time, rate and optional status).
+
+    `noise` is the part's noise model from a longer static record; without it the model is
+    fitted to the leading rest alone, which sees white noise only (see the module notes).
+    """
     cfg = settings or StopMethodSettings()
     t = finite_1d(time_s, "time_s", 16)
     y = finite_1d(rate_dps, "rate_dps", 16)
@@ -220,7 +231,8 @@ def analyze_stop_method(
             f"first stop (found {t[first] - t[0]:.3g} s before the first move): "
             "start sampling, wait 5 s, then rotate"
         )
-    bias = estimate_bias(y[:first], fs)
+    bias = estimate_bias(y[:first], fs, noise)
+    bias_window = (float(t[0]), float(t[first]))  # first samples, one period each
 
     warnings: list[str] = []
     raw_moves: list[tuple[int, int, float, float]] = []
@@ -230,17 +242,21 @@ def analyze_stop_method(
         duration = float(t[i1] - t[i0])
         raw_moves.append((i0, i1, angle, duration))
 
+    kept = [m for m in raw_moves if abs(m[2]) >= cfg.min_move_fraction * ref]
+    cov = angle_error_covariance(
+        bias.noise, bias_window, [(float(t[i0]), float(t[i1])) for i0, i1, _, _ in kept]
+    )
     moves: list[StopMove] = []
-    usable: list[tuple[float, float, float]] = []  # (angle, duration, u_noise)
-    for i0, i1, angle, duration in raw_moves:
+    usable: list[tuple[int, float]] = []  # (index into kept, angle)
+    for i0, i1, angle, _ in raw_moves:
         if abs(angle) < cfg.min_move_fraction * ref:
             warnings.append(
                 f"ignored a disturbance of {angle:.3g} deg at {t[i0]:.3g}-{t[i1]:.3g} s "
                 "(too small to be a move between the stops)"
             )
             continue
-        u_noise = duration * float(np.sqrt(bias.noise.avar_dps2(max(duration, 1.0 / fs))))
-        u_angle = math.hypot(u_noise, bias.u_bias_dps * duration)
+        j = len(moves)
+        u_angle = math.sqrt(float(cov[j, j]))
         n_clip = int(clip[i0 : i1 + 1].sum())
         complete = i0 > 0 and i1 < t.size - 1
         corr: float | None = None
@@ -259,7 +275,7 @@ def analyze_stop_method(
             corr = math.copysign(ref, angle) / angle
             rel = math.hypot(u_ref / ref, u_angle / angle)
             u_corr = abs(corr) * rel
-            usable.append((angle, duration, u_noise))
+            usable.append((j, angle))
         moves.append(
             StopMove(
                 start_s=float(t[i0]),
@@ -275,7 +291,7 @@ def analyze_stop_method(
             )
         )
 
-    mean_corr, u_mean = _mean_correction(usable, ref, u_ref, bias.u_bias_dps)
+    mean_corr, u_mean = _mean_correction(usable, ref, u_ref, cov)
     if mean_corr is None:
         warnings.append("no usable move: no scale correction")
     statics = _static_segments(t, [(m.start_s, m.end_s) for m in moves])
@@ -309,20 +325,72 @@ def _clip_mask(
 
 
 def _mean_correction(
-    usable: list[tuple[float, float, float]], ref: float, u_ref: float, u_bias: float
+    usable: list[tuple[int, float]], ref: float, u_ref: float, cov: NDArray[np.float64]
 ) -> tuple[float | None, float | None]:
-    """Mean of ref*sign/angle over moves; u from sources [reference, bias, noise_1..n]."""
+    """Mean of ref*sign/angle over the usable moves (index into `cov`, angle), with its
+    standard uncertainty from the reference and the angle errors' covariance `cov`."""
     if not usable:
         return None, None
-    n = len(usable)
-    corrs = np.array([math.copysign(ref, a) / a for a, _, _ in usable])
-    # d c_k / d ref = c_k / ref; d c_k / d bias = c_k T_k / angle_k;
-    # d c_k / d noise_k = -c_k / angle_k
+    idx = [j for j, _ in usable]
+    angles = np.array([a for _, a in usable])
+    corrs = np.copysign(ref, angles) / angles
+    # d mean / d ref = mean(c_k) / ref; d mean / d angle_k = -c_k / (n angle_k)
     g_ref = float(np.mean(corrs / ref))
-    g_bias = float(np.mean([c * d / a for c, (a, d, _) in zip(corrs, usable, strict=True)]))
-    g_noise = np.array([-c / a * un for c, (a, _, un) in zip(corrs, usable, strict=True)]) / n
-    var = (g_ref * u_ref) ** 2 + (g_bias * u_bias) ** 2 + float(g_noise @ g_noise)
+    g = -corrs / angles / len(usable)
+    var = (g_ref * u_ref) ** 2 + float(g @ cov[np.ix_(idx, idx)] @ g)
     return float(corrs.mean()), math.sqrt(var)
+
+
+def angle_error_covariance(
+    noise: NoiseModel,
+    bias_window_s: tuple[float, float],
+    moves_s: list[tuple[float, float]],
+    points_per_decade: int = 2000,
+) -> NDArray[np.float64]:
+    """Covariance (deg^2) of the errors of angles integrated over `moves_s` from an output
+    corrected by the mean over `bias_window_s` (error_k = noise integrated over move k - T_k x
+    the window's mean noise).
+
+    White noise (angle random walk) is exact in closed form. Bias instability (flicker,
+    S(f) = h_-1 / f) and rate random walk (S(f) = h_-2 / f^2) are integrated over their
+    one-sided spectra, Var = integral S(f) |H(f)|^2 df, with H the Fourier transform of the
+    move-minus-window weighting; this carries the bias's drift between the window and each
+    move. For a move adjacent to a window of its own length the variance is T^2 x 2 AVAR(T).
+    """
+    w0, w1 = bias_window_s
+    t_w = w1 - w0
+    if not t_w > 0:
+        raise AnalysisError("the bias window must have a positive length")
+    n = len(moves_s)
+    dur = np.array([b - a for a, b in moves_s], dtype=np.float64)
+    if n == 0:
+        return np.zeros((0, 0))
+    # white: h_k = 1_move_k - (T_k / T_w) 1_window; moves and window do not overlap
+    n2 = noise.arw_deg_per_sqrt_s**2
+    cov = n2 * (np.diag(dur) + np.outer(dur, dur) / t_w)
+    h_m1 = FLICKER_AVAR_FACTOR * noise.bias_instability_dps**2 / (2.0 * math.log(2.0))
+    h_m2 = noise.rrw_dps_per_sqrt_s**2 / (2.0 * math.pi**2)
+    if h_m1 == 0.0 and h_m2 == 0.0:
+        return cov
+    span = max(max(b for _, b in moves_s), w1) - min(min(a for a, _ in moves_s), w0)
+    shortest = float(min(dur.min(), t_w))
+    f_lo, f_hi = 1e-5 / span, 1e3 / max(shortest, 1e-3)
+    f = np.logspace(
+        math.log10(f_lo), math.log10(f_hi), int(points_per_decade * math.log10(f_hi / f_lo))
+    )
+    om = 2.0 * math.pi * f
+
+    def box(a: float, b: float) -> NDArray[np.complex128]:  # transform of 1_[a, b]
+        a, b = a - w0, b - w0  # times from the window start keep the phases small
+        return (np.exp(-1j * om * a) - np.exp(-1j * om * b)) / (1j * om)
+
+    win = box(w0, w1) / t_w
+    h = np.array([box(a, b) - d * win for (a, b), d in zip(moves_s, dur, strict=True)])
+    s = h_m1 / f + h_m2 / f**2
+    weight = s * f  # integrate over ln f
+    cross = np.real(h[:, None, :] * np.conj(h[None, :, :])) * weight
+    cov += np.trapezoid(cross, np.log(f), axis=-1)
+    return cov
 
 
 def _static_segments(
