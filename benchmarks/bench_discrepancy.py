@@ -43,10 +43,9 @@ from synth_gyro import (  # noqa: E402
 
 from procedures.model import effects as fx  # noqa: E402
 from procedures.model.blocks import make_blocks  # noqa: E402
-from procedures.model.discrepancy import run_discrepancy  # noqa: E402
+from procedures.model.discrepancy import measure_record_noise, run_discrepancy  # noqa: E402
 from procedures.model.fit import Fitter  # noqa: E402
 from procedures.model.gyro_model import GyroModel, base_model, first_order_model  # noqa: E402
-from procedures.model.noise import NoiseModel, measure_noise  # noqa: E402
 
 # the parameter scanned per effect (its "magnitude")
 MAGNITUDE_PARAM = {
@@ -79,9 +78,7 @@ def five_sigma_magnitude(effect: str, seed: int, profile: Profile) -> float:
     part, start = make_part(effect, 0.0)
     traj = as_trajectory(generate(part, seed, profile))
     blocks = make_blocks(traj)
-    white = Fitter(traj, blocks, NoiseModel(1.0, 0.0, np.zeros(0), np.zeros(0))).fit(start)
-    noise = measure_noise(traj.gyro_dps - white.model.predict(traj), traj.time_s, blocks)
-    fitter = Fitter(traj, blocks, noise)
+    fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, start))
     m0 = nominal(effect)
     params = {**REALISTIC_EFFECTS.get(effect, {}), MAGNITUDE_PARAM[effect]: m0}
     with_effect = GyroModel(effects={effect: {k: v for k, v in params.items()

@@ -181,11 +181,7 @@ def run_discrepancy(
 ) -> DiscrepancyResult:
     """Fit, find the gap, name effects one at a time until none is significant."""
     blocks = make_blocks(traj, max_block_s=max_block_s)
-    # white noise and the short-term flat level from the Allan deviation of the residual
-    white_only = NoiseModel(1.0, 0.0, np.zeros(0), np.zeros(0))
-    first = Fitter(traj, blocks, white_only).fit(model)
-    allan = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
-    fitter = _noise_from_full_model(traj, blocks, allan, model)
+    fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, model))
     current = fitter.fit(model)
     initial = current
     iterations: list[Iteration] = []
@@ -301,12 +297,14 @@ def run_discrepancy(
     )
 
 
-def _noise_from_full_model(
-    traj: Trajectory, blocks: Blocks, allan: NoiseModel, model: GyroModel
-) -> Fitter:
-    """Slow noise by REML from the residual of the full model (every catalog effect but the
-    lag), so
-    an effect the current model lacks is not taken for bias wander; a Fitter using it."""
+def measure_record_noise(traj: Trajectory, blocks: Blocks, model: GyroModel) -> NoiseModel:
+    """The record's noise: white level from the Allan deviation of the starting model's
+    residual in constant-input windows; slow wander (flat level, rate random walk) by REML
+    from the block residuals of the full model (every catalog effect but the lag), so an
+    effect the current model lacks is not taken for bias wander."""
+    white_only = NoiseModel(1.0, 0.0, np.zeros(0), np.zeros(0))
+    first = Fitter(traj, blocks, white_only).fit(model)
+    allan = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
     full = model
     # sensor_lag is left out: its signature is fast (transitions), never taken for wander,
     # and low-passing the whole design upsets the restricted likelihood
@@ -318,7 +316,7 @@ def _noise_from_full_model(
     noise = estimate_slow_noise(allan, blocks, fitter.design(full_fit.model), fitter.y_block)
     log.info("slow noise (REML, full model): F %.3g deg/s, K %.3g deg/s/sqrt(s)",
              noise.floor_dps, noise.rrw_dps_per_rt_s)
-    return Fitter(traj, blocks, noise)
+    return noise
 
 
 def _model_name(start: str, added: list[str]) -> str:
