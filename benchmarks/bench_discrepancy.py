@@ -57,7 +57,7 @@ MAGNITUDE_PARAM = {
     "sensor_lag": "tau_s",
     "warmup_drift": "amplitude_dps",
 }
-FACTORS = (0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+FACTORS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 
 
 def nominal(effect: str) -> float:
