@@ -75,7 +75,8 @@ def make_part(effect: str, magnitude: float) -> tuple[Part, GyroModel]:
 
 def five_sigma_magnitude(effect: str, seed: int, profile: Profile) -> float:
     """Magnitude whose signature, after projecting out the starting model, is 5 sigma."""
-    part, start = make_part(effect, 0.0)
+    _, start = make_part(effect, nominal(effect))
+    part = Part() if effect in FIRST_ORDER_EFFECTS else realistic_part()  # effect absent
     traj = as_trajectory(generate(part, seed, profile))
     blocks = make_blocks(traj)
     fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, start))
@@ -138,10 +139,12 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=20)
     ap.add_argument("--effects", default=",".join(MAGNITUDE_PARAM))
     ap.add_argument("--timing-only", action="store_true")
+    ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--run-folder", type=Path, help="also time the workflow on a run folder")
     args = ap.parse_args()
-    timing(Profile())
-    if args.run_folder:
+    if not args.skip_timing:
+        timing(Profile())
+    if args.run_folder and not args.skip_timing:
         from procedures.model.run_folder import load_data
 
         traj = load_data(args.run_folder)
