@@ -319,14 +319,27 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
     return story
 
 
+# (record key, label, units, key of the same coefficient in `calibration.readback`). The
+# readback dict holds the part's register names (drivers.protocols.CalibrationRegisters,
+# written by procedures/steps/program.py), which differ from the record's key for four of
+# the six; both spellings are looked up so older or hand-made records also show.
 _COEFFS = [
-    ("bias_dps", "Bias", "deg/s"),
-    ("bias_temp_coeff_dps_per_c", "Bias temperature coefficient", "deg/s/C"),
-    ("bias_supply_coeff_dps_per_v", "Bias supply coefficient", "deg/s/V"),
-    ("scale", "Scale (output/input)", "1"),
-    ("scale_temp_coeff_per_c", "Scale temperature coefficient", "1/C"),
-    ("scale_supply_coeff_per_v", "Scale supply coefficient", "1/V"),
+    ("bias_dps", "Bias", "deg/s", "bias_dps"),
+    ("bias_temp_coeff_dps_per_c", "Bias temperature coefficient", "deg/s/C",
+     "bias_tc_dps_per_c"),
+    ("bias_supply_coeff_dps_per_v", "Bias supply coefficient", "deg/s/V", "bias_vc_dps_per_v"),
+    ("scale", "Scale (output/input)", "1", "scale"),
+    ("scale_temp_coeff_per_c", "Scale temperature coefficient", "1/C", "scale_tc_per_c"),
+    ("scale_supply_coeff_per_v", "Scale supply coefficient", "1/V", "scale_vc_per_v"),
 ]
+
+
+def readback_value(readback: dict[str, float], key: str, register: str) -> float | None:
+    """The read-back value of one coefficient, under its register name or its record key."""
+    for k in (register, key):
+        if k in readback:
+            return readback[k]
+    return None
 
 
 def calibration(inputs: CertificateInputs) -> list[Flowable]:
@@ -337,10 +350,11 @@ def calibration(inputs: CertificateInputs) -> list[Flowable]:
         return story + [Paragraph("No calibration was written to this part.", NOTE)]
     readback = cal.readback or {}
     rows = [[_p(h) for h in ("Coefficient", "Key", "Value", "U (k=2)", "Units", "Read back")]]
-    for key, label, units in _COEFFS:
+    for key, label, units, register in _COEFFS:
         c = getattr(cal, key)
         rows.append([_p(label), _p(key, CELL_MONO), _p(fmt(c.value, 7)),
-                     _p(fmt(c.uncertainty_k2, 3)), _p(units), _p(fmt(readback.get(key), 7))])
+                     _p(fmt(c.uncertainty_k2, 3)), _p(units),
+                     _p(fmt(readback_value(readback, key, register), 7))])
     t = Table(rows, repeatRows=1, colWidths=[48 * mm, 50 * mm, 22 * mm, 18 * mm, 16 * mm,
                                              28 * mm])
     t.setStyle(grid_style())

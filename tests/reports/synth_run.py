@@ -234,7 +234,14 @@ def make_record(part: Part, analysis: dict[str, Any] | None = None,
         bias_supply_coeff_dps_per_v=coeff(part.bias_supply_coeff_dps_per_v, 0.01),
         scale_temp_coeff_per_c=coeff(part.scale_temp_coeff_per_c, 2e-5),
         scale_supply_coeff_per_v=coeff(part.scale_supply_coeff_per_v, 2e-4),
-        readback_ok=True, readback={"bias_dps": part.bias_dps, "scale": part.scale},
+        readback_ok=True,
+        # as procedures/steps/program.py writes it: the part's register names
+        readback={"bias_dps": part.bias_dps, "scale": part.scale,
+                  "bias_tc_dps_per_c": part.bias_temp_coeff_dps_per_c,
+                  "scale_tc_per_c": part.scale_temp_coeff_per_c,
+                  "bias_vc_dps_per_v": part.bias_supply_coeff_dps_per_v,
+                  "scale_vc_per_v": part.scale_supply_coeff_per_v,
+                  "t0_c": 25.0, "v0_v": 5.0},
         interaction_check={"bias_interaction_dps": 0.004})
     due_ok = (part.started + timedelta(days=200)).date().isoformat()
     due_late = (part.started - timedelta(days=3)).date().isoformat()

@@ -235,3 +235,27 @@ def test_error_run_still_names_measurements_already_failed(tmp_path: Path) -> No
     page1 = _flat(pdf_text(render_certificate(folder), page=1))
     assert "Reason: operator pressed stop" in page1
     assert "Measurements already outside their limits: bias_dps = 12.5 deg/s" in page1
+
+
+@pytest.mark.parametrize("spelling", ["register", "record"])
+def test_read_back_column_shows_every_coefficient_read_back(fresh_run: Path,
+                                                            spelling: str) -> None:
+    """The readback dict uses the part's register names (program step); older records may
+    use the record's keys. Either way no coefficient may look unverified ('-')."""
+    rec = read_record(fresh_run)
+    assert rec.calibration is not None
+    registers = {"bias_dps": "bias_dps", "scale": "scale",
+                 "bias_temp_coeff_dps_per_c": "bias_tc_dps_per_c",
+                 "scale_temp_coeff_per_c": "scale_tc_per_c",
+                 "bias_supply_coeff_dps_per_v": "bias_vc_dps_per_v",
+                 "scale_supply_coeff_per_v": "scale_vc_per_v"}
+    # read-back values distinct from the written ones, so the column cannot echo "Value"
+    readback = {(reg if spelling == "register" else key): 1000.0 + i
+                for i, (key, reg) in enumerate(registers.items())}
+    write_record(fresh_run, rec.model_copy(update={"calibration": rec.calibration.model_copy(
+        update={"readback": readback})}))
+    text = pdf_text(render_certificate(fresh_run))
+    table = text.split("Calibration written to the part")[1].split("Reference conditions")[0]
+    for i, key in enumerate(registers):
+        row = next(ln.split() for ln in table.splitlines() if key in ln.split())
+        assert row[-1] == fmt(1000.0 + i, 7), (key, row)
