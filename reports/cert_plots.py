@@ -159,6 +159,37 @@ def _rate_points_from_raw(raw: RawData) -> list[record_keys.RatePoints]:
     return out
 
 
+def by_input_rate(rate_in_dps: list[float], values: list[float]) -> tuple[list[float],
+                                                                         list[float]]:
+    """Both lists reordered by increasing input rate (stable for repeated rates).
+
+    Plateaus are measured in the procedure's order (e.g. 0, +100, -100, +300, ...); a line
+    through the residuals in that order zig-zags across the chart.
+    """
+    order = sorted(range(len(rate_in_dps)), key=lambda k: rate_in_dps[k])
+    return [rate_in_dps[k] for k in order], [values[k] for k in order]
+
+
+def rate_table_charts(points: list[record_keys.RatePoints]) -> tuple[Chart, Chart]:
+    """Output versus input with the fitted lines, and the residuals per condition."""
+    left = Chart(HALF_W, 62 * mm, title="Output versus input", x_label="table rate (deg/s)",
+                 y_label="gyro output (deg/s)")
+    right = Chart(HALF_W, 62 * mm, title="Residual from the fitted line",
+                  x_label="table rate (deg/s)", y_label="residual (deg/s)")
+    for i, p in enumerate(points):
+        colour = PALETTE[i % len(PALETTE)]
+        left.scatter(p.rate_in_dps, p.rate_out_dps, colour, p.condition, size=2.6)
+        if p.scale is not None and p.bias_dps is not None and p.rate_in_dps:
+            xs = [min(p.rate_in_dps), max(p.rate_in_dps)]
+            left.line(xs, [p.scale * x + p.bias_dps for x in xs], colour, width=0.4)
+        if p.residual_dps:
+            rin, resid = by_input_rate(p.rate_in_dps, p.residual_dps)
+            right.line(rin, resid, colour, p.condition, width=0.5)
+            right.scatter(rin, resid, colour, size=2.2)
+    right.hline(0.0, dash=None, width=0.4)
+    return left, right
+
+
 def rate_table(inputs: CertificateInputs) -> list[Flowable]:
     story: list[Flowable] = [Paragraph("Rate table: output versus input, residuals", H2)]
 
@@ -170,20 +201,7 @@ def rate_table(inputs: CertificateInputs) -> list[Flowable]:
             if inputs.raw is None:
                 raise
             points = _rate_points_from_raw(inputs.raw)
-        left = Chart(HALF_W, 62 * mm, title="Output versus input", x_label="table rate (deg/s)",
-                     y_label="gyro output (deg/s)")
-        right = Chart(HALF_W, 62 * mm, title="Residual from the fitted line",
-                      x_label="table rate (deg/s)", y_label="residual (deg/s)")
-        for i, p in enumerate(points):
-            colour = PALETTE[i % len(PALETTE)]
-            left.scatter(p.rate_in_dps, p.rate_out_dps, colour, p.condition, size=2.6)
-            if p.scale is not None and p.bias_dps is not None and p.rate_in_dps:
-                xs = [min(p.rate_in_dps), max(p.rate_in_dps)]
-                left.line(xs, [p.scale * x + p.bias_dps for x in xs], colour, width=0.4)
-            if p.residual_dps:
-                right.line(p.rate_in_dps, p.residual_dps, colour, p.condition, width=0.5)
-                right.scatter(p.rate_in_dps, p.residual_dps, colour, size=2.2)
-        right.hline(0.0, dash=None, width=0.4)
+        left, right = rate_table_charts(points)
         grid = Table([[left.drawing(), right.drawing()]], colWidths=[HALF_W + 1 * mm, HALF_W])
         grid.setStyle(TableStyle([("LEFTPADDING", (0, 0), (-1, -1), 0),
                                   ("RIGHTPADDING", (0, 0), (-1, -1), 0)]))

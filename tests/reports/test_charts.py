@@ -67,3 +67,21 @@ def test_shading_is_drawn_under_the_data() -> None:
 def test_message_box_carries_the_reason() -> None:
     d = message_box(300, 100, "Allan", "Not drawn: analysis.allan missing.")
     assert "analysis.allan" in " ".join(s.text for s in d.contents if isinstance(s, String))
+
+
+def test_rate_table_residual_line_runs_in_input_rate_order_per_condition() -> None:
+    from reports.cert_plots import rate_table_charts
+    from reports.record_keys import RatePoints
+
+    rin = [0.0, 100.0, -100.0, 300.0, -300.0, 100.0]  # procedure order, one rate repeated
+    resid = [0.001, 0.002, -0.002, 0.004, -0.004, 0.003]
+    points = [RatePoints(c, rin, [r * 1.02 for r in rin], resid, 1.02, 0.0)
+              for c in ("T25_V4.75", "T45_V5.25")]
+    _left, right = rate_table_charts(points)
+    lines = [s for s in right._series if s.kind == "line"]
+    assert len(lines) == 2  # one per condition, not one joining both
+    for s in lines:
+        assert list(s.xs) == sorted(rin)
+        # each residual stays with its own input rate
+        pairs = sorted(zip(rin, resid, strict=True), key=lambda p: p[0])
+        assert list(zip(s.xs, s.ys, strict=True)) == pairs
