@@ -107,10 +107,11 @@ def _duts(values: list[str]) -> dict[int, str]:
     next_socket = 1
     for v in values:
         sock_text, sep, serial = v.partition("=")
-        if sep and sock_text.isdigit():
+        if sep and sock_text.strip().isdigit():
             sock = int(sock_text)
         else:
             sock, serial = next_socket, v
+        serial = serial.strip()  # as the station stores it; the sim part must match
         if sock in out:
             raise UserError(f"socket {sock} given twice; one serial per socket")
         out[sock] = serial
@@ -128,10 +129,30 @@ def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | No
             has_speed = "speed" in (yaml.safe_load(p.read_text(encoding="utf-8")) or {})
         except (yaml.YAMLError, AttributeError, TypeError):
             has_speed = True  # let the bench report what is wrong with the file
-        return p, None if has_speed else DEFAULT_SIM_SPEED
+        return p.resolve(), None if has_speed else DEFAULT_SIM_SPEED
     return {
         "parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
     }, DEFAULT_SIM_SPEED
+
+
+def _check_out(out: str | None) -> None:
+    """Refuse an --out that cannot hold run folders before a bench or a folder exists."""
+    if out and Path(out).exists() and not Path(out).is_dir():
+        raise UserError(f"--out {out} is a file, not a folder; choose another --out")
+
+
+@contextlib.contextmanager
+def _bench_errors() -> Iterator[None]:
+    """A simulated bench that will not start is an error (exit 2), said in one line."""
+    from drivers.sim.launcher import BenchStartError
+
+    try:
+        yield
+    except BenchStartError as exc:
+        lines = [t.strip() for t in str(exc).splitlines() if t.strip()]
+        detail = lines[-1] if lines else "no error output"
+        detail = detail.partition("station bench: error: ")[2] or detail
+        raise UserError(f"the simulated bench did not start: {detail}") from None
 
 
 def run_cycle(
@@ -161,6 +182,9 @@ def run_cycle(
         probe.validate(duts)  # bad serials: refuse before a bench or a folder exists
     except ConfigError as exc:
         raise UserError(str(exc)) from None
+    _check_out(args.out)
+    if speed is not None and not 0 < speed <= 10000:
+        raise UserError(f"--speed must be in (0, 10000], got {speed:g}")
     bench_cm: Any = contextlib.nullcontext(None)
     if sim:
         from drivers.sim.launcher import launch_bench
@@ -171,7 +195,7 @@ def run_cycle(
             sockets=max(duts) if isinstance(sim_config, dict) else None,
         )
     wall0 = time.monotonic()
-    with bench_cm as bench:
+    with _bench_errors(), bench_cm as bench:
         endpoints = None
         if bench is not None:
             e = bench.endpoints
@@ -228,7 +252,7 @@ def _demo(args: argparse.Namespace) -> int:
         duts,
         sim=True,
         sim_config={"parts": [{"socket": 1, "serial": DEMO_SERIAL}]},
-        speed=args.speed or DEMO_SPEED,
+        speed=DEMO_SPEED if args.speed is None else args.speed,
     )
     return 0 if code in (0, 1) else code
 

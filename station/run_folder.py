@@ -51,7 +51,12 @@ def create_run_folder(out: Path, serial: str, now: dt.datetime | None = None) ->
     """Make a new, empty `<out>/<UTC time>_<serial>/` (suffixed if it exists) and lock it."""
     validate_serial(serial)
     root = Path(out).expanduser().resolve()
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # e.g. a file of that name: a traceback would read as FAIL
+        raise UserError(
+            f"cannot use {out} as the output folder ({exc.strerror}); choose another --out"
+        ) from None
     base = f"{utc_stamp(now)}_{serial}"
     for n in range(1, 1000):
         folder = root / (base if n == 1 else f"{base}-{n}")

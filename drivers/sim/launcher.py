@@ -122,7 +122,8 @@ def launch_bench(
             cfg_path.write_text(yaml.safe_dump(dict(config)), encoding="utf-8")
             cmd += ["--config", str(cfg_path)]
         elif config is not None:
-            cmd += ["--config", str(config)]
+            # the bench runs with cwd=REPO_ROOT: a relative path means the caller's folder
+            cmd += ["--config", str(Path(config).expanduser().resolve())]
         if speed is not None:
             cmd += ["--speed", repr(float(speed))]
         if sockets is not None:

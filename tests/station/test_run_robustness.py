@@ -1,0 +1,93 @@
+"""`station run` on bad input from the command line: one-line errors, exit 2, nothing half-made."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from drivers.sim.launcher import BenchStartError, launch_bench
+from procedures.record import Verdict, read_record
+
+ROOT = Path(__file__).resolve().parents[2]
+SHORT = ROOT / "tests/procedures/data/short.yaml"
+
+
+def station(*args: str, cwd: Path = ROOT, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "station", *args],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+        cwd=cwd,
+        timeout=timeout,
+    )
+
+
+def _one_line_error(r: subprocess.CompletedProcess[str], words: str) -> None:
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("station "), r.stderr
+    assert words in lines[0], r.stderr
+
+
+BAD_EFFECT = "parts:\n  - {socket: 1, serial: QA-0001, effects: {no_such_effect: {}}}\n"
+
+
+def test_launcher_resolves_a_relative_config_against_the_callers_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "bad.yaml").write_text(BAD_EFFECT)
+    monkeypatch.chdir(tmp_path)
+    # the bench finds the file (and rejects its content), not "cannot read"
+    with pytest.raises(BenchStartError, match="no_such_effect"), launch_bench(
+        config="cfg/bad.yaml", speed=100
+    ):
+        pass
+
+
+@pytest.mark.parametrize(
+    "sim_config, words",
+    [
+        (BAD_EFFECT, "unknown effect id 'no_such_effect'"),
+        ("parts:\n  - {socket: 1, serial: QA-0001, colour: red}\n", "colour"),
+    ],
+)
+def test_relative_invalid_sim_config_is_one_line_error(
+    tmp_path: Path, sim_config: str, words: str
+) -> None:
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "sim.yaml").write_text(sim_config)
+    out = tmp_path / "out"
+    r = station(
+        "run", "--sim", "--sim-config", "cfg/sim.yaml", "--dut", "QA-0001",
+        "--procedure", str(SHORT), "--out", str(out), cwd=tmp_path,
+    )  # fmt: skip
+    _one_line_error(r, words)
+    assert "simulated bench did not start" in r.stderr
+    assert "cannot read" not in r.stderr
+    assert not list(out.glob("*/.running"))
+
+
+@pytest.mark.parametrize("speed", ["0", "-5"])
+def test_bad_speed_is_one_line_error(tmp_path: Path, speed: str) -> None:
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--speed", speed, "--dut", "QA-0001", "--out", str(out))
+    _one_line_error(r, "--speed")
+    assert not out.exists()
+    r = station("demo", "--speed", speed, "--out", str(out))
+    _one_line_error(r, "--speed")
+
+
+def test_out_is_a_file_is_one_line_error(tmp_path: Path) -> None:
+    out = tmp_path / "results.txt"
+    out.write_text("not a folder")
+    r = station("run", "--sim", "--dut", "QA-0001", "--procedure", str(SHORT), "--out", str(out))
+    _one_line_error(r, "--out")
+    assert out.read_text() == "not a folder"
