@@ -84,7 +84,9 @@ class ProgressDisplay:
 
 @contextlib.contextmanager
 def _sigint_aborts(runner: Any) -> Iterator[None]:
-    """First Ctrl-C: clean abort (bench made safe, record ABORTED); second: hard interrupt."""
+    """First Ctrl-C or SIGTERM: clean abort (bench made safe, record ABORTED); second: hard
+    interrupt. SIGTERM is what a service manager or `kill` sends; it must not leave a run
+    RUNNING with no certificate."""
     hits = {"n": 0}
 
     def handler(signum: int, frame: Any) -> None:
@@ -92,13 +94,32 @@ def _sigint_aborts(runner: Any) -> Iterator[None]:
         if hits["n"] > 1:
             raise KeyboardInterrupt
         print("\nabort requested: making the bench safe...", file=sys.stderr, flush=True)
-        runner.abort("operator abort (Ctrl-C)")
+        if signum == signal.SIGTERM:
+            runner.abort("station asked to stop (SIGTERM)")
+        else:
+            runner.abort("operator abort (Ctrl-C)")
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """Before the run starts (bench starting), SIGTERM unwinds like Ctrl-C: bench stopped, its
+    temp folder removed, exit 2."""
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _duts(values: list[str]) -> dict[int, str]:
@@ -195,7 +216,7 @@ def run_cycle(
             sockets=max(duts) if isinstance(sim_config, dict) else None,
         )
     wall0 = time.monotonic()
-    with _bench_errors(), bench_cm as bench:
+    with _sigterm_interrupts(), _bench_errors(), bench_cm as bench:
         endpoints = None
         if bench is not None:
             e = bench.endpoints

@@ -91,3 +91,38 @@ def test_out_is_a_file_is_one_line_error(tmp_path: Path) -> None:
     r = station("run", "--sim", "--dut", "QA-0001", "--procedure", str(SHORT), "--out", str(out))
     _one_line_error(r, "--out")
     assert out.read_text() == "not a folder"
+
+
+def test_sigterm_aborts_like_ctrl_c(tmp_path: Path) -> None:
+    out, tmp = tmp_path / "out", tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "station", "run", "--dut", "SIM-0001", "--sim", "--speed", "100",
+         "--procedure", str(SHORT), "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(ROOT), TMPDIR=str(tmp)),
+        cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        seen = ""
+        while "bias T25" not in seen:
+            line = proc.stdout.readline()
+            assert line, seen
+            seen += line
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2, stderr
+    assert "making the bench safe" in stderr and "Traceback" not in stderr
+    folder = next(out.glob("*_SIM-0001"))
+    rec = read_record(folder)
+    assert rec.verdict is Verdict.ABORTED and "SIGTERM" in rec.reason
+    assert all(v == "safe" for v in rec.analysis["safe_state"].values())
+    assert (folder / "certificate.pdf").is_file()
+    assert not (folder / ".running").exists()
+    assert not list(tmp.glob("simbench-*"))  # the bench's temp folder is gone
