@@ -8,6 +8,7 @@ beyond them are additions.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import csv
 import json
 import sys
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
 from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
 from station.errors import UserError
@@ -45,7 +47,8 @@ def register(subparsers: Any) -> None:
     )
     sm.add_argument(
         "--full-scale", type=float, default=None, metavar="DPS",
-        help="treat |rate| beyond this as over-range even without status bits",
+        help="treat |rate| beyond this as over-range even without status bits "
+        f"(default: the part's rated range, {RATED_RANGE_DPS:g})",
     )
     sm.add_argument("--json", action="store_true", help="print JSON instead of a table")
     sm.set_defaults(handler=run_stop_method)
@@ -110,14 +113,21 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
         i = int(np.argmax(steps <= 0))
         raise UserError(
             f"{path}: time_s is not increasing at data row {i + 2} "
-            f"({data['time_s'][i]!r} then {data['time_s'][i + 1]!r}); sort the record"
+            f"({float(data['time_s'][i]):.10g} then {float(data['time_s'][i + 1]):.10g}); sort the record"
         )
     return data
 
 
 def run_stop_method(args: argparse.Namespace) -> int:
     data = read_rate_csv(args.csv)
-    settings = StopMethodSettings(full_scale_dps=args.full_scale)
+    full_scale = RATED_RANGE_DPS if args.full_scale is None else args.full_scale
+    settings = StopMethodSettings(full_scale_dps=full_scale)
+    hint = (
+        f"the over-range check uses the part's rated range +/-{RATED_RANGE_DPS:g} deg/s by "
+        "default; for a part with a wider range pass --full-scale DPS"
+        if args.full_scale is None
+        else f"the over-range check uses --full-scale {full_scale:g} deg/s"
+    )
     try:
         result = analyze_stop_method(
             data["time_s"],
@@ -127,6 +137,8 @@ def run_stop_method(args: argparse.Namespace) -> int:
             status=data["status"].astype(np.int64) if "status" in data else None,
             settings=settings,
         )
+        if result.n_over_range:
+            result = dataclasses.replace(result, warnings=(*result.warnings, hint))
         result.require_scale_correction()
     except AnalysisError as exc:
         raise UserError(f"{args.csv}: {exc}") from None
@@ -166,6 +178,13 @@ def stop_method_json(r: StopMethodResult) -> dict[str, Any]:
         "u_reference_angle_deg": r.u_reference_angle_deg,
         "n_over_range": r.n_over_range,
         "over_range_intervals_s": [list(span) for span in r.over_range_intervals_s],
+        "moves_consistent": r.moves_consistent,
+        "moves_chi2": r.moves_chi2,
+        "moves_dof": r.moves_dof,
+        "birge_ratio": r.birge_ratio,
+        "uncertainty_coverage": "k=1 (standard)",
+        "u_scale_correction_k2": r.u_scale_correction_k2,
+        "u_bias_dps_k2": r.bias.u_bias_dps_k2,
         "warnings": list(r.warnings),
     }
 
@@ -193,6 +212,13 @@ def stop_method_table(r: StopMethodResult) -> str:
             f"scale correction    {r.scale_correction:.4f}   u(k=2) {2 * r.u_scale_correction:.2g}"
             f"   (scale {r.scale:.4f})"
         )
+    if r.moves_consistent is False:
+        lines += [
+            "",
+            f"!!! MOVES DISAGREE: chi-square {r.moves_chi2:.3g} on {r.moves_dof} degree(s) of "
+            f"freedom (Birge ratio {r.birge_ratio:.3g}); the per-move corrections are not",
+            "!!! consistent, the mean is doubtful and its u(k=2) above is widened by the ratio",
+        ]
     return "\n".join(lines)
 
 

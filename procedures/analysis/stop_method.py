@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2 as chi2_dist
 
 from drivers.fixture_protocol import SampleStatus
 from procedures.analysis._checks import finite_1d, monotonic_time, non_negative, positive
@@ -48,6 +49,10 @@ class StopMethodSettings:
     min_bias_window_s: float = 1.0
     min_move_fraction: float = 0.2  # |angle| below this x reference: a disturbance, not a move
     full_scale_dps: float | None = None  # samples beyond it are over-range even if unflagged
+    # relative allowance per move in the consistency check between moves: a real part's scale
+    # differs a little between directions and rates (asymmetry, nonlinearity: 0.01-0.1 % of
+    # full scale, the article's 0.946 vs 0.944), which the noise-only uncertainties leave out
+    move_tolerance: float = 0.005
 
 
 @dataclass(frozen=True)
@@ -96,6 +101,12 @@ class StopMethodResult:
     n_over_range: int
     warnings: tuple[str, ...] = field(default=())
     over_range_intervals_s: tuple[tuple[float, float], ...] = field(default=())  # flagged spans
+    # consistency of the usable moves' corrections against their (angle) uncertainties:
+    # chi-square with n-1 degrees of freedom; None with fewer than two usable moves
+    moves_chi2: float | None = None
+    moves_dof: int = 0
+    birge_ratio: float | None = None  # sqrt(chi2 / dof)
+    moves_consistent: bool | None = None  # False: u_scale_correction widened by birge_ratio
 
     @property
     def bias_dps(self) -> float:
@@ -294,6 +305,18 @@ def analyze_stop_method(
     mean_corr, u_mean = _mean_correction(usable, ref, u_ref, cov)
     if mean_corr is None:
         warnings.append("no usable move: no scale correction")
+    chi2, dof, birge, consistent = _move_consistency(usable, ref, cov, cfg.move_tolerance)
+    if consistent is False and u_mean is not None:
+        corrs = ", ".join(f"{ref / abs(a):.4f}" for _, a in usable)
+        warnings.append(
+            f"MOVES DISAGREE: the per-move scale corrections ({corrs}) differ by far more than "
+            f"their uncertainties and a {cfg.move_tolerance:.2%} allowance per move (chi-square "
+            f"{chi2:.3g} on {dof} degree(s) of freedom); the mean's uncertainty is widened by "
+            f"the Birge ratio {birge:.3g}. Check that "
+            "every move went from stop to stop, and look for a bounce, a slipped stop, or a "
+            "scale that differs between directions"
+        )
+        u_mean *= birge
     statics = _static_segments(t, [(m.start_s, m.end_s) for m in moves])
     return StopMethodResult(
         bias=bias,
@@ -307,6 +330,10 @@ def analyze_stop_method(
         n_over_range=int(clip.sum()),
         warnings=tuple(warnings),
         over_range_intervals_s=tuple((float(t[a]), float(t[b])) for a, b in _runs(clip)),
+        moves_chi2=chi2,
+        moves_dof=dof,
+        birge_ratio=birge,
+        moves_consistent=consistent,
     )
 
 
@@ -339,6 +366,43 @@ def _mean_correction(
     g = -corrs / angles / len(usable)
     var = (g_ref * u_ref) ** 2 + float(g @ cov[np.ix_(idx, idx)] @ g)
     return float(corrs.mean()), math.sqrt(var)
+
+
+CONSISTENCY_P = 1e-3  # moves are flagged inconsistent when chi-square's p-value is below this
+
+
+def _move_consistency(
+    usable: list[tuple[int, float]], ref: float, cov: NDArray[np.float64], tolerance: float
+) -> tuple[float | None, int, float | None, bool | None]:
+    """Consistency of the usable moves' corrections. The covariance of the corrections comes
+    from the angle errors (the reference angle is common to all moves and cancels in their
+    differences). The test: chi-square about the generalised-least-squares mean with each
+    move given an extra independent relative allowance `tolerance` (direction/rate
+    dependence of a real part's scale), p-value below CONSISTENCY_P = inconsistent. The
+    Birge ratio sqrt(chi2 / dof) is from the noise-only covariance: it is what the mean's
+    uncertainty must be multiplied by to cover the observed scatter. Returns (chi2 with the
+    allowance, dof, Birge ratio, consistent); (None, 0, None, None) below two moves."""
+    if len(usable) < 2:
+        return None, 0, None, None
+    idx = [j for j, _ in usable]
+    angles = np.array([a for _, a in usable])
+    corrs = np.copysign(ref, angles) / angles
+    jac = np.diag(-corrs / angles)
+    c_cov = jac @ cov[np.ix_(idx, idx)] @ jac.T
+    dof = corrs.size - 1
+
+    def chi2_of(c: NDArray[np.float64]) -> float:
+        inv = np.linalg.pinv(c, rcond=1e-12, hermitian=True)
+        ones = np.ones(corrs.size)
+        denom = float(ones @ inv @ ones)
+        mu = float(ones @ inv @ corrs) / denom if denom > 0 else float(corrs.mean())
+        r = corrs - mu
+        return max(float(r @ inv @ r), 0.0)
+
+    chi2_noise = chi2_of(c_cov)
+    chi2 = chi2_of(c_cov + np.diag((tolerance * corrs) ** 2))
+    consistent = bool(chi2_dist.sf(chi2, dof) >= CONSISTENCY_P)
+    return chi2, dof, math.sqrt(chi2_noise / dof), consistent
 
 
 def angle_error_covariance(
