@@ -20,7 +20,7 @@ from typing import Any
 
 from procedures.record import RECORD_FILE, read_record
 from station.errors import UserError
-from station.results_db import ResultsDB, ResultsDBError
+from station.results_db import ResultsDB, ResultsDBError, RunRow
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,19 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def history_table(runs: list[RunRow]) -> list[str]:
+    """The runs as text rows under a header, each column as wide as its widest cell plus
+    two spaces, so no value runs into the next (product names can be long)."""
+    header = ("started (UTC)", "serial", "product", "verdict", "detail")
+    rows = [(r.started_utc, r.serial, r.product, r.verdict,
+             " ".join(filter(None, [", ".join(r.failed_measurements) or r.reason,
+                                    "[sim]" if r.simulated else ""])))
+            for r in runs]
+    widths = [max(len(row[c]) for row in [header, *rows]) for c in range(len(header) - 1)]
+    return ["  ".join(cell.ljust(w) for cell, w in zip(row[:-1], widths, strict=True))
+            + ("  " + row[-1]).rstrip() for row in [header, *rows]]
+
+
 def cmd_history(args: argparse.Namespace) -> int:
     if args.reindex:
         root = Path(args.reindex)
@@ -117,12 +130,8 @@ def cmd_history(args: argparse.Namespace) -> int:
     if not runs:
         print("no runs match")
         return 0
-    print(f"{'started (UTC)':<26}{'serial':<16}{'product':<18}{'verdict':<9}detail")
-    for r in runs:
-        detail = ", ".join(r.failed_measurements) or r.reason
-        sim = " [sim]" if r.simulated else ""
-        print(f"{r.started_utc:<26}{r.serial:<16}{r.product:<18}{r.verdict:<9}"
-              f"{detail}{sim}")
+    for line in history_table(runs):
+        print(line)
     counts = {v: sum(r.verdict == v for r in runs) for v in VERDICTS}
     done = counts["PASS"] + counts["FAIL"]
     yield_text = f"{counts['PASS'] / done * 100:.1f} %" if done else "n/a"

@@ -121,3 +121,21 @@ def test_history_reindex_rebuilds_the_database_from_run_folders(
     assert sorted(r["serial"] for r in json.loads(out.stdout)) == ["SIM-FAIL-2", "SIM-PASS-1"]
     assert "indexed 2 run folders" in out.stderr and "skipped:" in out.stderr
     assert "BROKEN" in out.stderr
+
+
+def test_history_columns_fit_long_values(tmp_path: Path) -> None:
+    db = tmp_path / "r.sqlite"
+    product = "GYR-130 yaw-rate gyroscope"  # longer than the old fixed 18-character column
+    records = make_lot(db, 4, product=product)
+    out = station("history", "--db", str(db))
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    header, rows = lines[0], [ln for ln in lines if ln.startswith("2026-")]
+    assert len(rows) == len(records)
+    verdict_col = header.index("verdict")
+    for ln in rows:
+        cells = [c for c in ln.split("  ") if c]
+        assert cells[2].strip() == product and cells[3].strip() in ("PASS", "FAIL"), ln
+        assert ln[verdict_col:].split()[0] in ("PASS", "FAIL"), ln  # aligned under its header
+        assert f"{product} " in ln and f"{product}PASS" not in ln and f"{product}FAIL" not in ln
+    assert {ln.split()[1] for ln in rows} == {r.dut.serial for r in records}
