@@ -153,6 +153,24 @@ class RunRecord(_Model):
     analysis: dict[str, Any] = Field(default_factory=dict)  # per-step analysis summaries
 
 
+def new_file_mode() -> int:
+    """The mode an ordinary new file gets under the current umask (0644 under umask 022).
+
+    `tempfile.mkstemp` creates files 0600 whatever the umask; files renamed into a run folder
+    get this mode instead, so other accounts (quality review) read them as they read raw.h5.
+    """
+    try:  # Linux: read the umask without changing it (os.umask is process-wide)
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_record(folder: Path, record: RunRecord) -> Path:
     """Write record.json atomically (temp file + rename), so a crash never leaves half a file."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -161,6 +179,7 @@ def write_record(folder: Path, record: RunRecord) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=".record-", suffix=".json", dir=folder)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            os.fchmod(fh.fileno(), new_file_mode())
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())

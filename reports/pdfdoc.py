@@ -24,6 +24,7 @@ from reportlab.lib.units import mm
 from reportlab.pdfgen.canvas import Canvas
 from reportlab.platypus import Flowable, SimpleDocTemplate
 
+from procedures.record import new_file_mode
 from reports.styles import FONT, FONT_BOLD, RULE_GREY, SIM_MAGENTA
 
 PAGE_SIZE = A4
@@ -150,6 +151,7 @@ def write_atomic(path: Path, data: bytes) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), new_file_mode())  # mkstemp's 0600 would hide it from quality
             fh.write(data)
         os.replace(tmp, path)
     except BaseException:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -259,3 +260,19 @@ def test_read_back_column_shows_every_coefficient_read_back(fresh_run: Path,
     for i, key in enumerate(registers):
         row = next(ln.split() for ln in table.splitlines() if key in ln.split())
         assert row[-1] == fmt(1000.0 + i, 7), (key, row)
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_certificate_and_record_are_readable_by_others_as_the_umask_allows(
+        fresh_run: Path, umask: int) -> None:
+    """mkstemp makes 0600 files; the run folder's files get the ordinary mode (as raw.h5)."""
+    import stat
+
+    old = os.umask(umask)
+    try:
+        write_record(fresh_run, read_record(fresh_run))
+        pdf = render_certificate(fresh_run)
+    finally:
+        os.umask(old)
+    for path in (pdf, fresh_run / "record.json"):
+        assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask, path.name
