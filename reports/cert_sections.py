@@ -36,7 +36,9 @@ from reports.styles import (
     escape,
     fmt,
     grid_style,
+    unit_label,
     verdict_style,
+    with_units,
 )
 
 CONTENT_WIDTH = 182 * mm
@@ -106,8 +108,8 @@ def header(inputs: CertificateInputs) -> list[Flowable]:
     story += [Spacer(1, 2 * mm), banner, Spacer(1, 1.5 * mm)]
     if verdict == "FAIL" and rec is not None:
         names = [
-            f"{m.name}{' @ ' + m.condition if m.condition else ''} = {fmt(m.value)} {m.units} "
-            f"(limits {fmt(m.low)} .. {fmt(m.high)})"
+            f"{m.name}{' @ ' + m.condition if m.condition else ''} = "
+            f"{with_units(m.value, m.units)} (limits {fmt(m.low)} .. {fmt(m.high)})"
             for m in failing(rec)
         ] or ["(the record names no failing measurement)"]
         story.append(Paragraph("<b>Failing measurements:</b> " + escape("; ".join(names)),
@@ -118,7 +120,7 @@ def header(inputs: CertificateInputs) -> list[Flowable]:
         if rec is not None and failing(rec):
             story.append(Paragraph("<b>Measurements already outside their limits:</b> " + escape(
                 "; ".join(f"{m.name}{' @ ' + m.condition if m.condition else ''} = "
-                          f"{fmt(m.value)} {m.units}" for m in failing(rec))), WARNING))
+                          f"{with_units(m.value, m.units)}" for m in failing(rec))), WARNING))
     if rec is not None:
         for late in overdue_instruments(rec):
             story.append(Paragraph(
@@ -296,7 +298,7 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
         d, pct = margin(m)
         # Numbers as plain strings (fast, never wrap); names and units as paragraphs.
         rows.append([_p(m.name), _p(m.condition or "-"), fmt(m.value),
-                     fmt(m.uncertainty_k2, 3), _p(m.units), fmt(m.low), fmt(m.high),
+                     fmt(m.uncertainty_k2, 3), _p(unit_label(m.units)), fmt(m.low), fmt(m.high),
                      f"{fmt(d, 3)} {pct}".strip() if d is not None else pct,
                      m.outcome.value.replace("_", " ")])
         if m.outcome == Outcome.FAIL:
@@ -353,7 +355,7 @@ def calibration(inputs: CertificateInputs) -> list[Flowable]:
     for key, label, units, register in _COEFFS:
         c = getattr(cal, key)
         rows.append([_p(label), _p(key, CELL_MONO), _p(fmt(c.value, 7)),
-                     _p(fmt(c.uncertainty_k2, 3)), _p(units),
+                     _p(fmt(c.uncertainty_k2, 3)), _p(unit_label(units)),
                      _p(fmt(readback_value(readback, key, register), 7))])
     t = Table(rows, repeatRows=1, colWidths=[48 * mm, 50 * mm, 22 * mm, 18 * mm, 16 * mm,
                                              28 * mm])

@@ -31,6 +31,8 @@ from reports.styles import (
     escape,
     fmt,
     grid_style,
+    titled,
+    unit_label,
 )
 from station.results_db import MeasurementRow, ResultsDB, RunRow
 
@@ -77,7 +79,8 @@ def _capability_table(caps: list[lot_stats.Capability]) -> Table:
                              "Cpk")]]
     style = grid_style()
     for i, c in enumerate(caps, start=1):
-        rows.append([_p(c.label + (" *" if c.limits_varied else "")), _p(c.units), _p(c.n),
+        rows.append([_p(c.label + (" *" if c.limits_varied else "")), _p(unit_label(c.units)),
+                     _p(c.n),
                      _p(fmt(c.mean)), _p(fmt(c.sigma, 3)), _p(fmt(c.low)), _p(fmt(c.high)),
                      _p(fmt(c.cpk, 3))])
         if c.cpk is not None and c.cpk < 1.0:
@@ -91,7 +94,7 @@ def _capability_table(caps: list[lot_stats.Capability]) -> Table:
 
 
 def _histogram(c: lot_stats.Capability) -> Flowable:
-    title = f"{c.label} ({c.units})"
+    title = titled(c.label, c.units)
     if c.n < 2:
         return message_box(HALF_W, 55 * mm, title, f"Not drawn: {c.n} value(s) in the lot.")
     values = np.asarray(c.values)
@@ -102,7 +105,7 @@ def _histogram(c: lot_stats.Capability) -> Flowable:
     counts, edges = np.histogram(values, bins=bins, range=(lo, hi))
     xs = [lo, hi] + [v for v in (c.low, c.high) if v is not None]
     span = max(xs) - min(xs)
-    chart = Chart(HALF_W, 55 * mm, title=title, x_label=f"{c.name} ({c.units})",
+    chart = Chart(HALF_W, 55 * mm, title=title, x_label=titled(c.name, c.units),
                   y_label="runs", x_range=(min(xs) - 0.04 * span, max(xs) + 0.04 * span))
     chart.bars(edges, counts, PALETTE[0], f"n = {c.n}")
     if c.low is not None:
@@ -149,7 +152,7 @@ def _trend(runs: list[RunRow]) -> list[Flowable]:
                                       f"Not drawn: {len(vals)} run(s) with a written {key}."))
             continue
         ch = Chart(HALF_W, 55 * mm, title=label,
-                   x_label=f"hours since {t0:%Y-%m-%d %H:%M} UTC", y_label=f"{key} ({units})")
+                   x_label=f"hours since {t0:%Y-%m-%d %H:%M} UTC", y_label=titled(key, units))
         ch.line(hours, vals, PALETTE[0], width=0.4)
         ch.scatter(hours, vals, PALETTE[0], size=1.8)
         ch.hline(float(np.mean(vals)), PALETTE[2], "lot mean", dash=(3, 2))

@@ -91,6 +91,26 @@ def fmt(value: float | None, digits: int = 5) -> str:
     return f"{value:.{digits}g}"
 
 
+DIMENSIONLESS = ("1", "")
+
+
+def unit_label(units: str) -> str:
+    """Units for a column or an axis: '(ratio)' for a dimensionless quantity (units "1"),
+    which a reader would otherwise take for a stray digit."""
+    return "(ratio)" if units.strip() == "1" else units
+
+
+def with_units(value: float | None, units: str, digits: int = 5) -> str:
+    """A value followed by its units; a dimensionless value ("1") carries none."""
+    text = fmt(value, digits)
+    return text if units.strip() in DIMENSIONLESS else f"{text} {units}"
+
+
+def titled(label: str, units: str) -> str:
+    """'label (units)' for a chart title or axis; just the label when dimensionless."""
+    return label if units.strip() in DIMENSIONLESS else f"{label} ({units})"
+
+
 def escape(text: object) -> str:
     """Text safe inside a reportlab Paragraph (which parses a little XML)."""
     return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")

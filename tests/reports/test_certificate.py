@@ -276,3 +276,16 @@ def test_certificate_and_record_are_readable_by_others_as_the_umask_allows(
         os.umask(old)
     for path in (pdf, fresh_run / "record.json"):
         assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask, path.name
+
+
+def test_dimensionless_values_carry_no_stray_unit(tmp_path: Path) -> None:
+    from tests.reports.synth_run import Part, make_run
+
+    folder, rec = make_run(tmp_path, Part(serial="SIM-SCL-6", bias_dps=1.0, scale=1.08))
+    assert rec.failed_measurements == ["scale"]
+    assert next(m.units for m in rec.measurements if m.name == "scale") == "1"
+    page1 = _flat(pdf_text(render_certificate(folder), page=1))
+    assert "Failing measurements: scale = 1.08 (limits 0.94 .. 1.06)" in page1
+    lines = pdf_text(folder / "certificate.pdf").splitlines()
+    scale_row = next(ln for ln in lines if ln.split()[:1] == ["scale"] and "FAIL" in ln)
+    assert "(ratio)" in scale_row and " 1 " not in scale_row
