@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
+from procedures.analysis.allan import check_static
 from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
 from station.errors import UserError
 
@@ -226,35 +227,56 @@ def run_allan(args: argparse.Namespace) -> int:
     data = read_rate_csv(args.csv)
     t = data["time_s"]
     steps = np.diff(t)
-    dt = float(t[-1] - t[0]) / (t.size - 1)
-    gaps = np.abs(steps - dt) > 0.25 * dt
-    if gaps.any():
-        i = int(np.argmax(gaps))
+    dt = float(np.median(steps))
+    irregular = np.abs(steps - dt) > 0.25 * dt
+    if irregular.any():
+        i = int(np.argmax(irregular))
+        n_irr = int(irregular.sum())
         raise UserError(
-            f"{args.csv}: samples are not evenly spaced (step of {steps[i]:.6g} s after "
-            f"t = {t[i]:.6g} s, typical {dt:.6g} s); the Allan deviation needs an unbroken "
-            "record: re-record or analyse the section without gaps"
+            f"{args.csv}: samples are not evenly spaced: a step of {float(steps[i]):.6g} s from "
+            f"t = {float(t[i]):.6g} s to t = {float(t[i + 1]):.6g} s (data rows {i + 1}-{i + 2}), "
+            f"where the median step is {dt:.6g} s"
+            + (f" ({n_irr} irregular steps in all)" if n_irr > 1 else "")
+            + "; the Allan deviation needs an unbroken record: re-record or analyse the "
+            "section without gaps"
         )
     try:
         result = analyze_allan(data["rate_dps"], 1.0 / dt)
     except AnalysisError as exc:
         raise UserError(f"{args.csv}: {exc}") from None
+    static = check_static(data["rate_dps"], 1.0 / dt)
+    warnings = [] if static.static else [static.message()]
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
     noise = result.noise
+    bi_resolved = noise.flat_region_s is not None
+    rrw_resolved = noise.rrw_region_s is not None
     if args.json:
         out = {
             "tau_s": result.adev.tau_s.tolist(),
             "adev_dps": result.adev.adev_dps.tolist(),
             "arw_deg_per_sqrt_h": noise.arw_deg_per_sqrt_h,
-            "bias_instability_deg_per_h": noise.bias_instability_deg_per_h,
+            # null when the flat part is not seen: read the upper bound instead
+            "bias_instability_deg_per_h": noise.bias_instability_deg_per_h if bi_resolved else None,
+            "bias_instability_resolved": bi_resolved,
             "u_arw_deg_per_sqrt_h": noise.u_arw_deg_per_sqrt_h,
-            "u_bias_instability_deg_per_h": noise.u_bias_instability_deg_per_h,
+            "u_bias_instability_deg_per_h": (
+                noise.u_bias_instability_deg_per_h if bi_resolved else None
+            ),
             "bias_instability_upper_bound_deg_per_h": result.bias_instability_upper_bound_deg_per_h,
-            "rrw_deg_per_h_per_sqrt_h": noise.model.rrw_deg_per_h_per_sqrt_h,
+            "rrw_deg_per_h_per_sqrt_h": (
+                noise.model.rrw_deg_per_h_per_sqrt_h if rrw_resolved else None
+            ),
+            "rrw_resolved": rrw_resolved,
+            "rrw_upper_bound_deg_per_h_per_sqrt_h": result.rrw_upper_bound_deg_per_h_per_sqrt_h,
             "arw_region_s": noise.arw_region_s,
             "flat_region_s": noise.flat_region_s,
             "rrw_region_s": noise.rrw_region_s,
             "sample_rate_hz": 1.0 / dt,
             "n_samples": result.adev.n_samples,
+            "uncertainty_coverage": "k=1 (standard)",
+            "record_static": static.static,
+            "warnings": warnings,
         }
         print(json.dumps(out, indent=2))
         return 0
@@ -270,13 +292,21 @@ def run_allan(args: argparse.Namespace) -> int:
             f"bias instability    {noise.bias_instability_deg_per_h:.4g} deg/h"
             f"   u(k=2) {2 * noise.u_bias_instability_deg_per_h:.2g}   "
             f"{_region(noise.flat_region_s)}"
-            if noise.flat_region_s is not None
+            if bi_resolved
             else "bias instability    not resolved in this record: at most "
             f"{result.bias_instability_upper_bound_deg_per_h:.3g} deg/h (lowest ADEV / 0.664)"
         ),
-        f"rate random walk    {noise.model.rrw_deg_per_h_per_sqrt_h:.4g} deg/h/sqrt(h)"
-        f"   {_region(noise.rrw_region_s)}",
+        (
+            f"rate random walk    {noise.model.rrw_deg_per_h_per_sqrt_h:.4g} deg/h/sqrt(h)"
+            f"   {_region(noise.rrw_region_s)}"
+            if rrw_resolved
+            else "rate random walk    not resolved in this record: at most "
+            f"{result.rrw_upper_bound_deg_per_h_per_sqrt_h:.3g} deg/h/sqrt(h)"
+            " (min of ADEV x sqrt(3 / tau))"
+        ),
     ]
+    if warnings:
+        lines += ["", *(f"!!! WARNING: {w}" for w in warnings)]
     print("\n".join(lines))
     return 0
 

@@ -154,6 +154,59 @@ class AllanAnalysis:
         """Lowest ADEV / 0.664: what B can be at most; useful when the flat part is unseen."""
         return float(np.min(self.adev.adev_dps)) / FLICKER_ADEV_FACTOR * 3600.0
 
+    @property
+    def rrw_upper_bound_deg_per_h_per_sqrt_h(self) -> float:
+        """min over tau of ADEV * sqrt(3 / tau) (AVAR >= K^2 tau / 3): what K can be at most;
+        useful when the +1/2 part is unseen."""
+        k = self.adev.adev_dps * np.sqrt(3.0 / self.adev.tau_s)
+        return float(np.min(k)) * 3600.0 * 60.0
+
+
+NON_STATIC_SIGMA = 10.0  # |rate - median| beyond this many white-noise sigma is motion
+
+
+@dataclass(frozen=True)
+class StaticCheck:
+    """Whether a record looks static: excursions from its median level far beyond the
+    sample-to-sample noise (a move, a step, a shock) make Allan's noise terms meaningless."""
+
+    static: bool
+    sigma_dps: float  # white noise per sample, robust, from first differences
+    n_excursion: int  # samples more than NON_STATIC_SIGMA sigma from the median
+    first_excursion_s: float | None  # time from the record start of the first one
+    max_excursion_dps: float
+
+    def message(self) -> str:
+        return (
+            f"the record is not static: {self.n_excursion} sample(s) lie more than "
+            f"{NON_STATIC_SIGMA:g} sigma ({NON_STATIC_SIGMA * self.sigma_dps:.3g} deg/s) from the "
+            f"median level, the first {self.first_excursion_s:.6g} s into the record, up to "
+            f"{self.max_excursion_dps:.4g} deg/s away (a move or a step?); the Allan deviation "
+            "needs a static record, so the noise terms (rate random walk above all) are not the "
+            "part's: record the part at rest and analyse that"
+        )
+
+
+def check_static(rate_dps: ArrayLike, sample_rate_hz: float) -> StaticCheck:
+    """Excursions of a rate record from its median beyond NON_STATIC_SIGMA x the white noise
+    (robust sigma of first differences / sqrt 2). Flicker and rate random walk of a real
+    part at rest stay well inside this over the records the station takes."""
+    y = np.asarray(rate_dps, dtype=np.float64)
+    d = np.diff(y)
+    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2.0)
+    dev = np.abs(y - np.median(y))
+    if sigma <= 0.0:  # coarsely quantised: most steps are zero
+        sigma = float(np.std(d)) / math.sqrt(2.0)
+    hit = dev > NON_STATIC_SIGMA * sigma if sigma > 0.0 else np.zeros(y.size, dtype=bool)
+    n = int(hit.sum())
+    return StaticCheck(
+        static=n == 0,
+        sigma_dps=sigma,
+        n_excursion=n,
+        first_excursion_s=float(np.argmax(hit)) / sample_rate_hz if n else None,
+        max_excursion_dps=float(dev.max()) if dev.size else 0.0,
+    )
+
 
 def tau_samples(n_samples: int, taus: TauSpec, sample_rate_hz: float) -> NDArray[np.int64]:
     """Averaging factors m (tau = m / rate) usable on a record of n_samples."""

@@ -86,3 +86,50 @@ def test_non_monotonic_time_error_prints_plain_numbers(
     err = capsys.readouterr().err
     assert "np.float64" not in err
     assert "(5.01 then 5)" in err
+
+
+def test_allan_unresolved_terms_are_null_with_upper_bounds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rng = np.random.default_rng(9)
+    y = 8.6 + gyro_noise(rng, 6_000, 100.0, arw_deg_per_sqrt_h=0.6)  # white only, 60 s
+    csv_path = _write(tmp_path / "a.csv", {"time_s": np.arange(y.size) / 100.0, "rate_dps": y})
+    assert main(["analyze", "allan", str(csv_path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["flat_region_s"] is None and doc["rrw_region_s"] is None
+    assert doc["bias_instability_deg_per_h"] is None
+    assert doc["bias_instability_resolved"] is False
+    assert doc["bias_instability_upper_bound_deg_per_h"] > 0
+    assert doc["rrw_deg_per_h_per_sqrt_h"] is None
+    assert doc["rrw_upper_bound_deg_per_h_per_sqrt_h"] > 0
+    assert doc["record_static"] is True and doc["warnings"] == []
+    assert main(["analyze", "allan", str(csv_path)]) == 0
+    out = capsys.readouterr().out
+    assert "rate random walk    not resolved in this record: at most" in out
+
+
+def test_allan_warns_on_a_record_with_moves(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    t, y = article_record(np.random.default_rng(10))
+    csv_path = _write(tmp_path / "m.csv", {"time_s": t, "rate_dps": y})
+    assert main(["analyze", "allan", str(csv_path), "--json"]) == 0
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert doc["record_static"] is False
+    assert "not static" in captured.err and "static record" in captured.err
+    assert any("not static" in w for w in doc["warnings"])
+    assert main(["analyze", "allan", str(csv_path)]) == 0
+    assert "WARNING: the record is not static" in capsys.readouterr().out
+
+
+def test_allan_gap_message_names_the_gap_and_median_step(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    t = np.concatenate([np.arange(0.0, 10.0, 0.01), np.arange(20.0, 30.0, 0.01)])
+    y = 8.6 + 0.01 * np.random.default_rng(11).standard_normal(t.size)
+    csv_path = _write(tmp_path / "g.csv", {"time_s": t, "rate_dps": y})
+    assert main(["analyze", "allan", str(csv_path)]) == 2
+    err = capsys.readouterr().err
+    assert "step of 10.01 s from t = 9.99 s to t = 20 s" in err
+    assert "median step is 0.01 s" in err
