@@ -277,9 +277,26 @@ class UutRunner:
             raise UserError("the same serial was scanned for two sockets; rescan the labels")
         return clean
 
+    def fixture_ports(self) -> dict[int, str]:
+        """Socket -> fixture port: the bench's sockets, or station.yaml's."""
+        if self.endpoints is not None:
+            return dict(self.endpoints.duts)
+        return dict(self.settings.settings.instruments.fixture.ports)
+
+    def check_ports(self, duts: dict[int, str]) -> None:
+        """Every scanned socket needs a fixture port; refuse before any folder exists."""
+        ports = self.fixture_ports()
+        for s in sorted(duts):
+            if not ports.get(s):
+                raise UserError(
+                    f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
+                    "or the bench's sockets); load fewer parts or configure the socket"
+                )
+
     def start(self, duts: dict[int, str]) -> None:
         """Start a run in a background thread (validation errors are raised here)."""
         duts = self.validate(duts)
+        self.check_ports(duts)
         with self._lock:
             if self._state == "running":
                 raise UserError("a run is already in progress; wait for it or abort it")
@@ -337,6 +354,7 @@ class UutRunner:
     def run(self, duts: dict[int, str]) -> UutResult:
         """Validate, create run folders, run the procedure, certificates, results database."""
         duts = self.validate(duts)
+        self.check_ports(duts)
         self._state = "running"
         wall0 = dt.datetime.now(dt.UTC)
         self.recover()
@@ -352,13 +370,23 @@ class UutRunner:
                     self.procedure.table_enabled or self.procedure.stop_enabled,
                     self.procedure.stream.silent_timeout_s,
                 )
-            except (InstrumentError, OSError) as exc:
+            except (InstrumentError, OSError, UserError) as exc:
                 for part in parts:
                     part.verdict = Verdict.ERROR
                     part.reason = f"could not connect the instruments: {exc}"
                 self._finish_unstarted(parts)
             else:
-                self._run_engine(opened, parts)
+                unscanned, unknown = self._unscanned_parts(opened.bench.clock, set(duts))
+                if unscanned:
+                    for part in parts:
+                        part.verdict = Verdict.ERROR
+                        part.reason = "; ".join(
+                            f"socket {s} holds a part that was not scanned: scan it or take it out"
+                            for s in unscanned
+                        )
+                    self._finish_unstarted(parts)
+                else:
+                    self._run_engine(opened, parts, unknown)
         finally:
             with self._lock:
                 self._abort_requested = ""  # consumed by this run (or too late for it)
@@ -382,7 +410,39 @@ class UutRunner:
         self._state = "finished"
         return result
 
-    def _run_engine(self, opened: OpenBench, parts: list[PartRun]) -> None:
+    def _unscanned_parts(
+        self, clock: ScaledClock, scanned: set[int]
+    ) -> tuple[list[int], list[str]]:
+        """Ask every other fixture socket whether it holds a part (before any power: a part
+        that was not scanned draws current, so the supply limit and the per-part current
+        would be wrong). Returns the sockets holding a part, and warnings for those that
+        could not be asked."""
+        present: list[int] = []
+        unknown: list[str] = []
+        for sock, port in sorted(self.fixture_ports().items()):
+            if sock in scanned or not port:
+                continue
+            link: PartLink | None = None
+            try:
+                link = open_part_link(port, clock, sock, self.procedure.stream.silent_timeout_s)
+                if link.part_present():
+                    present.append(sock)
+            except (InstrumentError, OSError) as exc:
+                unknown.append(
+                    f"socket {sock} (not scanned) could not be asked whether it holds a part "
+                    f"({exc}); make sure it is empty"
+                )
+            finally:
+                if link is not None:
+                    try:
+                        link.close()
+                    except Exception as exc:  # closing a dead link must not stop the run
+                        log.info("closing the fixture link of socket %s: %s", sock, exc)
+        return present, unknown
+
+    def _run_engine(
+        self, opened: OpenBench, parts: list[PartRun], warnings: list[str] | None = None
+    ) -> None:
         bench = opened.bench
         cfg = self.settings.settings.instruments
         for part in parts:
@@ -412,6 +472,8 @@ class UutRunner:
             pending_abort = self._abort_requested
         if pending_abort:
             ctx.abort(pending_abort)
+        for warning in warnings or []:
+            ctx.event(warning, level="WARNING")
         if overdue:
             ctx.event(f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING")
             if self.settings.settings.refuse_overdue_instruments:

@@ -126,3 +126,40 @@ def test_sigterm_aborts_like_ctrl_c(tmp_path: Path) -> None:
     assert (folder / "certificate.pdf").is_file()
     assert not (folder / ".running").exists()
     assert not list(tmp.glob("simbench-*"))  # the bench's temp folder is gone
+
+
+def test_socket_without_fixture_port_leaves_no_folder(tmp_path: Path) -> None:
+    sim = tmp_path / "two.yaml"
+    sim.write_text("speed: 100\nparts:\n  - {socket: 1, serial: SIM-0001}\n")
+    out = tmp_path / "out"
+    r = station(
+        "run", "--sim", "--sim-config", str(sim), "--dut", "SIM-0001", "--dut", "5=SIM-0005",
+        "--procedure", str(SHORT), "--out", str(out),
+    )  # fmt: skip
+    _one_line_error(r, "socket 5 has no fixture port")
+    assert not list(out.glob("*")) if out.exists() else True
+    # the next run finds nothing to mark as crashed
+    r = station("run", "--dut", "../x", "--out", str(out))
+    assert "marked as ERROR" not in r.stderr
+
+
+def test_part_in_unscanned_socket_refuses_the_run_before_power(tmp_path: Path) -> None:
+    sim = tmp_path / "three.yaml"
+    sim.write_text(
+        "speed: 100\nparts:\n  - {socket: 1, serial: SIM-0001}\n"
+        "  - {socket: 2, serial: SIM-0002}\n  - {socket: 3, serial: SIM-0003}\n"
+    )
+    out = tmp_path / "out"
+    r = station(
+        "run", "--sim", "--sim-config", str(sim), "--dut", "SIM-0001", "--dut", "2=SIM-0002",
+        "--procedure", str(SHORT), "--out", str(out),
+    )  # fmt: skip
+    assert r.returncode == 2, r.stdout + r.stderr
+    for serial in ("SIM-0001", "SIM-0002"):
+        folder = next(out.glob(f"*_{serial}"))
+        rec = read_record(folder)
+        assert rec.verdict is Verdict.ERROR
+        assert "socket 3 holds a part that was not scanned: scan it or take it out" in rec.reason
+        assert "current-limiting" not in rec.reason
+        assert not (folder / ".running").exists()
+    assert "socket 3 holds a part that was not scanned" in r.stdout
