@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from procedures.record import RECORD_FILE, read_record
+from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record
 from station.errors import UserError
 from station.results_db import ResultsDB, ResultsDBError, RunRow
 
@@ -79,6 +79,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not folder.is_dir():
         raise UserError(f"{folder} is not a run folder (no such directory); give the folder "
                         f"that holds {RECORD_FILE}")
+    if not (folder / RECORD_FILE).exists() and not (folder / RAW_DATA_FILE).exists():
+        # Nothing of a run here (a typo, or the runs root): an ERROR certificate would put a
+        # misleading PDF in a stranger's folder. A run folder that lost one of its files
+        # still gets its ERROR certificate below.
+        raise UserError(f"{folder} is not a run folder (neither {RECORD_FILE} nor "
+                        f"{RAW_DATA_FILE} in it); give the folder of one run")
     path = render_certificate(folder)
     if args.index:
         try:

@@ -11,7 +11,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from station.cli import main
+from tests.reports.conftest import pdf_text
 from tests.reports.lot_data import make_lot
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,12 +49,27 @@ def test_report_twice_gives_identical_bytes(pass_run: Path, tmp_path: Path) -> N
     assert one == (pass_run / "certificate.pdf").read_bytes()  # same as the engine's render
 
 
-def test_report_on_a_folder_without_data_writes_error_certificate(tmp_path: Path) -> None:
+def test_report_on_a_folder_that_is_no_run_folder_is_refused(tmp_path: Path) -> None:
     folder = tmp_path / "20261121T000000Z_EMPTY"
     folder.mkdir()
+    (folder / "notes.txt").write_text("not a run", encoding="utf-8")
+    out = station_process("report", str(folder))
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert out.stderr.count("\n") == 1 and "not a run folder" in out.stderr
+    assert not (folder / "certificate.pdf").exists()
+
+
+@pytest.mark.parametrize("lost", ["record.json", "raw.h5"])
+def test_report_on_a_run_folder_missing_a_file_writes_error_certificate(
+        pass_run: Path, tmp_path: Path, lost: str) -> None:
+    folder = tmp_path / pass_run.name
+    shutil.copytree(pass_run, folder)
+    (folder / lost).unlink()
+    (folder / "certificate.pdf").unlink()
     out = station("report", str(folder))
     assert out.returncode == 0 and "Traceback" not in out.stderr
     assert (folder / "certificate.pdf").read_bytes().startswith(b"%PDF")
+    assert "ERROR" in pdf_text(folder / "certificate.pdf", page=1)
 
 
 def test_report_on_no_folder_is_one_clear_line(tmp_path: Path) -> None:
