@@ -163,3 +163,16 @@ def test_part_in_unscanned_socket_refuses_the_run_before_power(tmp_path: Path) -
         assert "current-limiting" not in rec.reason
         assert not (folder / ".running").exists()
     assert "socket 3 holds a part that was not scanned" in r.stdout
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (ROOT / "config/sim").glob("*.yaml")))
+def test_shipped_sim_configs_have_serials_the_product_accepts(name: str) -> None:
+    import yaml
+
+    from procedures.config import load_product
+    from station.run_folder import validate_serial
+
+    product, _ = load_product(ROOT / "config/products/gyr130.yaml")
+    data = yaml.safe_load((ROOT / "config/sim" / name).read_text()) or {}
+    for part in data.get("parts", []):
+        assert validate_serial(part["serial"], product.serial_pattern) == part["serial"]
