@@ -215,6 +215,7 @@ def test_unfinished_run_is_an_error_certificate(fresh_run: Path) -> None:
     assert "ERROR" in page1 and "never finished" in page1 and "RUNNING" in page1
 
 
+@pytest.mark.filterwarnings("error::UserWarning")  # e.g. pydantic's serializer warning
 def test_unmeasured_values_and_markup_in_text_render(fresh_run: Path) -> None:
     from procedures.record import Measurement, Outcome
 
@@ -222,7 +223,8 @@ def test_unmeasured_values_and_markup_in_text_render(fresh_run: Path) -> None:
     extra = Measurement(name="g_sensitivity_<dps/g>", value=None, units="deg/s/g", low=0.0,
                         high=0.02, outcome=Outcome.NOT_MEASURED)
     write_record(fresh_run, rec.model_copy(update={
-        "verdict": "ABORTED", "reason": "operator <stop> & e-stop",
+        # model_copy does not validate: give the enum, not the string "ABORTED"
+        "verdict": Verdict.ABORTED, "reason": "operator <stop> & e-stop",
         "measurements": [*rec.measurements, extra]}))
     text = _flat(pdf_text(render_certificate(fresh_run), layout=False))
     assert "operator <stop> & e-stop" in text
