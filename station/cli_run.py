@@ -292,9 +292,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     r.add_argument("--station", help="station file (default: config/station.yaml)")
     r.add_argument("--operator", default="", help="operator name or badge")
     r.add_argument("--sim", action="store_true", help="start the simulated bench for this run")
-    r.add_argument("--sim-config", help="simulated bench configuration (YAML) for --sim")
+    r.add_argument(
+        "--sim-config",
+        help="simulated bench configuration (YAML) for --sim; without it (and without "
+        "sim_config in station.yaml) the simulated bench gets one part per scanned serial, "
+        "in the scanned socket, its parameters drawn from the population (same serial, same "
+        "part)",
+    )
     r.add_argument("--speed", type=float, help="simulated bench speed factor (with --sim)")
-    r.add_argument("--out", help="output folder for run folders (default: station.yaml's)")
+    r.add_argument(
+        "--out",
+        help="output folder for run folders (default: station.yaml's output_folder); an --out "
+        "other than that folder also moves the results database to OUT/results.sqlite "
+        "(station.yaml's results_db is kept when --out is absent or names that same folder)",
+    )
     r.set_defaults(handler=_run)
     d = subparsers.add_parser("demo", help="the station on the simulated bench, one part")
     d.add_argument("--out", help="output folder (default: station.yaml's)")

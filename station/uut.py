@@ -240,7 +240,8 @@ class UutRunner:
         self.product_path = Path(product_path)
         self.product, self.product_file = load_product(self.product_path)
         self.operator = operator
-        self.out = Path(out) if out else settings.output_folder
+        # resolved, so that --out naming station.yaml's output folder keeps its results_db
+        self.out = Path(out).expanduser().resolve() if out else settings.output_folder
         self.endpoints = endpoints
         self.certificate = certificate
         self.progress = ProgressBus()

@@ -176,3 +176,28 @@ def test_shipped_sim_configs_have_serials_the_product_accepts(name: str) -> None
     data = yaml.safe_load((ROOT / "config/sim" / name).read_text()) or {}
     for part in data.get("parts", []):
         assert validate_serial(part["serial"], product.serial_pattern) == part["serial"]
+
+
+def test_run_help_says_what_sim_and_out_do() -> None:
+    r = station("run", "--help")
+    text = " ".join(r.stdout.split())
+    assert "one part per scanned serial" in text
+    assert "results database to OUT/results.sqlite" in text
+
+
+def test_out_moves_the_results_db_unless_it_is_the_stations_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from station.settings import load_settings
+    from station.uut import UutRunner
+
+    text = (ROOT / "config/station.yaml").read_text()
+    text = text.replace("output_folder: ../runs", "output_folder: runs")
+    text = text.replace("results_db: ../runs/results.sqlite", "results_db: db/results.sqlite")
+    (tmp_path / "station.yaml").write_text(text)
+    settings = load_settings(tmp_path / "station.yaml")
+    other = UutRunner(settings, procedure_path=SHORT, out=tmp_path / "elsewhere")
+    assert other._results_db().path == tmp_path / "elsewhere" / "results.sqlite"
+    monkeypatch.chdir(tmp_path)  # a relative --out naming the station's own folder
+    same = UutRunner(settings, procedure_path=SHORT, out=Path("runs"))
+    assert same._results_db().path == tmp_path / "db" / "results.sqlite"
