@@ -201,3 +201,12 @@ def test_out_moves_the_results_db_unless_it_is_the_stations_folder(
     monkeypatch.chdir(tmp_path)  # a relative --out naming the station's own folder
     same = UutRunner(settings, procedure_path=SHORT, out=Path("runs"))
     assert same._results_db().path == tmp_path / "db" / "results.sqlite"
+
+
+def test_scanned_serials_are_stripped_before_the_sim_config_is_made() -> None:
+    from station.cli_run import _duts, _sim_config
+
+    duts = _duts([" QA-0001", "3=QA-0003 "])
+    assert duts == {1: "QA-0001", 3: "QA-0003"}
+    config, _ = _sim_config(None, duts)
+    assert [p["serial"] for p in config["parts"]] == ["QA-0001", "QA-0003"]
