@@ -281,6 +281,18 @@ def write_state(path: Path, state: dict[str, Any]) -> None:
     os.replace(tmp, path)
 
 
+def ready_line(state: dict[str, Any], state_path: Path | None) -> str:
+    """One line saying the bench is ready: where the state file is and every endpoint."""
+    duts = state.get("duts", {})
+    dut_text = " ".join(f"{k}={v}" for k, v in duts.items()) or "none"
+    where = f"state file {state_path}" if state_path is not None else "state on stdout"
+    return (
+        f"bench ready at {state.get('speed')}x: {where}; rate_table {state.get('rate_table')}, "
+        f"chamber {state.get('chamber')}, supply {state.get('supply')}, duts {dut_text}, "
+        f"control {state.get('control')} (Ctrl-C or SIGTERM stops it)"
+    )
+
+
 async def serve(
     config: SimConfig,
     state_path: Path | None,
@@ -305,8 +317,10 @@ async def serve(
         state = bench.endpoints()
         if state_path is not None:
             write_state(state_path, state)
-        else:
+            print(ready_line(state, state_path), flush=True)
+        else:  # stdout carries the state itself for scripts; the human line goes to stderr
             print(json.dumps(state), flush=True)
+            print(ready_line(state, None), file=sys.stderr, flush=True)
         log.info("bench running at %gx: %s", bench.world.speed, state)
         started = time.monotonic()
         await stop.wait()

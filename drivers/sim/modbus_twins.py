@@ -45,7 +45,11 @@ class ModbusTwin:
 
     async def start(self) -> None:
         device = SimDevice(id=rm.DEVICE_ID, simdata=self._blocks, action=self._action)
-        self._server = ModbusTcpServer(device, address=(self.host, self.port))
+        # pymodbus 3.16 routes a request for an unknown device id to device 0 and raises
+        # KeyError (logged with a traceback and hex dumps) when there is none: device 0
+        # answers every such request cleanly with "gateway target failed to respond" (0x0B)
+        fallback = SimDevice(id=0, simdata=self._blocks, action=self._unknown_device)
+        self._server = ModbusTcpServer([device, fallback], address=(self.host, self.port))
         await self._server.serve_forever(background=True)
         sockets = getattr(self._server.transport, "sockets", None)
         if sockets:
@@ -59,6 +63,18 @@ class ModbusTwin:
             reuse_address=True,
             start_serving=True,
         )
+
+    async def _unknown_device(
+        self,
+        fc: int,
+        start: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        values: list[int] | list[bool] | None,
+    ) -> ExcCodes | None:
+        log.info("%s: request for an unknown device id refused (exception 0x0B)", self.name)
+        return ExcCodes.GATEWAY_NO_RESPONSE
 
     @property
     def endpoint(self) -> str:
@@ -107,6 +123,18 @@ class ModbusTwin:
             self._server = None
 
 
+PAIR_STARTS = frozenset(
+    int(r) for r in (rm.Reg.POS_CMD, rm.Reg.RATE_CMD, rm.Reg.ACCEL_LIMIT, rm.Reg.MOVE_TIME)
+)  # the writable 32-bit registers: each is written whole, both words in one request
+
+
+def splits_pair(address: int, count: int) -> bool:
+    """True when registers [address, address + count) hold only one word of a writable
+    32-bit pair: a torn value that the controller must refuse."""
+    covered = set(range(address, address + count))
+    return any((p in covered) != (p + 1 in covered) for p in PAIR_STARTS)
+
+
 class TableTwin(ModbusTwin):
     def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
         blocks = [SimData(address=0, count=REGISTER_COUNT, values=0, datatype=DataType.REGISTERS)]
@@ -129,6 +157,12 @@ class TableTwin(ModbusTwin):
             if hook is not None:  # samples due before this command must see the old motion
                 hook(t)
             if any(a not in rm.WRITABLE for a in range(address, address + count)):
+                return ExcCodes.ILLEGAL_ADDRESS
+            if splits_pair(address, count):
+                log.info(
+                    "rate table refused a write to %d..%d: it covers one register of a 32-bit "
+                    "pair (write both in one request)", address, address + count - 1,
+                )
                 return ExcCodes.ILLEGAL_ADDRESS
             try:
                 table.write(t, address, [int(v) for v in values], table.registers(t))
