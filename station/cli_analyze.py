@@ -217,8 +217,9 @@ def stop_method_table(r: StopMethodResult) -> str:
         lines += [
             "",
             f"!!! MOVES DISAGREE: chi-square {r.moves_chi2:.3g} on {r.moves_dof} degree(s) of "
-            f"freedom (Birge ratio {r.birge_ratio:.3g}); the per-move corrections are not",
-            "!!! consistent, the mean is doubtful and its u(k=2) above is widened by the ratio",
+            "freedom;",
+            "!!! the per-move corrections are not consistent, the mean is doubtful, and its",
+            f"!!! u(k=2) above is widened by the Birge ratio {r.birge_ratio:.3g}",
         ]
     return "\n".join(lines)
 
