@@ -162,12 +162,28 @@ class AllanAnalysis:
         return float(np.min(k)) * 3600.0 * 60.0
 
 
-NON_STATIC_SIGMA = 10.0  # |rate - median| beyond this many white-noise sigma is motion
+NON_STATIC_SIGMA = 10.0  # |rate - local level| beyond this many white-noise sigma is motion
+BASELINE_S = 60.0  # the local level: medians of blocks this long, interpolated between them
+
+
+def _local_level(y: NDArray[np.float64], block: int) -> NDArray[np.float64]:
+    """The record's slowly varying level: medians of consecutive blocks of `block` samples
+    (a move of a few seconds barely shifts them), interpolated linearly between the block
+    centres; a record shorter than two blocks gets its overall median. Following the level
+    keeps the slow wander of a part at rest (bias instability, rate random walk, temperature)
+    from being taken for motion in a long record."""
+    n_blocks = y.size // block
+    if n_blocks < 2:
+        return np.full(y.size, float(np.median(y)))
+    edges = np.linspace(0, y.size, n_blocks + 1).astype(np.int64)
+    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+    levels = np.array([np.median(y[a:b]) for a, b in zip(edges[:-1], edges[1:], strict=True)])
+    return np.interp(np.arange(y.size), centres, levels)
 
 
 @dataclass(frozen=True)
 class StaticCheck:
-    """Whether a record looks static: excursions from its median level far beyond the
+    """Whether a record looks static: excursions from its level far beyond the
     sample-to-sample noise (a move, a step, a shock) make Allan's noise terms meaningless."""
 
     static: bool
@@ -180,7 +196,7 @@ class StaticCheck:
         return (
             f"the record is not static: {self.n_excursion} sample(s) lie more than "
             f"{NON_STATIC_SIGMA:g} sigma ({NON_STATIC_SIGMA * self.sigma_dps:.3g} deg/s) from the "
-            f"median level, the first {self.first_excursion_s:.6g} s into the record, up to "
+            f"record's level, the first {self.first_excursion_s:.6g} s into the record, up to "
             f"{self.max_excursion_dps:.4g} deg/s away (a move or a step?); the Allan deviation "
             "needs a static record, so the noise terms (rate random walk above all) are not the "
             "part's: record the part at rest and analyse that"
@@ -188,13 +204,14 @@ class StaticCheck:
 
 
 def check_static(rate_dps: ArrayLike, sample_rate_hz: float) -> StaticCheck:
-    """Excursions of a rate record from its median beyond NON_STATIC_SIGMA x the white noise
-    (robust sigma of first differences / sqrt 2). Flicker and rate random walk of a real
-    part at rest stay well inside this over the records the station takes."""
+    """Excursions of a rate record from its level (block medians over BASELINE_S, see
+    `_local_level`) beyond NON_STATIC_SIGMA x the white noise (robust sigma of first
+    differences / sqrt 2). A move between stops or a rate step is tens of deg/s; the wander
+    of a part at rest within a minute stays well inside the threshold."""
     y = np.asarray(rate_dps, dtype=np.float64)
     d = np.diff(y)
     sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2.0)
-    dev = np.abs(y - np.median(y))
+    dev = np.abs(y - _local_level(y, max(int(round(BASELINE_S * sample_rate_hz)), 16)))
     if sigma <= 0.0:  # coarsely quantised: most steps are zero
         sigma = float(np.std(d)) / math.sqrt(2.0)
     hit = dev > NON_STATIC_SIGMA * sigma if sigma > 0.0 else np.zeros(y.size, dtype=bool)
