@@ -1,9 +1,10 @@
 """The lot report: yield, failure pareto, per-measurement histograms with limits and Cpk,
 and the trend of the written bias and scale over time, all from the results database.
 
-`render_lot_report(db, out, since=..., product=..., verdict=..., serial=...)` writes the
-PDF and returns a `LotSummary` with the figures it printed, so callers and tests can check
-them. Byte-identical for the same database content (document date = newest run's time).
+`render_lot_report(db, out, issued=..., since=..., product=..., verdict=..., serial=...)`
+writes the PDF and returns a `LotSummary` with the figures it printed, so callers and tests
+can check them. "Issued" is when the report was made (default now); give `issued` to make
+the same bytes again from the same database content.
 """
 
 from __future__ import annotations
@@ -38,7 +39,6 @@ from station.results_db import MeasurementRow, ResultsDB, RunRow
 
 FULL_W = 182 * mm
 HALF_W = 90 * mm
-_EPOCH = datetime(2000, 1, 1, tzinfo=UTC)
 
 
 @dataclass(frozen=True)
@@ -131,33 +131,64 @@ def _pairs(items: list[Flowable]) -> list[Flowable]:
     return out
 
 
+def _distributions(caps: list[lot_stats.Capability]) -> list[Flowable]:
+    """Histograms of the measurements with 2 or more values; one note for all the others
+    (a one-run lot would otherwise give pages of 'Not drawn' boxes)."""
+    head = Paragraph("Distributions with limits", H2)
+    hist = _pairs([_histogram(c) for c in caps if c.n >= 2])
+    few = [c for c in caps if c.n < 2]
+    story: list[Flowable] = [KeepTogether([head, hist[0]]), *hist[1:]] if hist else [head]
+    if few and not hist:
+        story.append(Paragraph("No histogram drawn: no measurement has 2 or more values from "
+                               "completed runs in this lot.", NOTE))
+    elif few:
+        names = ", ".join(c.label for c in few[:8]) + (
+            f" and {len(few) - 8} more" if len(few) > 8 else "")
+        story.append(Paragraph(escape(f"Not drawn (fewer than 2 values in the lot): {names}."),
+                               NOTE))
+    return story
+
+
+def trend_axis(times: list[datetime]) -> tuple[list[float], str]:
+    """x values and label for a trend: hours since the first start, or the run's index in
+    start order when every run has the same start time (hours would all be 0, a vertical
+    line)."""
+    t0 = min(times)
+    if max(times) == t0:
+        return ([float(i) for i in range(1, len(times) + 1)],
+                f"run number (all runs started {t0:%Y-%m-%d %H:%M:%S} UTC)")
+    return [(t - t0).total_seconds() / 3600 for t in times], f"hours since {t0:%Y-%m-%d %H:%M} UTC"
+
+
 def _trend(runs: list[RunRow]) -> list[Flowable]:
     pts: list[tuple[datetime, RunRow]] = []
     for r in runs:
         t = parse_utc(r.started_utc)
         if t is not None and r.verdict in lot_stats.COMPLETED:
             pts.append((t, r))
+    pts.sort(key=lambda p: p[0])
     if len(pts) < 2:
-        return [message_box(FULL_W, 50 * mm, "Trend of bias and scale",
-                            f"Not drawn: {len(pts)} completed run(s) with a start time.")]
-    t0 = pts[0][0]
-    charts = []
+        return [Paragraph(f"Not drawn: {len(pts)} completed run(s) with a start time; a trend "
+                          "needs 2 or more.", NOTE)]
+    charts: list[Flowable] = []
+    missing: list[str] = []
     for key, label, units in (("bias_dps", "Bias written to the part", "deg/s"),
                               ("scale", "Scale written to the part", "1")):
-        hours = [(t - t0).total_seconds() / 3600 for t, r in pts
-                 if r.calibration.get(key) is not None]
-        vals = [float(v) for _t, r in pts if (v := r.calibration.get(key)) is not None]
-        if len(vals) < 2:
-            charts.append(message_box(HALF_W, 55 * mm, label,
-                                      f"Not drawn: {len(vals)} run(s) with a written {key}."))
+        mine = [(t, float(v)) for t, r in pts if (v := r.calibration.get(key)) is not None]
+        if len(mine) < 2:
+            missing.append(f"{key} ({len(mine)} run(s) with a written value)")
             continue
-        ch = Chart(HALF_W, 55 * mm, title=label,
-                   x_label=f"hours since {t0:%Y-%m-%d %H:%M} UTC", y_label=titled(key, units))
-        ch.line(hours, vals, PALETTE[0], width=0.4)
-        ch.scatter(hours, vals, PALETTE[0], size=1.8)
+        xs, x_label = trend_axis([t for t, _v in mine])
+        vals = [v for _t, v in mine]
+        ch = Chart(HALF_W, 55 * mm, title=label, x_label=x_label, y_label=titled(key, units))
+        ch.line(xs, vals, PALETTE[0], width=0.4)
+        ch.scatter(xs, vals, PALETTE[0], size=1.8)
         ch.hline(float(np.mean(vals)), PALETTE[2], "lot mean", dash=(3, 2))
         charts.append(ch.drawing())
-    return _pairs(charts)
+    story = _pairs(charts)
+    if missing:
+        story.append(Paragraph(escape("Not drawn: " + "; ".join(missing) + "."), NOTE))
+    return story
 
 
 def _run_list(runs: list[RunRow]) -> Table:
@@ -179,7 +210,22 @@ def _run_list(runs: list[RunRow]) -> Table:
     return t
 
 
-def build_lot(db: ResultsDB, **filters: object) -> tuple[list[Flowable], LotSummary, PageFurniture]:
+def _coverage_text(db: ResultsDB, runs: list[RunRow], filters: dict[str, object]) -> str:
+    """Which runs the report covers: the filters, the runs' time span, the database."""
+    where = f"Database: {db.path}."
+    if not runs:
+        return f"No run matches the filters ({_filters_text(filters)}). {where}"
+    finished = [t for r in runs if (t := parse_utc(r.finished_utc)) is not None]
+    newest = f"; newest finished {max(finished):%Y-%m-%d %H:%M:%S} UTC" if finished else ""
+    return (f"Filters: {_filters_text(filters)}. Covers the {len(runs)} run(s) they select, "
+            f"listed under Runs at the end: started from {runs[0].started_utc} to "
+            f"{runs[-1].started_utc}{newest}. {where}")
+
+
+def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
+              ) -> tuple[list[Flowable], LotSummary, PageFurniture]:
+    """The lot report's story; `issued` (default now) is the date printed and stamped."""
+    issued = (issued or datetime.now(UTC)).astimezone(UTC).replace(microsecond=0)
     runs = db.runs(**filters)  # type: ignore[arg-type]
     rows: list[MeasurementRow] = db.measurement_values(**filters)  # type: ignore[arg-type]
     y = lot_stats.yield_summary(runs)
@@ -187,9 +233,8 @@ def build_lot(db: ResultsDB, **filters: object) -> tuple[list[Flowable], LotSumm
     caps = [lot_stats.capability(n, rows, c) for n, c in lot_stats.measurement_keys(rows)]
     story: list[Flowable] = [
         Paragraph("Lot report - MEMS gyroscope calibration", H1),
-        Paragraph(f"Database: {escape(db.path)}. Filters: {escape(_filters_text(filters))}. "
-                  + (f"Runs from {escape(runs[0].started_utc)} to {escape(runs[-1].started_utc)}."
-                     if runs else "No run matches the filters."), BODY),
+        Paragraph(f"Issued {issued:%Y-%m-%d %H:%M:%S} UTC (when this report was made).", BODY),
+        Paragraph(escape(_coverage_text(db, runs, filters)), BODY),
         Spacer(1, 3 * mm),
         _summary_table(y),
         Paragraph("Yield = PASS / (PASS + FAIL); ERROR and ABORTED runs are station problems, "
@@ -212,30 +257,31 @@ def build_lot(db: ResultsDB, **filters: object) -> tuple[list[Flowable], LotSumm
         "values in the lot (overall sigma, so strictly Ppk). Cpk = min(USL - mean, mean - LSL) "
         "/ (3 sigma); one-sided when a limit is missing. Red: Cpk < 1.0, amber: Cpk < 1.33. "
         "* limits changed within the lot; the newest run's limits are used.", NOTE)]
-    hist = _pairs([_histogram(c) for c in caps])
-    if hist:
-        story += [KeepTogether([Paragraph("Distributions with limits", H2), hist[0]])] + hist[1:]
+    story += _distributions(caps)
     trend = _trend(runs)
     story += [KeepTogether([Paragraph("Trend of the calibration written", H2), trend[0]])]
     story += trend[1:]
     story += [Paragraph("Runs", H2), _run_list(runs)]
-    newest = max((parse_utc(r.finished_utc or r.started_utc) for r in runs), default=None,
-                 key=lambda t: t or _EPOCH)
     furniture = PageFurniture(
         title="Lot report",
         identity=f"{y.runs} runs | yield "
                  + (f"{y.yield_fraction * 100:.1f} %" if y.yield_fraction is not None else "n/a"),
         simulated=sims > 0,
-        document_time=newest or _EPOCH,
+        document_time=issued,
         subject="lot report",
     )
     summary = LotSummary(Path(), y, pareto, caps, 0)
     return story, summary, furniture
 
 
-def render_lot_report(db: ResultsDB, out: Path, **filters: object) -> LotSummary:
-    """Write the lot report PDF for the runs matching the filters (see ResultsDB.runs)."""
-    story, summary, furniture = build_lot(db, **filters)
+def render_lot_report(db: ResultsDB, out: Path, issued: datetime | None = None,
+                      **filters: object) -> LotSummary:
+    """Write the lot report PDF for the runs matching the filters (see ResultsDB.runs).
+
+    `issued` is the issue time printed on every page (default now); pass the same value to
+    get the same bytes again.
+    """
+    story, summary, furniture = build_lot(db, issued, **filters)
     data = build_pdf(story, furniture)
     write_atomic(Path(out), data)
     return LotSummary(Path(out), summary.yields, summary.pareto, summary.capabilities,

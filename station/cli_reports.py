@@ -3,7 +3,7 @@
     station report RUN_FOLDER [--index] [--db PATH]
     station history [--since DATE] [--until DATE] [--product P] [--verdict V] [--serial S]
                     [--db PATH] [--json] [--reindex RUNS_DIR]
-    station lot-report [same filters] --out FILE.pdf [--db PATH]
+    station lot-report [same filters] --out FILE.pdf [--issued TIME] [--db PATH]
 
 The database defaults to the one named in config/station.yaml (`results_db`), or
 runs/results.sqlite when no station file can be loaded.
@@ -153,8 +153,16 @@ def cmd_lot_report(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".pdf":
         raise UserError(f"--out {out}: give a file name ending in .pdf")
+    issued = None
+    if args.issued:
+        from reports.pdfdoc import parse_utc
+
+        issued = parse_utc(args.issued)
+        if issued is None:
+            raise UserError(f"--issued {args.issued!r}: give an ISO time, e.g. "
+                            "2026-11-21T14:00:00Z (UTC when no offset is given)")
     try:
-        summary = render_lot_report(db, out, **_filters(args))
+        summary = render_lot_report(db, out, issued=issued, **_filters(args))
     except ResultsDBError as exc:
         raise UserError(str(exc)) from exc
     y = summary.yields
@@ -180,4 +188,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p = subparsers.add_parser("lot-report", help="write a lot summary PDF")
     _add_filters(p)
     p.add_argument("--out", metavar="FILE.pdf", required=True, help="where to write the PDF")
+    p.add_argument("--issued", metavar="TIME",
+                   help="issue time printed on the report (ISO, UTC; default now); give the "
+                        "original one to reproduce a report byte for byte")
     p.set_defaults(handler=cmd_lot_report)

@@ -123,6 +123,17 @@ def test_lot_report_writes_pdf_and_prints_yield(tmp_path: Path) -> None:
     assert out_pdf.read_bytes().startswith(b"%PDF")
     bad = station("lot-report", "--db", str(db), "--out", str(tmp_path / "lot.txt"))
     assert bad.returncode == 2 and ".pdf" in bad.stderr
+    # --issued reproduces a report byte for byte
+    again = [tmp_path / "again1.pdf", tmp_path / "again2.pdf"]
+    for pdf in again:
+        ok = station("lot-report", "--db", str(db), "--issued", "2026-12-01T08:15:00Z",
+                     "--out", str(pdf))
+        assert ok.returncode == 0, ok.stderr
+    assert again[0].read_bytes() == again[1].read_bytes()
+    assert b"D:20261201081500+00'00'" in again[0].read_bytes()
+    bad = station("lot-report", "--db", str(db), "--issued", "last tuesday",
+                  "--out", str(out_pdf))
+    assert bad.returncode == 2 and "--issued" in bad.stderr
 
 
 def test_history_reindex_rebuilds_the_database_from_run_folders(

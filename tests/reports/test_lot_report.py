@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -66,8 +67,8 @@ def test_filters_reach_the_report_and_bytes_repeat(lot: tuple[Path, list], tmp_p
     path, records = lot
     db = ResultsDB(path)
     a, b = tmp_path / "a.pdf", tmp_path / "b.pdf"
-    s = render_lot_report(db, a, verdict="PASS", since="2026-11-22")
-    render_lot_report(db, b, verdict="PASS", since="2026-11-22")
+    s = render_lot_report(db, a, issued=ISSUED, verdict="PASS", since="2026-11-22")
+    render_lot_report(db, b, issued=ISSUED, verdict="PASS", since="2026-11-22")
     assert a.read_bytes() == b.read_bytes()
     expect = [r for r in records if r.verdict == Verdict.PASS and r.started_utc >= "2026-11-22"]
     assert s.yields.runs == len(expect) and s.yields.yield_fraction == 1.0
@@ -117,3 +118,64 @@ def test_capability_is_per_condition_not_pooled() -> None:
     assert cold.mean == pytest.approx(1.0) and hot.mean == pytest.approx(5.0)
     assert hot.cpk == pytest.approx((10 - 5.0) / (3 * 0.4))
     assert hot.label == "raw_bias_dps @ T45"
+
+
+ISSUED = datetime(2026, 12, 1, 8, 15, 0, tzinfo=UTC)
+
+
+def test_issued_is_when_the_report_was_made_not_the_newest_run(lot: tuple[Path, list],
+                                                               tmp_path: Path) -> None:
+    path, records = lot
+    db = ResultsDB(path)
+    a, b = tmp_path / "a.pdf", tmp_path / "b.pdf"
+    render_lot_report(db, a, issued=ISSUED, product="ADIS16130-EOL")
+    render_lot_report(db, b, issued=ISSUED, product="ADIS16130-EOL")
+    assert a.read_bytes() == b.read_bytes()  # reproducible with the issue time given
+    assert b"D:20261201081500+00'00'" in a.read_bytes()
+    text = pdf_text(a)
+    assert text.count("Issued 2026-12-01 08:15:00 UTC") == pdf_pages(a) + 1  # footers + page 1
+    flat = re.sub(r"\s+", " ", text)
+    assert (f"Filters: product = ADIS16130-EOL. Covers the {len(records)} run(s) they select"
+            in flat)
+    newest = max(r.finished_utc for r in records)
+    assert f"newest finished {newest[:10]} {newest[11:19]} UTC" in flat
+    # without an issue time: now, not the newest run's finish
+    before = datetime.now(UTC).replace(microsecond=0)
+    render_lot_report(db, b)
+    after = datetime.now(UTC)
+    stamp = re.search(r"Issued (\S+ \S+) UTC", pdf_text(b, page=1))
+    assert stamp is not None
+    issued = datetime.fromisoformat(stamp.group(1)).replace(tzinfo=UTC)
+    assert before <= issued <= after
+
+
+def test_one_run_lot_gives_short_notes_not_pages_of_boxes(tmp_path: Path) -> None:
+    path = tmp_path / "one.sqlite"
+    make_lot(path, 1)
+    out = tmp_path / "one.pdf"
+    summary = render_lot_report(ResultsDB(path), out, issued=ISSUED)
+    text = re.sub(r"\s+", " ", pdf_text(out, layout=False))
+    assert "value(s) in the lot." not in text  # no per-measurement box
+    assert text.count("No histogram drawn") == 1
+    assert "Not drawn: 1 completed run(s) with a start time" in text
+    assert summary.pages == pdf_pages(out) == 1
+
+
+def test_trend_falls_back_to_run_number_when_all_runs_share_a_start(tmp_path: Path) -> None:
+    from reports.lot_report import trend_axis
+    from tests.reports.synth_run import Part, make_record
+
+    t0 = datetime(2026, 11, 21, 9, 30, tzinfo=UTC)
+    xs, label = trend_axis([t0, t0, t0])
+    assert xs == [1.0, 2.0, 3.0] and "run number" in label
+    xs, label = trend_axis([t0, t0 + timedelta(minutes=30), t0 + timedelta(hours=2)])
+    assert xs == [0.0, 0.5, 2.0] and label.startswith("hours since")
+    # end to end: a batch started together (one fixture, several sockets)
+    db = ResultsDB(tmp_path / "batch.sqlite")
+    for i, bias in enumerate((1.0, 2.0, -1.5)):
+        rec = make_record(Part(serial=f"BATCH-{i}", bias_dps=bias, started=t0))
+        db.add_run(tmp_path / rec.run_id, rec)
+    out = tmp_path / "batch.pdf"
+    render_lot_report(db, out, issued=ISSUED)
+    text = re.sub(r"\s+", " ", pdf_text(out, layout=False))
+    assert "run number (all runs started 2026-11-21 09:30:00 UTC)" in text
