@@ -5,7 +5,8 @@
     cert_sections.py  header, traceability, conditions, results, calibration tables
     cert_plots.py     stop method, rate table, Allan deviation, stabilisation plots
     record_keys.py    the record.analysis keys the certificate reads (the engine's contract)
-    lot_report.py     render_lot_report(db, out, **filters): yield, pareto, Cpk, trends
+    lot_report.py     render_lot_report(db, out, issued=None, **filters): yield, pareto, Cpk,
+                      trends
     lot_stats.py      yield, pareto and capability arithmetic (sigma estimator stated there)
     charts.py         general vector charts (line, scatter, shaded windows, log axes, bars)
     pdfdoc.py         reproducible A4 documents: page N of M, SIMULATED BENCH mark, dates
