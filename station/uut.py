@@ -48,6 +48,7 @@ from procedures.record import (
     write_record,
 )
 from procedures.steps.plan import build_plan
+from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
 from station import __version__
 from station.errors import UserError
@@ -475,6 +476,8 @@ class UutRunner:
             ctx.abort(pending_abort)
         for warning in warnings or []:
             ctx.event(warning, level="WARNING")
+        for part in parts:  # the supply limit must allow for parts that may sit there
+            part.extra[UNASKED_SOCKETS] = len(warnings or [])
         if overdue:
             ctx.event(f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING")
             if self.settings.settings.refuse_overdue_instruments:

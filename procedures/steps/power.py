@@ -14,6 +14,17 @@ class SerialMismatch(InstrumentError):  # noqa: N818 - like drivers.errors
     """The part's own serial register does not match the scanned label."""
 
 
+# set by the station on each part: fixture sockets that were not scanned and could not be
+# asked whether they hold a part (a part there draws current from the shared supply too)
+UNASKED_SOCKETS = "unasked_sockets"
+
+
+def parts_maybe_powered(ctx: RunContext) -> int:
+    """Scanned parts still running plus unscanned sockets that may hold a part."""
+    unasked = max((int(p.extra.get(UNASKED_SOCKETS, 0)) for p in ctx.parts), default=0)
+    return len(ctx.alive()) + unasked
+
+
 @dataclass
 class PowerIdentify(BaseStep):
     """Supply on at the first condition's level, each part identified, streams started."""
@@ -28,7 +39,7 @@ class PowerIdentify(BaseStep):
     def setup(self, ctx: RunContext) -> None:
         supply = ctx.bench.supply
         supply.output(False)
-        supply.set_current_limit(ctx.product.current_limit_a * max(len(ctx.alive()), 1))
+        supply.set_current_limit(ctx.product.current_limit_a * max(parts_maybe_powered(ctx), 1))
         supply.set_voltage(self.supply_v)
         supply.check_errors()
         supply.output(True)

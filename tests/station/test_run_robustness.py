@@ -46,8 +46,9 @@ def test_launcher_resolves_a_relative_config_against_the_callers_folder(
     (tmp_path / "cfg" / "bad.yaml").write_text(BAD_EFFECT)
     monkeypatch.chdir(tmp_path)
     # the bench finds the file (and rejects its content), not "cannot read"
-    with pytest.raises(BenchStartError, match="no_such_effect"), launch_bench(
-        config="cfg/bad.yaml", speed=100
+    with (
+        pytest.raises(BenchStartError, match="no_such_effect"),
+        launch_bench(config="cfg/bad.yaml", speed=100),
     ):
         pass
 
