@@ -8,8 +8,8 @@ beyond them are additions.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import csv
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -114,7 +114,8 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
         i = int(np.argmax(steps <= 0))
         raise UserError(
             f"{path}: time_s is not increasing at data row {i + 2} "
-            f"({float(data['time_s'][i]):.10g} then {float(data['time_s'][i + 1]):.10g}); sort the record"
+            f"({float(data['time_s'][i]):.10g} then {float(data['time_s'][i + 1]):.10g}); "
+            "sort the record"
         )
     return data
 

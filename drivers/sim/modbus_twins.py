@@ -161,7 +161,9 @@ class TableTwin(ModbusTwin):
             if splits_pair(address, count):
                 log.info(
                     "rate table refused a write to %d..%d: it covers one register of a 32-bit "
-                    "pair (write both in one request)", address, address + count - 1,
+                    "pair (write both in one request)",
+                    address,
+                    address + count - 1,
                 )
                 return ExcCodes.ILLEGAL_ADDRESS
             try:

@@ -306,7 +306,7 @@ def analyze_stop_method(
     if mean_corr is None:
         warnings.append("no usable move: no scale correction")
     chi2, dof, birge, consistent = _move_consistency(usable, ref, cov, cfg.move_tolerance)
-    if consistent is False and u_mean is not None:
+    if consistent is False and u_mean is not None and birge is not None:
         corrs = ", ".join(f"{ref / abs(a):.4f}" for _, a in usable)
         warnings.append(
             f"MOVES DISAGREE: the per-move scale corrections ({corrs}) differ by far more than "
