@@ -30,6 +30,8 @@ class StreamCount:
     replies: list[str] = field(default_factory=list)
     first_time_s: float | None = None
     last_time_s: float | None = None
+    first_seq: int | None = None  # sequence counters at the edges: drops before the first or
+    last_seq: int | None = None  # after the last delivered frame leave no gap to count
     rate_code_sum: int = 0
 
 
@@ -86,7 +88,9 @@ class StreamProbe:
         if len(res.seq):
             if c.first_time_s is None:
                 c.first_time_s = float(res.time_s[0])
+                c.first_seq = int(res.seq[0])
             c.last_time_s = float(res.time_s[-1])
+            c.last_seq = int(res.seq[-1])
             c.rate_code_sum += int(np.sum(res.rate_code))
 
     def pump(self, timeout_s: float = 0.05) -> int:
