@@ -384,6 +384,38 @@ class StopMethodConfig(_Strict):
     move_timeout_s: float = Field(60.0, gt=0, description="time allowed for a move")
 
 
+class PositionsConfig(_Strict):
+    """Multi-position static: the table at rest at several angles, one static window each.
+
+    Rotation about a vertical axis changes nothing for a perfect part at rest; a part whose
+    sensitive axis is tilted in the fixture sees a share of gravity that turns with the table
+    (g sensitivity), which only static windows at several angles can show. Disabled unless
+    the section is present."""
+
+    enabled: bool = True
+    angles_deg: list[float] = Field(
+        default_factory=lambda: [0.0, 90.0, 180.0, 270.0],
+        min_length=1,
+        description="table angles (encoder, deg) at which the part rests, in this order",
+    )
+    dwell_s: float = Field(10.0, gt=0, description="static window at each angle, s")
+    settle_s: float = Field(1.0, ge=0, description="wait after in-position before the window")
+    accel_dps2: float = Field(100.0, gt=0, description="acceleration of each move, deg/s^2")
+    at: Literal["every_condition", "first_condition"] = Field(
+        "every_condition",
+        description="every_condition: after the bias step at each condition; "
+        "first_condition: only at the first",
+    )
+    move_timeout_s: float = Field(60.0, gt=0, description="time allowed for a move")
+
+    @field_validator("angles_deg")
+    @classmethod
+    def _angles(cls, value: list[float]) -> list[float]:
+        if any(not -3600.0 <= a <= 3600.0 for a in value):
+            raise ValueError("angles must lie within +/-3600 deg")
+        return value
+
+
 class FitConfig(_Strict):
     source: Literal["rate_table", "stop_method", "both"] = Field(
         "rate_table",
@@ -416,6 +448,7 @@ class StepsConfig(_Strict):
     bias: StepPolicy | None = None
     rate_table: StepPolicy | None = None
     stop_method: StepPolicy | None = None
+    positions: StepPolicy | None = None
     fit: StepPolicy | None = None
     program: StepPolicy | None = None
     verify: StepPolicy | None = None
@@ -440,6 +473,9 @@ class ProcedureConfig(_Strict):
     bias: BiasConfig = BiasConfig()
     rate_table: RateTableConfig | None = None
     stop_method: StopMethodConfig | None = None
+    positions: PositionsConfig | None = Field(
+        None, description="optional multi-position static step (absent: not run)"
+    )
     fit: FitConfig = FitConfig()
     verify: VerifyConfig | None = None
     stream: StreamConfig = StreamConfig()
@@ -483,6 +519,10 @@ class ProcedureConfig(_Strict):
     @property
     def stop_enabled(self) -> bool:
         return self.stop_method is not None and self.stop_method.enabled
+
+    @property
+    def positions_enabled(self) -> bool:
+        return self.positions is not None and self.positions.enabled
 
 
 def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:

@@ -2,7 +2,8 @@
 
 The engine logs the table only at encoder snapshots (start and end of each plateau, at the
 stops), so the reference between analysed windows is unknown. Only samples inside windows
-with a known reference are used: static, stabilise, stop_static (rate 0) and plateau (the
+with a known reference are used: static, stabilise, stop_static, position_static (rate 0;
+the last from the optional multi-position step, loaded as static) and plateau (the
 window's reference rate; angle advancing from the nearest snapshot). Stop moves are used
 only where the table log is dense enough to follow the motion (< 0.1 s between rows).
 Verify windows are left out: the part runs with its new compensation there.
@@ -22,7 +23,7 @@ from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record
 
 log = logging.getLogger(__name__)
 
-STATIC_KINDS = ("static", "stabilise", "stop_static")
+STATIC_KINDS = ("static", "stabilise", "stop_static", "position_static")
 DENSE_TABLE_S = 0.1
 
 
@@ -163,7 +164,9 @@ def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
         use[a:b] = True
         if np.isfinite(seg_v):
             supply[a:b] = seg_v
-        segments.append(Segment(kind, float(t_fix[a]), float(t_fix[b - 1]) + 1e-9,
+        # a multi-position window is a static window to the model (and the noise estimate)
+        seg_kind = "static" if kind == "position_static" else kind
+        segments.append(Segment(seg_kind, float(t_fix[a]), float(t_fix[b - 1]) + 1e-9,
                                 str(segs["condition"][k])))
     if skipped_moves:
         notes.append(

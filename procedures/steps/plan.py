@@ -7,6 +7,7 @@ from procedures.config import ProcedureConfig
 from procedures.engine import Step
 from procedures.steps.bias import Bias
 from procedures.steps.fit import Fit
+from procedures.steps.positions import Positions
 from procedures.steps.power import PowerIdentify
 from procedures.steps.program import Program
 from procedures.steps.stop import StopMethod, VerifyStop
@@ -16,7 +17,8 @@ from procedures.steps.verify import Verify
 
 
 def build_plan(procedure: ProcedureConfig, start_temp_c: float | None = None) -> list[Step]:
-    """Power/identify, then per condition: stabilise, bias, sweep, stop; fit, program, verify."""
+    """Power/identify, then per condition: stabilise, bias, positions (optional), sweep,
+    stop; fit, program, verify."""
     cond = procedure.conditions
     conditions = plan_conditions(
         cond.temperatures_c, cond.supplies_v, order=cond.order, start_temp_c=start_temp_c
@@ -34,6 +36,9 @@ def build_plan(procedure: ProcedureConfig, start_temp_c: float | None = None) ->
         )
         previous = c.temperature_c
         steps.append(Bias(first=i == 0, condition=c.name))
+        pos = procedure.positions
+        if pos is not None and pos.enabled and (pos.at == "every_condition" or i == 0):
+            steps.append(Positions(condition=c.name))
         if procedure.table_enabled:
             steps.append(RateSweep(condition=c.name))
         if procedure.stop_enabled:
