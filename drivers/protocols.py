@@ -167,7 +167,8 @@ class CalibrationRegisters:
     """The part's calibration registers, in engineering units.
 
     The part's compensated output is
-        (raw - (bias + bias_tc*(T-T0) + bias_vc*(V-V0))) / (scale*(1 + scale_tc*(T-T0) + scale_vc*(V-V0)))
+        (raw - (bias + bias_tc*(T-T0) + bias_vc*(V-V0)))
+            / (scale*(1 + scale_tc*(T-T0) + scale_vc*(V-V0)))
     with raw the uncompensated output in deg/s, T the die temperature and V the supply.
     The erased state (bias 0, scale 1, coefficients 0) passes the raw output through.
     """

@@ -20,7 +20,7 @@ class Reg(IntEnum):
     POS_CMD = 2  # I32 RW, millidegrees
     RATE_CMD = 4  # I32 RW, millidegrees/s
     ACCEL_LIMIT = 6  # I32 RW, millidegrees/s^2
-    MOVE_TIME = 8  # I32 RW, milliseconds; 0 = use ACCEL_LIMIT (trapezoid), >0 = smooth move of that length
+    MOVE_TIME = 8  # I32 RW, ms; 0 = use ACCEL_LIMIT (trapezoid), >0 = smooth move of that length
     STATUS = 20  # U16 R, see Status
     FAULT_CODE = 21  # U16 R, see Fault
     ENCODER_COUNTS = 22  # U32 R, raw, wraps

@@ -9,7 +9,8 @@ Layout (all 1-D, resizable, appended together within a group so rows line up):
 
     /samples   time_s (fixture clock, s)   seq   rate_code   temp_code   status
                rate_dps   temp_c   station_time_s (station clock estimate of the sample time)
-    /table     station_time_s   controller_time_s   encoder_counts   position_deg   rate_dps   status
+    /table     station_time_s   controller_time_s   encoder_counts   position_deg   rate_dps
+               status
     /chamber   station_time_s   setpoint_c   temp_c
     /supply    station_time_s   voltage_v   current_a
     /segments  one row per analysed window: condition, kind (static | plateau | stop_move |

@@ -178,7 +178,7 @@ class PartStream:
         candidate = now - float(time_s[-1])
         if self.offset_s is None or candidate < self.offset_s:
             self.offset_s = candidate
-        cols = {
+        cols: dict[str, NDArray[Any]] = {
             "time_s": time_s,
             "seq": np.asarray(block.seq, dtype=np.int64),
             "rate_code": np.asarray(block.rate_code, dtype=np.int64),

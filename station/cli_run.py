@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from pydantic import BaseModel
 
 from procedures.config import ConfigError, ProcedureConfig, ProductConfig
 from procedures.progress import ProgressEvent
@@ -29,7 +30,7 @@ DEMO_SERIAL = "SIM-0001"
 DEMO_SPEED = 120.0
 DEFAULT_SIM_SPEED = 100.0
 
-SCHEMAS = {
+SCHEMAS: dict[str, type[BaseModel]] = {
     "procedure": ProcedureConfig,
     "product": ProductConfig,
     "station": StationSettings,
@@ -278,7 +279,7 @@ def _demo(args: argparse.Namespace) -> int:
     return 0 if code in (0, 1) else code
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(subparsers: argparse._SubParsersAction) -> None:
     r = subparsers.add_parser("run", help="one UUT cycle: calibrate the scanned parts")
     r.add_argument(
         "--dut",

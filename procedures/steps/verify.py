@@ -132,7 +132,7 @@ class Verify(BaseStep):
         part.record.verification = {
             "residuals": residuals,
             "residual_bias_dps": zero.mean_dps,
-            "max_error_pct": max(abs(float(r["error_pct"])) for r in residuals),
+            "max_error_pct": max(abs(float(r["error_pct"])) for r in residuals),  # type: ignore[arg-type]
             "max_abs_error_pct_fs": result.max_abs_error_pct_fs,
             "supply_v": self.supply_v,
             "die_temperature_c": float(np.mean(data["temp_c"])),
