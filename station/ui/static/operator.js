@@ -250,12 +250,17 @@ async function loadChoices() {
 }
 
 function fill(select, items, current) {
+  // a choice the engineer made but has not applied yet survives a refresh of the list
+  const pending = select.dataset.dirty === "1" ? select.value : null;
+  const keep = pending !== null && items.some((it) => it.path === pending) ? pending : current;
   select.textContent = "";
-  for (const it of items) { const o = new Option(it.name, it.path); o.selected = it.path === current; select.appendChild(o); }
+  for (const it of items) { const o = new Option(it.name, it.path); o.selected = it.path === keep; select.appendChild(o); }
 }
 
 async function applySelection() {
-  const r = await api("/api/select", { procedure: $("procedure-select").value, product: $("product-select").value });
+  const body = { procedure: $("procedure-select").value, product: $("product-select").value };
+  $("procedure-select").dataset.dirty = ""; $("product-select").dataset.dirty = "";
+  const r = await api("/api/select", body);
   $("selection-msg").textContent = r.ok ? "Applied" : r.data.error;
 }
 
@@ -282,6 +287,9 @@ $("engineer-btn").addEventListener("click", engineerButton);
 $("login-form").addEventListener("submit", login);
 $("login-cancel").addEventListener("click", () => $("login-dialog").close());
 $("apply-selection").addEventListener("click", applySelection);
+for (const id of ["procedure-select", "product-select"]) {
+  $(id).addEventListener("change", () => { $(id).dataset.dirty = "1"; });
+}
 $("operator-id").value = localStorage.getItem("operator") || "";
 $("operator-id").addEventListener("change", () => localStorage.setItem("operator", $("operator-id").value));
 // A scan while no field has the focus (after a touch elsewhere) goes to the first empty socket.
