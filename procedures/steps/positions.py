@@ -61,10 +61,13 @@ class Positions(BaseStep):
         table.wait_at_rate(cfg.move_timeout_s)
         _, start = ctx.snapshot()
         home = start.position_deg
+        # angles are table angles within the current turn: never unwind the turns a rate
+        # sweep left on the (continuous) position feedback
+        origin = 360.0 * round(home / 360.0)
         self.windows = []
         for angle in cfg.angles_deg:
             ctx.check()
-            table.move_to(angle, accel_dps2=cfg.accel_dps2)
+            table.move_to(origin + angle, accel_dps2=cfg.accel_dps2)
             table.wait_in_position(cfg.move_timeout_s)
             ctx.sleep(cfg.settle_s)
             t0 = ctx.clock.now_s()

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from drivers.rate_table_map import COUNTS_PER_REV
+from drivers.rate_table_map import COUNTS_PER_REV, IN_POSITION_TOLERANCE_DEG
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import stop_vs_rate_table
 from procedures.analysis.errors import AnalysisError
@@ -56,7 +56,14 @@ class StopMethod(BaseStep):
         table.enable()
         table.set_rate(0.0)
         table.wait_at_rate(cfg.move_timeout_s)
-        table.zero_encoder()
+        # The stops sit at fixed table angles: go to the first stop of this turn rather than
+        # re-zeroing the encoder where the sweep happened to end, so every condition uses
+        # the same stops and table angles stay comparable across the whole run.
+        _, here = ctx.snapshot()
+        origin = 360.0 * round(here.position_deg / 360.0)
+        if abs(here.position_deg - origin) > IN_POSITION_TOLERANCE_DEG:
+            table.move_to(origin, move_time_s=cfg.move_time_s)
+            table.wait_in_position(cfg.move_timeout_s)
         t_start = ctx.clock.now_s()
         _, rest = ctx.snapshot()
         positions = [rest.position_deg]
@@ -66,7 +73,7 @@ class StopMethod(BaseStep):
             # the stops are the fixture's: move to its measured angle (mean over sockets)
             far = float(np.mean([p.extra["stop_angle"][0] for p in ctx.alive()]))
         for _ in range(cfg.repeats):
-            for target in (far, 0.0):
+            for target in (origin + far, origin):
                 table.move_to(target, move_time_s=cfg.move_time_s)
                 table.wait_in_position(cfg.move_timeout_s)
                 ctx.sleep(cfg.static_s)
