@@ -5,19 +5,13 @@ enabled at a realistic magnitude; `station run --sim` runs the (shortened) end-o
 procedure on eight sockets at once and writes one run folder per part; the workflow must
 name the hidden effect first and bring the gap within 1.5 x the noise floor.
 
-Two effects cannot be seen reliably in a run folder of the current engine, and for them the
-test checks that nothing wrong is named instead (see docs/discrepancy.md):
+One effect cannot be seen in a run folder of the current engine, and for it the test checks
+that nothing wrong is named instead (see docs/discrepancy.md):
 - sensor_lag: the table is logged only at encoder snapshots, so the reference during
-  transitions (the only place a lag shows) is not in the run folder;
-- g_sensitivity_tilt: the procedure's multi-position static step (`positions`, static
-  windows at 0/90/180/270 deg after the first bias) gives static windows at four angles, but
-  the stop method zeroes the encoder at every condition where the sweep left the table, so
-  the angles logged at the other conditions (their bias and stop windows, the positions of
-  `at: every_condition`) are in frames whose offsets are not logged; plateau angles rest on
-  the station's estimate of sample times (off by tens of degrees at high rates). Named in
-  some runs only (2026-11-21, positions step in several settings: 4 of 14 tilt cases over
-  seven station runs); with the stop method disabled (one encoder frame all run, positions at
-  every condition) both tilt cases were named and every other case still passed, in one run.
+  transitions (the only place a lag shows) is not in the run folder.
+g_sensitivity_tilt is seen through the procedure's multi-position static step (`positions`:
+static windows at 0/90/180/270 deg of the table at every condition; the stop method no longer
+re-zeroes the encoder, so every angle of the run shares one frame).
 """
 
 from __future__ import annotations
@@ -61,7 +55,7 @@ FIRST = {
     "bias_supply": {"bias_supply_coeff_dps_per_v": 0.05},
     "scale_supply": {"scale_supply_coeff_per_v": 1.0e-3},
 }
-NOT_OBSERVABLE_IN_RUN_FOLDERS = ("sensor_lag", "g_sensitivity_tilt")
+NOT_OBSERVABLE_IN_RUN_FOLDERS = ("sensor_lag",)
 # (serial, start model, effect): base cases on parts whose other terms are zero, first_order
 # cases on population parts (all four first-order terms drawn, non-zero)
 CASES = [
@@ -112,9 +106,8 @@ def run_folders(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 _NOT_OBSERVABLE = pytest.mark.xfail(
-    reason="not observable in run folders of the current engine (table logged only at encoder "
-    "snapshots; the stop method re-zeroes the encoder at each condition, so static angles "
-    "share one frame only at the first): a known gap, see docs/discrepancy.md",
+    reason="not observable in run folders of the current engine (the table is logged only at "
+    "encoder snapshots, so transitions carry no reference): a known gap, see docs/discrepancy.md",
     strict=False,
 )
 PARAMS = [
