@@ -1,15 +1,19 @@
-"""Frame parser speed (a measurement, not a test): `python3 -m tests.drivers.bench_parser`.
+"""Frame parser speed (a measurement, not a test): `python3 benchmarks/bench_parser.py`.
 
 Prints microseconds per frame for 10^6 frames fed in chunks of several sizes.
 """
 
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from drivers import fixture_protocol as fp
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from drivers import fixture_protocol as fp  # noqa: E402
 
 
 def main(n: int = 1_000_000) -> None:
