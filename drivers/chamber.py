@@ -13,14 +13,12 @@ import logging
 from drivers.chamber_map import DEVICE_ID, STRING_REGS, TENTHS, Reg, State
 from drivers.clock import Clock
 from drivers.errors import ChamberSetpointNotReached, InstrumentError, SetpointOutOfRange
-from drivers.modbus_link import ModbusLink, ModbusRefused, i16_to_u16, regs_to_str, u16_to_i16
+from drivers.modbus_link import ModbusLink, ModbusRefused, i16_to_u16, read_identity, u16_to_i16
 from drivers.protocols import InstrumentIdentity
 
 log = logging.getLogger(__name__)
 
 NAME = "thermal chamber"
-_ID_FIRST = Reg.MODEL
-_ID_COUNT = Reg.FIRMWARE + STRING_REGS[Reg.FIRMWARE] - Reg.MODEL
 MAX_RAMP_C_PER_MIN = 0xFFFF / TENTHS
 
 
@@ -56,20 +54,7 @@ class ModbusChamber:
         return cls(link, clock, poll_s=poll_s)
 
     def identify(self) -> InstrumentIdentity:
-        regs = self._link.read(_ID_FIRST, _ID_COUNT)
-
-        def text(reg: Reg) -> str:
-            at = reg - _ID_FIRST
-            return regs_to_str(regs[at : at + STRING_REGS[reg]])
-
-        model = text(Reg.MODEL)
-        maker, _, rest = model.partition(" ")
-        return InstrumentIdentity(
-            manufacturer=maker if rest else "",
-            model=model,
-            serial=text(Reg.SERIAL),
-            firmware=text(Reg.FIRMWARE),
-        )
+        return read_identity(self._link, Reg.MODEL, Reg.SERIAL, Reg.FIRMWARE, STRING_REGS)
 
     # ------------------------------------------------------------ setpoint and limits
 

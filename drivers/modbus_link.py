@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeVar
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
+from drivers.protocols import InstrumentIdentity
 
 log = logging.getLogger(__name__)
 
@@ -220,3 +221,32 @@ class ModbusLink:
     def close(self) -> None:
         with self._lock:
             self._client.close()
+
+
+_Reg = TypeVar("_Reg", bound=int)
+
+
+def read_identity(
+    link: ModbusLink, model_reg: _Reg, serial_reg: _Reg, firmware_reg: _Reg,
+    string_regs: Mapping[_Reg, int],
+) -> InstrumentIdentity:
+    """Model, serial and firmware strings read in one request (they sit in one block).
+
+    The manufacturer is the model string's first word when it has more than one.
+    """
+    first = min(model_reg, serial_reg, firmware_reg)
+    last = max(r + string_regs[r] for r in (model_reg, serial_reg, firmware_reg))
+    regs = link.read(first, last - first)
+
+    def text(reg: _Reg) -> str:
+        at = reg - first
+        return regs_to_str(regs[at : at + string_regs[reg]])
+
+    model = text(model_reg)
+    maker, _, rest = model.partition(" ")
+    return InstrumentIdentity(
+        manufacturer=maker if rest else "",
+        model=model,
+        serial=text(serial_reg),
+        firmware=text(firmware_reg),
+    )

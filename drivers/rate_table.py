@@ -18,8 +18,8 @@ from drivers.modbus_link import (
     ModbusRefused,
     Unwrapper,
     i32_to_regs,
+    read_identity,
     regs_to_i32,
-    regs_to_str,
     regs_to_u32,
 )
 from drivers.protocols import InstrumentIdentity, TableStatus
@@ -44,8 +44,6 @@ _STATUS_FIRST = Reg.STATUS
 _STATUS_COUNT = Reg.SNAPSHOT_TIME + 2 - Reg.STATUS  # 20..29: status, fault, snapshot
 _CMD_FIRST = Reg.MODE
 _CMD_COUNT = Reg.MOVE_TIME + 2 - Reg.MODE  # 1..9
-_ID_FIRST = Reg.MODEL
-_ID_COUNT = Reg.FIRMWARE + STRING_REGS[Reg.FIRMWARE] - Reg.MODEL  # 40..59
 # a stale AT_RATE / IN_POSITION from the previous command must not end a wait for a new one
 _RATE_MATCH_DPS = 0.5
 _RATE_MATCH_REL = 0.005
@@ -88,20 +86,7 @@ class ModbusRateTable:
     # ------------------------------------------------------------ identity and status
 
     def identify(self) -> InstrumentIdentity:
-        regs = self._link.read(_ID_FIRST, _ID_COUNT)
-
-        def text(reg: Reg) -> str:
-            at = reg - _ID_FIRST
-            return regs_to_str(regs[at : at + STRING_REGS[reg]])
-
-        model = text(Reg.MODEL)
-        maker, _, rest = model.partition(" ")
-        return InstrumentIdentity(
-            manufacturer=maker if rest else "",
-            model=model,
-            serial=text(Reg.SERIAL),
-            firmware=text(Reg.FIRMWARE),
-        )
+        return read_identity(self._link, Reg.MODEL, Reg.SERIAL, Reg.FIRMWARE, STRING_REGS)
 
     def counts_per_rev(self) -> int:
         return COUNTS_PER_REV
