@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -19,7 +20,11 @@ from drivers.rate_table_map import COUNTS_PER_REV, IN_POSITION_TOLERANCE_DEG
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import stop_vs_rate_table
 from procedures.analysis.errors import AnalysisError
-from procedures.analysis.stop_method import StopMethodSettings, analyze_stop_method
+from procedures.analysis.stop_method import (
+    StopMethodResult,
+    StopMethodSettings,
+    analyze_stop_method,
+)
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
 from procedures.steps.base import BaseStep, check_window, samples_between
@@ -86,6 +91,30 @@ class StopMethod(BaseStep):
         self._encoder_u = (360.0 / COUNTS_PER_REV) * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
         ctx.each(lambda part: self._analyse(ctx, part, t_start, t_end))
 
+    def _scale(
+        self, ctx: RunContext, part: PartRun, data: dict[str, Any]
+    ) -> tuple[StopMethodResult, float, float, float, float]:
+        """Stop-method analysis of a window against this step's reference angle: the result,
+        scale, its standard uncertainty, the reference angle and its uncertainty."""
+        cfg = ctx.procedure.stop_method
+        assert cfg is not None
+        if cfg.reference == "fixture":
+            ref, u_ref = part.extra["stop_angle"]
+        else:
+            ref, u_ref = self._encoder_angle, self._encoder_u
+        result = analyze_stop_method(
+            data["time_s"],
+            data["rate_dps"],
+            ref,
+            u_ref,
+            status=data["status"],
+            settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
+            noise=stop_noise_model(ctx, part),
+        )
+        if result.scale is None or result.u_scale is None:
+            raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+        return result, result.scale, result.u_scale, ref, u_ref
+
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:
         cfg = ctx.procedure.stop_method
         assert cfg is not None
@@ -99,24 +128,8 @@ class StopMethod(BaseStep):
             cfg.static_s * (2 * cfg.repeats + 1),
         ):
             return
-        if cfg.reference == "fixture":
-            ref, u_ref = part.extra["stop_angle"]
-        else:
-            ref, u_ref = self._encoder_angle, self._encoder_u
         try:
-            result = analyze_stop_method(
-                data["time_s"],
-                data["rate_dps"],
-                ref,
-                u_ref,
-                status=data["status"],
-                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
-                noise=stop_noise_model(ctx, part),
-            )
-            scale = result.scale
-            u_scale = result.u_scale
-            if scale is None or u_scale is None:
-                raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+            result, scale, u_scale, ref, u_ref = self._scale(ctx, part, data)
         except AnalysisError as exc:
             ctx.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
             return
@@ -212,23 +225,8 @@ class VerifyStop(StopMethod):
         data = samples_between(ctx, part, t0, t1)
         if not check_window(ctx, part, data, "verification (stop moves)", cfg.static_s * 3):
             return
-        if cfg.reference == "fixture":
-            ref, u_ref = part.extra["stop_angle"]
-        else:
-            ref, u_ref = self._encoder_angle, self._encoder_u
         try:
-            result = analyze_stop_method(
-                data["time_s"],
-                data["rate_dps"],
-                ref,
-                u_ref,
-                status=data["status"],
-                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
-                noise=stop_noise_model(ctx, part),
-            )
-            scale, u_scale = result.scale, result.u_scale
-            if scale is None or u_scale is None:
-                raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+            result, scale, u_scale, ref, u_ref = self._scale(ctx, part, data)
         except AnalysisError as exc:
             ctx.drop(part, Verdict.ERROR, f"verification (stop moves): {exc}")
             return
