@@ -8,12 +8,18 @@ binary frames only, so replies and samples share one stream and one parser:
     offset size  field
     0      2     sync 0xA5 0x5A
     2      1     type: 0x01 sample, 0x02 reply
-    3      1     payload length n (13 for a sample, 0..250 for a reply)
+    3      1     payload length n (17 for a sample, 0..250 for a reply)
     4      n     payload
     4+n    4     CRC-32 (zlib/IEEE 802.3) of bytes 2 .. 4+n-1, big-endian
 
-Sample payload (13 bytes, big-endian): seq u16 (wraps), fixture time u32 in microseconds
-(wraps every 2^32 us; the parser unwraps), rate code u24, temperature code u24, status u8.
+Sample payload (17 bytes, big-endian): seq u16 (wraps), fixture time u32 in microseconds
+(wraps every 2^32 us; the parser unwraps), rate code u24, temperature code u24, status u8,
+encoder u32: the rate table's encoder count latched by the fixture at the sample instant
+(the table's quadrature output wired to the fixture's counter input, counted from the
+encoder's index; raw, wraps). It is valid only when status bit ENCODER_LATCHED is set; a
+fixture without its encoder input connected sends 0 and leaves the bit clear. This hardware
+sync gives every sample its own table reference, so motion between analysed windows (where a
+sensor lag shows) is known sample by sample.
 Reply payload: printable ASCII (0x20..0x7E), "OK[ data]" or "ERR <code> <text>".
 
 Codes are the ADIS16130's: rate offset binary, 0 deg/s = 8,388,608 counts, 23,488 counts per
@@ -41,8 +47,8 @@ from numpy.typing import NDArray
 SYNC = b"\xa5\x5a"
 HEADER_SIZE = 4
 CRC_SIZE = 4
-SAMPLE_PAYLOAD_SIZE = 13
-SAMPLE_FRAME_SIZE = HEADER_SIZE + SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 21
+SAMPLE_PAYLOAD_SIZE = 17
+SAMPLE_FRAME_SIZE = HEADER_SIZE + SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 25
 MAX_REPLY_PAYLOAD = 250
 
 RATE_ZERO_CODE = 8_388_608
@@ -55,6 +61,7 @@ RATED_RANGE_DPS = 250.0
 OUTPUT_RATES_HZ = (50, 100, 200, 500, 1000)
 SEQ_MODULO = 1 << 16
 TIME_MODULO_US = 1 << 32
+ENCODER_MODULO = 1 << 32
 
 
 class FrameType(IntEnum):
@@ -68,6 +75,7 @@ class SampleStatus(IntFlag):
     COMPENSATED = 1 << 2  # the part applied its calibration registers to this sample
     TEMP_INVALID = 1 << 3  # the on-chip temperature sensor reading is not valid
     SUPPLY_LOW = 1 << 4  # the part's supply is below its operating minimum
+    ENCODER_LATCHED = 1 << 5  # the encoder field holds the table's count at this sample
 
 
 class Command:
@@ -139,7 +147,7 @@ _VECTOR_CRC_MIN_FRAMES = 400  # below this, one zlib call per frame is faster th
 
 
 def _sample_crcs(raw: NDArray[np.uint8]) -> NDArray[np.uint32]:
-    """CRC-32 of every row of `raw` (n x SAMPLE_FRAME_SIZE sample frames), bytes 2..16."""
+    """CRC-32 of every row of `raw` (n x SAMPLE_FRAME_SIZE sample frames), bytes 2..20."""
     n = raw.shape[0]
     if n < _VECTOR_CRC_MIN_FRAMES:
         flat = memoryview(np.ascontiguousarray(raw).tobytes())
@@ -170,6 +178,7 @@ _SAMPLE_DTYPE = np.dtype(
         ("rate", "u1", (3,)),
         ("temp", "u1", (3,)),
         ("status", "u1"),
+        ("encoder", ">u4"),
         ("crc", ">u4"),
     ]
 )
@@ -187,8 +196,10 @@ def encode_samples(
     rate_code: NDArray[np.int64],
     temp_code: NDArray[np.int64],
     status: NDArray[np.int64],
+    encoder: NDArray[np.int64] | None = None,
 ) -> bytes:
-    """Encode a batch of samples as consecutive sample frames (seq and time wrap here)."""
+    """Encode a batch of samples as consecutive sample frames (seq, time and encoder wrap
+    here); without `encoder` the field is 0 (set ENCODER_LATCHED in `status` only with it)."""
     n = len(seq)
     frames = np.zeros(n, dtype=_SAMPLE_DTYPE)
     frames["sync"] = 0xA55A
@@ -199,6 +210,8 @@ def encode_samples(
     frames["rate"] = _u24_bytes(rate_code)
     frames["temp"] = _u24_bytes(temp_code)
     frames["status"] = np.asarray(status, dtype=np.int64) & 0xFF
+    if encoder is not None:
+        frames["encoder"] = np.asarray(encoder, dtype=np.int64) % ENCODER_MODULO
     raw = frames.view(np.uint8).reshape(n, SAMPLE_FRAME_SIZE)
     frames["crc"] = _sample_crcs(raw)
     return frames.tobytes()
@@ -224,6 +237,7 @@ class ParseResult:
     rate_code: NDArray[np.int64]
     temp_code: NDArray[np.int64]
     status: NDArray[np.int64]
+    encoder: NDArray[np.int64]  # raw latched counts (wrapping u32); see ENCODER_LATCHED
     replies: list[str] = field(default_factory=list)
     frames_lost: int = 0
     frames_corrupted: int = 0
@@ -347,6 +361,7 @@ class FrameParser:
                 rate_code=_EMPTY_I,
                 temp_code=_EMPTY_I,
                 status=_EMPTY_I,
+                encoder=_EMPTY_I,
                 replies=replies,
                 frames_lost=0,
                 frames_corrupted=corrupted,
@@ -365,6 +380,7 @@ class FrameParser:
             rate_code=_u24(frames["rate"]),
             temp_code=_u24(frames["temp"]),
             status=frames["status"].astype(np.int64),
+            encoder=frames["encoder"].astype(np.int64),
             replies=replies,
             frames_lost=lost,
             frames_corrupted=corrupted,

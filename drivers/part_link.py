@@ -181,7 +181,14 @@ class SerialPartLink:
             p = self._pending
             if result.seq.size:
                 p.chunks.append(
-                    (result.seq, result.time_s, result.rate_code, result.temp_code, result.status)
+                    (
+                        result.seq,
+                        result.time_s,
+                        result.rate_code,
+                        result.temp_code,
+                        result.status,
+                        result.encoder,
+                    )
                 )
                 self._last_frame_s = self._clock.now_s()
             p.lost += result.frames_lost
@@ -387,7 +394,8 @@ class SerialPartLink:
         else:
             cols = [np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*p.chunks, strict=True)]
             block = SampleBlock(cols[0], cols[1], cols[2], cols[3], cols[4], frames_lost=p.lost,
-                                frames_corrupted=p.corrupted, bytes_discarded=p.discarded)
+                                frames_corrupted=p.corrupted, bytes_discarded=p.discarded,
+                                encoder_counts=cols[5])
         return block
 
     def read_samples(self, max_wait_s: float = 0.0) -> SampleBlock:

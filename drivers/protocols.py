@@ -189,6 +189,9 @@ class SampleBlock:
 
     `time_s` is the fixture's timestamp (its own clock, unwrapped), never the station's.
     Lost and corrupted counts are for this block; a gap in `seq` is a lost frame.
+    `encoder_counts` is the table's encoder count the fixture latched at each sample (raw,
+    wrapping u32), meaningful where `status` has ENCODER_LATCHED; None from a link that has
+    no encoder input.
     """
 
     seq: NDArray[np.int64]
@@ -199,6 +202,7 @@ class SampleBlock:
     frames_lost: int = 0
     frames_corrupted: int = 0
     bytes_discarded: int = 0
+    encoder_counts: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return int(self.seq.size)

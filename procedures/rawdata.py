@@ -9,6 +9,9 @@ Layout (all 1-D, resizable, appended together within a group so rows line up):
 
     /samples   time_s (fixture clock, s)   seq   rate_code   temp_code   status
                rate_dps   temp_c   station_time_s (station clock estimate of the sample time)
+               encoder_counts (the table's encoder count latched by the fixture at the
+               sample, raw u32; valid where status has ENCODER_LATCHED; the root attribute
+               encoder_counts_per_rev scales it)
     /table     station_time_s   controller_time_s   encoder_counts   position_deg   rate_dps
                status
     /chamber   station_time_s   setpoint_c   temp_c
@@ -47,6 +50,7 @@ GROUPS: dict[str, dict[str, tuple[Any, str]]] = {
         "rate_dps": ("f8", "deg/s"),
         "temp_c": ("f8", "C"),
         "station_time_s": ("f8", "s"),
+        "encoder_counts": ("i8", "counts"),
     },
     "table": {
         "station_time_s": ("f8", "s"),
@@ -82,6 +86,11 @@ GROUPS: dict[str, dict[str, tuple[Any, str]]] = {
         "text": (_STR, ""),
     },
 }
+
+
+# Columns added after the format's first files: a file without them reads as all zeros
+# (for encoder_counts, with ENCODER_LATCHED clear in status, that means "not latched").
+OPTIONAL_COLUMNS = {("samples", "encoder_counts")}
 
 
 class RawDataError(ValueError):
@@ -174,6 +183,10 @@ def read_raw(path: Path) -> RawData:
                 g = f[group_name]
                 groups[group_name] = {}
                 for column, (dtype, _units) in columns.items():
+                    if column not in g and (group_name, column) in OPTIONAL_COLUMNS:
+                        rows = next(iter(g.values())).shape[0] if len(g) else 0
+                        groups[group_name][column] = np.zeros(rows, dtype=dtype)
+                        continue
                     if column not in g:
                         raise RawDataError(f"{path}: dataset /{group_name}/{column} is missing")
                     data = g[column][()]

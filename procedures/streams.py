@@ -42,6 +42,7 @@ _COLUMNS = (
     "rate_dps",
     "temp_c",
     "station_time_s",
+    "encoder_counts",
 )
 _FLUSH_SAMPLES = 2000
 FIXTURE_WRAP_S = (1 << 32) * 1e-6  # the fixture's u32 microsecond timestamp
@@ -186,6 +187,11 @@ class PartStream:
             "status": np.asarray(block.status, dtype=np.int64),
             "rate_dps": rate_code_to_dps(block.rate_code),
             "temp_c": temp_code_to_c(block.temp_code),
+            "encoder_counts": (
+                np.zeros(n, dtype=np.int64)
+                if block.encoder_counts is None
+                else np.asarray(block.encoder_counts, dtype=np.int64)
+            ),
         }
         cols["station_time_s"] = cols["time_s"] + self.offset_s
         self._data.append(cols)

@@ -27,6 +27,7 @@ from typing import Any
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError
 from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
+from drivers.rate_table_map import COUNTS_PER_REV
 from procedures.config import (
     ConfigError,
     ProcedureConfig,
@@ -572,6 +573,8 @@ class UutRunner:
                 "simulated": self.endpoints is not None,
                 "software_version": __version__,
                 "time_base": "fixture clock (s); station_time_s: station clock estimate",
+                # scales /samples/encoder_counts (the fixture latches the table's encoder)
+                "encoder_counts_per_rev": COUNTS_PER_REV,
             },
         )
         return PartRun(socket=sock, serial=serial, folder=folder, record=record, writer=writer)

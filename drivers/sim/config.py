@@ -146,6 +146,11 @@ class FixtureConfig(_Model):
     stop_angle_deg: float | None = Field(default=None, gt=10.0, lt=350.0)
     stop_angle_uncertainty_deg: float = Field(default=0.01, gt=0.0)
     clock_offset_s: float = Field(default=12.5, ge=0.0)
+    encoder_input: bool = Field(
+        default=True,
+        description="the table's encoder output is wired to the fixture, which latches its "
+        "count into every sample frame (hardware sync); false: the field is 0, the bit clear",
+    )
 
 
 class PartPhysicsConfig(_Model):

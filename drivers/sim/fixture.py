@@ -50,6 +50,7 @@ class FixtureSocket:
         self.streaming = False
         self._t_start = 0.0
         self._next_k = 0
+        self._last_angle_deg = 0.0  # table angle at the previous sample (interval start)
         self.seq = 0
         self.frames_sent = 0
         self.frames_overflowed = 0
@@ -110,6 +111,7 @@ class FixtureSocket:
                 self.streaming = True
                 self._t_start = t_s
                 self._next_k = 1
+                self._last_angle_deg = float(self.world.table.angle_deg(t_s)[0])
                 self.seq = 0
             return "OK"
         if upper == fp.Command.CAL_READ:
@@ -187,15 +189,25 @@ class FixtureSocket:
             return b""
         k = np.arange(self._next_k, last_k + 1, dtype=np.int64)
         self._next_k = last_k + 1
+        times = (self._t_start + k * dt).astype(np.float64)
+        angle = self.world.table.angle_deg(times)
         if self.part_silent or not self.part_powered():
+            self._last_angle_deg = float(angle[-1])
             return b""  # a silent or unpowered part sends nothing
         part = self.part
         assert part is not None
-        times = (self._t_start + k * dt).astype(np.float64)
         supply_v = self.world.supply.output_v()
-        angle, rate = self.world.table.kinematics(times)
+        # the part's decimation filter averages its rate over the output period, so a sample
+        # is the mean rate since the previous one: exactly what two encoder latches give
+        start = np.concatenate(([self._last_angle_deg], angle[:-1]))
+        rate = (angle - start) / dt
+        self._last_angle_deg = float(angle[-1])
         raw, die = part.raw_output_dps(times, rate, angle, supply_v, dt)
         status = np.zeros(k.size, dtype=np.int64)
+        encoder = None
+        if self.world.config.fixture.encoder_input:
+            encoder = self.world.table.absolute_counts(angle)
+            status |= fp.SampleStatus.ENCODER_LATCHED
         out = raw
         if part.compensation:
             out = part.compensate(raw, die, supply_v)
@@ -214,6 +226,7 @@ class FixtureSocket:
             fp.rate_dps_to_code(out),
             fp.temp_c_to_code(die + temp_noise),
             status,
+            encoder,
         )
         self.frames_sent += k.size
         return self._apply_stream_faults(frames)

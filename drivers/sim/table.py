@@ -83,18 +83,6 @@ class TableModel:
     def _ripple_amp(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
         return self.cfg.ripple_dps * np.minimum(1.0, np.abs(v) / 10.0)
 
-    def kinematics(self, t_s: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(angle_deg, rate_dps) at sorted times, ripple included, in one evaluation."""
-        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        p = self.profile.position_deg(t)
-        v = self.profile.velocity_dps(t)
-        if self.cfg.ripple_dps == 0:
-            return p, v
-        w = 2 * math.pi * self.cfg.ripple_hz
-        amp = self._ripple_amp(v)
-        phase = w * t
-        return p + amp / w * np.sin(phase), v + amp * np.cos(phase)
-
     def angle_deg(self, t_s: ArrayLike) -> NDArray[np.float64]:
         """True table angle (deg, continuous), ripple included."""
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
@@ -112,6 +100,11 @@ class TableModel:
 
     def _abs_counts(self, angle_deg: float) -> int:
         return math.floor(angle_deg * self.cpr / 360.0 + 1e-9)
+
+    def absolute_counts(self, angle_deg: NDArray[np.float64]) -> NDArray[np.int64]:
+        """The encoder's count from its index at each angle (what its quadrature output
+        gives a counter; the registers report it minus the zero taken by ZERO_ENCODER)."""
+        return np.floor(np.asarray(angle_deg) * self.cpr / 360.0 + 1e-9).astype(np.int64)
 
     def _zero_angle_deg(self) -> float:
         return self.zero_counts * 360.0 / self.cpr

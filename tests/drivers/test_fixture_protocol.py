@@ -41,14 +41,22 @@ def _feed_chunks(parser: fp.FrameParser, data: bytes, chunk: int):
 
 
 def test_sample_frame_bytes_are_exactly_the_documented_layout():
+    status = fp.SampleStatus.OVER_RANGE | fp.SampleStatus.ENCODER_LATCHED
     data = fp.encode_samples(
         np.array([0x1234]), np.array([0x0A0B0C0D]), np.array([0x800000]),
-        np.array([0x7A9F3B]), np.array([fp.SampleStatus.OVER_RANGE]),
+        np.array([0x7A9F3B]), np.array([status]), np.array([(1 << 32) + 0x01020304]),
     )
-    body = bytes([0x01, 13, 0x12, 0x34, 0x0A, 0x0B, 0x0C, 0x0D,
-                  0x80, 0x00, 0x00, 0x7A, 0x9F, 0x3B, 0x01])
+    body = bytes([0x01, 17, 0x12, 0x34, 0x0A, 0x0B, 0x0C, 0x0D,
+                  0x80, 0x00, 0x00, 0x7A, 0x9F, 0x3B, 0x21, 0x01, 0x02, 0x03, 0x04])
     assert data == b"\xa5\x5a" + body + struct.pack(">I", zlib.crc32(body))
     assert len(data) == fp.SAMPLE_FRAME_SIZE
+    res = fp.FrameParser().feed(data)
+    assert res.encoder.tolist() == [0x01020304]  # the counter wraps at 2^32
+    assert res.status.tolist() == [int(status)]
+    # without an encoder input the field is 0 and the bit stays clear
+    bare = fp.FrameParser().feed(fp.encode_samples(
+        np.array([1]), np.array([2]), np.array([3]), np.array([4]), np.array([0])))
+    assert bare.encoder.tolist() == [0] and bare.status.tolist() == [0]
 
 
 def test_reply_frame_bytes_and_decode():
