@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
@@ -93,7 +94,8 @@ class PartModel:
         self._gm_sigma = _gm_sigma_for_bias_instability(self.bi_dps) if self.bi_dps > 0 else 0.0
         self._gm_state = self.rng.normal(0.0, 1.0, len(GM_TAUS_S)) * self._gm_sigma
         self._rrw_state = 0.0
-        self._lag_state: float | None = None
+        # last (input, output, sample time) of the lag
+        self._lag_state: tuple[float, float, float] | None = None
         fx = params.effects
         self._k2 = fx.get("k2_quadratic", {}).get("k2_per_dps", 0.0)
         self._k3 = fx.get("k3_cubic", {}).get("k3_per_dps2", 0.0)
@@ -197,11 +199,24 @@ class PartModel:
             amp, tau = self._warmup
             y = y + amp * np.exp(-np.maximum(t_s - self.power_on_s, 0.0) / tau)
         if self._lag_tau is not None:
-            a = math.exp(-dt_s / self._lag_tau)
-            prev = float(y[0]) if self._lag_state is None else self._lag_state
-            y = first_order_filter(y, a, 1.0 - a, prev)
-            self._lag_state = float(y[-1])
+            y = self._lag(y, t_s, dt_s, self._lag_tau)
         return y + self._noise(len(t_s), dt_s), die
+
+    def _lag(self, x: FloatArray, t_s: FloatArray, dt_s: float, tau_s: float) -> FloatArray:
+        """The sensing element's first-order lag, exact for an input that changes linearly
+        between samples (first-order hold): a ramp comes out delayed by tau whatever the
+        output period, as the continuous lag gives it. After a pause in sampling the lag
+        starts settled on the first input."""
+        alpha = math.exp(-dt_s / tau_s)
+        g = tau_s / dt_s * (1.0 - alpha)
+        b0, b1 = 1.0 - g, g - alpha
+        state = self._lag_state
+        if state is None or t_s[0] - state[2] > 1.5 * dt_s:
+            state = (float(x[0]), float(x[0]), float(t_s[0]) - dt_s)
+        x_prev, y_prev, _ = state
+        y, _ = lfilter([b0, b1], [1.0, -alpha], x, zi=[b1 * x_prev + alpha * y_prev])
+        self._lag_state = (float(x[-1]), float(y[-1]), float(t_s[-1]))
+        return np.asarray(y, dtype=float)
 
     def compensate(self, raw_dps: FloatArray, die_c: FloatArray, supply_v: float) -> FloatArray:
         """The part's own correction with its calibration registers (CalibrationRegisters)."""

@@ -101,6 +101,26 @@ def test_sensor_lag_is_a_first_order_step_response() -> None:
     assert y[-1] == pytest.approx(final, rel=1e-6)
 
 
+def test_sensor_lag_delays_a_ramp_by_tau_even_below_the_output_period() -> None:
+    # 5 ms lag at a 10 ms output period: a discrete one-pole filter y = a y + (1 - a) x would
+    # delay a ramp by only dt a / (1 - a) = 1.6 ms; the part must behave as the continuous lag
+    tau, dt, accel = 0.005, 0.01, 200.0
+    part = _part({"sensor_lag": {"tau_s": tau}}, bias_dps=0.0, scale=1.0,
+                 scale_temp_coeff_per_c=0.0, bias_temp_coeff_dps_per_c=0.0)
+    plain = _part(bias_dps=0.0, scale=1.0, scale_temp_coeff_per_c=0.0,
+                  bias_temp_coeff_dps_per_c=0.0)
+    t = np.arange(1, 101) * dt
+    w = np.minimum(accel * t, 100.0)  # ramp for 0.5 s, then a plateau
+    lagged, _ = part.raw_output_dps(t, w, np.zeros_like(w), 5.0, dt)
+    ideal, _ = plain.raw_output_dps(t, w, np.zeros_like(w), 5.0, dt)
+    on_ramp = (t > 0.1) & (t < 0.45)
+    assert np.allclose(ideal[on_ramp] - lagged[on_ramp], accel * tau, rtol=1e-3)
+    assert lagged[-1] == pytest.approx(ideal[-1], abs=1e-9)  # settled on the plateau
+    # a pause in sampling: the lag restarts settled, with no memory of the old input
+    later, _ = part.raw_output_dps(t + 10.0, np.full(t.size, -50.0), np.zeros_like(w), 5.0, dt)
+    assert later[0] == pytest.approx(-50.0 + ideal[-1] - 100.0, abs=1e-9)
+
+
 def test_warmup_drift_decays_from_power_on() -> None:
     part = _part({"warmup_drift": {"amplitude_dps": 0.5, "tau_s": 60.0}})
     plain = _part()
