@@ -363,10 +363,26 @@ class RunContext:
         t = self.clock.now_s()
         chamber_c = self.bench.chamber.read_temperature()
         setpoint = self.bench.chamber.read_setpoint()
-        volts, amps = self.supply_reading()
         self.append_all("chamber", station_time_s=t, setpoint_c=setpoint, temp_c=chamber_c)
-        self.append_all("supply", station_time_s=t, voltage_v=volts, current_a=amps)
+        volts, amps = self.log_supply()
         return chamber_c, volts, amps
+
+    def set_supply_voltage(self, volts: float) -> None:
+        """Set the supply with a logged reading just before and just after, so the raw data
+        brackets the moment the parts' supply changed (the discrepancy workflow uses the
+        samples between windows only where the supply is known)."""
+        supply = self.bench.supply
+        self.log_supply()
+        supply.set_voltage(volts)
+        supply.check_errors()
+        self.log_supply()
+
+    def log_supply(self) -> tuple[float, float]:
+        """Read the supply once and log it to every part's raw data."""
+        t = self.clock.now_s()
+        volts, amps = self.supply_reading()
+        self.append_all("supply", station_time_s=t, voltage_v=volts, current_a=amps)
+        return volts, amps
 
     def supply_reading(self) -> tuple[float, float]:
         """(volts, amps); raises SupplyCurrentLimit when the supply is current-limiting."""

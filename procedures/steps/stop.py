@@ -215,8 +215,7 @@ class VerifyStop(StopMethod):
         v = ctx.procedure.verify
         if v is not None and v.supply_v is not None:
             supply_v = v.supply_v
-        ctx.bench.supply.set_voltage(supply_v)
-        ctx.bench.supply.check_errors()
+        ctx.set_supply_voltage(supply_v)
         self.supply_v = supply_v
 
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:

@@ -88,8 +88,7 @@ class Stabilise(BaseStep):
             chamber.set_setpoint(self.target.temperature_c)
         if not chamber.is_running():
             chamber.run()
-        ctx.bench.supply.set_voltage(self.target.supply_v)
-        ctx.bench.supply.check_errors()
+        ctx.set_supply_voltage(self.target.supply_v)
         for part in ctx.alive():
             part.conditions[self.condition] = ConditionResult(
                 name=self.condition,

@@ -30,8 +30,7 @@ class Verify(BaseStep):
         table = ctx.bench.table
         assert cfg is not None and table is not None
         supply_v = cfg.supply_v if cfg.supply_v is not None else ctx.product.reference_supply_v
-        ctx.bench.supply.set_voltage(supply_v)
-        ctx.bench.supply.check_errors()
+        ctx.set_supply_voltage(supply_v)
         self.supply_v = supply_v
         table.enable()
         ctx.sleep(cfg.settle_s)
