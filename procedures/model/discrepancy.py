@@ -25,6 +25,7 @@ from procedures.model import effects as fx
 from procedures.model.blocks import Blocks, make_blocks
 from procedures.model.fit import FitResult, Fitter
 from procedures.model.gyro_model import GyroModel, zero_params
+from procedures.model.lag import contiguous_runs
 from procedures.model.noise import NoiseModel, measure_noise
 from procedures.model.reml import estimate_slow_noise
 from procedures.model.residuals import BinSummary, floor_dps, gap_dps, summarize, worst_z
@@ -331,17 +332,33 @@ def measure_record_noise(traj: Trajectory, blocks: Blocks, model: GyroModel) -> 
     first = Fitter(traj, blocks, white_only).fit(model)
     allan = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
     full = model
-    # sensor_lag is left out: its signature is fast (transitions), never taken for wander,
-    # and low-passing the whole design upsets the restricted likelihood
+    # sensor_lag enters linearised (a lag tau shifts the output by -tau * d(rate)/dt, exact
+    # to first order for a lag much shorter than the rate changes): low-passing the whole
+    # design upsets the restricted likelihood, and leaving the lag out would let its
+    # signature in the transitions be taken for bias wander
     for e in fx.CATALOG:
         if e not in full.effects and e != "sensor_lag":
             full = full.with_effect(e, zero_params(e))
     fitter = Fitter(traj, blocks, allan)
     full_fit = fitter.fit(full)
-    noise = estimate_slow_noise(allan, blocks, fitter.design(full_fit.model), fitter.y_block)
+    design = fitter.design(full_fit.model)
+    if "sensor_lag" not in full.effects:
+        accel = blocks.mean(_rate_change_dps2(traj))
+        if np.any(accel != 0):
+            design = np.column_stack([design, -accel])
+    noise = estimate_slow_noise(allan, blocks, design, fitter.y_block)
     log.info("slow noise (REML, full model): F %.3g deg/s, K %.3g deg/s/sqrt(s)",
              noise.floor_dps, noise.rrw_dps_per_rt_s)
     return noise
+
+
+def _rate_change_dps2(traj: Trajectory) -> FloatArray:
+    """d(reference rate)/dt per sample, zero across gaps in the sampling."""
+    out = np.zeros(traj.n)
+    for a, b in contiguous_runs(traj.time_s):
+        if b - a > 2:
+            out[a:b] = np.gradient(traj.ref_rate_dps[a:b], traj.time_s[a:b])
+    return out
 
 
 def _model_name(start: str, added: list[str]) -> str:

@@ -1,21 +1,33 @@
 """Load a run folder (record.json + raw.h5) into a Trajectory for the discrepancy workflow.
 
-The engine logs the table only at encoder snapshots (start and end of each plateau, at the
-stops), so the reference between analysed windows is unknown. Only samples inside windows
-with a known reference are used: static, stabilise, stop_static, position_static (rate 0;
-the last from the optional multi-position step, loaded as static) and plateau (the
-window's reference rate; angle advancing from the nearest snapshot). Stop moves are used
-only where the table log is dense enough to follow the motion (< 0.1 s between rows).
-Verify windows are left out: the part runs with its new compensation there.
+With hardware sync (the fixture latches the table's encoder count into every sample frame,
+drivers/fixture_protocol.py) every sample has its own reference: the table angle at the
+sample, and the mean rate since the previous sample (two latches over the fixture's own
+time step), which is what the part's sample is. Then the whole record is used: analysed
+windows keep their kind, everything between them (accelerations, settling, thermal soaks)
+is a `transition`, so effects that show only while the rate changes (sensor lag) are seen.
+Left out: verify windows and compensated samples (the part applies its new correction
+there), the first sample after a lost frame, and samples between analysed windows while
+the supply log says the supply changed.
+
+Without latched encoder counts (a fixture without its encoder input, or an older run
+folder) only samples inside windows with a known reference are used: static, stabilise,
+stop_static, position_static (rate 0; the last from the optional multi-position step,
+loaded as static) and plateau (the window's reference rate; angle advancing from the
+nearest snapshot). Stop moves are used only where the table log is dense enough to follow
+the motion (< 0.1 s between rows).
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
+from drivers.fixture_protocol import ENCODER_MODULO, SampleStatus
 from procedures.model.data import load_csv
 from procedures.model.trajectory import FloatArray, Segment, Trajectory
 from procedures.rawdata import RawDataError, read_raw
@@ -25,6 +37,9 @@ log = logging.getLogger(__name__)
 
 STATIC_KINDS = ("static", "stabilise", "stop_static", "position_static")
 DENSE_TABLE_S = 0.1
+MIN_LATCHED_FRACTION = 0.9  # below this, the record is read as having no hardware sync
+SUPPLY_STEADY_V = 0.01  # neighbouring supply readings closer than this: supply unchanged
+AT_REST_DPS = 0.01
 
 
 def find_run_folder(path: Path, dut: str | None) -> Path:
@@ -91,7 +106,32 @@ def _plateau_angle(
     return table_pos[i] + rate * (t_station - table_t[i])
 
 
-def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
+@dataclass(frozen=True)
+class _Record:
+    """The raw data of one run, samples sorted by fixture time (duplicates dropped)."""
+
+    folder: Path
+    serial: str
+    attrs: dict[str, object]
+    t_fix: FloatArray
+    t_sta: FloatArray
+    gyro: FloatArray
+    temp: FloatArray
+    status: NDArray[np.int64]
+    encoder: NDArray[np.int64]
+    tab_t: FloatArray
+    tab_pos: FloatArray
+    tab_rate: FloatArray
+    sup_t: FloatArray
+    sup_v: FloatArray
+    segs: dict[str, NDArray[np.generic]]
+
+    @property
+    def power_on_s(self) -> float:
+        return float(self.sup_t.min()) if self.sup_t.size else float(self.t_sta[0])
+
+
+def _read(folder: Path, dut: str | None) -> _Record:
     record = read_record(folder)
     if dut and record.dut.serial != dut:
         raise ValueError(
@@ -105,49 +145,173 @@ def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
     if s["time_s"].size < 100:
         raise ValueError(f"{folder}: the raw data holds only {s['time_s'].size} samples")
     order = np.argsort(s["time_s"], kind="stable")
-    t_fix = s["time_s"][order]
-    keep_unique = np.concatenate([[True], np.diff(t_fix) > 0])
-    idx = order[keep_unique]
-    t_fix = s["time_s"][idx]
-    t_sta = s["station_time_s"][idx]
-    gyro = s["rate_dps"][idx]
-    temp = s["temp_c"][idx]
+    t_sorted = s["time_s"][order]
+    idx = order[np.concatenate([[True], np.diff(t_sorted) > 0])]
     tab = raw["table"]
     tab_order = np.argsort(tab["station_time_s"])
-    tab_t = tab["station_time_s"][tab_order]
-    tab_pos = tab["position_deg"][tab_order]
-    tab_rate = tab["rate_dps"][tab_order]
     sup = raw["supply"]
-    sup_t, sup_v = sup["station_time_s"], sup["voltage_v"]
-    power_on_s = float(sup_t.min()) if sup_t.size else float(t_sta[0])
-    notes = []
-    if not sup_t.size:
-        notes.append("no supply log: time since power-on counted from the first sample")
+    sup_order = np.argsort(sup["station_time_s"])
+    return _Record(
+        folder=folder,
+        serial=record.dut.serial,
+        attrs=raw.attrs,
+        t_fix=s["time_s"][idx],
+        t_sta=s["station_time_s"][idx],
+        gyro=s["rate_dps"][idx],
+        temp=s["temp_c"][idx],
+        status=s["status"][idx].astype(np.int64),
+        encoder=s["encoder_counts"][idx].astype(np.int64),
+        tab_t=tab["station_time_s"][tab_order],
+        tab_pos=tab["position_deg"][tab_order],
+        tab_rate=tab["rate_dps"][tab_order],
+        sup_t=sup["station_time_s"][sup_order],
+        sup_v=sup["voltage_v"][sup_order],
+        segs=raw["segments"],
+    )
 
-    segs = raw["segments"]
+
+def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
+    rec = _read(folder, dut)
+    latched = (rec.status & int(SampleStatus.ENCODER_LATCHED)) != 0
+    cpr = rec.attrs.get("encoder_counts_per_rev")
+    if latched.mean() >= MIN_LATCHED_FRACTION and isinstance(cpr, int | float) and cpr > 0:
+        return _latched_trajectory(rec, latched, float(cpr))
+    return _windowed_trajectory(rec)
+
+
+def _segment_list(rec: _Record) -> list[tuple[str, int, int, int]]:
+    """(kind, first, stop, segment row) of every analysed window, in time order, each
+    sample in at most one window (the first keeps overlapping samples)."""
+    segs = rec.segs
+    out = []
+    taken = np.zeros(rec.t_fix.size, dtype=bool)
+    for k in np.argsort(segs["start_s"]):
+        a = int(np.searchsorted(rec.t_fix, segs["start_s"][k], side="left"))
+        b = int(np.searchsorted(rec.t_fix, segs["end_s"][k], side="right"))
+        if b - a < 3:
+            continue
+        if np.any(taken[a:b]):
+            a = a + int(np.argmin(taken[a:b])) if not np.all(taken[a:b]) else b
+            if b - a < 3:
+                continue
+        taken[a:b] = True
+        out.append((str(segs["kind"][k]), a, b, int(k)))
+    return out
+
+
+def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], cpr: float) -> Trajectory:
+    n = rec.t_fix.size
+    step = np.diff(rec.encoder)
+    step = (step + ENCODER_MODULO // 2) % ENCODER_MODULO - ENCODER_MODULO // 2
+    counts = np.concatenate([[0], np.cumsum(step)])
+    angle = counts * (360.0 / cpr)
+    dt = np.diff(rec.t_fix)
+    period = float(np.median(dt))
+    # mean rate since the previous sample: valid only across one sample period, both latched
+    pair_ok = latched[1:] & latched[:-1] & (dt < 1.5 * period)
+    ref_rate = np.zeros(n)
+    ref_rate[1:] = np.diff(angle) / dt
+    use = np.concatenate([[False], pair_ok])
+    use &= (rec.status & int(SampleStatus.COMPENSATED)) == 0
+    angle = angle + _frame_offset_deg(rec, angle)
+
+    supply = np.full(n, np.nan)
+    segments: list[Segment] = []
+    in_window = np.zeros(n, dtype=bool)
+    for kind, a, b, k in _segment_list(rec):
+        in_window[a:b] = True
+        if kind == "verify":
+            use[a:b] = False
+            continue
+        seg_v = float(rec.segs["supply_v"][k])
+        if np.isfinite(seg_v):
+            supply[a:b] = seg_v
+        seg_kind = "static" if kind in STATIC_KINDS else kind
+        segments.append(Segment(seg_kind, float(rec.t_fix[a]), float(rec.t_fix[b - 1]) + 1e-9,
+                                str(rec.segs["condition"][k])))
+    notes = []
+    missing = ~np.isfinite(supply)
+    if np.any(missing & use):
+        steady_v, steady = _logged_supply(rec)
+        supply[missing] = steady_v[missing]
+        dropped = missing & use & ~steady
+        use &= ~dropped
+        if dropped.any():
+            notes.append(
+                f"{int(dropped.sum())} samples between windows left out: the supply changed "
+                "there"
+            )
+    if use.sum() < 100:
+        raise ValueError(
+            f"{rec.folder}: fewer than 100 samples have a latched table reference; "
+            "was the run complete?"
+        )
+    lost = int(n - 1 - pair_ok.sum())
+    notes.append(
+        "reference from the table encoder latched into every sample (hardware sync): "
+        f"windows and transitions used; {lost} samples without a previous latch left out"
+    )
+    return Trajectory(
+        time_s=rec.t_fix[use],
+        gyro_dps=rec.gyro[use],
+        ref_rate_dps=ref_rate[use],
+        ref_angle_deg=angle[use],
+        temp_c=rec.temp[use],
+        supply_v=supply[use],
+        time_since_power_on_s=np.maximum(rec.t_sta[use] - rec.power_on_s, 0.0),
+        segments=tuple(segments),
+        source=str(rec.folder),
+        serial=rec.serial,
+        notes=tuple(notes),
+    )
+
+
+def _frame_offset_deg(rec: _Record, angle: FloatArray) -> float:
+    """Offset from the latched counts (from the encoder's index) to the table's own
+    position frame (zeroed by the station): median over table log rows at rest."""
+    rest = np.abs(rec.tab_rate) < AT_REST_DPS
+    if not rest.any():
+        return 0.0
+    j = np.clip(np.searchsorted(rec.t_sta, rec.tab_t[rest]), 0, rec.t_sta.size - 1)
+    diff = (rec.tab_pos[rest] - angle[j] + 180.0) % 360.0 - 180.0
+    return float(np.median(diff))
+
+
+def _logged_supply(rec: _Record) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Supply at each sample from the supply log, and whether the readings either side
+    agree (the supply did not change in between; the engine logs a reading just before and
+    just after every change of setting). After the last reading the supply is unchanged."""
+    if not rec.sup_t.size:
+        raise ValueError(f"{rec.folder}: no supply voltage in the segments or the supply log")
+    j = np.searchsorted(rec.sup_t, rec.t_sta, side="right")
+    prev = rec.sup_v[np.clip(j - 1, 0, rec.sup_v.size - 1)]
+    nxt = rec.sup_v[np.clip(j, 0, rec.sup_v.size - 1)]
+    steady = (j > 0) & (np.abs(nxt - prev) < SUPPLY_STEADY_V)
+    return prev, steady
+
+
+def _windowed_trajectory(rec: _Record) -> Trajectory:
+    t_fix, t_sta = rec.t_fix, rec.t_sta
+    tab_t, tab_pos, tab_rate = rec.tab_t, rec.tab_pos, rec.tab_rate
+    notes = []
+    if not rec.sup_t.size:
+        notes.append("no supply log: time since power-on counted from the first sample")
     use = np.zeros(t_fix.size, dtype=bool)
     ref_rate = np.zeros(t_fix.size)
     ref_angle = np.zeros(t_fix.size)
     supply = np.full(t_fix.size, np.nan)
     segments: list[Segment] = []
     skipped_moves = 0
-    for k in np.argsort(segs["start_s"]):
-        kind = str(segs["kind"][k])
-        a = int(np.searchsorted(t_fix, segs["start_s"][k], side="left"))
-        b = int(np.searchsorted(t_fix, segs["end_s"][k], side="right"))
-        if b - a < 3 or kind == "verify":
+    for kind, a, b, k in _segment_list(rec):
+        if kind == "verify":
             continue
-        if np.any(use[a:b]):  # overlapping windows: the first one keeps its samples
-            a = a + int(np.argmin(use[a:b])) if not np.all(use[a:b]) else b
-            if b - a < 3:
-                continue
         ts = t_sta[a:b]
-        seg_v = float(segs["supply_v"][k])
+        seg_v = float(rec.segs["supply_v"][k])
         if kind in STATIC_KINDS:
             ref_rate[a:b] = 0.0
             ref_angle[a:b] = _static_angle(tab_t, tab_pos, tab_rate, float(ts[0]), float(ts[-1]))
         elif kind == "plateau":
-            rate = float(segs["ref_rate_dps"][k])
+            rate = float(rec.segs["ref_rate_dps"][k])
             if not np.isfinite(rate):
                 continue
             ref_rate[a:b] = rate
@@ -167,32 +331,33 @@ def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
         # a multi-position window is a static window to the model (and the noise estimate)
         seg_kind = "static" if kind == "position_static" else kind
         segments.append(Segment(seg_kind, float(t_fix[a]), float(t_fix[b - 1]) + 1e-9,
-                                str(segs["condition"][k])))
+                                str(rec.segs["condition"][k])))
     if skipped_moves:
         notes.append(
             f"{skipped_moves} stop moves left out: the table log is too sparse to follow them"
         )
     missing_v = ~np.isfinite(supply)
     if np.any(missing_v & use):
-        if not sup_t.size:
-            raise ValueError(f"{folder}: no supply voltage in the segments or the supply log")
-        j = np.clip(np.searchsorted(sup_t, t_sta, side="right") - 1, 0, sup_t.size - 1)
-        supply[missing_v] = sup_v[j][missing_v]
+        supply[missing_v] = _logged_supply(rec)[0][missing_v]
     if use.sum() < 100:
         raise ValueError(
-            f"{folder}: fewer than 100 samples fall in analysed windows; was the run complete?"
+            f"{rec.folder}: fewer than 100 samples fall in analysed windows; was the run "
+            "complete?"
         )
-    notes.append("reference known only inside analysed windows; transitions are not used")
+    notes.append(
+        "no latched encoder counts (hardware sync): reference known only inside analysed "
+        "windows; transitions are not used"
+    )
     return Trajectory(
         time_s=t_fix[use],
-        gyro_dps=gyro[use],
+        gyro_dps=rec.gyro[use],
         ref_rate_dps=ref_rate[use],
         ref_angle_deg=ref_angle[use],
-        temp_c=temp[use],
+        temp_c=rec.temp[use],
         supply_v=supply[use],
-        time_since_power_on_s=np.maximum(t_sta[use] - power_on_s, 0.0),
+        time_since_power_on_s=np.maximum(t_sta[use] - rec.power_on_s, 0.0),
         segments=tuple(segments),
-        source=str(folder),
-        serial=record.dut.serial,
+        source=str(rec.folder),
+        serial=rec.serial,
         notes=tuple(notes),
     )

@@ -181,8 +181,14 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
     if "warmup_drift" in e:
         y = y + e["warmup_drift"]["amplitude_dps"] * np.exp(-t / e["warmup_drift"]["tau_s"])
     if "sensor_lag" in e:
-        a_lag = math.exp(-dtf / e["sensor_lag"]["tau_s"])
-        y = lfilter([1 - a_lag], [1, -a_lag], y, zi=[a_lag * y[0]])[0]
+        # the continuous first-order lag, exact for input linear between grid points (a
+        # one-pole y = a y + (1 - a) x would delay a ramp by dt a / (1 - a), far less than
+        # tau once tau is below the grid step)
+        tau = e["sensor_lag"]["tau_s"]
+        a_lag = math.exp(-dtf / tau)
+        g = tau / dtf * (1.0 - a_lag)
+        b0, b1 = 1.0 - g, g - a_lag
+        y = lfilter([b0, b1], [1, -a_lag], y, zi=[(b1 + a_lag) * y[0]])[0]
     idx = np.arange(0, n_f, OVERSAMPLE)
     dt = dtf * OVERSAMPLE
     n = idx.size

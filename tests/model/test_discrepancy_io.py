@@ -79,6 +79,37 @@ def test_cli_on_csv_writes_pinned_json_model_and_pdf(tmp_path: Path) -> None:
     assert d2["gap_initial_dps"] <= 1.5 * d2["noise_floor_dps"]
 
 
+def test_run_folder_with_latched_encoder_uses_every_sample_with_its_own_reference(
+    tmp_path: Path,
+) -> None:
+    """Hardware sync: the reference of each sample is the table's mean rate since the
+    previous sample (two latched counts) and its angle at the sample, transitions included;
+    the angle is brought into the table's frame; a sample after a lost frame is left out."""
+    run = generate(Part(), 5, TINY)
+    keep = np.ones(np.asarray(run["time_s"]).size, dtype=bool)
+    keep[1500] = False  # one lost frame
+    cut = {k: (np.asarray(v)[keep] if k != "segments" else v) for k, v in run.items()}
+    cpr = 1 << 20
+    folder = write_run_folder(tmp_path / "run", cut, latched_counts_per_rev=cpr,
+                              encoder_index_offset_deg=123.4)
+    traj = load_data(folder)
+    assert any("hardware sync" in n for n in traj.notes)
+    t = np.asarray(cut["time_s"])
+    angle = np.unwrap(np.asarray(cut["ref_angle_deg"]), period=360.0)
+    used = np.isin(t, traj.time_s)
+    assert not used[0] and not used[1500]  # no previous latch for these two
+    assert used.sum() == t.size - 2  # everything else, transitions too
+    mean_rate = np.diff(angle) / np.diff(t)
+    expect = np.concatenate([[np.nan], mean_rate])[used]
+    assert np.max(np.abs(traj.ref_rate_dps - expect)) <= 2 * (360.0 / cpr) / np.min(np.diff(t))
+    moving = np.abs(np.gradient(np.asarray(cut["ref_rate_dps"]), t)) > 50.0
+    assert (moving & used).sum() > 50  # accelerations carry a reference now
+    # the encoder counts from its index; the table log's frame is recovered at rest
+    off = (traj.ref_angle_deg - angle[used] + 180.0) % 360.0 - 180.0
+    assert np.max(np.abs(off)) < 1e-3
+    assert "transition" not in {s.kind for s in traj.segments}  # between windows, unlabelled
+
+
 def test_run_folder_input_names_the_hidden_effect(tmp_path: Path) -> None:
     run = generate(realistic_part().with_effect("k2_quadratic"), 22, SHORT)
     folder = write_run_folder(tmp_path / "results" / "20260101T000000Z_SYN-0001", run)

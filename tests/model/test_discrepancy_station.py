@@ -3,15 +3,13 @@
 Each case is a part on the bench (drivers/sim, its own physics) with one catalog effect
 enabled at a realistic magnitude; `station run --sim` runs the (shortened) end-of-line
 procedure on eight sockets at once and writes one run folder per part; the workflow must
-name the hidden effect first and bring the gap within 1.5 x the noise floor.
+name the hidden effect first and bring the gap within 1.5 x the noise floor. A third run
+holds parts with no hidden effect, where nothing may be named.
 
-One effect cannot be seen in a run folder of the current engine, and for it the test checks
-that nothing wrong is named instead (see docs/discrepancy.md):
-- sensor_lag: the table is logged only at encoder snapshots, so the reference during
-  transitions (the only place a lag shows) is not in the run folder.
-g_sensitivity_tilt is seen through the procedure's multi-position static step (`positions`:
-static windows at 0/90/180/270 deg of the table at every condition; the stop method no longer
-re-zeroes the encoder, so every angle of the run shares one frame).
+The fixture latches the table's encoder into every sample frame (hardware sync), so every
+sample of the run folder has its own reference, transitions included: that is where a
+sensor lag shows. g_sensitivity_tilt is seen through the procedure's multi-position static
+step and the stop method's fixed table angles (one encoder frame all run long).
 """
 
 from __future__ import annotations
@@ -55,14 +53,18 @@ FIRST = {
     "bias_supply": {"bias_supply_coeff_dps_per_v": 0.05},
     "scale_supply": {"scale_supply_coeff_per_v": 1.0e-3},
 }
-NOT_OBSERVABLE_IN_RUN_FOLDERS = ("sensor_lag",)
 # (serial, start model, effect): base cases on parts whose other terms are zero, first_order
 # cases on population parts (all four first-order terms drawn, non-zero)
 CASES = [
     *[(f"SIM-{4001 + i}", "base", e) for i, e in enumerate([*FIRST, *BEYOND])],
     *[(f"SIM-{4101 + i}", "first_order", e) for i, e in enumerate(BEYOND)],
 ]
-GROUPS = [CASES[:8], CASES[8:16]]
+# parts with nothing hidden: four with the first-order terms zero, four population parts
+CLEAN = [
+    *[(f"SIM-{4201 + i}", "base", "none") for i in range(4)],
+    *[(f"SIM-{4301 + i}", "first_order", "none") for i in range(4)],
+]
+GROUPS = [CASES[:8], CASES[8:16], CLEAN]
 
 
 def _part(serial: str, start: str, effect: str) -> dict[str, object]:
@@ -71,7 +73,7 @@ def _part(serial: str, start: str, effect: str) -> dict[str, object]:
         part.update(ZERO_FIRST_ORDER)
     if effect in FIRST:
         part.update(FIRST[effect])
-    else:
+    elif effect != "none":
         part["effects"] = {effect: BEYOND[effect]}
     return part
 
@@ -105,16 +107,7 @@ def run_folders(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return folders
 
 
-_NOT_OBSERVABLE = pytest.mark.xfail(
-    reason="not observable in run folders of the current engine (the table is logged only at "
-    "encoder snapshots, so transitions carry no reference): a known gap, see docs/discrepancy.md",
-    strict=False,
-)
-PARAMS = [
-    pytest.param(*c, id=f"{c[1]}-{c[2]}",
-                 marks=[_NOT_OBSERVABLE] if c[2] in NOT_OBSERVABLE_IN_RUN_FOLDERS else [])
-    for c in CASES
-]
+PARAMS = [pytest.param(*c, id=f"{c[1]}-{c[2]}") for c in CASES]
 
 
 @pytest.mark.parametrize(("serial", "start", "effect"), PARAMS)
@@ -123,11 +116,22 @@ def test_effect_hidden_in_a_station_run_is_named(run_folders: dict[str, Path], s
     traj = load_data(run_folders[serial], dut=serial)
     model = base_model() if start == "base" else first_order_model()
     res = run_discrepancy(traj, model)
-    if effect in NOT_OBSERVABLE_IN_RUN_FOLDERS:
-        # nothing else may be named in its place
-        assert res.effects_added in ([], [effect]), res.effects_added
-        assert res.gap_final_dps <= 1.5 * res.noise_floor_dps
-        return
     assert res.effects_added, f"nothing named: gap {res.gap_initial_dps}, {res.noise_floor_dps}"
     assert res.effects_added[0] == effect
     assert res.gap_final_dps <= 1.5 * res.noise_floor_dps
+    if effect == "sensor_lag":  # the time constant itself, not just the name
+        tau = res.iterations[0].parameters["tau_s"]
+        assert tau == pytest.approx(BEYOND["sensor_lag"]["tau_s"], rel=0.2)
+
+
+def test_nothing_is_named_on_parts_with_nothing_hidden(run_folders: dict[str, Path]) -> None:
+    named = {}
+    for serial, start, _ in CLEAN:
+        traj = load_data(run_folders[serial], dut=serial)
+        assert any("hardware sync" in n for n in traj.notes)  # transitions are in the data
+        model = base_model() if start == "base" else first_order_model()
+        res = run_discrepancy(traj, model)
+        named[serial] = res.effects_added
+        assert res.gap_final_dps <= 1.5 * res.noise_floor_dps, serial
+    # documented false-alarm rate 5 % per run: one of eight may name something by chance
+    assert sum(bool(v) for v in named.values()) <= 1, named
