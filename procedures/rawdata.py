@@ -117,8 +117,13 @@ class RawDataWriter:
         self._file.flush()
 
     def append(self, group: str, **columns: Any) -> None:
-        """Append rows; every column of the group must be given, all of one length."""
+        """Append rows; every column of the group must be given, all of one length (an
+        optional column left out is written as zeros)."""
         expected = GROUPS[group]
+        optional = {c for g, c in OPTIONAL_COLUMNS if g == group and c not in columns}
+        if optional and columns:
+            rows = len(np.atleast_1d(np.asarray(next(iter(columns.values())))))
+            columns = {**columns, **{c: np.zeros(rows, dtype=expected[c][0]) for c in optional}}
         missing = set(expected) - set(columns)
         extra = set(columns) - set(expected)
         if missing or extra:
