@@ -55,6 +55,7 @@ from procedures.record import (
 from procedures.streams import Acquisition, PartStream
 
 log = logging.getLogger(__name__)
+SUPPLY_SETTLE_S = 0.2  # station seconds after a change of supply setting before reading it
 
 
 class Aborted(Exception):  # noqa: N818 - reads as the event it is
@@ -375,6 +376,7 @@ class RunContext:
         self.log_supply()
         supply.set_voltage(volts)
         supply.check_errors()
+        self.sleep(SUPPLY_SETTLE_S)  # a real supply slews: read it once it has settled
         self.log_supply()
 
     def log_supply(self) -> tuple[float, float]:

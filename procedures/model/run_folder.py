@@ -39,7 +39,19 @@ STATIC_KINDS = ("static", "stabilise", "stop_static", "position_static")
 DENSE_TABLE_S = 0.1
 MIN_LATCHED_FRACTION = 0.9  # below this, the record is read as having no hardware sync
 SUPPLY_STEADY_V = 0.01  # neighbouring supply readings closer than this: supply unchanged
+SUPPLY_MARGIN_S = 0.25  # around a change of supply: station-time estimates are this uncertain
 AT_REST_DPS = 0.01
+MAX_SCALE_MISMATCH = 1e-3  # latched angle vs the table's own position, relative
+SEQ_MODULO = 1 << 16
+# samples the model cannot use: the part's own correction applied, clipped or out of range,
+# temperature sensor invalid, supply below the part's minimum
+UNUSABLE = int(
+    SampleStatus.COMPENSATED
+    | SampleStatus.OVER_RANGE
+    | SampleStatus.SATURATED
+    | SampleStatus.TEMP_INVALID
+    | SampleStatus.SUPPLY_LOW
+)
 
 
 def find_run_folder(path: Path, dut: str | None) -> Path:
@@ -115,6 +127,7 @@ class _Record:
     attrs: dict[str, object]
     t_fix: FloatArray
     t_sta: FloatArray
+    seq: NDArray[np.int64]
     gyro: FloatArray
     temp: FloatArray
     status: NDArray[np.int64]
@@ -128,7 +141,13 @@ class _Record:
 
     @property
     def power_on_s(self) -> float:
-        return float(self.sup_t.min()) if self.sup_t.size else float(self.t_sta[0])
+        return float(self.sup_t.min()) if self.sup_t.size else float(self.t_best[0])
+
+    @property
+    def t_best(self) -> FloatArray:
+        """Station time of each sample from the fixture clock with the smallest offset seen
+        (transport latency only ever adds to it), not the estimate current at ingest."""
+        return self.t_fix + float(np.min(self.t_sta - self.t_fix))
 
 
 def _read(folder: Path, dut: str | None) -> _Record:
@@ -157,6 +176,7 @@ def _read(folder: Path, dut: str | None) -> _Record:
         attrs=raw.attrs,
         t_fix=s["time_s"][idx],
         t_sta=s["station_time_s"][idx],
+        seq=s["seq"][idx].astype(np.int64),
         gyro=s["rate_dps"][idx],
         temp=s["temp_c"][idx],
         status=s["status"][idx].astype(np.int64),
@@ -174,9 +194,13 @@ def load_run_folder(folder: Path, dut: str | None = None) -> Trajectory:
     rec = _read(folder, dut)
     latched = (rec.status & int(SampleStatus.ENCODER_LATCHED)) != 0
     cpr = rec.attrs.get("encoder_counts_per_rev")
-    if latched.mean() >= MIN_LATCHED_FRACTION and isinstance(cpr, int | float) and cpr > 0:
-        return _latched_trajectory(rec, latched, float(cpr))
-    return _windowed_trajectory(rec)
+    if latched.mean() < MIN_LATCHED_FRACTION or not isinstance(cpr, int | float) or cpr <= 0:
+        return _windowed_trajectory(rec)
+    angle = _latched_angle(rec, float(cpr))
+    frame = _table_frame(rec, angle)
+    if isinstance(frame, str):  # the latched counts do not match the table: say why
+        return _windowed_trajectory(rec, (frame,))
+    return _latched_trajectory(rec, latched, angle + frame)
 
 
 def _segment_list(rec: _Record) -> list[tuple[str, int, int, int]]:
@@ -199,27 +223,57 @@ def _segment_list(rec: _Record) -> list[tuple[str, int, int, int]]:
     return out
 
 
-def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], cpr: float) -> Trajectory:
-    n = rec.t_fix.size
+def _latched_angle(rec: _Record, cpr: float) -> FloatArray:
+    """Table angle at each sample from the latched counts (u32 wraps undone), relative to
+    the first sample."""
     step = np.diff(rec.encoder)
     step = (step + ENCODER_MODULO // 2) % ENCODER_MODULO - ENCODER_MODULO // 2
-    counts = np.concatenate([[0], np.cumsum(step)])
-    angle = counts * (360.0 / cpr)
+    return np.concatenate([[0], np.cumsum(step)]) * (360.0 / cpr)
+
+
+def _table_frame(rec: _Record, angle: FloatArray) -> float | str:
+    """Offset from the latched angle to the table's own position frame (zeroed by the
+    station), from the table log rows at rest; or why the two do not agree (wrong counts
+    per revolution, encoder channels swapped)."""
+    rest = np.abs(rec.tab_rate) < AT_REST_DPS
+    if not rest.any():
+        return 0.0
+    j = np.clip(np.searchsorted(rec.t_best, rec.tab_t[rest]), 0, rec.t_best.size - 1)
+    pos, lat = rec.tab_pos[rest], angle[j]
+    if np.ptp(lat) > 30.0:
+        slope = float(np.polyfit(lat, pos, 1)[0])
+        if abs(slope - 1.0) > MAX_SCALE_MISMATCH:
+            return (
+                f"the latched encoder angle does not follow the table's position (slope "
+                f"{slope:.5f}, expected 1): check the fixture's encoder input (counts per "
+                "revolution, A/B channels); transitions are not used"
+            )
+    diff = np.radians(pos - lat)  # circular mean: safe where the offset is near 180 deg
+    return float(np.degrees(np.arctan2(np.mean(np.sin(diff)), np.mean(np.cos(diff)))))
+
+
+def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], angle: FloatArray) -> Trajectory:
+    n = rec.t_fix.size
     dt = np.diff(rec.t_fix)
     period = float(np.median(dt))
-    # mean rate since the previous sample: valid only across one sample period, both latched
-    pair_ok = latched[1:] & latched[:-1] & (dt < 1.5 * period)
+    # mean rate since the previous sample: valid only between consecutive frames (sequence
+    # and fixture time agree) that both carry a latch
+    pair_ok = (
+        latched[1:]
+        & latched[:-1]
+        & (np.diff(rec.seq) % SEQ_MODULO == 1)
+        & (dt > 0.5 * period)
+        & (dt < 1.5 * period)
+    )
     ref_rate = np.zeros(n)
     ref_rate[1:] = np.diff(angle) / dt
     use = np.concatenate([[False], pair_ok])
-    use &= (rec.status & int(SampleStatus.COMPENSATED)) == 0
-    angle = angle + _frame_offset_deg(rec, angle)
+    unusable = (rec.status & UNUSABLE) != 0
+    use &= ~unusable
 
     supply = np.full(n, np.nan)
     segments: list[Segment] = []
-    in_window = np.zeros(n, dtype=bool)
     for kind, a, b, k in _segment_list(rec):
-        in_window[a:b] = True
         if kind == "verify":
             use[a:b] = False
             continue
@@ -232,24 +286,29 @@ def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], cpr: float) ->
     notes = []
     missing = ~np.isfinite(supply)
     if np.any(missing & use):
-        steady_v, steady = _logged_supply(rec)
-        supply[missing] = steady_v[missing]
+        logged_v, steady = _logged_supply(rec)
+        supply[missing] = logged_v[missing]
         dropped = missing & use & ~steady
         use &= ~dropped
         if dropped.any():
             notes.append(
                 f"{int(dropped.sum())} samples between windows left out: the supply changed "
-                "there"
+                "there or is not logged"
             )
     if use.sum() < 100:
         raise ValueError(
             f"{rec.folder}: fewer than 100 samples have a latched table reference; "
             "was the run complete?"
         )
-    lost = int(n - 1 - pair_ok.sum())
+    if unusable.any():
+        notes.append(
+            f"{int(unusable.sum())} samples left out: compensated, clipped, over range, "
+            "temperature invalid or supply low"
+        )
     notes.append(
         "reference from the table encoder latched into every sample (hardware sync): "
-        f"windows and transitions used; {lost} samples without a previous latch left out"
+        f"windows and transitions used; {int(n - 1 - pair_ok.sum())} samples without a "
+        "previous latch left out"
     )
     return Trajectory(
         time_s=rec.t_fix[use],
@@ -258,7 +317,7 @@ def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], cpr: float) ->
         ref_angle_deg=angle[use],
         temp_c=rec.temp[use],
         supply_v=supply[use],
-        time_since_power_on_s=np.maximum(rec.t_sta[use] - rec.power_on_s, 0.0),
+        time_since_power_on_s=np.maximum(rec.t_best[use] - rec.power_on_s, 0.0),
         segments=tuple(segments),
         source=str(rec.folder),
         serial=rec.serial,
@@ -266,34 +325,28 @@ def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], cpr: float) ->
     )
 
 
-def _frame_offset_deg(rec: _Record, angle: FloatArray) -> float:
-    """Offset from the latched counts (from the encoder's index) to the table's own
-    position frame (zeroed by the station): median over table log rows at rest."""
-    rest = np.abs(rec.tab_rate) < AT_REST_DPS
-    if not rest.any():
-        return 0.0
-    j = np.clip(np.searchsorted(rec.t_sta, rec.tab_t[rest]), 0, rec.t_sta.size - 1)
-    diff = (rec.tab_pos[rest] - angle[j] + 180.0) % 360.0 - 180.0
-    return float(np.median(diff))
-
-
 def _logged_supply(rec: _Record) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """Supply at each sample from the supply log, and whether the readings either side
-    agree (the supply did not change in between; the engine logs a reading just before and
-    just after every change of setting). After the last reading the supply is unchanged."""
+    """Supply at each sample from the supply log (NaN before the first reading), and whether
+    it is known there: not between two readings that differ (the engine logs one just
+    before and one just after every change of setting), nor within SUPPLY_MARGIN_S of such
+    a change. After the last reading the supply is unchanged."""
+    t = rec.t_best
     if not rec.sup_t.size:
-        raise ValueError(f"{rec.folder}: no supply voltage in the segments or the supply log")
-    j = np.searchsorted(rec.sup_t, rec.t_sta, side="right")
-    prev = rec.sup_v[np.clip(j - 1, 0, rec.sup_v.size - 1)]
-    nxt = rec.sup_v[np.clip(j, 0, rec.sup_v.size - 1)]
-    steady = (j > 0) & (np.abs(nxt - prev) < SUPPLY_STEADY_V)
-    return prev, steady
+        return np.full(t.size, np.nan), np.zeros(t.size, dtype=bool)
+    j = np.searchsorted(rec.sup_t, t, side="right")
+    value = np.where(j > 0, rec.sup_v[np.clip(j - 1, 0, rec.sup_v.size - 1)], np.nan)
+    known = j > 0
+    changes = np.flatnonzero(np.abs(np.diff(rec.sup_v)) >= SUPPLY_STEADY_V)
+    for i in changes:
+        lo, hi = rec.sup_t[i] - SUPPLY_MARGIN_S, rec.sup_t[i + 1] + SUPPLY_MARGIN_S
+        known[int(np.searchsorted(t, lo)) : int(np.searchsorted(t, hi, side="right"))] = False
+    return value, known
 
 
-def _windowed_trajectory(rec: _Record) -> Trajectory:
+def _windowed_trajectory(rec: _Record, why: tuple[str, ...] = ()) -> Trajectory:
     t_fix, t_sta = rec.t_fix, rec.t_sta
     tab_t, tab_pos, tab_rate = rec.tab_t, rec.tab_pos, rec.tab_rate
-    notes = []
+    notes = list(why)
     if not rec.sup_t.size:
         notes.append("no supply log: time since power-on counted from the first sample")
     use = np.zeros(t_fix.size, dtype=bool)
@@ -338,7 +391,10 @@ def _windowed_trajectory(rec: _Record) -> Trajectory:
         )
     missing_v = ~np.isfinite(supply)
     if np.any(missing_v & use):
+        if not rec.sup_t.size:
+            raise ValueError(f"{rec.folder}: no supply voltage in the segments or the supply log")
         supply[missing_v] = _logged_supply(rec)[0][missing_v]
+        use &= np.isfinite(supply)
     if use.sum() < 100:
         raise ValueError(
             f"{rec.folder}: fewer than 100 samples fall in analysed windows; was the run "

@@ -8,9 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
-from fake_run_folder import write_run_folder
+from fake_run_folder import STATION_OFFSET_S, write_run_folder
 from helpers_model import TINY, as_trajectory
 from synth_gyro import SHORT, Part, generate, realistic_part
 
@@ -79,19 +80,25 @@ def test_cli_on_csv_writes_pinned_json_model_and_pdf(tmp_path: Path) -> None:
     assert d2["gap_initial_dps"] <= 1.5 * d2["noise_floor_dps"]
 
 
+@pytest.mark.parametrize(("table_shift_deg", "index_offset_deg"), [(37.0, 123.4), (0.0, 0.0)])
 def test_run_folder_with_latched_encoder_uses_every_sample_with_its_own_reference(
-    tmp_path: Path,
+    tmp_path: Path, table_shift_deg: float, index_offset_deg: float
 ) -> None:
     """Hardware sync: the reference of each sample is the table's mean rate since the
     previous sample (two latched counts) and its angle at the sample, transitions included;
-    the angle is brought into the table's frame; a sample after a lost frame is left out."""
+    the angle is brought into the table's frame (here 37 deg from where the record starts);
+    a sample after a lost frame is left out. Index offset 0: the u32 counter wraps below 0."""
     run = generate(Part(), 5, TINY)
+    run["ref_angle_deg"] = (np.asarray(run["ref_angle_deg"]) + table_shift_deg) % 360.0
     keep = np.ones(np.asarray(run["time_s"]).size, dtype=bool)
     keep[1500] = False  # one lost frame
     cut = {k: (np.asarray(v)[keep] if k != "segments" else v) for k, v in run.items()}
     cpr = 1 << 20
     folder = write_run_folder(tmp_path / "run", cut, latched_counts_per_rev=cpr,
-                              encoder_index_offset_deg=123.4)
+                              encoder_index_offset_deg=index_offset_deg)
+    if index_offset_deg == 0.0:
+        with h5py.File(folder / "raw.h5", "r") as f:
+            assert f["samples/encoder_counts"][()].max() > (1 << 32) - cpr  # it did wrap
     traj = load_data(folder)
     assert any("hardware sync" in n for n in traj.notes)
     t = np.asarray(cut["time_s"])
@@ -104,10 +111,52 @@ def test_run_folder_with_latched_encoder_uses_every_sample_with_its_own_referenc
     assert np.max(np.abs(traj.ref_rate_dps - expect)) <= 2 * (360.0 / cpr) / np.min(np.diff(t))
     moving = np.abs(np.gradient(np.asarray(cut["ref_rate_dps"]), t)) > 50.0
     assert (moving & used).sum() > 50  # accelerations carry a reference now
-    # the encoder counts from its index; the table log's frame is recovered at rest
     off = (traj.ref_angle_deg - angle[used] + 180.0) % 360.0 - 180.0
     assert np.max(np.abs(off)) < 1e-3
-    assert "transition" not in {s.kind for s in traj.segments}  # between windows, unlabelled
+
+
+def test_latched_run_folder_leaves_out_what_the_model_cannot_use(tmp_path: Path) -> None:
+    """Clipped samples, a stream restart (sequence back to 0) and the moments the supply
+    changed are left out; a latch that does not scale to the table falls back to windows."""
+    run = generate(Part(), 6, TINY)
+    cpr = 1 << 20
+    folder = write_run_folder(tmp_path / "run", run, latched_counts_per_rev=cpr)
+    t = np.asarray(run["time_s"])
+    with h5py.File(folder / "raw.h5", "a") as f:
+        status = f["samples/status"][()]
+        status[2000] |= 1 << 1  # SATURATED
+        status[2100] |= 1 << 3  # TEMP_INVALID
+        f["samples/status"][...] = status
+        seq = f["samples/seq"][()]
+        seq[3000:] = np.arange(seq.size - 3000)  # STOP/START: the sequence restarts at 0
+        f["samples/seq"][...] = seq
+    traj = load_data(folder)
+    used = np.isin(t, traj.time_s)
+    assert not used[2000] and not used[2100] and not used[3000]
+    assert used[1999] and used[2001] and used[3001]
+    assert any("clipped" in n for n in traj.notes)
+    # a supply change logged between two windows (transition 42.3 .. 43.4 s): the engine's
+    # readings just before and after bracket it; its moment +/- 0.25 s is left out
+    gap = (t > 42.35) & (t < 43.35)
+    assert used[gap].all()
+    v0 = float(np.median(np.asarray(run["supply_v"])[gap]))
+    with h5py.File(folder / "raw.h5", "a") as f:
+        g = f["supply"]
+        rows = {"station_time_s": [42.80, 42.81, 43.00, 43.01], "voltage_v": [v0, v0 + 0.1,
+                                                                              v0 + 0.1, v0],
+                "current_a": [0.02] * 4}
+        for name, values in rows.items():
+            ds = g[name]
+            ds.resize((ds.shape[0] + 4,))
+            ds[-4:] = np.asarray(values) + (STATION_OFFSET_S if name == "station_time_s" else 0)
+    used = np.isin(t, load_data(folder).time_s)
+    assert not used[(t > 42.56) & (t < 43.25)].any()
+    assert used[(t > 42.35) & (t < 42.5)].all() and used[(t > 43.27) & (t < 43.35)].all()
+    with h5py.File(folder / "raw.h5", "a") as f:
+        f.attrs["encoder_counts_per_rev"] = 2 * cpr  # the station thinks twice the resolution
+    fallback = load_data(folder)
+    assert any("does not follow the table" in n for n in fallback.notes)
+    assert fallback.n < traj.n  # windows only
 
 
 def test_run_folder_input_names_the_hidden_effect(tmp_path: Path) -> None:
