@@ -8,18 +8,31 @@ binary frames only, so replies and samples share one stream and one parser:
     offset size  field
     0      2     sync 0xA5 0x5A
     2      1     type: 0x01 sample, 0x02 reply
-    3      1     payload length n (17 for a sample, 0..250 for a reply)
+    3      1     payload length n (17 for a sample, 13 from older firmware, 0..250 for a reply)
     4      n     payload
     4+n    4     CRC-32 (zlib/IEEE 802.3) of bytes 2 .. 4+n-1, big-endian
 
 Sample payload (17 bytes, big-endian): seq u16 (wraps), fixture time u32 in microseconds
 (wraps every 2^32 us; the parser unwraps), rate code u24, temperature code u24, status u8,
 encoder u32: the rate table's encoder count latched by the fixture at the sample instant
-(the table's quadrature output wired to the fixture's counter input, counted from the
-encoder's index; raw, wraps). It is valid only when status bit ENCODER_LATCHED is set; a
-fixture without its encoder input connected sends 0 and leaves the bit clear. This hardware
-sync gives every sample its own table reference, so motion between analysed windows (where a
-sensor lag shows) is known sample by sample.
+(the table's quadrature output wired to the fixture's counter input). It is valid only when
+status bit ENCODER_LATCHED is set; a fixture without its encoder input connected sends 0 and
+leaves the bit clear. This hardware sync gives every sample its own table reference, so
+motion between analysed windows (where a sensor lag shows) is known sample by sample.
+
+The fixture's counter is zeroed once, at the encoder's first index pulse after power-up, and
+from then on runs freely: it counts up and down with the table, wraps only at 2^32 (a
+negative count arrives as its two's complement), and is NOT reset at each later index pulse
+(once per table revolution) nor by START or STOP. Counts are therefore continuous across a
+stream restart: the difference of two latches, taken modulo 2^32 as a signed 32-bit
+number, is the table's motion between them, even when they come from different streams
+(only a power cycle of the fixture starts the count again).
+
+Older fixture firmware sends a 13-byte sample payload: the same fields without the encoder.
+The parser accepts both lengths, also mixed in one stream (a firmware update between START
+and STOP), and decodes the encoder of an old frame as 0 (its ENCODER_LATCHED bit is whatever
+the status byte says, normally clear).
+
 Reply payload: printable ASCII (0x20..0x7E), "OK[ data]" or "ERR <code> <text>".
 
 Codes are the ADIS16130's: rate offset binary, 0 deg/s = 8,388,608 counts, 23,488 counts per
@@ -30,7 +43,9 @@ the next sync word from the byte after the bad frame's sync, so it resynchronise
 next intact frame. `frames_lost` counts every missing sequence number (dropped in transit or
 dropped here for a bad CRC); `frames_corrupted` counts the bad-CRC frames among them (a
 frame whose sync, type or length byte is damaged cannot be told from noise: it is counted as
-lost and its bytes as discarded, but not as corrupted).
+lost and its bytes as discarded, but not as corrupted; unless the damaged header still reads
+as a valid one, e.g. a sample length 17 turned into 13, then its CRC fails and it counts as
+corrupted).
 """
 
 from __future__ import annotations
@@ -49,6 +64,8 @@ HEADER_SIZE = 4
 CRC_SIZE = 4
 SAMPLE_PAYLOAD_SIZE = 17
 SAMPLE_FRAME_SIZE = HEADER_SIZE + SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 25
+LEGACY_SAMPLE_PAYLOAD_SIZE = 13  # older fixture firmware: no encoder field
+LEGACY_SAMPLE_FRAME_SIZE = HEADER_SIZE + LEGACY_SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 21
 MAX_REPLY_PAYLOAD = 250
 
 RATE_ZERO_CODE = 8_388_608
@@ -142,26 +159,25 @@ def _make_crc_table() -> NDArray[np.uint32]:
 
 
 _CRC_TABLE = _make_crc_table()
-_CRC_BODY = slice(2, SAMPLE_FRAME_SIZE - CRC_SIZE)  # bytes covered by a sample frame's CRC
 _VECTOR_CRC_MIN_FRAMES = 400  # below this, one zlib call per frame is faster than numpy
 
 
 def _sample_crcs(raw: NDArray[np.uint8]) -> NDArray[np.uint32]:
-    """CRC-32 of every row of `raw` (n x SAMPLE_FRAME_SIZE sample frames), bytes 2..20."""
-    n = raw.shape[0]
+    """CRC-32 of every row of `raw` (n x frame size: sample frames of one layout), computed
+    over each frame's bytes 2 .. frame size - 5 (type, length and payload)."""
+    n, size = raw.shape
+    body_len = size - CRC_SIZE - 2
     if n < _VECTOR_CRC_MIN_FRAMES:
         flat = memoryview(np.ascontiguousarray(raw).tobytes())
-        step = SAMPLE_FRAME_SIZE
-        body_len = SAMPLE_FRAME_SIZE - CRC_SIZE - 2
         crc32 = zlib.crc32
         return np.fromiter(
-            (crc32(flat[i : i + body_len]) for i in range(2, n * step, step)),
+            (crc32(flat[i : i + body_len]) for i in range(2, n * size, size)),
             dtype=np.uint32,
             count=n,
         )
     # table-driven CRC, one byte column at a time for all frames at once
     crc = np.full(n, 0xFFFFFFFF, dtype=np.uint32)
-    for column in raw[:, _CRC_BODY].T:
+    for column in raw[:, 2 : 2 + body_len].T:
         crc = _CRC_TABLE[(crc ^ column) & 0xFF] ^ (crc >> 8)
     return crc ^ np.uint32(0xFFFFFFFF)
 
@@ -183,6 +199,9 @@ _SAMPLE_DTYPE = np.dtype(
     ]
 )
 assert _SAMPLE_DTYPE.itemsize == SAMPLE_FRAME_SIZE
+# the older firmware's frame: the same fields without the encoder
+_LEGACY_SAMPLE_DTYPE = np.dtype([f for f in _SAMPLE_DTYPE.descr if f[0] != "encoder"])
+assert _LEGACY_SAMPLE_DTYPE.itemsize == LEGACY_SAMPLE_FRAME_SIZE
 
 
 def _u24_bytes(values: NDArray[np.int64]) -> NDArray[np.uint8]:
@@ -197,14 +216,23 @@ def encode_samples(
     temp_code: NDArray[np.int64],
     status: NDArray[np.int64],
     encoder: NDArray[np.int64] | None = None,
+    *,
+    legacy: bool = False,
 ) -> bytes:
     """Encode a batch of samples as consecutive sample frames (seq, time and encoder wrap
-    here); without `encoder` the field is 0 (set ENCODER_LATCHED in `status` only with it)."""
+    here); without `encoder` the field is 0 (set ENCODER_LATCHED in `status` only with it).
+
+    `legacy=True` writes the older firmware's 13-byte payload, which has no encoder field
+    (for tests of the parser's backward compatibility).
+    """
+    if legacy and encoder is not None:
+        raise ValueError("the legacy sample frame has no encoder field")
+    dtype = _LEGACY_SAMPLE_DTYPE if legacy else _SAMPLE_DTYPE
     n = len(seq)
-    frames = np.zeros(n, dtype=_SAMPLE_DTYPE)
+    frames = np.zeros(n, dtype=dtype)
     frames["sync"] = 0xA55A
     frames["type"] = FrameType.SAMPLE
-    frames["len"] = SAMPLE_PAYLOAD_SIZE
+    frames["len"] = dtype.itemsize - HEADER_SIZE - CRC_SIZE
     frames["seq"] = np.asarray(seq, dtype=np.int64) % SEQ_MODULO
     frames["t_us"] = np.asarray(time_us, dtype=np.int64) % TIME_MODULO_US
     frames["rate"] = _u24_bytes(rate_code)
@@ -212,7 +240,7 @@ def encode_samples(
     frames["status"] = np.asarray(status, dtype=np.int64) & 0xFF
     if encoder is not None:
         frames["encoder"] = np.asarray(encoder, dtype=np.int64) % ENCODER_MODULO
-    raw = frames.view(np.uint8).reshape(n, SAMPLE_FRAME_SIZE)
+    raw = frames.view(np.uint8).reshape(n, dtype.itemsize)
     frames["crc"] = _sample_crcs(raw)
     return frames.tobytes()
 
@@ -251,6 +279,12 @@ _HALF_TIME_US = TIME_MODULO_US >> 1
 _TYPE_SAMPLE = int(FrameType.SAMPLE)  # plain ints: enum lookups cost per frame
 _TYPE_REPLY = int(FrameType.REPLY)
 _NOT_TEXT = re.compile(rb"[^\x20-\x7e]")
+# sample payload length -> frame layout (plain int keys: looked up with a byte of the buffer)
+_SAMPLE_DTYPES = {
+    SAMPLE_PAYLOAD_SIZE: _SAMPLE_DTYPE,
+    LEGACY_SAMPLE_PAYLOAD_SIZE: _LEGACY_SAMPLE_DTYPE,
+}
+_SAMPLE_PAYLOAD_SIZES = frozenset(_SAMPLE_DTYPES)
 
 
 def _u24(column: NDArray[np.uint8]) -> NDArray[np.int64]:
@@ -265,8 +299,9 @@ class FrameParser:
     discarded, every frame that fails its CRC as corrupted, every gap in the sequence counter
     as lost frames.
 
-    Runs of well-formed sample frames are checked and decoded with numpy in one go; only
-    replies, damaged frames and partial frames take the byte-by-byte path.
+    Runs of well-formed sample frames of one layout (current or older firmware) are checked
+    and decoded with numpy in one go; only replies, damaged frames and partial frames take
+    the byte-by-byte path.
     """
 
     def __init__(self) -> None:
@@ -317,13 +352,14 @@ class FrameParser:
                 break
             run = self._sample_run(buf, start, n)
             if run is not None:
-                runs.append(run)
-                pos = start + run.shape[0] * SAMPLE_FRAME_SIZE
+                frames, size = run
+                runs.append(frames)
+                pos = start + frames.shape[0] * size
                 continue
             ftype = buf[start + 2]
             plen = buf[start + 3]
             end = start + HEADER_SIZE + plen + CRC_SIZE
-            valid_header = (ftype == _TYPE_SAMPLE and plen == SAMPLE_PAYLOAD_SIZE) or (
+            valid_header = (ftype == _TYPE_SAMPLE and plen in _SAMPLE_PAYLOAD_SIZES) or (
                 ftype == _TYPE_REPLY
                 and plen <= MAX_REPLY_PAYLOAD
                 # replies are printable ASCII: a false sync inside sample data announcing a
@@ -388,28 +424,40 @@ class FrameParser:
         )
 
     @staticmethod
-    def _sample_run(buf: bytearray, start: int, n: int) -> NDArray[np.void] | None:
-        """The longest run of intact sample frames at `start` (a copy), or None."""
-        count = (n - start) // SAMPLE_FRAME_SIZE
+    def _sample_run(buf: bytearray, start: int, n: int) -> tuple[NDArray[np.void], int] | None:
+        """The longest run of intact sample frames of one layout at `start` (a copy, in the
+        current layout: an older firmware's frames get encoder 0) and its frame size, or None.
+        """
+        dtype = _SAMPLE_DTYPES.get(buf[start + 3])
+        if dtype is None:
+            return None
+        size = dtype.itemsize
+        count = (n - start) // size
         if count == 0:
             return None
-        chunk = bytes(buf[start : start + count * SAMPLE_FRAME_SIZE])
-        frames = np.frombuffer(chunk, dtype=_SAMPLE_DTYPE)
+        chunk = bytes(buf[start : start + count * size])
+        frames = np.frombuffer(chunk, dtype=dtype)
         header_ok = (
             (frames["sync"] == _SYNC_WORD)
             & (frames["type"] == _TYPE_SAMPLE)
-            & (frames["len"] == SAMPLE_PAYLOAD_SIZE)
+            & (frames["len"] == size - HEADER_SIZE - CRC_SIZE)
         )
         good = count if bool(header_ok.all()) else int(np.argmin(header_ok))
         if good == 0:
             return None
-        raw = np.frombuffer(chunk, dtype=np.uint8, count=good * SAMPLE_FRAME_SIZE)
-        crc_ok = _sample_crcs(raw.reshape(good, SAMPLE_FRAME_SIZE)) == frames["crc"][:good]
+        raw = np.frombuffer(chunk, dtype=np.uint8, count=good * size)
+        crc_ok = _sample_crcs(raw.reshape(good, size)) == frames["crc"][:good]
         if not bool(crc_ok.all()):
             good = int(np.argmin(crc_ok))
             if good == 0:
                 return None
-        return frames[:good]
+        frames = frames[:good]
+        if dtype is not _SAMPLE_DTYPE:
+            current = np.zeros(good, dtype=_SAMPLE_DTYPE)  # encoder 0
+            for name in dtype.names or ():
+                current[name] = frames[name]
+            frames = current
+        return frames, size
 
     def _count_lost(self, seq: NDArray[np.int64]) -> int:
         prev = np.empty_like(seq)
