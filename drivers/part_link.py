@@ -56,8 +56,8 @@ CAL_FIELDS = {
 assert tuple(CAL_FIELDS) == CAL_KEYS
 # The reader pauses between reads so frames arrive in batches (the parser's cost is mostly
 # per call). A pty buffers only about 4 KB, so the pause is sized from the measured byte
-# rate to let no more than _PAUSE_FILL_BYTES pile up: at 100k frames/s (2.1 MB/s) a fixed
-# 5 ms pause would hold the fixture back to about 40k frames/s.
+# rate to let no more than _PAUSE_FILL_BYTES pile up: at 100k frames/s (2.5 MB/s of 25-byte
+# frames) a fixed 5 ms pause would hold the fixture back to about 33k frames/s.
 _PAUSE_FILL_BYTES = 1024
 _RATE_WINDOW_S = 0.05
 

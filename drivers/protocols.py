@@ -190,8 +190,10 @@ class SampleBlock:
     `time_s` is the fixture's timestamp (its own clock, unwrapped), never the station's.
     Lost and corrupted counts are for this block; a gap in `seq` is a lost frame.
     `encoder_counts` is the table's encoder count the fixture latched at each sample (raw,
-    wrapping u32), meaningful where `status` has ENCODER_LATCHED; None from a link that has
-    no encoder input.
+    wrapping u32), meaningful only where `status` has ENCODER_LATCHED: the serial link always
+    fills it, with zeros and the bit clear from a fixture whose encoder input is not connected
+    (or whose older firmware has no encoder field). None only from links and test fakes that
+    do not provide the field at all.
     """
 
     seq: NDArray[np.int64]
