@@ -35,6 +35,10 @@ the status byte says, normally clear).
 
 Reply payload: printable ASCII (0x20..0x7E), "OK[ data]" or "ERR <code> <text>".
 
+On the serial line (10 bits a byte) the sample stream alone needs output rate x 250 baud
+(`sample_stream_baud`): 500 Hz needs 125,000 baud, more than the usual 115,200; the station
+refuses a procedure whose rate the fixture's configured baud cannot carry.
+
 Codes are the ADIS16130's: rate offset binary, 0 deg/s = 8,388,608 counts, 23,488 counts per
 deg/s; temperature 0 C = 8,036,283 counts, 14,093 counts per C.
 
@@ -50,6 +54,7 @@ corrupted).
 
 from __future__ import annotations
 
+import math
 import re
 import struct
 import zlib
@@ -79,6 +84,12 @@ OUTPUT_RATES_HZ = (50, 100, 200, 500, 1000)
 SEQ_MODULO = 1 << 16
 TIME_MODULO_US = 1 << 32
 ENCODER_MODULO = 1 << 32
+UART_BITS_PER_BYTE = 10  # start bit, 8 data bits, stop bit
+
+
+def sample_stream_baud(output_rate_hz: float) -> int:
+    """Baud rate a stream of sample frames needs at `output_rate_hz` (replies not counted)."""
+    return math.ceil(output_rate_hz * SAMPLE_FRAME_SIZE * UART_BITS_PER_BYTE)
 
 
 class FrameType(IntEnum):

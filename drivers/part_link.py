@@ -138,8 +138,12 @@ class SerialPartLink:
         self._thread.start()
 
     @classmethod
-    def open(cls, path: str, clock: Clock, **kwargs: Any) -> SerialPartLink:
-        return cls(open_serial(path, read_timeout_s=0.02), clock, **kwargs)
+    def open(
+        cls, path: str, clock: Clock, *, baudrate: int = 115200, **kwargs: Any
+    ) -> SerialPartLink:
+        """Open the fixture's serial port at `baudrate` (the fixture's configured rate; see
+        `drivers.fixture_protocol.sample_stream_baud` for what an output rate needs)."""
+        return cls(open_serial(path, baudrate=baudrate, read_timeout_s=0.02), clock, **kwargs)
 
     # ------------------------------------------------------------ reader thread
 

@@ -26,6 +26,7 @@ from typing import Any
 
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError
+from drivers.fixture_protocol import OUTPUT_RATES_HZ, SAMPLE_FRAME_SIZE, sample_stream_baud
 from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
 from drivers.rate_table_map import COUNTS_PER_REV
 from procedures.config import (
@@ -133,8 +134,33 @@ def _record(
     )
 
 
-def open_part_link(path: str, clock: ScaledClock, socket: int, silent_after_s: float) -> PartLink:
-    """The fixture driver of one socket (drivers.part_link)."""
+# share of the fixture link's baud the sample stream may take; the rest carries replies
+LINK_BAUD_SHARE = 0.9
+_STANDARD_BAUDS = (19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600)
+
+
+def link_speed_problem(output_rate_hz: int, baud: int) -> str | None:
+    """Why a fixture link at `baud` cannot carry samples at `output_rate_hz`, or None."""
+    needed = sample_stream_baud(output_rate_hz)
+    if needed <= LINK_BAUD_SHARE * baud:
+        return None
+    enough = [b for b in _STANDARD_BAUDS if needed <= LINK_BAUD_SHARE * b]
+    raise_to = f"to {enough[0]:,}" if enough else f"above {needed / LINK_BAUD_SHARE:,.0f}"
+    fits = [r for r in OUTPUT_RATES_HZ if sample_stream_baud(r) <= LINK_BAUD_SHARE * baud]
+    lower_to = f" to {fits[-1]} Hz or less" if fits else ""
+    return (
+        f"an output rate of {output_rate_hz} Hz needs {needed:,} baud for its "
+        f"{SAMPLE_FRAME_SIZE}-byte sample frames, more than {LINK_BAUD_SHARE:.0%} of the "
+        f"fixture's {baud:,} baud (the rest is kept for replies): raise instruments.fixture.baud "
+        f"in station.yaml {raise_to} (the fixtures must be set to the same rate) or lower "
+        f"power.output_rate_hz in the procedure{lower_to}"
+    )
+
+
+def open_part_link(
+    path: str, clock: ScaledClock, socket: int, silent_after_s: float, *, baudrate: int
+) -> PartLink:
+    """The fixture driver of one socket (drivers.part_link), at the fixture's configured baud."""
     from drivers.part_link import SerialPartLink
 
     # frame loss is judged by the engine against the procedure's fraction, not by the driver;
@@ -142,6 +168,7 @@ def open_part_link(path: str, clock: ScaledClock, socket: int, silent_after_s: f
     return SerialPartLink.open(
         path,
         clock,
+        baudrate=baudrate,
         socket=socket,
         silent_after_s=silent_floor_s(silent_after_s, clock),
         loss_limit=None,
@@ -199,7 +226,7 @@ def open_bench(
                     f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
                     "or the bench's sockets); load fewer parts or configure the socket"
                 )
-            link = open_part_link(port, clock, s, silent_after_s)
+            link = open_part_link(port, clock, s, silent_after_s, baudrate=cfg.fixture.baud)
             closers.append(link.close)
             links[s] = link
         return OpenBench(
@@ -265,7 +292,9 @@ class UutRunner:
         return folders
 
     def validate(self, duts: dict[int, str]) -> dict[int, str]:
-        """Check sockets and serials before anything is written; UserError says what to fix."""
+        """Check the link speed, sockets and serials before anything is written or any
+        instrument is touched; UserError says what to fix."""
+        self.check_link_speed()
         if not duts:
             raise UserError("no part given: scan at least one serial (--dut SERIAL)")
         n_sockets = self.settings.settings.instruments.fixture.sockets
@@ -279,6 +308,18 @@ class UutRunner:
         if len(set(clean.values())) != len(clean):
             raise UserError("the same serial was scanned for two sockets; rescan the labels")
         return clean
+
+    def check_link_speed(self) -> None:
+        """The fixture's baud (station.yaml) must carry the procedure's output rate. Checked on
+        the simulated bench too, where a pty has no baud: the procedure must suit the station."""
+        problem = link_speed_problem(
+            self.procedure.power.output_rate_hz, self.settings.settings.instruments.fixture.baud
+        )
+        if problem is not None:
+            raise UserError(
+                f"procedure {self.procedure_path.name} cannot run on this station ("
+                f"{self.settings.source.path}): {problem}"
+            )
 
     def fixture_ports(self) -> dict[int, str]:
         """Socket -> fixture port: the bench's sockets, or station.yaml's."""
@@ -427,7 +468,13 @@ class UutRunner:
                 continue
             link: PartLink | None = None
             try:
-                link = open_part_link(port, clock, sock, self.procedure.stream.silent_timeout_s)
+                link = open_part_link(
+                    port,
+                    clock,
+                    sock,
+                    self.procedure.stream.silent_timeout_s,
+                    baudrate=self.settings.settings.instruments.fixture.baud,
+                )
                 if link.part_present():
                     present.append(sock)
             except (InstrumentError, OSError) as exc:

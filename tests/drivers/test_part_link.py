@@ -68,6 +68,21 @@ def test_commands_are_ascii_lines_and_replies_parse(rig):
     assert fixture.commands == [b"IDN?", b"PRESENT?", b"SN?", b"ODR 200", b"COMP 1", b"STOPANGLE?"]
 
 
+def test_port_opens_at_the_given_baud_rate(rig):
+    _, default = rig()
+    _, fast = rig(baudrate=460_800)
+    assert default._port.baudrate == 115_200
+    assert fast._port.baudrate == 460_800
+    assert fast.identify().model == "FIX-8"  # a pty carries it whatever the rate
+
+
+def test_sample_stream_baud_is_frames_times_ten_bits():
+    assert fp.sample_stream_baud(500) == 500 * 25 * 10 == 125_000  # above 115,200
+    assert [fp.sample_stream_baud(r) for r in fp.OUTPUT_RATES_HZ] == [
+        r * fp.SAMPLE_FRAME_SIZE * fp.UART_BITS_PER_BYTE for r in fp.OUTPUT_RATES_HZ
+    ]
+
+
 def test_unsupported_rate_is_refused_locally_and_by_the_fixture(rig):
     fixture, link = rig(reply_timeout_s=0.5)
     with pytest.raises(ValueError, match="not one of"):
