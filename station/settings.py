@@ -47,7 +47,12 @@ class FixtureSettings(_Strict):
     ports: dict[int, str] = Field(
         default_factory=dict, description="socket number -> serial port of its microcontroller"
     )
-    baud: int = Field(115200, gt=0)
+    baud: int = Field(
+        115200,
+        gt=0,
+        description="serial baud rate of every socket; must carry the procedure's output rate "
+        "(25-byte frames, 10 bits a byte: 200 Hz needs 50,000, 500 Hz needs 230,400)",
+    )
     calibration_due: dt.date | None = Field(None, description="stop-angle calibration expiry")
 
     @field_validator("ports")
