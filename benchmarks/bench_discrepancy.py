@@ -46,6 +46,7 @@ from procedures.model.blocks import make_blocks  # noqa: E402
 from procedures.model.discrepancy import measure_record_noise, run_discrepancy  # noqa: E402
 from procedures.model.fit import Fitter  # noqa: E402
 from procedures.model.gyro_model import GyroModel, base_model, first_order_model  # noqa: E402
+from procedures.model.trajectory import Trajectory  # noqa: E402
 
 # the parameter scanned per effect (its "magnitude")
 MAGNITUDE_PARAM = {
@@ -77,7 +78,13 @@ def five_sigma_magnitude(effect: str, seed: int, profile: Profile) -> float:
     """Magnitude whose signature, after projecting out the starting model, is 5 sigma."""
     _, start = make_part(effect, nominal(effect))
     part = Part() if effect in FIRST_ORDER_EFFECTS else realistic_part()  # effect absent
-    traj = as_trajectory(generate(part, seed, profile))
+    return five_sigma_on(as_trajectory(generate(part, seed, profile)), effect, start)
+
+
+def five_sigma_on(traj: Trajectory, effect: str, start: GyroModel) -> float:
+    """Magnitude of `effect` whose signature on `traj`, after projecting out the starting
+    model, has chi^2 = 25 on the record's noise (measured as the workflow measures it); the
+    signature is taken at the realistic magnitude and scaled linearly."""
     blocks = make_blocks(traj)
     fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, start))
     m0 = nominal(effect)
