@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import math
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -218,7 +218,14 @@ def _run(
         tests, not_identifiable = test_candidates(fitter, current, alpha)
     for _ in range(max_iterations):
         tests, not_identifiable = test_candidates(fitter, current, alpha)
-        significant = [c for c in tests if c.significant]
+        # an effect is named only if it also shrinks the gap: a significant drop of the
+        # whitened chi^2 that makes the disagreement larger explains nothing of it
+        gap_now = gap_dps(current.residual_dps, blocks.duration_s)
+        significant = [
+            c for c in tests
+            if c.significant and c.fit is not None
+            and gap_dps(c.fit.residual_dps, blocks.duration_s) < gap_now
+        ]
         if not significant:
             break
         best = significant[0]
@@ -336,16 +343,17 @@ def measure_record_noise(traj: Trajectory, blocks: Blocks, model: GyroModel) -> 
     # to first order for a lag much shorter than the rate changes): low-passing the whole
     # design upsets the restricted likelihood, and leaving the lag out would let its
     # signature in the transitions be taken for bias wander
+    # (also when the starting model holds a lag: its profiled tau would low-pass the design)
+    full = replace(full, effects={e: p for e, p in full.effects.items() if e != "sensor_lag"})
     for e in fx.CATALOG:
         if e not in full.effects and e != "sensor_lag":
             full = full.with_effect(e, zero_params(e))
     fitter = Fitter(traj, blocks, allan)
     full_fit = fitter.fit(full)
     design = fitter.design(full_fit.model)
-    if "sensor_lag" not in full.effects:
-        accel = blocks.mean(_rate_change_dps2(traj))
-        if np.any(accel != 0):
-            design = np.column_stack([design, -accel])
+    accel = blocks.mean(_rate_change_dps2(traj))
+    if np.any(accel != 0):
+        design = np.column_stack([design, -accel])
     noise = estimate_slow_noise(allan, blocks, design, fitter.y_block)
     log.info("slow noise (REML, full model): F %.3g deg/s, K %.3g deg/s/sqrt(s)",
              noise.floor_dps, noise.rrw_dps_per_rt_s)

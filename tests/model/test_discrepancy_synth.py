@@ -81,3 +81,19 @@ def test_no_hidden_effect_false_alarms_within_documented_rate() -> None:
         if res.effects_added or res.not_separable:
             alarms.append(seed)
     assert len(alarms) <= DOCUMENTED_FALSE_ALARM_RATE * 50 + 0.5, alarms
+
+
+def test_a_reused_extended_model_on_a_part_without_its_effect_adds_nothing() -> None:
+    """docs step 4: a model extended on one part (here with a 5 ms lag) is fed back on
+    another part that has no lag: the lag fits to ~0 instead of sticking at a bound, the
+    noise floor is the one the plain first-order model measures, and nothing is named."""
+    part = realistic_part()
+    for seed in (31, 32, 33):
+        traj = as_trajectory(generate(part, seed, SHORT))
+        plain = run_discrepancy(traj, first_order_model())
+        extended = first_order_model().with_effect("sensor_lag", {"tau_s": 0.005})
+        reused = run_discrepancy(traj, extended)
+        assert reused.effects_added == plain.effects_added == [], seed
+        assert reused.noise_floor_dps == pytest.approx(plain.noise_floor_dps, rel=0.1)
+        assert reused.final_model.effects["sensor_lag"]["tau_s"] < 1e-4
+        assert reused.gap_final_dps == pytest.approx(plain.gap_final_dps, rel=0.05)
