@@ -2,25 +2,57 @@
 
 CSV (pinned columns): time_s, gyro_dps, ref_rate_dps, ref_angle_deg, temp_c, supply_v;
 extra columns are allowed. An optional `segment_kind` column names each row's window
-(static, plateau, stop_move, ...); without it the windows are inferred from the reference
-rate. `time_s` counts from power-on. Run folders are read by run_folder.py.
+(static, plateau, stop_move, ...; trajectory.SEGMENT_KINDS, empty = transition); without it
+the windows are inferred from the reference rate. `time_s` counts from power-on. Run
+folders are read by run_folder.py.
+
+Spreadsheet exports are read as they come: UTF-8 with or without a byte-order mark, fields
+separated by ',', ';' or tab (whichever splits the header into the pinned columns; an Excel
+`sep=;` first line is honoured), and in a ';' or tab file a decimal comma (1,5). Every value
+must be a finite number: a `nan` or `inf` is refused with its line and column.
 """
 
 from __future__ import annotations
 
 import csv
+import difflib
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
-from procedures.model.trajectory import FloatArray, Segment, Trajectory
+from procedures.model.trajectory import SEGMENT_KINDS, FloatArray, Segment, Trajectory
 
 CSV_COLUMNS = ("time_s", "gyro_dps", "ref_rate_dps", "ref_angle_deg", "temp_c", "supply_v")
 STILL_RATE_DPS = 0.05
 STEADY_ACCEL_DPS2 = 2.0
 MIN_STEADY_S = 1.0
 STOP_MOVE_MIN_DEG = 5.0
+# The scale factor is fitted against changes of the reference rate: a record whose reference
+# rate spans less than this (static only, or one constant rate) cannot be analysed.
+MIN_RATE_SPAN_DPS = 1.0
+DELIMITERS = (",", ";", "\t")
+DELIMITER_NAMES = {",": "','", ";": "';'", "\t": "tab"}
+
+
+def check_rate_varies(ref_rate_dps: FloatArray, source: str = "") -> None:
+    """ValueError unless the reference rate changes enough to fit the scale factor apart
+    from the bias (every analysis of a Trajectory needs that)."""
+    rate = np.asarray(ref_rate_dps, dtype=float)
+    rate = rate[np.isfinite(rate)]
+    if rate.size == 0:
+        return  # the Trajectory refuses non-finite columns itself
+    span = float(np.max(rate) - np.min(rate))
+    if span < MIN_RATE_SPAN_DPS:
+        level = float(np.median(rate))
+        raise ValueError(
+            f"{source or 'data'}: the reference rate never changes (ref_rate_dps stays at "
+            f"{level:.3g} deg/s, span {span:.3g} < {MIN_RATE_SPAN_DPS:g} deg/s): the scale "
+            "factor cannot be fitted apart from the bias; the data needs rate plateaus or "
+            "table moves (static-only records cannot be analysed)"
+        )
 
 
 def trajectory_from_columns(
@@ -43,27 +75,43 @@ def trajectory_from_columns(
     if np.any(order != np.arange(order.size)):
         arr = {c: v[order] for c, v in arr.items()}
         kinds = [kinds[i] for i in order] if kinds is not None else None
+    check_rate_varies(arr["ref_rate_dps"], source)
     t = arr["time_s"]
-    if segments is None:
-        segments = segments_from_kinds(t, kinds) if kinds is not None else infer_segments(
-            t, arr["ref_rate_dps"], arr["ref_angle_deg"]
+    same = np.flatnonzero(np.diff(t) == 0)
+    if same.size:
+        raise ValueError(
+            f"{source or 'data'}: time_s {t[same[0]]:g} appears in more than one row; every "
+            "sample needs its own time"
         )
-    return Trajectory(
-        time_s=t,
-        gyro_dps=arr["gyro_dps"],
-        ref_rate_dps=arr["ref_rate_dps"],
-        ref_angle_deg=arr["ref_angle_deg"],
-        temp_c=arr["temp_c"],
-        supply_v=arr["supply_v"],
-        time_since_power_on_s=t if time_since_power_on_s is None else time_since_power_on_s,
-        segments=tuple(segments),
-        source=source,
-        serial=serial,
-    )
+    try:
+        if segments is None:
+            segments = segments_from_kinds(t, kinds) if kinds is not None else infer_segments(
+                t, arr["ref_rate_dps"], arr["ref_angle_deg"]
+            )
+        return Trajectory(
+            time_s=t,
+            gyro_dps=arr["gyro_dps"],
+            ref_rate_dps=arr["ref_rate_dps"],
+            ref_angle_deg=arr["ref_angle_deg"],
+            temp_c=arr["temp_c"],
+            supply_v=arr["supply_v"],
+            time_since_power_on_s=t if time_since_power_on_s is None else time_since_power_on_s,
+            segments=tuple(segments),
+            source=source,
+            serial=serial,
+        )
+    except ValueError as exc:
+        raise ValueError(f"{source or 'data'}: {exc}") from exc
 
 
 def segments_from_kinds(time_s: FloatArray, kinds: Sequence[str]) -> list[Segment]:
-    """Runs of equal `segment_kind` labels become segments."""
+    """Runs of equal `segment_kind` labels become segments (an empty label: transition)."""
+    unknown = sorted({str(k).strip() for k in kinds} - {"", *SEGMENT_KINDS})
+    if unknown:
+        raise ValueError(
+            f"segment_kind {unknown} unknown; allowed: {', '.join(SEGMENT_KINDS)} "
+            "or empty (transition)"
+        )
     step = float(np.median(np.diff(time_s)))
     out: list[Segment] = []
     start = 0
@@ -112,36 +160,118 @@ def infer_segments(
     return [Segment(k, float(time_s[a]), float(time_s[b - 1]) + step) for k, a, b in segs]
 
 
+def _header_delimiter(line: str) -> str:
+    """The delimiter that splits the header into the most pinned columns (',' on a tie)."""
+
+    def found(d: str) -> int:
+        names = {f.strip() for f in next(csv.reader([line], delimiter=d), [])}
+        return len(names & set(CSV_COLUMNS))
+
+    return max(DELIMITERS, key=found)
+
+
+def _number(text: str | None, decimal_comma: bool) -> float:
+    """float() of a CSV field; ValueError if it is not a number."""
+    if text is None:
+        raise ValueError("missing")
+    text = text.strip()
+    if decimal_comma and "," in text and "." not in text:
+        text = text.replace(",", ".")
+    return float(text)
+
+
 def load_csv(path: Path) -> Trajectory:
-    """Read a discrepancy CSV; ValueError says which column or row is wrong."""
+    """Read a discrepancy CSV; ValueError says which file, line and column is wrong."""
     if not path.exists():
         raise ValueError(f"{path}: file not found")
-    with path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        if reader.fieldnames is None:
-            raise ValueError(f"{path}: empty file; expected a header {', '.join(CSV_COLUMNS)}")
-        fields = [f.strip() for f in reader.fieldnames]
-        missing = [c for c in CSV_COLUMNS if c not in fields]
-        if missing:
-            raise ValueError(
-                f"{path}: columns {missing} are missing; the header must hold "
-                f"{', '.join(CSV_COLUMNS)} (extra columns are allowed)"
-            )
-        values: dict[str, list[float]] = {c: [] for c in CSV_COLUMNS}
-        kinds: list[str] | None = [] if "segment_kind" in fields else None
-        for lineno, row in enumerate(reader, start=2):
-            row = {k.strip(): v for k, v in row.items() if k is not None}
-            for c in CSV_COLUMNS:
-                try:
-                    values[c].append(float(row[c]))
-                except (TypeError, ValueError):
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            return _read_csv(path, fh)
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{path}: not UTF-8 text (byte {exc.start}); save it as 'CSV UTF-8' from the "
+            "spreadsheet"
+        ) from None
+
+
+def _read_csv(path: Path, fh: TextIO) -> Trajectory:
+    first = fh.readline()
+    header_line = 1
+    delimiter = None
+    if first.strip().lower().startswith("sep=") and len(first.strip()) == 5:  # Excel hint
+        delimiter = first.strip()[4]
+        first = fh.readline()
+        header_line = 2
+    if not first.strip():
+        raise ValueError(f"{path}: empty file; expected a header {', '.join(CSV_COLUMNS)}")
+    delimiter = delimiter or _header_delimiter(first)
+    fields = [f.strip() for f in next(csv.reader([first], delimiter=delimiter), [])]
+    missing = [c for c in CSV_COLUMNS if c not in fields]
+    if missing:
+        raise ValueError(
+            f"{path}: line {header_line}: columns {missing} are missing; the header must hold "
+            f"{', '.join(CSV_COLUMNS)} (extra columns are allowed), separated by ',', ';' or tab"
+        )
+    twice = [c for c in (*CSV_COLUMNS, "segment_kind") if fields.count(c) > 1]
+    if twice:
+        raise ValueError(
+            f"{path}: line {header_line}: columns {twice} appear more than once; keep one each"
+        )
+    index = {c: fields.index(c) for c in CSV_COLUMNS}
+    kind_col = fields.index("segment_kind") if "segment_kind" in fields else None
+    decimal_comma = delimiter != ","
+    allowed_kinds = {"", *SEGMENT_KINDS}
+    values: dict[str, list[float]] = {c: [] for c in CSV_COLUMNS}
+    kinds: list[str] | None = [] if kind_col is not None else None
+    lines: list[int] = []
+    reader = csv.reader(fh, delimiter=delimiter)
+    for row in reader:
+        lineno = header_line + reader.line_num
+        if not any(f.strip() for f in row):
+            continue  # blank line, or a spreadsheet's empty row
+        for c, i in index.items():
+            text = row[i] if i < len(row) else None
+            try:
+                value = _number(text, decimal_comma)
+            except ValueError:
+                if text is None:
                     raise ValueError(
-                        f"{path}: line {lineno}: column {c} is {row.get(c)!r}, not a number"
+                        f"{path}: line {lineno}: column {c} is missing (the row has "
+                        f"{len(row)} fields, the header {len(fields)}); complete or remove "
+                        "the row"
                     ) from None
-            if kinds is not None:
-                kinds.append(row.get("segment_kind") or "")
+                raise ValueError(
+                    f"{path}: line {lineno}: column {c} is {text!r}, not a number"
+                ) from None
+            if not math.isfinite(value):
+                raise ValueError(
+                    f"{path}: line {lineno}: column {c} is {text!r}, not a finite number; "
+                    "remove the row or give the measured value"
+                )
+            values[c].append(value)
+        lines.append(lineno)
+        if kinds is not None and kind_col is not None:
+            kind = row[kind_col].strip() if kind_col < len(row) else ""
+            if kind not in allowed_kinds:
+                close = difflib.get_close_matches(kind, SEGMENT_KINDS, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ValueError(
+                    f"{path}: line {lineno}: column segment_kind is {kind!r}, not a window "
+                    f"kind{hint}; allowed: {', '.join(SEGMENT_KINDS)}, or empty for a "
+                    "transition"
+                )
+            kinds.append(kind)
     if len(values["time_s"]) < 10:
         raise ValueError(f"{path}: only {len(values['time_s'])} rows; a whole run is needed")
+    t = np.asarray(values["time_s"])
+    order = np.argsort(t, kind="stable")
+    same = np.flatnonzero(np.diff(t[order]) == 0)
+    if same.size:
+        a, b = sorted((lines[order[same[0]]], lines[order[same[0] + 1]]))
+        raise ValueError(
+            f"{path}: line {b}: column time_s is {t[order[same[0]]]:g}, the same as on line "
+            f"{a}; every row needs its own time (remove the repeated row)"
+        )
     return trajectory_from_columns(values, kinds=kinds, source=str(path))
 
 
