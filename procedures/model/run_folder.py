@@ -54,11 +54,31 @@ UNUSABLE = int(
 )
 
 
-def find_run_folder(path: Path, dut: str | None) -> Path:
-    """The run folder itself, or the newest run folder of `dut` under a results folder."""
+@dataclass(frozen=True)
+class RunFolderChoice:
+    """The run folder the data is read from, and how it was picked under a results folder."""
+
+    folder: Path
+    serial: str | None = None  # the part asked for (--dut), if any
+    candidates: int = 1  # run folders of that part (or in total) found there
+
+    @property
+    def note(self) -> str | None:
+        """Which of several run folders of the part was used, or None if there was one."""
+        if self.candidates <= 1:
+            return None
+        return (
+            f"{self.candidates} run folders for {self.serial}; the newest, "
+            f"{self.folder.name}, was used"
+        )
+
+
+def find_run_folder(path: Path, dut: str | None) -> RunFolderChoice:
+    """The run folder itself, or the newest run folder of `dut` under a results folder
+    (newest = last by folder name: run folder names start with their UTC start time)."""
     if (path / RECORD_FILE).exists():
-        return path
-    candidates = sorted(p.parent for p in path.glob(f"*/{RECORD_FILE}"))
+        return RunFolderChoice(path, dut)
+    candidates = sorted((p.parent for p in path.glob(f"*/{RECORD_FILE}")), key=lambda p: p.name)
     if dut:
         candidates = [c for c in candidates if _serial(c) == dut]
     if not candidates:
@@ -72,7 +92,7 @@ def find_run_folder(path: Path, dut: str | None) -> Path:
             f"{path}: holds {len(candidates)} run folders; pick one with --dut SERIAL "
             "or give the run folder itself"
         )
-    return candidates[-1]
+    return RunFolderChoice(candidates[-1], dut, len(candidates))
 
 
 def _serial(folder: Path) -> str | None:
@@ -90,7 +110,7 @@ def load_data(path: Path, dut: str | None = None) -> Trajectory:
         return load_csv(path)
     if not path.exists():
         raise ValueError(f"{path}: no such file or folder")
-    return load_run_folder(find_run_folder(path, dut), dut)
+    return load_run_folder(find_run_folder(path, dut).folder, dut)
 
 
 def _static_angle(
@@ -291,9 +311,10 @@ def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], angle: FloatAr
         dropped = missing & use & ~steady
         use &= ~dropped
         if dropped.any():
+            k = int(dropped.sum())
             notes.append(
-                f"{int(dropped.sum())} samples between windows left out: the supply changed "
-                "there or is not logged"
+                f"{k} sample{'s' if k != 1 else ''} between windows left out: the supply "
+                "changed there or is not logged"
             )
     if use.sum() < 100:
         raise ValueError(
@@ -301,14 +322,16 @@ def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], angle: FloatAr
             "was the run complete?"
         )
     if unusable.any():
+        k = int(unusable.sum())
         notes.append(
-            f"{int(unusable.sum())} samples left out: compensated, clipped, over range, "
+            f"{k} sample{'s' if k != 1 else ''} left out: compensated, clipped, over range, "
             "temperature invalid or supply low"
         )
+    k = int(n - pair_ok.sum())  # the record's first sample has no previous latch either
     notes.append(
         "reference from the table encoder latched into every sample (hardware sync): "
-        f"windows and transitions used; {int(n - 1 - pair_ok.sum())} samples without a "
-        "previous latch left out"
+        f"windows and transitions used; {k} sample{'s' if k != 1 else ''} without a "
+        "previous latch left out (the first sample, and any after a lost frame)"
     )
     return Trajectory(
         time_s=rec.t_fix[use],
@@ -387,7 +410,9 @@ def _windowed_trajectory(rec: _Record, why: tuple[str, ...] = ()) -> Trajectory:
                                 str(rec.segs["condition"][k])))
     if skipped_moves:
         notes.append(
-            f"{skipped_moves} stop moves left out: the table log is too sparse to follow them"
+            f"{skipped_moves} stop move{'s' if skipped_moves != 1 else ''} left out: the "
+            "table log is too sparse to follow "
+            + ("them" if skipped_moves != 1 else "it")
         )
     missing_v = ~np.isfinite(supply)
     if np.any(missing_v & use):
