@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
+from xml.sax.saxutils import escape
 
 import numpy as np
 from reportlab.lib import colors
@@ -15,7 +16,7 @@ from reportlab.platypus import Paragraph, SimpleDocTemplate, Spacer, Table, Tabl
 
 from procedures.model.discrepancy import DiscrepancyResult, Iteration
 from procedures.model.residuals import BinSummary
-from reports.charts import PALETTE, Chart
+from reports.charts import PALETTE, Chart, nice_ticks
 from reports.styles import BODY, CELL, HEADER_GREY, NOTE
 
 H1 = BODY.clone("h1", fontSize=14, leading=17, fontName="Helvetica-Bold")
@@ -60,12 +61,22 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
 
+def step_axis_range(n_steps: int) -> tuple[float, float]:
+    """x range for steps 0..n_steps on which the chart's round ticks are whole steps: the
+    range is widened past the last step until nice_ticks spaces them 1, 2, 5, ... apart
+    (a range under 2.5 steps wide, or 10.5 to 12.5, would give 0.5 or 2.5 spacing)."""
+    lo, hi = -0.5, n_steps + 0.5
+    while not all(float(t).is_integer() for t in nice_ticks(lo, hi)):
+        hi += 0.5
+    return lo, hi
+
+
 def _gap_chart(res: DiscrepancyResult) -> Any:
     steps = np.arange(len(res.iterations) + 1, dtype=float)
     vals = [res.gap_initial_dps, *[it.gap_after_dps for it in res.iterations]]
     ch = Chart(WIDTH, 150, title="Gap at each step against the noise floor",
                x_label="step (0 = starting model; names in the table)", y_label="deg/s",
-               log_y=True, x_range=(-0.5, len(res.iterations) + 0.5))
+               log_y=True, x_range=step_axis_range(len(res.iterations)))
     ch.hline(res.noise_floor_dps, color=PALETTE[2], label="noise floor")
     ch.hline(1.5 * res.noise_floor_dps, label="1.5 x floor")
     ch.line(steps, vals, color=PALETTE[0], label="gap")
@@ -159,7 +170,7 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
     n = res.noise
     story: list[Any] = [
         Paragraph("Model-discrepancy report", H1),
-        Paragraph(f"Data: {title_data}", BODY),
+        Paragraph(f"Data: {escape(title_data)}", BODY),
         Paragraph(
             f"Starting model: <b>{res.initial_model.name}</b>. Final model: "
             f"<b>{res.final_model.name}</b>. Effects added: "
@@ -188,7 +199,7 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
             f"Not identifiable from this data (no independent signature): "
             f"{', '.join(res.not_identifiable)}.", BODY))
     for note in res.notes:
-        story.append(Paragraph(f"Note: {note}", NOTE))
+        story.append(Paragraph(f"Note: {escape(note)}", NOTE))
     story += [Spacer(1, 4), _gap_chart(res), _gap_table(res), Spacer(1, 4),
               _allan_chart(res)]
     story.append(_residual_chart(res, res.blocks.center_s, "time (s)",
