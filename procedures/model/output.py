@@ -1,4 +1,5 @@
-"""The discrepancy result as the pinned JSON (DESIGN.md), plus added detail keys."""
+"""The discrepancy result as the pinned JSON (keys listed in docs/discrepancy.md), plus added
+detail keys."""
 
 from __future__ import annotations
 
