@@ -1,5 +1,5 @@
-"""What a new user feeds `station discrepancy`: spreadsheet CSV exports, bad values and
-static-only records are read or refused with file, line, field and what to do."""
+"""What a new user feeds `station discrepancy`: spreadsheet CSV exports, bad values, static-only
+records and model YAML mistakes are read or refused with file, line, field and what to do."""
 
 from __future__ import annotations
 
@@ -14,7 +14,10 @@ import pytest
 from helpers_model import TINY, as_trajectory
 from synth_gyro import Part, generate
 
+from procedures.model import effects as fx
 from procedures.model.data import load_csv, trajectory_from_columns, write_csv
+from procedures.model.gyro_model import first_order_model
+from procedures.model.model_io import load_model, save_model
 from procedures.model.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -214,3 +217,106 @@ def test_static_only_record_through_the_command(tmp_path: Path, run: Trajectory)
     for model in ("base", "first_order"):
         _refused(_station(str(p), "--model", model, "--out", str(tmp_path / "o")),
                  "staticonly.csv: the reference rate never changes")
+
+
+# ---------------------------------------------------------------- model YAML
+
+
+def _model(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "model.yaml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def _model_error(path: Path) -> str:
+    with pytest.raises(ValueError) as err:
+        load_model(path)
+    msg = str(err.value)
+    assert "pydantic.dev" not in msg and "<unicode string>" not in msg
+    return msg
+
+
+def test_model_type_error_names_file_line_and_field(tmp_path: Path) -> None:
+    p = _model(tmp_path, "name: mine\nbias_dps: 8.6\nscale: one\n")
+    msg = _model_error(p)
+    assert msg.startswith(f"{p}:3: field scale: Input should be a valid number")
+    assert "\n" not in msg
+    p = _model(tmp_path, "scale: 1.0\neffects:\n  k2_quadratic:\n    k2_per_dps: [1]\n")
+    assert _model_error(p).startswith(f"{p}:4: field effects.k2_quadratic.k2_per_dps: ")
+    p = _model(tmp_path, "scale: 1.0\nscale: 2.0\n")
+    assert _model_error(p) == f"{p}:2: field 'scale' appears twice (first on line 1); keep only one"
+
+
+def test_model_type_error_through_the_command(tmp_path: Path, run: Trajectory) -> None:
+    p = _model(tmp_path, "bias_dps: 8.6\nscale: one\n")
+    data = write_csv(tmp_path / "run.csv", run)
+    _refused(_station(str(data), "--model", str(p)), f"{p}:2: field scale:")
+
+
+@pytest.mark.parametrize(
+    ("effect", "param", "value", "allowed"),
+    [
+        ("sensor_lag", "tau_s", "0", "allowed from"),
+        ("sensor_lag", "tau_s", "-0.004", "allowed from"),
+        ("warmup_drift", "tau_s", "0.0", "allowed from 5 to 3000 s"),
+        ("warmup_drift", "tau_s", "-300", "allowed from 5 to 3000 s"),
+        ("g_sensitivity_tilt", "tilt_deg", "0", "above 0 and below 180 deg"),
+        ("scale_asymmetry", "asymmetry", "2.5", "above -2 and below 2"),
+        ("k2_quadratic", "k2_per_dps", ".nan", "finite number"),
+        ("bias_temperature", "bias_temp_coeff_dps_per_c", "-.inf", "finite number"),
+    ],
+)
+def test_bad_effect_parameter_is_refused_with_field_and_allowed_range(
+    tmp_path: Path, effect: str, param: str, value: str, allowed: str
+) -> None:
+    p = _model(tmp_path, f"scale: 1.02\neffects:\n  {effect}:\n    {param}: {value}\n")
+    msg = _model_error(p)
+    assert msg.startswith(f"{p}:4: field effects.{effect}.{param}: "), msg
+    assert allowed in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "field", "says"),
+    [
+        ("bias_dps: 8.6\n", 1, "scale", "required field is missing"),
+        ("bias_dps: 8.6\nscale: 0\n", 2, "scale", "0 is not allowed"),
+        ("bias_dps: .nan\nscale: 1\n", 1, "bias_dps", "finite number"),
+        ("scale: .inf\n", 1, "scale", "finite number"),
+        ("scale: 1\nreference_temperature_c: 20\n", 2, "reference_temperature_c", "25"),
+        ("scale: 1\nuncertainties: {bias_dps: -1}\n", 2, "uncertainties.bias_dps",
+         "greater than or equal to 0"),
+        ("scale: 1\neffects:\n  k2_quadratic: {k2: 1}\n", 3, "effects.k2_quadratic.k2",
+         "takes k2_per_dps"),
+        ("scale: 1\neffects:\n  k4_quartic: {}\n", 3, "effects.k4_quartic",
+         "unknown effect 'k4_quartic'"),
+    ],
+)
+def test_bad_model_value_is_refused_with_line_and_field(
+    tmp_path: Path, text: str, line: int, field: str, says: str
+) -> None:
+    p = _model(tmp_path, text)
+    msg = _model_error(p)
+    assert msg.startswith(f"{p}:{line}: field {field}: "), msg
+    assert says in msg and "\n" not in msg
+
+
+def test_every_problem_of_a_model_is_listed_in_file_order(tmp_path: Path) -> None:
+    p = _model(tmp_path, "bias_dps: 8.6\neffects:\n  sensor_lag: {tau_s: 0}\n"
+                         "  k2_quadratic: {k2_per_dps: .nan}\nscale: 0\n")
+    lines = _model_error(p).splitlines()
+    assert [m.split(": field ")[0] for m in lines] == [f"{p}:3", f"{p}:4", f"{p}:5"]
+
+
+def test_saved_models_still_load_with_taus_on_the_profiled_bounds(tmp_path: Path) -> None:
+    lo = fx.TAU_RANGE_S["sensor_lag"][0]
+    hi = fx.TAU_RANGE_S["warmup_drift"][1]
+    m = (first_order_model()
+         .with_effect("sensor_lag", {"tau_s": lo * (1 - 1e-12)})
+         .with_effect("warmup_drift", {"amplitude_dps": 0.1, "tau_s": hi}))
+    m = type(m)(**{**m.__dict__, "uncertainties": {"bias_dps": 1e-3,
+                                                   "warmup_drift.tau_s": float("inf")}})
+    back = load_model(save_model(m, tmp_path / "m.yaml"))
+    assert back.effects == m.effects and back.uncertainties == m.uncertainties
+    # parameters left out start at their defaults
+    p = _model(tmp_path, "scale: 1.0\neffects: {warmup_drift: {amplitude_dps: 0.2}}\n")
+    assert load_model(p).effects["warmup_drift"] == {"amplitude_dps": 0.2, "tau_s": 300.0}
