@@ -23,6 +23,7 @@ from scipy import stats
 
 from procedures.model import effects as fx
 from procedures.model.blocks import Blocks, make_blocks
+from procedures.model.data import check_rate_varies
 from procedures.model.fit import FitResult, Fitter
 from procedures.model.gyro_model import GyroModel, zero_params
 from procedures.model.lag import contiguous_runs
@@ -206,6 +207,7 @@ def _run(
     max_block_s: float = 10.0,
     max_iterations: int = MAX_ITERATIONS,
 ) -> DiscrepancyResult:
+    check_rate_varies(traj.ref_rate_dps, traj.source)
     blocks = make_blocks(traj, max_block_s=max_block_s)
     fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, model))
     current = fitter.fit(model)

@@ -401,7 +401,7 @@ def _windowed_trajectory(rec: _Record, why: tuple[str, ...] = ()) -> Trajectory:
             ref_angle[a:b] = np.interp(ts, tab_t, tab_pos)
         else:
             continue
-        use[a:b] = True
+        use[a:b] = (rec.status[a:b] & UNUSABLE) == 0  # clipped, compensated, ...
         if np.isfinite(seg_v):
             supply[a:b] = seg_v
         # a multi-position window is a static window to the model (and the noise estimate)
