@@ -53,6 +53,10 @@ class StopMethodSettings:
     # differs a little between directions and rates (asymmetry, nonlinearity: 0.01-0.1 % of
     # full scale, the article's 0.946 vs 0.944), which the noise-only uncertainties leave out
     move_tolerance: float = 0.005
+    # a record that begins in the tail of an earlier motion (the station cuts its window by
+    # mapping station time to the fixture's clock, an estimate that can start the window a
+    # little early) is used from the end of that motion instead of being refused
+    trim_leading_motion: bool = False
 
 
 @dataclass(frozen=True)
@@ -234,8 +238,18 @@ def analyze_stop_method(
             "no move found in the record: the rate never left the static noise band; "
             "check that the part was rotated between the stops while sampling"
         )
-    fs = (t.size - 1) / (t[-1] - t[0])
+    trimmed_s = 0.0
     first = ranges[0][0]
+    if cfg.trim_leading_motion and (first == 0 or t[first] - t[0] < cfg.min_bias_window_s):
+        cut = ranges[0][1] + 1
+        if len(ranges) > 1 and t.size - cut >= 16:
+            trimmed_s = float(t[cut] - t[0])
+            t, y, clip = t[cut:], y[cut:], clip[cut:]
+            ranges, _, sigma = detect_moves(t, y, cfg)
+            if not ranges:
+                raise AnalysisError("no move found after the motion the record began with")
+            first = ranges[0][0]
+    fs = (t.size - 1) / (t[-1] - t[0])
     if first == 0 or t[first] - t[0] < cfg.min_bias_window_s:
         raise AnalysisError(
             f"the record must start with at least {cfg.min_bias_window_s:g} s at rest at the "
@@ -246,6 +260,11 @@ def analyze_stop_method(
     bias_window = (float(t[0]), float(t[first]))  # first samples, one period each
 
     warnings: list[str] = []
+    if trimmed_s:
+        warnings.append(
+            f"the record began in motion: its first {trimmed_s:.3g} s (up to the end of that "
+            "motion) were left out"
+        )
     raw_moves: list[tuple[int, int, float, float]] = []
     for i0, i1 in ranges:
         e = y[i0 : i1 + 1] - bias.bias_dps

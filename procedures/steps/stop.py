@@ -108,7 +108,9 @@ class StopMethod(BaseStep):
             ref,
             u_ref,
             status=data["status"],
-            settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
+            settings=StopMethodSettings(
+                full_scale_dps=ctx.product.range_dps, trim_leading_motion=True
+            ),
             noise=stop_noise_model(ctx, part),
         )
         if result.scale is None or result.u_scale is None:

@@ -92,6 +92,30 @@ def test_record_starting_in_motion_is_refused() -> None:
         analyze_stop_method(t[keep], y[keep])
 
 
+def test_station_window_beginning_in_the_tail_of_a_motion_is_trimmed_to_its_end() -> None:
+    """The station's window can start a little early (station-to-fixture time mapping) and
+    catch the end of the move to the first stop: with trim_leading_motion the record is used
+    from the end of that motion, and the result equals the clean record's."""
+    t, y = article_record(np.random.default_rng(6))
+    tail = t < 1.0
+    moving = y.copy()
+    moving[tail] += 40.0 * (1.0 - t[tail])  # decelerating from 40 deg/s to rest in 1 s
+    with pytest.raises(AnalysisError, match="at rest"):
+        analyze_stop_method(t, moving)
+    clean = analyze_stop_method(t[~tail], y[~tail])
+    r = analyze_stop_method(t, moving, settings=StopMethodSettings(trim_leading_motion=True))
+    assert len(r.moves) == 2
+    assert r.require_scale_correction() == pytest.approx(clean.require_scale_correction(),
+                                                         abs=2e-4)
+    assert r.bias_dps == pytest.approx(clean.bias_dps, abs=0.01)
+    assert any("began in motion" in w for w in r.warnings)
+    # a record with no move after its leading motion is still refused
+    early = t < 4.0
+    with pytest.raises(AnalysisError, match="at rest"):
+        analyze_stop_method(t[early], moving[early],
+                            settings=StopMethodSettings(trim_leading_motion=True))
+
+
 def test_record_without_motion_is_refused() -> None:
     t = np.arange(0, 20, 0.01)
     with pytest.raises(AnalysisError, match="no move"):
