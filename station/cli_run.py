@@ -220,15 +220,9 @@ def run_cycle(
     with _sigterm_interrupts(), _bench_errors(), bench_cm as bench:
         endpoints = None
         if bench is not None:
-            e = bench.endpoints
-            endpoints = Endpoints(
-                speed=e.speed,
-                rate_table=e.rate_table,
-                chamber=e.chamber,
-                supply=e.supply,
-                duts=dict(e.duts),
-            )
-            print(f"simulated bench running at {e.speed:g}x (pid {e.pid})", flush=True)
+            endpoints = Endpoints.of_bench(bench.endpoints)
+            print(f"simulated bench running at {endpoints.speed:g}x "
+                  f"(pid {bench.endpoints.pid})", flush=True)
         runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)  # type: ignore[arg-type]
         display = ProgressDisplay()
         runner.progress.subscribe(display)

@@ -22,7 +22,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError
@@ -57,6 +57,9 @@ from station.errors import UserError
 from station.run_folder import create_run_folder, recover_crashed_runs, release, validate_serial
 from station.settings import InstrumentSettings, LoadedSettings
 
+if TYPE_CHECKING:
+    from drivers.sim.launcher import BenchEndpoints
+
 log = logging.getLogger(__name__)
 
 
@@ -69,6 +72,14 @@ class Endpoints:
     chamber: str
     supply: str
     duts: dict[int, str]
+
+    @classmethod
+    def of_bench(cls, e: BenchEndpoints) -> Endpoints:
+        """The simulated bench's endpoints (its state file) as the station's."""
+        return cls(
+            speed=e.speed, rate_table=e.rate_table, chamber=e.chamber, supply=e.supply,
+            duts=dict(e.duts),
+        )
 
 
 @dataclass
@@ -707,18 +718,11 @@ def run_simulated(
 
     sockets = max(int(p["socket"]) for p in parts)
     with launch_bench(config={"parts": parts}, speed=speed, sockets=sockets) as bench:
-        e = bench.endpoints
         runner = UutRunner(
             settings or load_settings(),
             procedure_path=procedure_path,
             out=out,
-            endpoints=Endpoints(
-                speed=e.speed,
-                rate_table=e.rate_table,
-                chamber=e.chamber,
-                supply=e.supply,
-                duts=dict(e.duts),
-            ),
+            endpoints=Endpoints.of_bench(bench.endpoints),
             certificate=certificate,
             operator="benchmark",
         )

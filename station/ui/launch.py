@@ -105,14 +105,7 @@ def ui_station(
         if bench is not None:
             from station.uut import Endpoints
 
-            e = bench.endpoints
-            endpoints = Endpoints(
-                speed=e.speed,
-                rate_table=e.rate_table,
-                chamber=e.chamber,
-                supply=e.supply,
-                duts=dict(e.duts),
-            )
+            endpoints = Endpoints.of_bench(bench.endpoints)
             control = bench.control
         runner = EngineRunner(
             settings, out=out, endpoints=endpoints, control=control, sim_parts=parts

@@ -54,13 +54,7 @@ def run_on_bench(
             load_settings(),
             procedure_path=procedure,
             out=out,
-            endpoints=Endpoints(
-                speed=e.speed,
-                rate_table=e.rate_table,
-                chamber=e.chamber,
-                supply=e.supply,
-                duts=dict(e.duts),
-            ),
+            endpoints=Endpoints.of_bench(bench.endpoints),
             certificate=certificate,
             operator="pytest",
         )
