@@ -32,7 +32,7 @@ def test_start_state_abort_wait(tmp_path: Path) -> None:
             load_settings(),
             procedure_path=SHORT,
             out=tmp_path / "runs",
-            endpoints=Endpoints(e.speed, e.rate_table, e.chamber, e.supply, dict(e.duts)),
+            endpoints=Endpoints.of_bench(e),
             certificate=False,
         )
         with pytest.raises(UserError, match="does not match the product"):
