@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -163,7 +164,7 @@ class _Record:
     def power_on_s(self) -> float:
         return float(self.sup_t.min()) if self.sup_t.size else float(self.t_best[0])
 
-    @property
+    @cached_property
     def t_best(self) -> FloatArray:
         """Station time of each sample from the fixture clock with the smallest offset seen
         (transport latency only ever adds to it), not the estimate current at ingest."""
