@@ -11,6 +11,7 @@ While streaming, a part that sends nothing for `silent_after_s` of station time 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import math
 import queue
@@ -19,6 +20,11 @@ import time
 from typing import Any
 
 import numpy as np
+
+try:
+    import termios
+except ImportError:  # not a POSIX system: no tty layer errors
+    termios = None  # type: ignore[assignment]
 
 from drivers.clock import Clock
 from drivers.errors import (
@@ -67,6 +73,29 @@ def _pause_for(rate_bytes_per_s: float, longest_s: float) -> float:
 
 _CAL_TOLERANCE_REL = 1e-5
 _CAL_TOLERANCE_ABS = 1e-9
+
+
+# what a serial port raises when the device goes away: OSError (pyserial's SerialException is
+# one) and, from the tty layer, termios.error (not an OSError)
+_PORT_ERRORS: tuple[type[BaseException], ...] = (OSError,)
+if termios is not None:
+    _PORT_ERRORS = (OSError, termios.error)
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (*_PORT_ERRORS, ValueError)
+
+
+def port_error_reason(exc: BaseException) -> str:
+    """A serial port error as a reason for an operator: its text, with the OS error's name."""
+    errno_ = getattr(exc, "errno", None)
+    text = getattr(exc, "strerror", None)
+    if termios is not None and isinstance(exc, termios.error) and len(exc.args) == 2:
+        errno_, text = exc.args
+    if isinstance(errno_, int) and text:
+        return f"{text} [{errno_name(errno_)}]"
+    return str(exc) or type(exc).__name__
+
+
+def errno_name(number: int) -> str:
+    return errno.errorcode.get(number, f"errno {number}")
 
 
 class NoReply(PartAbsent, InstrumentTimeout):
@@ -143,7 +172,15 @@ class SerialPartLink:
     ) -> SerialPartLink:
         """Open the fixture's serial port at `baudrate` (the fixture's configured rate; see
         `drivers.fixture_protocol.sample_stream_baud` for what an output rate needs)."""
-        return cls(open_serial(path, baudrate=baudrate, read_timeout_s=0.02), clock, **kwargs)
+        try:
+            port = open_serial(path, baudrate=baudrate, read_timeout_s=0.02)
+        except _OPEN_ERRORS as exc:  # pyserial lets termios.error and ValueError through
+            raise ConnectionLost(
+                f"cannot open the fixture's serial port {path} at {baudrate} baud "
+                f"({port_error_reason(exc)}): check the port name and that the port supports "
+                "that baud rate",
+            ) from exc
+        return cls(port, clock, **kwargs)
 
     # ------------------------------------------------------------ reader thread
 
@@ -206,10 +243,11 @@ class SerialPartLink:
     def _check_reader(self) -> None:
         if self._reader_error is not None:
             raise ConnectionLost(
-                f"the serial port of the {self.name} failed ({self._reader_error}): check the "
-                "fixture's cable, then reconnect",
+                f"the serial port of the {self.name} failed "
+                f"({port_error_reason(self._reader_error)}): check the fixture's cable, then "
+                "reconnect",
                 instrument=self.name,
-            )
+            ) from self._reader_error
 
     # ------------------------------------------------------------ commands
 
@@ -223,7 +261,8 @@ class SerialPartLink:
                 self._port.write(text.encode("ascii") + b"\n")
             except Exception as exc:  # noqa: BLE001 - pyserial raises several types
                 raise ConnectionLost(
-                    f"cannot write to the {self.name}: {exc}; check its cable",
+                    f"cannot write to the {self.name} ({port_error_reason(exc)}): check its "
+                    "cable",
                     instrument=self.name,
                 ) from exc
             try:
@@ -448,5 +487,5 @@ class SerialPartLink:
         self._thread.join(1.0)
         try:
             self._port.close()
-        except OSError as exc:
-            log.warning("closing the %s: %s", self.name, exc)
+        except _PORT_ERRORS as exc:  # closing must not raise: the port may be gone already
+            log.warning("closing the %s: %s", self.name, port_error_reason(exc))
