@@ -21,11 +21,6 @@ from typing import Any
 
 import numpy as np
 
-try:
-    import termios
-except ImportError:  # not a POSIX system: no tty layer errors
-    termios = None  # type: ignore[assignment]
-
 from drivers.clock import Clock
 from drivers.errors import (
     ConnectionLost,
@@ -75,22 +70,27 @@ _CAL_TOLERANCE_REL = 1e-5
 _CAL_TOLERANCE_ABS = 1e-9
 
 
-# what a serial port raises when the device goes away: OSError (pyserial's SerialException is
-# one) and, from the tty layer, termios.error (not an OSError)
-_PORT_ERRORS: tuple[type[BaseException], ...] = (OSError,)
-if termios is not None:
-    _PORT_ERRORS = (OSError, termios.error)
-_OPEN_ERRORS: tuple[type[BaseException], ...] = (*_PORT_ERRORS, ValueError)
+def _port_errors() -> tuple[type[BaseException], ...]:
+    """What a serial port raises when the device goes away: OSError (pyserial's
+    SerialException is one) and, from the tty layer, termios.error (which is not)."""
+    try:
+        import termios
+    except ImportError:  # not a POSIX system: no tty layer
+        return (OSError,)
+    return (OSError, termios.error)
+
+
+_PORT_ERRORS = _port_errors()
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (*_PORT_ERRORS, ValueError)  # pyserial open
 
 
 def port_error_reason(exc: BaseException) -> str:
     """A serial port error as a reason for an operator: its text, with the OS error's name."""
-    errno_ = getattr(exc, "errno", None)
-    text = getattr(exc, "strerror", None)
-    if termios is not None and isinstance(exc, termios.error) and len(exc.args) == 2:
-        errno_, text = exc.args
-    if isinstance(errno_, int) and text:
-        return f"{text} [{errno_name(errno_)}]"
+    number, text = getattr(exc, "errno", None), getattr(exc, "strerror", None)
+    if not isinstance(exc, OSError) and len(exc.args) == 2:  # termios.error(errno, text)
+        number, text = exc.args
+    if isinstance(number, int) and text:
+        return f"{text} [{errno_name(number)}]"
     return str(exc) or type(exc).__name__
 
 
