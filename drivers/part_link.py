@@ -487,5 +487,5 @@ class SerialPartLink:
         self._thread.join(1.0)
         try:
             self._port.close()
-        except _PORT_ERRORS as exc:  # closing must not raise: the port may be gone already
-            log.warning("closing the %s: %s", self.name, port_error_reason(exc))
+        except OSError as exc:
+            log.warning("closing the %s: %s", self.name, exc)

@@ -43,8 +43,9 @@ class DyingPort:
     def reset_input_buffer(self) -> None:
         self._check()
 
-    def close(self) -> None:
-        self._check()
+    def close(self) -> None:  # pyserial closes with os.close: only ever an OSError
+        if self.dead:
+            raise OSError(errno.EIO, "Input/output error")
 
 
 ERRORS = [
