@@ -2,13 +2,17 @@
 
 Plays a run folder's raw.h5 (or a CSV of time_s, rate_dps, temp_c[, supply_v]) through the
 `drivers.protocols.PartLink` contract, so a recorded part can be put through any procedure
-again. In station.yaml:
+again. In station.yaml, each socket's recording in place of its serial port:
 
     instruments:
-      part:
+      part:                       # (or fixture:)
         driver: replay
-        path: runs/2026-11-20T10-00-00Z_SIM-0001    # run folder, raw.h5 or CSV
+        sockets: 2
+        ports: {1: runs/2026-11-20T10-00-00Z_SIM-0001, 2: recordings/part-7.csv}
         loop: false
+
+(`path:` instead names one recording for every socket, and is kept when the simulated bench
+gives the part driver its own port.)
 
 Playback: START maps the next unplayed sample to one recorded period after the station's
 clock at START; from then on a sample is delivered once the station clock has passed its
@@ -36,7 +40,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import ConnectionLost, PartSilent
@@ -59,13 +63,17 @@ class Settings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    path: str = Field(
-        min_length=1,
-        description="the recording: a run folder (its raw.h5), a raw.h5 file or a CSV file "
-        "with columns time_s, rate_dps, temp_c and optionally supply_v",
-    )
     address: str = Field(
-        "", description="not used: a replay has no port (the recording is `path`)"
+        "",
+        description="the recording of this socket: a run folder (its raw.h5), a raw.h5 file or "
+        "a CSV file with columns time_s, rate_dps, temp_c and optionally supply_v (the station "
+        "gives each socket's entry of `ports` here)",
+    )
+    path: str | None = Field(
+        None,
+        min_length=1,
+        description="the recording, overriding `address` (one recording for every socket, "
+        "kept also when the simulated bench hands the part driver its own port)",
     )
     timeout_s: float = Field(
         1.0, gt=0, le=3600, description="not used: a replay answers every command at once"
@@ -97,6 +105,20 @@ class Settings(BaseModel):
         description="the product's code format (its product file's `codes:`): turns a CSV's "
         "deg/s and C into codes and reads codes for compensation",
     )
+
+
+    @model_validator(mode="after")
+    def _has_recording(self) -> Settings:
+        if not (self.path or self.address):
+            raise ValueError(
+                "no recording to replay: give the socket's run folder, raw.h5 or CSV in "
+                "`ports` (or as `path`)"
+            )
+        return self
+
+    @property
+    def recording_path(self) -> Path:
+        return Path(self.path or self.address)
 
 
 class RecordingEnded(PartSilent):
@@ -144,6 +166,11 @@ class ReplayPartLink:
             serial=self.recording.name,
             firmware=self.recording.kind,
         )
+
+    def probe(self) -> str:
+        """'' while the replay is open (the instrument lights' health check)."""
+        self._check_open()
+        return ""
 
     def part_present(self) -> bool:
         self._check_open()
@@ -385,7 +412,7 @@ def factory(settings: dict[str, Any]) -> ReplayPartLink:
     """Validate `settings` (pydantic's ValidationError propagates), load the recording
     (`RecordingError`, a `ConnectionLost`, if it is missing or not a recording)."""
     s = Settings.model_validate(settings)
-    recording = load_recording(Path(s.path), s.codes)
+    recording = load_recording(s.recording_path, s.codes)
     log.info("replaying %s (%d samples, %.1f s) as socket %d", recording.source,
              len(recording), recording.duration_s, s.socket)
     return ReplayPartLink(recording, s)

@@ -297,8 +297,19 @@ def test_settings_are_checked(run_folder):
         factory({"path": str(run_folder), "baud": 9600})
     with pytest.raises(ValidationError, match="stop_angle_deg"):
         factory({"path": str(run_folder), "stop_angle_deg": float("nan")})
-    with pytest.raises(ValidationError, match="path"):
-        factory({"address": "/dev/ttyUSB1"})
+    with pytest.raises(ValidationError, match="no recording to replay"):
+        factory({"socket": 2})
+
+
+def test_the_station_gives_each_socket_its_recording_as_its_address(run_folder, tmp_path):
+    csv_path = _csv(tmp_path / "part-9.csv", ["time_s,rate_dps,temp_c", "0,1,25", "0.01,2,25"])
+    # what the station hands the part driver: the socket's `ports` entry and its number
+    by_address = factory({"address": str(run_folder), "socket": 2})
+    assert by_address.read_part_serial() == "SIM-0042" and "socket 2" in by_address.name
+    assert by_address.probe() == ""
+    # `path` wins over the address (the bench gives its own port to a configured driver)
+    by_path = factory({"address": "/dev/pts/7", "socket": 1, "path": str(csv_path)})
+    assert by_path.read_part_serial() == "part-9"
 
 
 def test_a_closed_replay_says_so_and_rates_are_checked(run_folder):
@@ -311,6 +322,8 @@ def test_a_closed_replay_says_so_and_rates_are_checked(run_folder):
     link.close()
     with pytest.raises(ConnectionLost, match="closed"):
         link.read_samples()
+    with pytest.raises(ConnectionLost, match="closed"):
+        link.probe()
 
 
 def test_the_replay_reads_the_format_procedures_write():
