@@ -274,12 +274,12 @@ class ProductConfig(_Strict):
         "about this much between conditions (a floor for the bias uncertainty when the record "
         "is too short to resolve it)",
     )
-    limits: Limits = Field(default_factory=Limits, description="acceptance limits")
     codes: CodeFormat = Field(
         default_factory=CodeFormat,
         description="how the part's raw rate and temperature codes read in deg/s and C "
         "(default: the ADIS16130's 24-bit offset-binary codes)",
     )
+    limits: Limits = Field(default_factory=Limits, description="acceptance limits")
 
     @field_validator("serial_pattern")
     @classmethod
