@@ -54,7 +54,7 @@ class ProfileImage:
                 f"revolution but the simulated table's encoder has {table.cpr}: set "
                 "table.counts_per_rev in the sim config to the profile's"
             )
-        kinds = {f.kind: f.code for f in profile.faults}
+        kinds: dict[str, int] = {f.kind: f.code for f in profile.faults}
         missing = [k for k in _FAULT_KINDS.values() if k not in kinds]
         if missing:
             raise ValueError(
