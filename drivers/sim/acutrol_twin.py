@@ -280,7 +280,10 @@ class AcutrolTwin:
                 raise CommandError(Err.ESTOP, "Emergency stop pressed: release it")
             if table.fault != NativeFault.NONE:
                 raise CommandError(Err.FAULT_LATCHED, "Fault latched: reset the interlock")
-            self._push(t)  # the mode's demand, so closing never starts an old motion
+            # closing holds the axis where it is: it never resumes a demand from before
+            self.rate_demand_dps = 0.0
+            self.position_demand_deg = table.counts_since_zero(t) * 360.0 / table.cpr
+            self._push(t)
             table.write(t, Reg.CONTROL, [int(Control.ENABLE)], table.registers(t))
         elif action == "open":
             table.write(t, Reg.CONTROL, [0], regs)

@@ -142,3 +142,15 @@ def test_delay_makes_every_answer_late(client: Client, twin: TwinThread):
     client.ask("*IDN?")
     assert time.monotonic() - t0 >= 0.3
     twin.twin.delay_s = 0.0
+
+
+def test_closing_the_interlock_holds_the_axis_instead_of_resuming_an_old_demand(
+    client: Client, twin: TwinThread
+):
+    client.ask(":interlock:close 1")
+    client.ask(":limit:acc rate,1,1000;:mode:rate 1;:demand:rate 1,100")
+    client.ask(":interlock:open 1")
+    assert client.ask(":interlock:close 1") == "OK"
+    time.sleep(0.05)
+    assert float(client.ask(":read:rate? 1")) == pytest.approx(0.0, abs=0.05)
+    assert client.ask(":demand:rate 1,20") == "OK"
