@@ -14,6 +14,7 @@ as read) and reads the three identity strings in one request; so each group's sp
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import Literal
@@ -270,7 +271,17 @@ def resolve_profile_path(profile: str) -> Path:
     return Path(profile).expanduser()
 
 
+@functools.lru_cache(maxsize=16)
+def _builtin(path: Path) -> ServoProfile:
+    return load_model(path, ServoProfile)
+
+
 def load_profile(profile: str | Path = DEFAULT_PROFILE) -> ServoProfile:
-    """Load a built-in profile by name or a profile file by path (file:line errors)."""
+    """Load a built-in profile by name or a profile file by path (file:line errors).
+
+    Built-in profiles are read once (they are package data); a file is read at every call.
+    """
     path = profile if isinstance(profile, Path) else resolve_profile_path(profile)
+    if path.parent == PROFILE_DIR:
+        return _builtin(path)
     return load_model(path, ServoProfile)

@@ -6,11 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from drivers import rate_table_map as rm
 from drivers.rate_table import Settings
-from drivers.servo_profile import builtin_profiles, load_profile
+from drivers.servo_profile import Register, builtin_profiles, load_profile
 from drivers.yaml_lines import DriverConfigError
 
 EXAMPLE = "servo-lowword-example"
@@ -64,8 +66,6 @@ def test_default_profile_is_the_controllers_own_map():
     ],
 )
 def test_codec_round_trips_with_word_order_sign_and_scale(type_, scale, value, low_first, words):
-    from drivers.servo_profile import Register
-
     p = load_profile(EXAMPLE if low_first else "servo-default")
     reg = Register(address=10, type=type_, scale=scale)
     assert p.encode(reg, value) == words
@@ -73,8 +73,6 @@ def test_codec_round_trips_with_word_order_sign_and_scale(type_, scale, value, l
 
 
 def test_encode_refuses_a_value_that_does_not_fit():
-    from drivers.servo_profile import Register
-
     p = load_profile()
     with pytest.raises(ValueError, match="does not fit"):
         p.encode(Register(address=0, type="u16", scale=1.0), -1)
@@ -141,3 +139,19 @@ def test_settings_defaults_and_address_form():
             Settings.model_validate({"address": bad})
     with pytest.raises(ValidationError):
         Settings.model_validate({"address": "h:502", "unit": 3})
+
+
+@given(
+    type_=st.sampled_from(["u16", "i16", "u32", "i32"]),
+    low_first=st.booleans(),
+    fraction=st.floats(min_value=0.0, max_value=1.0),
+)
+def test_codec_round_trips_every_raw_value_in_range(type_, low_first, fraction):
+    p = load_profile(EXAMPLE if low_first else "servo-default")
+    reg = Register(address=3, type=type_, scale=0.001)
+    lo = -(1 << (reg.bits - 1)) if reg.signed else 0
+    raw = lo + int(fraction * ((1 << reg.bits) - 1))
+    words = p.encode(reg, raw / 1000)
+    assert len(words) == reg.words and all(0 <= w <= 0xFFFF for w in words)
+    assert p.decode(reg, [7, 7, 7, *words], 0) == pytest.approx(raw / 1000, abs=1e-9)
+    assert p.decode(reg, [7, 7, 7, *words], 0, raw=True) == raw & ((1 << reg.bits) - 1)
