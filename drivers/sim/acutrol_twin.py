@@ -260,7 +260,8 @@ class AcutrolTwin:
         if path[:1] == ("limit",) and path[1:] in (("acceleration",), ("rate",)):
             self._set_limit(t, path[1], self._mode_arg(args), args)
             return
-        self._axis(args)
+        if path != ("interlock", "reset") or args:  # a reset without an axis resets all
+            self._axis(args)
         if path[:1] == ("interlock",) and len(path) == 2:
             self._interlock(t, path[1])
         elif path[:1] == ("mode",) and len(path) == 2 and path[1] in _NATIVE_MODE:
