@@ -102,6 +102,7 @@ class VisaTransport:
         options: dict[str, Any] = {
             "read_termination": TERMINATION,
             "write_termination": TERMINATION,
+            "encoding": "latin-1",  # any byte decodes: garbage is a ProtocolError, not a crash
             "timeout": max(1, round(timeout_s * 1000)),
             "open_timeout": max(1, round(timeout_s * 1000)),
         }
