@@ -165,6 +165,7 @@ class VisaTransport:
         except _LINK_ERRORS + _visa_errors() as exc:
             if _is_timeout(exc):
                 self._raise_closed_if_peer_gone(command)
+                self._device_clear()
                 raise InstrumentTimeout(
                     f"the {self.instrument} did not answer {command!r} within "
                     f"{self.timeout_s:g} s on {self.resource_name}: check that it is on, its "
@@ -192,6 +193,17 @@ class VisaTransport:
                 f"{command!r}; check that it is on and reachable, then reconnect",
                 instrument=self.instrument,
             )
+
+    def _device_clear(self) -> None:
+        """After a timeout on VXI-11, HiSLIP, USBTMC or GPIB, a device clear drops the reply
+        still pending in the instrument (sockets and serial ports are drained before each
+        query instead)."""
+        if self._socket() is not None or self.resource_name.upper().startswith("ASRL"):
+            return
+        try:
+            self._resource.clear()
+        except Exception as exc:  # the timeout is what gets reported
+            log.info("device clear on %s after a timeout: %s", self.resource_name, exc)
 
     # ------------------------------------------------------------ stale input
 
