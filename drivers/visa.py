@@ -118,7 +118,17 @@ class VisaTransport:
             ) from exc
         transport = cls(resource, name, instrument=instrument, timeout_s=timeout_s)
         try:
+            sock = transport._socket()
+            if sock is not None:  # a setting then SYST:ERR? must not wait for a delayed ACK
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             transport._discard_stale_input()  # a refused TCP connection shows here
+        except OSError as exc:
+            transport.close()
+            raise ConnectionLost(
+                f"cannot connect to the {instrument} at {name}: {_reason(exc)}; "
+                f"{_open_advice(name)}",
+                instrument=instrument,
+            ) from exc
         except ConnectionLost:
             transport.close()
             raise

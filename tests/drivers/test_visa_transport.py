@@ -136,3 +136,17 @@ def test_a_closed_transport_refuses_politely() -> None:
             link.query("*IDN?")
     finally:
         fake.close()
+
+
+def test_socket_sends_without_waiting_for_a_delayed_ack() -> None:
+    """A setting and its SYST:ERR? are two small writes in a row: with Nagle on, the second
+    waits for the instrument's delayed ACK (40 ms on Linux) on every setting."""
+    fake = ScriptedScpi([])
+    link = _open(fake)
+    try:
+        sock = link._socket()
+        assert sock is not None
+        assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) != 0
+    finally:
+        link.close()
+        fake.close()
