@@ -20,7 +20,7 @@ ERROR_QUEUE_DEPTH = 64  # stop draining after this many entries: the queue must 
 
 
 class SerialLike(Protocol):
-    """The part of pyserial's `Serial` the SCPI port uses."""
+    """The part of pyserial's `Serial` the fixture link uses."""
 
     @property
     def in_waiting(self) -> int: ...

@@ -39,13 +39,14 @@ _SERIAL_PATH = re.compile(r"(/\S+|COM\d+)", re.IGNORECASE)
 _LINK_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error, ValueError, EOFError)
 
 
-def resource_name(address: str, baud: int = 115200) -> str:
+def resource_name(address: str) -> str:
     """The VISA resource string for a configured address (see the module docstring)."""
     text = address.strip()
     if "::" in text:
         return text
     if _SERIAL_PATH.fullmatch(text):
-        return f"ASRL{text}::INSTR"
+        com = re.fullmatch(r"COM(\d+)", text, re.IGNORECASE)  # Windows: ASRL3::INSTR
+        return f"ASRL{com[1]}::INSTR" if com else f"ASRL{text}::INSTR"
     m = _HOST_PORT.fullmatch(text)
     if m:
         return f"TCPIP::{m['host']}::{m['port']}::SOCKET"
@@ -98,7 +99,7 @@ class VisaTransport:
         """Open `address` with pyvisa-py; ConnectionLost says why it cannot be opened."""
         import pyvisa
 
-        name = resource_name(address, baud)
+        name = resource_name(address)
         options: dict[str, Any] = {
             "read_termination": TERMINATION,
             "write_termination": TERMINATION,

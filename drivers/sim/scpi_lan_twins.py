@@ -322,3 +322,10 @@ def _rigol_level(what: str) -> Callable[[str], str]:
             return reply
 
     return fmt
+
+
+# the sim config's `instruments: supply:` names served on the LAN (`scpi` is the pty SupplyTwin)
+LAN_SUPPLY_TWINS: dict[str, type[ScpiLanTwin]] = {
+    "keysight-e36300": KeysightE36300Twin,
+    "rigol-dp800": RigolDp800Twin,
+}

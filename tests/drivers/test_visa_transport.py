@@ -21,7 +21,7 @@ KINDS = ["tcp", "pty"]
     [
         ("/dev/ttyUSB0", "ASRL/dev/ttyUSB0::INSTR"),
         ("/dev/pts/5", "ASRL/dev/pts/5::INSTR"),
-        ("COM3", "ASRLCOM3::INSTR"),
+        ("COM3", "ASRL3::INSTR"),
         ("ASRL/dev/pts/5::INSTR", "ASRL/dev/pts/5::INSTR"),
         ("TCPIP::192.168.1.20::5025::SOCKET", "TCPIP::192.168.1.20::5025::SOCKET"),
         ("TCPIP0::192.168.1.20::inst0::INSTR", "TCPIP0::192.168.1.20::inst0::INSTR"),

@@ -11,14 +11,11 @@ from concurrent.futures import Future
 from typing import Any, TypeVar
 
 from drivers.sim.config import SimConfig
-from drivers.sim.scpi_lan_twins import KeysightE36300Twin, RigolDp800Twin, ScpiLanTwin
+from drivers.sim.scpi_lan_twins import LAN_SUPPLY_TWINS
 from drivers.sim.world import World
 
 T = TypeVar("T")
-TWINS: dict[str, type[ScpiLanTwin]] = {
-    "keysight-e36300": KeysightE36300Twin,
-    "rigol-dp800": RigolDp800Twin,
-}
+TWINS = LAN_SUPPLY_TWINS
 ONE_PART: dict[str, Any] = {"parts": [{"socket": 1, "serial": "SIM-S001"}]}
 
 
