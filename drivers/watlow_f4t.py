@@ -119,7 +119,7 @@ class WatlowF4T(RampedChamber):
     def identify(self) -> InstrumentIdentity:
         part = regs_to_text(self._link.read(Reg.PART_NUMBER, PART_NUMBER_REGS))
         return InstrumentIdentity(
-            manufacturer="Watlow", model=f"F4T {part}".strip(), serial=self._serial
+            manufacturer="Watlow", model=part or "F4T", serial=self._serial
         )
 
     # ------------------------------------------------------------ units

@@ -53,7 +53,11 @@ class Code(IntEnum):
 
 
 ALARM_INACTIVE = frozenset({Code.STARTUP, Code.NONE, Code.BLOCKED})
-ALARM_TEXT: dict[int, str] = {Code.HIGH: "a high alarm", Code.LOW: "a low alarm", Code.ERROR: "an alarm error"}
+ALARM_TEXT: dict[int, str] = {
+    Code.HIGH: "a high alarm",
+    Code.LOW: "a low alarm",
+    Code.ERROR: "an alarm error",
+}
 PROFILE_ACTIVE = frozenset({Code.RUNNING, Code.PAUSE})
 
 
