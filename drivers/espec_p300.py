@@ -52,7 +52,7 @@ NA_ERRORS: dict[str, tuple[type[InstrumentError], str]] = {
     "ADDR ERR": (ProtocolError, "bad address: check the controller's communication setup"),
     "INVALID REQ": (ProtocolError, "the controller does not support this request"),
 }
-_SERIAL_PATH = re.compile(r"^(/dev/\S+|COM\d+|[a-z0-9+]+://\S+)$")
+_SERIAL_PATH = re.compile(r"^(/\S+|COM\d+|[a-z0-9+]+://\S+)$")  # device path or pyserial URL
 
 
 class Settings(BaseModel):

@@ -4,6 +4,9 @@ late answers, refusals, the stuck chamber's alarm) raising its documented typed 
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -163,3 +166,29 @@ def test_twin_endpoint_is_the_drivers_address_form():
             host, _, port = tt.endpoint.rpartition(":")
             assert host == "127.0.0.1" and int(port) > 0
             settings.model_validate({"address": tt.endpoint})
+
+
+@pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed (apt install socat)")
+def test_espec_driver_over_a_serial_device_path(tmp_path):
+    """The P-300's serial port: a pseudo-terminal that socat bridges to the twin's TCP port."""
+    with TwinThread(EspecP300Twin, CONFIG, speed=SPEED) as tt:
+        link = tmp_path / "ttyP300"
+        bridge = subprocess.Popen(
+            ["socat", f"pty,link={link},raw,echo=0", f"tcp:{tt.endpoint}"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        try:
+            deadline = time.monotonic() + 10
+            while not link.exists() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            chamber = espec_p300.factory({"address": str(link), "timeout_s": 1.0})
+            try:
+                assert chamber.setpoint_limits() == (-45.0, 140.0)
+                chamber.set_setpoint(33.0)
+                assert tt.world.chamber.setpoint_c == 33.0
+                assert chamber.identify().firmware == "P300 VER 2.1"
+            finally:
+                chamber.close()
+        finally:
+            bridge.terminate()
+            bridge.wait(5)
