@@ -17,7 +17,6 @@ import contextlib
 import logging
 import math
 
-from drivers.sim.watlow_f4t_twin import set_running
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -157,9 +156,9 @@ class EspecP300Twin:
         if not self.powered:
             return "NA:CHB NOT READY"
         if arg == "CONSTANT":
-            set_running(self.world.chamber, True)
+            self.world.chamber.set_running(True)
         elif arg in ("STANDBY", "OFF"):
-            set_running(self.world.chamber, False)
+            self.world.chamber.set_running(False)
             self.powered = arg != "OFF"
         elif arg.startswith("RUN"):
             return "NA:DATA NOT READY"  # the twin holds no programs
@@ -171,5 +170,5 @@ class EspecP300Twin:
         if arg not in ("ON", "OFF"):
             return "NA:PARA ERR"
         self.powered = arg == "ON"
-        set_running(self.world.chamber, self.powered)
+        self.world.chamber.set_running(self.powered)
         return None

@@ -22,7 +22,6 @@ import math
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData
 
-from drivers.sim.chamber import ChamberModel
 from drivers.sim.modbus_twins import ModbusTwin
 from drivers.sim.world import World
 from drivers.watlow_f4t_map import (
@@ -46,13 +45,6 @@ _FLOATS = (Reg.RANGE_LOW, Reg.RANGE_HIGH, Reg.SETPOINT, Reg.WORKING_SETPOINT, Re
 
 def _block(address: int, count: int) -> SimData:
     return SimData(address=address, count=count, values=0, datatype=DataType.REGISTERS)
-
-
-def set_running(chamber: ChamberModel, on: bool) -> None:
-    """Control on or off, the ramp starting from the air as the F4-style twin does."""
-    if on and not chamber.running:
-        chamber.ramped_sp_c = chamber.air_c
-    chamber.running = on
 
 
 class _F4TServer(ModbusTwin):
@@ -117,7 +109,7 @@ class _F4TServer(ModbusTwin):
             if reg == Reg.CONTROL_MODE:
                 if value not in (Code.AUTO, Code.OFF):
                     return ExcCodes.ILLEGAL_VALUE
-                set_running(ch, value == Code.AUTO)
+                ch.set_running(value == Code.AUTO)
             elif reg == Reg.SETPOINT:
                 raw = regs_to_float(values[offset : offset + 2])
                 temp_c = f_to_c(raw) if self.fahrenheit else raw
