@@ -133,6 +133,11 @@ class RampedChamber(ABC):
     def _alarms(self) -> list[str]:
         """The controller's active alarms, one description each; empty when none."""
 
+    def probe(self) -> str:
+        """A cheap health check for the instrument lights: '' when the controller answers and
+        reports no alarm, else its alarms. Raises an `InstrumentError` when unreachable."""
+        return "; ".join(self._alarms())
+
     # ------------------------------------------------------------ setpoint and limits
 
     def setpoint_limits(self) -> tuple[float, float]:

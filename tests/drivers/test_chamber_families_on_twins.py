@@ -124,7 +124,9 @@ def test_stuck_chamber_with_its_alarm_raises_chamber_alarm(rig):
     tt, chamber = rig
     chamber.set_setpoint(60.0)
     chamber.run()
+    assert chamber.probe() == ""
     tt.stick_chamber(report_fault=True)
+    assert "alarm" in chamber.probe()
     with pytest.raises(ChamberAlarm, match="alarm"):
         chamber.wait_setpoint(0.5, 3600.0)
 

@@ -183,3 +183,14 @@ def test_factory_to_nothing_listening_is_connection_lost():
         port = s.getsockname()[1]
     with pytest.raises(ConnectionLost, match=f"127.0.0.1:{port}"):
         espec_p300.factory({"address": f"127.0.0.1:{port}", "timeout_s": 0.5})
+
+
+def test_probe_is_empty_without_alarms_and_names_them_otherwise():
+    port, chamber = make([
+        (b"MON?\r\n", b"25.0,,CONSTANT,0\r\n"),
+        (b"MON?\r\n", b"25.0,,CONSTANT,2\r\n"),
+        (b"ALARM?\r\n", b"2,17,41\r\n"),
+    ])
+    assert chamber.probe() == ""
+    assert chamber.probe() == "alarm code 17; alarm code 41"
+    finish(port, chamber)

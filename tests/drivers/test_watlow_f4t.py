@@ -269,3 +269,15 @@ def test_factory_connects_or_raises_connection_lost():
     server.close()
     with pytest.raises(ConnectionLost, match="cannot connect"):
         watlow_f4t.factory({"address": f"127.0.0.1:{server.port}", "timeout_s": 0.5})
+
+
+def test_probe_reads_each_alarm_state():
+    server, chamber = make([
+        Exchange(read_pdu(1356, 1), read_reply([88])),
+        Exchange(read_pdu(1456, 1), read_reply([12])),
+        Exchange(read_pdu(1356, 1), read_reply([37])),
+        Exchange(read_pdu(1456, 1), read_reply([61])),
+    ], alarm_count=2)
+    assert chamber.probe() == ""  # startup and blocked are not alarms
+    assert chamber.probe() == "a high alarm on alarm 1"
+    finish(server, chamber)
