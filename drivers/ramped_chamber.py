@@ -138,6 +138,24 @@ class RampedChamber(ABC):
         reports no alarm, else its alarms. Raises an `InstrumentError` when unreachable."""
         return "; ".join(self._alarms())
 
+    def watchdog_check(self) -> None:
+        """Raise ChamberAlarm when the controller reports an alarm (the run's watchdog)."""
+        alarms = self._alarms()
+        if alarms:
+            self._raise_on_alarm(self._read_pv(), self.read_setpoint(), alarms)
+
+    def _raise_on_alarm(
+        self, pv: float, setpoint: float, alarms: list[str] | None = None
+    ) -> None:
+        alarms = self._alarms() if alarms is None else alarms
+        if alarms:
+            raise ChamberAlarm(
+                f"the chamber reports {'; '.join(alarms)} at {pv:g} C and cannot reach "
+                f"{setpoint:g} C: check the chamber (compressor, heater, limit), clear the "
+                "alarm at its panel, then rerun",
+                instrument=self.name,
+            )
+
     # ------------------------------------------------------------ setpoint and limits
 
     def setpoint_limits(self) -> tuple[float, float]:
@@ -231,14 +249,7 @@ class RampedChamber(ABC):
             pv = self.read_temperature()
             if abs(pv - setpoint) <= band_c:
                 return pv
-            alarms = self._alarms()
-            if alarms:
-                raise ChamberAlarm(
-                    f"the chamber reports {'; '.join(alarms)} at {pv:g} C and cannot reach "
-                    f"{setpoint:g} C: check the chamber (compressor, heater, limit), clear the "
-                    "alarm at its panel, then rerun",
-                    instrument=self.name,
-                )
+            self._raise_on_alarm(pv, setpoint)
             if self._clock.now_s() >= deadline:
                 raise ChamberSetpointNotReached(
                     f"the chamber did not reach {setpoint:g} +/- {band_c:g} C within "

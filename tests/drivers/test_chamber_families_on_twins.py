@@ -27,7 +27,7 @@ from drivers.ramped_chamber import RampedChamber
 from drivers.sim.espec_twin import EspecP300Twin
 from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
 from drivers.sim.world import World
-from tests.drivers._twin_thread import TwinThread
+from tests.drivers._chamber_twin_thread import TwinThread
 
 SPEED = 600.0
 CONFIG = {"chamber": {"setpoint_low_c": -45.0, "setpoint_high_c": 140.0, "firmware": "2.1"}}
@@ -127,6 +127,8 @@ def test_stuck_chamber_with_its_alarm_raises_chamber_alarm(rig):
     assert chamber.probe() == ""
     tt.stick_chamber(report_fault=True)
     assert "alarm" in chamber.probe()
+    with pytest.raises(ChamberAlarm, match="cannot reach 60 C"):
+        chamber.watchdog_check()
     with pytest.raises(ChamberAlarm, match="alarm"):
         chamber.wait_setpoint(0.5, 3600.0)
 

@@ -194,3 +194,17 @@ def test_probe_is_empty_without_alarms_and_names_them_otherwise():
     assert chamber.probe() == ""
     assert chamber.probe() == "alarm code 17; alarm code 41"
     finish(port, chamber)
+
+
+def test_watchdog_check_raises_chamber_alarm_only_on_an_alarm():
+    port, chamber = make([
+        (b"MON?\r\n", b"25.0,,CONSTANT,0\r\n"),
+        (b"MON?\r\n", b"31.0,,CONSTANT,1\r\n"),
+        (b"ALARM?\r\n", b"1,17\r\n"),
+        (b"TEMP?\r\n", b"31.0,60.0,150.0,-70.0\r\n"),
+        (b"TEMP?\r\n", b"31.0,60.0,150.0,-70.0\r\n"),
+    ])
+    chamber.watchdog_check()
+    with pytest.raises(ChamberAlarm, match="alarm code 17 at 31 C and cannot reach 60 C"):
+        chamber.watchdog_check()
+    finish(port, chamber)

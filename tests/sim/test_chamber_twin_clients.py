@@ -15,7 +15,7 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.sim.espec_twin import STUCK_ALARM_CODE, EspecP300Twin
 from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
-from tests.drivers._twin_thread import TwinThread
+from tests.drivers._chamber_twin_thread import TwinThread
 
 AIR_C = 21.7  # an ambient no default produces, so the reads below are the world's
 
