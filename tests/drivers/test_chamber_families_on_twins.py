@@ -28,6 +28,7 @@ from drivers.sim.espec_twin import EspecP300Twin
 from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
 from drivers.sim.world import World
 from tests.drivers._chamber_twin_thread import TwinThread
+from tests.drivers._fakes import ManualClock
 
 SPEED = 600.0
 CONFIG = {"chamber": {"setpoint_low_c": -45.0, "setpoint_high_c": 140.0, "firmware": "2.1"}}
@@ -89,18 +90,18 @@ def test_setpoint_run_wait_stop_and_safe_state_move_the_world(rig):
 
 def test_driver_ramp_holds_the_twin_below_its_own_maximum_rate(rig):
     tt, chamber = rig
-    clock = ScaledClock(SPEED)
+    clock = ManualClock()  # the driver's station clock: polls exactly 5 s apart
     chamber.attach_clock(clock)
     chamber.set_ramp_rate(1.0)  # C/min; the twin's chamber could do 5
     chamber.run()
+    start_c = chamber.read_temperature()
     chamber.set_setpoint(35.0)
-    start = clock.now_s()
-    while clock.now_s() - start < 120.0:  # two station minutes, polled as the station does
-        chamber.read_temperature()
+    for _ in range(24):  # two station minutes, polled as the station does
         clock.sleep_s(5.0)
+        chamber.read_temperature()
     assert chamber.read_setpoint() == 35.0  # the target
     ramped = tt.world.chamber.setpoint_c  # what the driver has written so far
-    assert 25.0 + 1.5 < ramped < 25.0 + 2.6
+    assert ramped == pytest.approx(start_c + 2.0, abs=0.06)
 
 
 def test_setpoint_beyond_the_limits_is_refused_and_nothing_written(rig):
