@@ -191,9 +191,12 @@ class RampedChamber(ABC):
 
     def set_setpoint(self, temp_c: float) -> None:
         self._check_limits(temp_c)
+        ramping_from = self._written_c if self._ramp.started else None
         self._ramp.cancel()
         if self._ramp.rate_c_per_min > 0 and self._running():
-            self._ramp.begin(self._read_pv(), temp_c, self._clock.now_s())
+            # a new target mid-ramp continues from the ramp's last step, else from the air
+            start_c = ramping_from if ramping_from is not None else self._read_pv()
+            self._ramp.begin(start_c, temp_c, self._clock.now_s())
             self._advance_ramp(force=True)
         elif self._ramp.rate_c_per_min > 0:
             self._ramp.hold(temp_c)  # the ramp starts from the air temperature at run()

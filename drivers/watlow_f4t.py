@@ -53,7 +53,7 @@ class Settings(BaseModel):
     address: str = Field(description="host:port of the F4T's Modbus TCP server (port 502)")
     timeout_s: float = Field(1.0, gt=0.0, le=60.0, allow_inf_nan=False)
     poll_s: float = Field(1.0, gt=0.0, le=600.0, allow_inf_nan=False)
-    device_id: int = Field(DEVICE_ID, ge=0, le=247)
+    device_id: int = Field(DEVICE_ID, ge=1, le=247)
     loop: int = Field(1, ge=1, le=4, description="the control loop of the chamber air")
     alarm_count: int = Field(6, ge=0, le=14, description="alarms 1..n checked for a fault")
     serial: str = Field("", max_length=40, description="nameplate serial (not on the wire)")

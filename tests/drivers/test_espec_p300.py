@@ -208,3 +208,24 @@ def test_watchdog_check_raises_chamber_alarm_only_on_an_alarm():
     with pytest.raises(ChamberAlarm, match="alarm code 17 at 31 C and cannot reach 60 C"):
         chamber.watchdog_check()
     finish(port, chamber)
+
+
+def test_new_target_mid_ramp_continues_from_the_last_step():
+    clock = ManualClock()
+    port, chamber = make([
+        TEMP,
+        (b"MODE?\r\n", b"CONSTANT\r\n"),
+        TEMP, ok(b"TEMP, S24.8"),
+        ok(b"TEMP, S25.8"), TEMP,  # 10 s at 6 C/min
+        (b"MODE?\r\n", b"CONSTANT\r\n"),
+        ok(b"TEMP, S25.8"),  # new target: from 25.8, not from the air (24.8)
+        ok(b"TEMP, S24.8"), TEMP,  # 10 s later, 1 C down
+    ], clock)
+    chamber.set_ramp_rate(6.0)
+    chamber.set_setpoint(30.0)
+    clock.sleep_s(10.0)
+    chamber.read_temperature()
+    chamber.set_setpoint(20.0)
+    clock.sleep_s(10.0)
+    chamber.read_temperature()
+    finish(port, chamber)
