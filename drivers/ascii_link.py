@@ -1,7 +1,7 @@
 """A CR LF terminated ASCII command/reply link over TCP or a serial port, with typed errors.
 
-The address is `host:port` for TCP (opened as pyserial's `socket://` URL) or a serial device
-path such as `/dev/ttyUSB0` (any other pyserial URL, `rfc2217://...`, is passed through).
+The address is `host:port` for TCP (a plain socket, `TcpLinePort`) or a serial device path such
+as `/dev/ttyUSB0` (opened with pyserial; any pyserial URL, `rfc2217://...`, is passed through).
 One reply line per command. A refused connection, a closed socket or a vanished port becomes
 `ConnectionLost`; no complete reply within `timeout_s` wall seconds `InstrumentTimeout`. After
 either the port is closed and the next command reopens it, so a late reply can never be taken
@@ -13,7 +13,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import socket
 import threading
+import time
 from collections.abc import Callable
 from typing import Protocol
 
@@ -50,13 +52,68 @@ def parse_host_port(address: str) -> tuple[str, int] | None:
     return match["host"].strip("[]"), port
 
 
+class TcpLinePort:
+    """A TCP connection with the `LinePort` API: buffered reads, `timeout_s` per line."""
+
+    def __init__(self, host: str, port: int, timeout_s: float) -> None:
+        self._timeout_s = timeout_s
+        self._buf = bytearray()
+        self._sock = socket.create_connection((host, port), timeout=timeout_s)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def write(self, data: bytes) -> int:
+        self._sock.settimeout(self._timeout_s)
+        self._sock.sendall(data)
+        return len(data)
+
+    def _recv(self) -> None:
+        chunk = self._sock.recv(4096)
+        if not chunk:
+            raise ConnectionResetError("the instrument closed the connection")
+        self._buf += chunk
+
+    def readline(self) -> bytes:
+        """Up to and including the next LF; what arrived so far when `timeout_s` runs out."""
+        deadline = time.monotonic() + self._timeout_s
+        while b"\n" not in self._buf:
+            remaining_s = deadline - time.monotonic()
+            if remaining_s <= 0:
+                break
+            self._sock.settimeout(remaining_s)
+            try:
+                self._recv()
+            except TimeoutError:
+                break
+        end = self._buf.find(b"\n") + 1 or len(self._buf)
+        line = bytes(self._buf[:end])
+        del self._buf[:end]
+        return line
+
+    def reset_input_buffer(self) -> None:
+        """Drop anything unread (a late reply); a closed connection shows here already."""
+        self._buf.clear()
+        self._sock.setblocking(False)
+        try:
+            while True:
+                self._recv()
+                self._buf.clear()
+        except BlockingIOError:
+            pass
+        finally:
+            self._sock.settimeout(self._timeout_s)
+
+    def close(self) -> None:
+        self._sock.close()
+
+
 def open_port(address: str, *, baudrate: int, timeout_s: float) -> LinePort:
     """Open `address` (host:port, a device path or a pyserial URL); ConnectionLost if not."""
     tcp = parse_host_port(address)
-    url = f"socket://{tcp[0]}:{tcp[1]}" if tcp else address
     try:
+        if tcp is not None:
+            return TcpLinePort(tcp[0], tcp[1], timeout_s)
         port: LinePort = serial.serial_for_url(
-            url, baudrate=baudrate, timeout=timeout_s, write_timeout=timeout_s
+            address, baudrate=baudrate, timeout=timeout_s, write_timeout=timeout_s
         )
     except (serial.SerialException, OSError, ValueError) as exc:
         raise ConnectionLost(
