@@ -267,6 +267,11 @@ def _inner_model(annotation: Any) -> Any:
     return None
 
 
+_UNION_TAGS = frozenset(
+    {"float", "int", "str", "bool", "constrained-float", "constrained-int", "constrained-str"}
+)
+
+
 def format_validation_error(
     exc: ValidationError, loaded: LoadedYaml, model: type[BaseModel]
 ) -> str:
@@ -278,7 +283,7 @@ def format_validation_error(
     for err in exc.errors():
         # pydantic adds union member tags (e.g. 'float', 'literal[...]') to loc: drop them
         loc = [p for p in err["loc"] if isinstance(p, int) or not re.match(r"^[a-z\-]+\[", str(p))]
-        loc = [p for p in loc if p not in ("float", "int", "str", "bool")] or loc
+        loc = [p for p in loc if p not in _UNION_TAGS] or loc
         line = None
         for n in range(len(loc), -1, -1):
             line = loaded.lines.get(tuple(loc[:n]))
