@@ -32,7 +32,12 @@ MAX_BYTES = 256 * 1024  # the largest configuration file is a few kB
 MAX_DEPTH = 32  # nesting levels of mappings and sequences
 MAX_NODES = 20_000  # nodes after alias expansion, in all
 MAX_ALIASES = 256  # alias references
-_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+# control characters other than tab and line feeds, and the Unicode line separators (a NEL or
+# U+2028 in a name would break a one-line message or a record's line)
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u2028\u2029]")
+_KEY_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+# what YAML itself refuses in a stream: C0/C1 controls, surrogates, U+FFFE and U+FFFF
+_UNPRINTABLE = yaml.reader.Reader.NON_PRINTABLE
 
 
 class ConfigError(ValueError):
@@ -52,7 +57,7 @@ def _one_line(text: str) -> str:
 
 
 def _char_name(ch: str) -> str:
-    names = {"\x00": "NUL", "\x1b": "ESC", "\x7f": "DEL"}
+    names = {"\x00": "NUL", "\x1b": "ESC", "\x7f": "DEL", "\x85": "NEL"}
     return f"U+{ord(ch):04X}" + (f" ({names[ch]})" if ch in names else "")
 
 
@@ -123,7 +128,7 @@ def _decode(raw: bytes, path: Path) -> str:
             f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset "
             f"{exc.start}); save the file as UTF-8"
         ) from None
-    bad = _CONTROL.search(text)
+    bad = _CONTROL.search(text) or _UNPRINTABLE.search(text)
     if bad is not None:
         line = text.count("\n", 0, bad.start()) + 1
         raise ConfigError(
@@ -157,7 +162,10 @@ def _read_bytes(path: Path, max_bytes: int) -> bytes:
 
 
 def _parse(text: str, path: Path) -> tuple[yaml.Node | None, Any]:
-    loader = _BoundedLoader(text, path)
+    try:
+        loader = _BoundedLoader(text, path)
+    except yaml.YAMLError as exc:  # _decode refuses what the reader would; kept as a guard
+        raise ConfigError(f"{path}: not valid YAML: {_one_line(str(exc))}") from None
     try:
         node = loader.get_single_node()
         data = loader.construct_document(node) if node is not None else None
@@ -204,14 +212,17 @@ def _walk(node: yaml.Node, path: tuple[str | int, ...], lines: dict, file: Path)
             _walk(item, (*path, i), lines, file)
 
 
-def _check_strings(data: Any, lines: dict, path: Path, loc: tuple[str | int, ...] = ()) -> None:
-    """No control character in any key or string value (a quoted "\\0" gets this far)."""
+def _check_strings(
+    data: Any, lines: dict, path: Path, loc: tuple[str | int, ...] = (), key: bool = False
+) -> None:
+    """No control character in any key or string value (a quoted "\\0" gets this far), and
+    no line break or tab in a key."""
     items: Any = ()
     if isinstance(data, dict):
         items = data.items()
     elif isinstance(data, list):
         items = enumerate(data)
-    elif isinstance(data, str) and (bad := _CONTROL.search(data)):
+    elif isinstance(data, str) and (bad := (_KEY_CONTROL if key else _CONTROL).search(data)):
         line = lines.get(loc)
         where = f"{path}:{line}" if line else str(path)
         field = ".".join(str(p) for p in loc) or "(top level)"
@@ -219,9 +230,9 @@ def _check_strings(data: Any, lines: dict, path: Path, loc: tuple[str | int, ...
             f"{where}: field {field}: control character {_char_name(bad.group())} is not "
             "allowed in text; remove it"
         )
-    for key, value in items:
-        _check_strings(key, lines, path, loc)
-        _check_strings(value, lines, path, (*loc, key if isinstance(key, str | int) else "?"))
+    for name, value in items:
+        _check_strings(name, lines, path, loc, key=isinstance(data, dict))
+        _check_strings(value, lines, path, (*loc, name if isinstance(name, str | int) else "?"))
 
 
 def read_yaml(path: Path, max_bytes: int = MAX_BYTES) -> LoadedYaml:
@@ -290,7 +301,8 @@ def format_validation_error(
             if line is not None:
                 break
         where = f"{loaded.path}:{line}" if line else str(loaded.path)
-        field = ".".join(str(p) for p in loc) or "(top level)"
+        field = ".".join(str(p) if str(p).isprintable() else repr(p) for p in loc)
+        field = field or "(top level)"
         description, allowed = _field_help(model, loc)
         msg = _one_line(err["msg"])
         if err["type"] == "extra_forbidden":
