@@ -152,7 +152,23 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
     return data
 
 
+def check_stop_method_args(args: argparse.Namespace) -> None:
+    """The numbers on the command line, finite and within reason, before the file is read."""
+    angle = args.reference_angle
+    if not 0 < angle <= 360:  # NaN fails too
+        raise UserError(f"--reference-angle must be in (0, 360] deg, got {angle:g}")
+    u = args.reference_angle_uncertainty
+    if not 0 <= u < angle:
+        raise UserError(
+            f"--reference-angle-uncertainty must be from 0 to below the angle, got {u:g}"
+        )
+    fs = args.full_scale
+    if fs is not None and not 0 < fs <= MAX_RATE_DPS:
+        raise UserError(f"--full-scale must be in (0, {MAX_RATE_DPS:g}] deg/s, got {fs:g}")
+
+
 def run_stop_method(args: argparse.Namespace) -> int:
+    check_stop_method_args(args)
     data = read_rate_csv(args.csv)
     full_scale = RATED_RANGE_DPS if args.full_scale is None else args.full_scale
     settings = StopMethodSettings(full_scale_dps=full_scale)

@@ -165,3 +165,20 @@ def test_speed_out_of_range_is_refused(
     err = capsys.readouterr().err
     assert "--speed must be from 0.01 to 10000" in err, err
     assert _files(tmp_path) == before
+
+
+@pytest.mark.parametrize(
+    "option, value",
+    [("--reference-angle", "nan"), ("--reference-angle", "-90"), ("--reference-angle", "1e308"),
+     ("--reference-angle-uncertainty", "inf"), ("--reference-angle-uncertainty", "-1"),
+     ("--full-scale", "nan"), ("--full-scale", "0"), ("--full-scale", "1e308")],
+)
+def test_analysis_options_out_of_range_are_refused_before_reading(
+    option: str, value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the CSV is malformed too: the option is judged first, in one line
+    csv_path = CORPUS / "analyze" / "nan.csv"
+    assert main(["analyze", "stop-method", str(csv_path), option, value]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"station analyze: error: {option} must be"), err
+    assert len(err.splitlines()) == 1
