@@ -141,6 +141,9 @@ def _yaml_common(kind: str) -> dict[str, tuple[bytes, str]]:
         "unknown_key.yaml": (_dump({**base, "no_such_field": 1}), "no_such_field"),
         "duplicate_key.yaml": (text.encode() + f"{top}: 1\n".encode(), "appears twice"),
         "python_tag.yaml": (b"a: !!python/object/apply:os.system ['true']\n", "not valid YAML"),
+        "many_values.yaml": (f"{top}: [{'1,' * 3000}1]\n".encode(), "more than 2000 values"),
+        "many_block_values.yaml": (f"{top}:\n".encode() + b"  - 1\n" * 3000,
+                                   "more than 2000 values"),
         "huge_int.yaml": (f"{top}: {'9' * 6000}\n".encode(), "cannot be read"),
         "huge_name.yaml": (_dump(_set(base, name_field, HUGE_TEXT)), "at most"),
         "name_is_mapping.yaml": (
@@ -199,14 +202,14 @@ def _procedure() -> dict[str, tuple[bytes, str]]:
         "retries_negative.yaml": ("steps.default.retries", -1, "retries"),
         "stop_angle_1000.yaml": ("stop_method.stop_angle_deg", 1000.0, "stop_angle_deg"),
         "rates_text.yaml": ("rate_table.rates_dps", "fast", "rates_dps"),
-        "rates_thousands.yaml": ("rate_table.rates_dps", [1.0, -1.0] * 1000, "rates_dps"),
+        "rates_300.yaml": ("rate_table.rates_dps", [1.0, -1.0] * 150, "rates_dps"),
         "output_rate_7.yaml": ("power.output_rate_hz", 7, "output_rate_hz"),
         "description_nul.yaml": ("description", "line one\x00", "NUL"),
         "lost_fraction_2.yaml": ("stream.max_lost_fraction", 2.0, "max_lost_fraction"),
     }
     out = {k: (_dump(_set(b, f, v)), e) for k, (f, v, e) in cases.items()}
     out["conditions_missing.yaml"] = (_dump(_drop(b, "conditions")), "conditions")
-    out["file_over_size_limit.yaml"] = (b"name: " + b"N" * 270_000 + b"\n", "too large")
+    out["file_over_size_limit.yaml"] = (b"name: " + b"N" * 70_000 + b"\n", "too large")
     return out
 
 
