@@ -278,7 +278,7 @@ def _number(req: dict[str, Any], key: str, default: float, low: float, high: flo
     except (TypeError, ValueError, OverflowError):
         value = float("nan")
     if not low <= value <= high:
-        raise ControlRequestError(f"{key} must be a number from {low:g} to {high:g}")
+        raise ControlRequestError(f"{key} must be between {low:g} and {high:g}")
     return value
 
 
