@@ -192,6 +192,9 @@ def run_cycle(
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
     from station.uut import Endpoints, UutRunner
 
+    operator = getattr(args, "operator", "") or ""
+    if len(operator) > 200 or not operator.isprintable():
+        raise UserError("--operator must be at most 200 printable characters (a name or badge)")
     try:
         settings = load_settings(Path(args.station) if args.station else None)
         runner_kwargs = dict(

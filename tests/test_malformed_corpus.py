@@ -182,3 +182,15 @@ def test_analysis_options_out_of_range_are_refused_before_reading(
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"station analyze: error: {option} must be"), err
     assert len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("operator", ["A" * 201, "bad\x00name", "two\nlines"])
+def test_an_unprintable_or_huge_operator_is_refused(
+    operator: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["run", "--station", str(_station_file(tmp_path)), "--dut", "SIM-0001",
+            "--operator", operator]
+    before = _files(tmp_path)
+    assert main(argv) == 2
+    assert "--operator must be" in capsys.readouterr().err
+    assert _files(tmp_path) == before
