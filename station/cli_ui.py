@@ -36,6 +36,11 @@ def _ui(args: argparse.Namespace) -> int:
         raise UserError(f"--port must be 0..65535, got {args.port}")
     if args.sim_config and not args.sim:
         raise UserError("--sim-config needs --sim (it configures the simulated bench)")
+    if args.speed is not None:
+        from drivers.sim.config import speed_problem
+
+        if problem := speed_problem(args.speed):
+            raise UserError(problem)
     from station.ui.launch import ui_station
     from station.ui.server import serve_forever
 

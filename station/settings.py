@@ -13,43 +13,53 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from drivers.bounded import Name, PathText, ShortName
 from procedures.config import LoadedYaml, load_yaml_model
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"
 DEFAULT_STATION_FILE = CONFIG_DIR / "station.yaml"
+MAX_BAUD = 10_000_000
+MAX_TIMEOUT_S = 600.0  # a communication timeout, wall seconds
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class StationInfo(_Strict):
-    id: str = Field(description="station identifier printed on certificates")
-    name: str = ""
-    location: str = ""
+    id: ShortName = Field(min_length=1, description="station identifier printed on certificates")
+    name: Name = ""
+    location: Name = ""
 
 
 class InstrumentSettings(_Strict):
-    address: str = Field(
+    address: PathText = Field(
         "", description="host:port for Modbus TCP, or a serial port (e.g. /dev/ttyUSB0)"
     )
-    baud: int = Field(115200, gt=0, description="serial baud rate (serial instruments only)")
-    expected_model: str = Field("", description="if set, the identity must contain this model")
+    baud: int = Field(
+        115200, gt=0, le=MAX_BAUD, description="serial baud rate (serial instruments only)"
+    )
+    expected_model: Name = Field("", description="if set, the identity must contain this model")
     calibration_due: dt.date | None = Field(
         None, description="ISO date (YYYY-MM-DD) the instrument's own calibration expires"
     )
-    timeout_s: float = Field(1.0, gt=0, description="communication timeout, wall seconds")
+    timeout_s: float = Field(
+        1.0, gt=0, le=MAX_TIMEOUT_S, description="communication timeout, wall seconds"
+    )
 
 
 class FixtureSettings(_Strict):
     sockets: int = Field(1, ge=1, le=16, description="number of part sockets")
-    ports: dict[int, str] = Field(
-        default_factory=dict, description="socket number -> serial port of its microcontroller"
+    ports: dict[int, PathText] = Field(
+        default_factory=dict,
+        max_length=16,
+        description="socket number -> serial port of its microcontroller",
     )
     baud: int = Field(
         115200,
         gt=0,
+        le=MAX_BAUD,
         description="serial baud rate of every socket; must carry the procedure's output rate "
         "(25-byte frames, 10 bits a byte: 200 Hz needs 50,000, 500 Hz needs 230,400)",
     )
@@ -58,8 +68,8 @@ class FixtureSettings(_Strict):
     @field_validator("ports")
     @classmethod
     def _sockets(cls, value: dict[int, str]) -> dict[int, str]:
-        if any(k < 1 for k in value):
-            raise ValueError("socket numbers start at 1")
+        if any(not 1 <= k <= 16 for k in value):
+            raise ValueError("socket numbers are 1..16")
         return value
 
 
@@ -75,6 +85,7 @@ class UiSettings(_Strict):
 
     engineer_password_hash: str | None = Field(
         None,
+        max_length=1_000,
         description="scrypt hash of the engineer password; make it with "
         "`station ui --hash-password` (never the password itself)",
     )
@@ -85,14 +96,16 @@ class StationSettings(_Strict):
 
     station: StationInfo
     instruments: Instruments = Instruments()
-    output_folder: str = Field("runs", description="run folders go here (relative to this file)")
-    results_db: str = Field(
+    output_folder: PathText = Field(
+        "runs", description="run folders go here (relative to this file)"
+    )
+    results_db: PathText = Field(
         "runs/results.sqlite", description="SQLite results database (relative to this file)"
     )
-    procedure: str = Field(
+    procedure: PathText = Field(
         "procedures/eol-rate-table.yaml", description="default procedure (relative to this file)"
     )
-    sim_config: str | None = Field(
+    sim_config: PathText | None = Field(
         None, description="simulated bench configuration used by --sim (relative to this file)"
     )
     refuse_overdue_instruments: bool = Field(

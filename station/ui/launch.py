@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
 from fastapi import FastAPI
 
 from station.errors import UserError
@@ -43,12 +42,14 @@ def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int]
     """Parts of the sim config by serial, and the number of sockets it needs."""
     if sim_config is None:
         return {}, 0
+    from drivers.sim.config import SimConfigError, load_sim_config
+    from drivers.yaml_input import read_yaml
+
     try:
-        data = yaml.safe_load(sim_config.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise UserError(
-            f"--sim-config {sim_config}: cannot read it ({exc}); check the file"
-        ) from None
+        load_sim_config(sim_config)  # bounded reader and schema: refused here, in one line
+        data = read_yaml(sim_config).data or {}
+    except (SimConfigError, ValueError) as exc:
+        raise UserError(f"--sim-config {exc}") from None
     parts = data.get("parts") or [] if isinstance(data, dict) else []
     by_serial = {str(p["serial"]): dict(p) for p in parts if isinstance(p, dict) and "serial" in p}
     sockets = max([int(p.get("socket", 1)) for p in parts if isinstance(p, dict)], default=0)
