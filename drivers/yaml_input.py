@@ -23,7 +23,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 from pydantic import BaseModel, ValidationError
@@ -352,3 +352,20 @@ def format_validation_error(
         text = "; or ".join(msgs) + (f" ({hint})" if hint else "")
         out.append(f"{where}: field {field}: {text}")
     return "\n".join(out)
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def load_yaml_model(path: Path, model: type[M]) -> tuple[M, LoadedYaml]:
+    """Load and validate `path` as `model`; ConfigError with file:line:field on any problem."""
+    loaded = read_yaml(path)
+    if not isinstance(loaded.data, dict):
+        raise ConfigError(
+            f"{loaded.path}:1: expected a mapping of fields at the top level "
+            f"(allowed: {', '.join(sorted(model.model_fields))})"
+        )
+    try:
+        return model.model_validate(loaded.data), loaded
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, loaded, model)) from None

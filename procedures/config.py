@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated, Literal, TypeVar
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.bounded import (
     MAX_ACCEL_DPS2,
@@ -33,6 +33,7 @@ from drivers.part_codes import CodeFormat
 from drivers.yaml_input import ConfigError as ConfigError
 from drivers.yaml_input import LoadedYaml as LoadedYaml
 from drivers.yaml_input import format_validation_error as format_validation_error
+from drivers.yaml_input import load_yaml_model as load_yaml_model
 from drivers.yaml_input import read_yaml
 
 # ---------------------------------------------------------------- YAML with line numbers
@@ -44,23 +45,6 @@ def load_yaml(path: Path) -> LoadedYaml:
     """Read a YAML file within the input bounds (size, depth, aliases, UTF-8, no control
     characters), remembering the line of every field for error messages."""
     return read_yaml(path)
-
-
-M = TypeVar("M", bound=BaseModel)
-
-
-def load_yaml_model(path: Path, model: type[M]) -> tuple[M, LoadedYaml]:
-    """Load and validate `path` as `model`; ConfigError with file:line:field on any problem."""
-    loaded = load_yaml(path)
-    if not isinstance(loaded.data, dict):
-        raise ConfigError(
-            f"{loaded.path}:1: expected a mapping of fields at the top level "
-            f"(allowed: {', '.join(sorted(model.model_fields))})"
-        )
-    try:
-        return model.model_validate(loaded.data), loaded
-    except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, loaded, model)) from None
 
 
 class _Strict(BaseModel):
