@@ -109,7 +109,8 @@ def test_abort_mid_run_reload_and_second_start(sim_station: SimStation, page: Pa
     page.click("#start-btn")
     expect(page.locator("#step-name")).to_contain_text("thermal", timeout=RUN_TIMEOUT_MS)
     # A second Start while running is refused with a message.
-    r = httpx.post(sim_station.url + "/api/start", json={"serials": {"2": "SIM-0003"}})
+    with sim_station.client() as client:
+        r = client.post("/api/start", json={"serials": {"2": "SIM-0003"}})
     assert r.status_code == 409 and "already in progress" in r.json()["error"]
     # The page survives a reload mid-run and shows the run in progress.
     page.reload()
@@ -146,8 +147,9 @@ def test_operator_cannot_reach_procedure_selection(sim_station: SimStation, page
     r = page.request.post(
         sim_station.url + "/api/select",
         data={"procedure": str(sim_station.config / "procedures/eol-rate-table.yaml")},
+        headers={"X-CSRF-Token": page.evaluate("S.csrf")},  # the page's session, not engineer
     )
-    assert r.status == 403
+    assert r.status == 403 and "engineer role" in r.json()["error"]
     expect(page.locator("#procedure-name")).to_have_text("ui-test-short")
 
 
