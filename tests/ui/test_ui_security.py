@@ -183,7 +183,8 @@ def test_csrf_token_missing_or_wrong_is_refused(station: Station) -> None:
     r = client.post("/api/start", json=START, headers={"X-CSRF-Token": token[:-1] + "A"})
     assert r.status_code == 403
     other = station.client()  # another session's token is not this session's
-    r = client.post("/api/start", json=START, headers={"X-CSRF-Token": other.headers["X-CSRF-Token"]})
+    foreign_token = other.headers["X-CSRF-Token"]
+    r = client.post("/api/start", json=START, headers={"X-CSRF-Token": foreign_token})
     assert r.status_code == 403 and station.runner.started == []
     assert client.post("/api/start", json=START, headers={"X-CSRF-Token": token}).status_code == 200
     station.runner.wait()
