@@ -172,3 +172,13 @@ def test_engineer_selects_procedure_after_password(sim_station: SimStation, page
     page.select_option("#procedure-select", label="ui-test-short")  # leave it as found
     page.click("#apply-selection")
     expect(page.locator("#procedure-name")).to_have_text("ui-test-short")
+
+
+def test_state_never_publishes_the_bench_control_endpoint(sim_station: SimStation) -> None:
+    """The bench's control channel answers anyone who reaches it: the station keeps it to
+    itself (the pages get the bench's state through the station's own API)."""
+    port = sim_station.bench_control.rpartition(":")[2]
+    for path in ("/api/state", "/api/session", "/"):
+        text = httpx.get(sim_station.url + path, timeout=10).text
+        assert sim_station.bench_control not in text and f":{port}" not in text, path
+    assert sim_station.truth()["safe"] is not None  # the endpoint is real, only unpublished
