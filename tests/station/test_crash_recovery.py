@@ -118,3 +118,22 @@ def test_a_live_run_is_left_alone(tmp_path: Path) -> None:
     )  # fmt: skip
     assert recover_crashed_runs(tmp_path, locks_only=True) == []
     assert read_record(folder).verdict is Verdict.RUNNING
+
+
+def test_station_history_lists_a_crashed_run_as_error(tmp_path: Path) -> None:
+    import os
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "runs"
+    folder = _crashed(out, "SIM-0006", {"power": 2.0, "bias": 9.0}, "rate_table")
+    done = subprocess.run(
+        [sys.executable, "-m", "station", "history", "--reindex", str(out),
+         "--db", str(tmp_path / "r.sqlite"), "--json"],
+        capture_output=True, text=True, timeout=120, cwd=root,
+        env=dict(os.environ, PYTHONPATH=str(root)),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert f"marked as ERROR (the station stopped during that run): {folder}" in done.stderr
+    rows = json.loads(done.stdout)
+    assert [(r["serial"], r["verdict"]) for r in rows] == [("SIM-0006", "ERROR")]
+    assert "after step 'bias' completed" in rows[0]["reason"]
