@@ -107,6 +107,7 @@ def test_a_page_of_another_site_cannot_start_or_abort(signed: Signed, page: Page
     """The attack of the issue: a page elsewhere posting to the station while a part runs."""
     signed.runner.step_s = 0.3
     page.goto(signed.server.url)  # the operator's own screen, signed in, a run going
+    expect(page.locator("#badge")).to_be_focused()
     page.keyboard.type(BADGE)
     page.keyboard.press("Enter")
     expect(page.locator("#operator-name")).to_have_text("Ana Silva")
