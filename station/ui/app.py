@@ -32,7 +32,7 @@ from station.ui.auth import OperatorBook, verify_password
 from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
 from station.ui.guard import Guard, allowed_hosts, same_origin_problem
 from station.ui.history import History, RunFilter
-from station.ui.sessions import LoginThrottle, Session, Sessions
+from station.ui.sessions import LoginThrottle, Session, Sessions, TooManySessions
 
 log = logging.getLogger(__name__)
 
@@ -142,8 +142,9 @@ def create_app(
     @app.exception_handler(RequestValidationError)
     async def bad_request(_: Request, exc: RequestValidationError) -> JSONResponse:
         first = exc.errors()[0] if exc.errors() else {}
-        where = ".".join(str(p) for p in first.get("loc", ()) if p != "body")[:200] or "request"
-        msg = str(first.get("msg", "invalid"))[:300]
+        parts = [str(p) for p in first.get("loc", ()) if p != "body"]
+        where = ".".join(p if p.isprintable() else repr(p) for p in parts)[:200] or "request"
+        msg = " ".join(str(first.get("msg", "invalid")).split())[:300]  # one line
         return _error(422, f"bad request: {where}: {msg}; fix the request")
 
     @app.exception_handler(StarletteHTTPException)
@@ -224,7 +225,10 @@ def create_app(
         wait_s = throttle.wait_s("addr:" + address)
         if wait_s > 0:
             return _error(429, f"too many failed sign-ins from {address}; wait {wait_s:.0f} s")
-        session = sessions.open(address)
+        try:
+            session = sessions.open(address)
+        except TooManySessions:
+            return _error(429, f"too many new sessions from {address}; wait a minute")
         response = JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
         return with_cookie(response, session)
 

@@ -21,7 +21,12 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 
 SESSION_LIFETIME_S = 12 * 3600.0  # one shift and then some
-MAX_SESSIONS = 2000  # the oldest are dropped beyond this: memory stays bounded
+MAX_SESSIONS = 2000  # beyond this the oldest nobody signed in on is dropped: memory bounded
+NEW_SESSIONS_PER_MIN = 60  # per address: a page load opens one; a flood is refused
+
+
+class TooManySessions(Exception):
+    """An address opened sessions faster than any screen does."""
 
 
 @dataclass
@@ -38,21 +43,41 @@ class Session:
 class Sessions:
     lifetime_s: float = SESSION_LIFETIME_S
     max_sessions: int = MAX_SESSIONS
+    per_minute: int = NEW_SESSIONS_PER_MIN
     _by_token: OrderedDict[str, Session] = field(default_factory=OrderedDict)
+    _opened: dict[str, list[float]] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def open(self, address: str) -> Session:
+    def open(self, address: str, *, renewal: bool = False) -> Session:
+        """A new session; TooManySessions when `address` opens them faster than a screen."""
+        now = time.monotonic()
         session = Session(
             token=secrets.token_urlsafe(32),
             csrf=secrets.token_urlsafe(32),
             address=address,
-            expires_s=time.monotonic() + self.lifetime_s,
+            expires_s=now + self.lifetime_s,
         )
         with self._lock:
+            if not renewal:
+                recent = [t for t in self._opened.get(address, []) if now - t < 60.0]
+                if len(recent) >= self.per_minute:
+                    raise TooManySessions(address)
+                self._opened[address] = recent + [now]
+                if len(self._opened) > self.max_sessions:
+                    self._opened.pop(next(iter(self._opened)))
             self._by_token[session.token] = session
             while len(self._by_token) > self.max_sessions:
-                self._by_token.popitem(last=False)
+                self._evict_one()
         return session
+
+    def _evict_one(self) -> None:
+        """The oldest session nobody signed in on goes first (a flood of fresh sessions
+        cannot push out the screen an operator is signed in on)."""
+        for token, candidate in self._by_token.items():
+            if not candidate.operator and not candidate.engineer:
+                del self._by_token[token]
+                return
+        self._by_token.popitem(last=False)
 
     def get(self, token: str | None) -> Session | None:
         if not token or len(token) > 128:
@@ -69,7 +94,7 @@ class Sessions:
     def renew(self, session: Session) -> Session:
         """The same sign-in under new tokens (after a change of who is signed in, so that a
         token seen before the sign-in is worth nothing after it)."""
-        fresh = self.open(session.address)
+        fresh = self.open(session.address, renewal=True)
         fresh.operator, fresh.engineer = session.operator, session.engineer
         self.close(session.token)
         return fresh

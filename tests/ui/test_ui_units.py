@@ -49,10 +49,24 @@ def test_sessions_expire_close_and_renew() -> None:
     expired = Sessions(lifetime_s=-1)
     assert expired.get(expired.open("127.0.0.1").token) is None
     capped = Sessions(max_sessions=3)
-    first = capped.open("a")
+    signed = capped.open("a")
+    signed.operator = "ana"
+    first = capped.open("b")
     for _ in range(3):
-        capped.open("a")
-    assert capped.get(first.token) is None  # bounded: the oldest went
+        capped.open("c")
+    assert capped.get(first.token) is None  # bounded: the oldest unsigned went...
+    assert capped.get(signed.token) is signed  # ...not the one an operator signed in on
+
+
+def test_an_address_cannot_flood_new_sessions() -> None:
+    from station.ui.sessions import Sessions, TooManySessions
+
+    sessions = Sessions(per_minute=5)
+    kept = [sessions.open("10.0.0.66") for _ in range(5)]
+    with pytest.raises(TooManySessions):
+        sessions.open("10.0.0.66")
+    assert sessions.open("10.0.0.9") is not None  # another address is not affected
+    assert sessions.renew(kept[0]) is not None  # renewals are not new sessions
 
 
 def test_events_never_carry_nan_to_the_page() -> None:
