@@ -8,10 +8,11 @@ folder that holds it, so the file can travel with its configuration folder.
 from __future__ import annotations
 
 import datetime as dt
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.bounded import Name, PathText, ShortName
 from procedures.config import LoadedYaml, load_yaml_model
@@ -80,15 +81,83 @@ class Instruments(_Strict):
     fixture: FixtureSettings = FixtureSettings()
 
 
+class OperatorEntry(_Strict):
+    """One operator who may sign in at the browser station (badge scan, or name and PIN)."""
+
+    name: str = Field(
+        min_length=1,
+        max_length=64,
+        pattern=r"^[^\x00-\x1f\x7f]+$",
+        description="the name recorded on every run the operator starts",
+    )
+    pin_hash: str | None = Field(
+        None,
+        max_length=256,
+        description="scrypt hash of the operator's PIN; make it with `station ui --hash-pin`",
+    )
+    badge_hash: str | None = Field(
+        None,
+        max_length=256,
+        description="salted hash of the operator's badge code; make it with "
+        "`station ui --hash-badge`",
+    )
+
+
 class UiSettings(_Strict):
     """The browser UI (`station ui`)."""
 
     engineer_password_hash: str | None = Field(
         None,
-        max_length=1_000,
+        max_length=256,
         description="scrypt hash of the engineer password; make it with "
         "`station ui --hash-password` (never the password itself)",
     )
+    operators: list[OperatorEntry] = Field(
+        default_factory=list,
+        max_length=1000,
+        description="operators who sign in by badge or name and PIN; empty: an open station "
+        "where the operator signs in with a name only",
+    )
+    require_operator: bool = Field(
+        False, description="refuse to start a run until an operator has signed in"
+    )
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        max_length=64,
+        description="host names the browser may use to reach the station besides the loopback "
+        "names and the --host address (e.g. the station's DNS name on the line network)",
+    )
+    tls_certificate: str | None = Field(
+        None,
+        max_length=4096,
+        description="PEM certificate for HTTPS (relative to this file); needed to listen "
+        "beyond loopback",
+    )
+    tls_key: str | None = Field(
+        None, max_length=4096, description="PEM private key of tls_certificate (relative)"
+    )
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _hosts(cls, value: list[str]) -> list[str]:
+        for host in value:
+            if not re.fullmatch(r"[A-Za-z0-9._:\[\]-]{1,253}", host):
+                raise ValueError(f"{host!r} is not a host name or address")
+        return [h.lower() for h in value]
+
+    @model_validator(mode="after")
+    def _consistent(self) -> UiSettings:
+        if self.require_operator and not self.operators:
+            raise ValueError("require_operator needs at least one entry under ui.operators")
+        names = [o.name.casefold() for o in self.operators]
+        if len(set(names)) != len(names):
+            raise ValueError("two operators have the same name; names must be unique")
+        for o in self.operators:
+            if not o.pin_hash and not o.badge_hash:
+                raise ValueError(f"operator {o.name!r} has neither pin_hash nor badge_hash")
+        if (self.tls_certificate is None) != (self.tls_key is None):
+            raise ValueError("tls_certificate and tls_key go together; set both or neither")
+        return self
 
 
 class StationSettings(_Strict):
