@@ -4,11 +4,6 @@ The simulated bench's process is killed during a step (every instrument's link g
 Modbus sockets reset, fixture and supply pseudo-terminals hang up). Whatever instrument the
 engine touches first, the verdict's reason is that instrument's typed error with advice,
 never "internal error ... report this" and never a bare OS error text alone.
-
-The serial supply driver of today (drivers/scpi.py) can still let a bare termios error through
-when its pseudo-terminal hangs up; it is being moved to pyvisa with its errors mapped (issue 14,
-supply driver). Until then these tests wrap it in `_MappedSupply`, which does only that mapping,
-so that they judge the rest of the path: Modbus links, fixture links and the station.
 """
 
 from __future__ import annotations
@@ -21,7 +16,6 @@ from typing import Any
 
 import pytest
 
-from drivers.errors import ConnectionLost, InstrumentError
 from drivers.sim.launcher import launch_bench
 from procedures.record import Verdict, read_record
 from station.settings import load_settings
@@ -33,45 +27,9 @@ SHORT = ROOT / "tests/procedures/data/short.yaml"
 INSTRUMENTS = ("rate table", "thermal chamber", "DC supply", "supply", "fixture")
 
 
-class _MappedSupply:
-    """The real supply driver with any error that is not typed raised as ConnectionLost."""
-
-    def __init__(self, inner: Any) -> None:
-        self._inner = inner
-
-    def __getattr__(self, name: str) -> Any:
-        attr = getattr(self._inner, name)
-        if not callable(attr):
-            return attr
-
-        def call(*args: Any, **kwargs: Any) -> Any:
-            try:
-                return attr(*args, **kwargs)
-            except InstrumentError:
-                raise
-            except Exception as exc:
-                raise ConnectionLost(
-                    f"the supply's serial port failed ({exc}); check its cable",
-                    instrument="DC supply",
-                ) from exc
-
-        return call
-
-
-@pytest.fixture
-def mapped_supply(monkeypatch: pytest.MonkeyPatch) -> None:
-    from drivers import supply
-
-    real_open = supply.ScpiSupply.open
-    def mapped_open(cls: Any, *args: Any, **kwargs: Any) -> _MappedSupply:
-        return _MappedSupply(real_open(*args, **kwargs))
-
-    monkeypatch.setattr(supply.ScpiSupply, "open", classmethod(mapped_open))
-
-
 @pytest.mark.parametrize("step", ["thermal", "rate_table", "stop_method", "verify"])
 def test_bench_killed_mid_step_is_an_instrument_error(
-    tmp_path: Path, step: str, mapped_supply: None
+    tmp_path: Path, step: str
 ) -> None:
     with launch_bench(config={"parts": [{"socket": 1, "serial": "SIM-0001"}]}, speed=50) as bench:
         runner = UutRunner(
