@@ -73,3 +73,11 @@ class PartSilent(InstrumentTimeout):
 
 class StreamCorrupted(InstrumentError):
     """More frames were lost or corrupted than the procedure allows."""
+
+
+class ChamberFault(InstrumentError):
+    """The chamber controller reports its FAULT state (compressor, heater, sensor)."""
+
+
+class ControllerHung(InstrumentError):
+    """An instrument answers but its controller has stopped (its heartbeat does not advance)."""

@@ -12,7 +12,13 @@ import logging
 from collections.abc import Callable
 
 from drivers.clock import Clock
-from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
+from drivers.errors import (
+    ControllerHung,
+    InstrumentError,
+    InstrumentTimeout,
+    InterlockOpen,
+    TableFault,
+)
 from drivers.modbus_link import (
     ModbusLink,
     ModbusRefused,
@@ -21,8 +27,9 @@ from drivers.modbus_link import (
     read_identity,
     regs_to_i32,
     regs_to_u32,
+    reopen_link,
 )
-from drivers.protocols import InstrumentIdentity, TableStatus
+from drivers.protocols import InstrumentIdentity, SafeReadback, TableStatus
 from drivers.rate_table_map import (
     COUNTS_PER_REV,
     DEVICE_ID,
@@ -48,6 +55,11 @@ _CMD_COUNT = Reg.MOVE_TIME + 2 - Reg.MODE  # 1..9
 _RATE_MATCH_DPS = 0.5
 _RATE_MATCH_REL = 0.005
 _POSITION_MATCH_DEG = 0.05
+SAFE_REST_DPS = 0.01  # |rate| below this, not moving: the table is at rest
+# the heartbeat register must advance within this much station time (and readings further
+# apart than the window are not compared: the 16-bit counter may have wrapped)
+HEARTBEAT_STALL_S = 1.0
+HEARTBEAT_WINDOW_S = 300.0
 
 
 def fault_message(code: int) -> str:
@@ -278,3 +290,40 @@ class ModbusRateTable:
 
     def close(self) -> None:
         self._link.close()
+
+    # ------------------------------------------------------------ safe-state readback, watchdog
+
+    def check_safe(self) -> SafeReadback:
+        """Read back whether the table is at rest and disabled (its own status registers)."""
+        status = self.read_status()
+        at_rest = not status.moving and abs(status.rate_dps) < SAFE_REST_DPS
+        state = "enabled" if status.enabled else "disabled"
+        detail = f"rate {status.rate_dps:.3f} deg/s, {state}"
+        if status.moving:
+            detail += ", still moving"
+        if status.fault:
+            detail += f", fault {status.fault_code}: {fault_message(status.fault_code)}"
+        if status.interlock_open:
+            detail += ", interlock open"
+        return SafeReadback(at_rest and not status.enabled, detail)
+
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        reopen_link(self._link, timeout_s)
+
+    def watchdog_check(self) -> None:
+        """Raise TableFault/InterlockOpen on a fault or open interlock (at rest too), and
+        ControllerHung when the controller's heartbeat register has stopped advancing."""
+        self.check()
+        beat = self._link.read(Reg.HEARTBEAT, 1)[0]
+        now = self._clock.now_s()
+        last = getattr(self, "_heartbeat", None)
+        if last is not None and beat == last[0] and 0 < now - last[1] < HEARTBEAT_WINDOW_S:
+            if now - last[1] >= HEARTBEAT_STALL_S:
+                raise ControllerHung(
+                    f"the rate table's controller heartbeat (register {int(Reg.HEARTBEAT)}) has "
+                    f"not advanced for {now - last[1]:.1f} s: the controller has hung; power-"
+                    "cycle it before moving the table",
+                    instrument=NAME,
+                )
+            return  # too soon to judge: keep the first reading of this value
+        self._heartbeat = (beat, now)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 
 from drivers.errors import InstrumentError, ProtocolError, ScpiError, SupplyCurrentLimit
-from drivers.protocols import InstrumentIdentity
+from drivers.protocols import InstrumentIdentity, SafeReadback
 from drivers.scpi import ScpiPort, SerialLike, open_serial, parse_float
 
 log = logging.getLogger(__name__)
@@ -121,3 +121,11 @@ class ScpiSupply:
 
     def close(self) -> None:
         self._scpi.close()
+
+    # ------------------------------------------------------------ safe-state readback
+
+    def check_safe(self) -> SafeReadback:
+        """Read back whether the output is off (OUTP?)."""
+        if self.output_is_on():
+            return SafeReadback(False, f"output ON, measuring {self.measure_voltage():.3f} V")
+        return SafeReadback(True, "output off")
