@@ -313,8 +313,10 @@ class ModbusRateTable:
     def watchdog_check(self) -> None:
         """Raise TableFault/InterlockOpen on a fault or open interlock (at rest too), and
         ControllerHung when the controller's heartbeat register has stopped advancing."""
-        self.check()
-        beat = self._link.read(Reg.HEARTBEAT, 1)[0]
+        regs = self._link.read(Reg.STATUS, Reg.HEARTBEAT + 1 - Reg.STATUS)  # one request
+        if Status(regs[0]) & (Status.FAULT | Status.INTERLOCK_OPEN):
+            self.check()  # reads the full status and raises with the fault's text
+        beat = regs[Reg.HEARTBEAT - Reg.STATUS]
         now = self._clock.now_s()
         last = getattr(self, "_heartbeat", None)
         if last is not None and beat == last[0] and 0 < now - last[1] < HEARTBEAT_WINDOW_S:

@@ -46,7 +46,7 @@ class SafeStatePolicy:
     wall time it is given (a fast simulated clock must not cut a slow link short)."""
 
     deadline_s: float = 120.0
-    wall_floor_s: float = 20.0
+    wall_floor_s: float = 10.0
     first_backoff_wall_s: float = 0.05
     max_backoff_wall_s: float = 2.0
     # each reconnect multiplies the link's reply timeout (wall s) by this, up to the cap

@@ -20,7 +20,8 @@ from drivers.protocols import Watched
 
 log = logging.getLogger(__name__)
 
-WATCHDOG_PERIOD_S = 1.0  # station seconds between polls (the issue asks for at most 2 s)
+# station seconds between polls: with the 1 s slices of RunContext.sleep, a poll every 2 s
+WATCHDOG_PERIOD_S = 1.5
 
 
 class Watchdog:

@@ -25,11 +25,13 @@ from station.uut import Endpoints, UutRunner
 
 GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"
 SERIAL = "SIM-0901"
-GRID_SPEED = 300.0
+GRID_SPEED = 200.0
 STEPS = ("power_identify", "thermal", "bias", "rate_table", "stop_method", "program", "verify")
 ALL = STEPS
 AT_REST_AND_MOVING = ALL
 MOVING = ("rate_table", "stop_method", "verify")
+# station seconds into the step at which the fault is injected: while the table turns
+INJECT_AFTER_S = {"rate_table": 3.0, "stop_method": 4.0, "verify": 5.0}
 # bench truth key -> the station's name for the instrument
 TRUTH_KEYS = {
     "table_stopped_and_disabled": "rate_table",
@@ -204,11 +206,23 @@ def run_cell(fault_id: str, step: str, out: Path, speed: float = GRID_SPEED) -> 
         )
         fired = threading.Event()
 
+        def inject() -> None:
+            ctx = runner.context
+            if ctx is None:  # the run ended before the fault was due
+                return
+            injected_at.append(ctx.clock.now_s())
+            bench.control.fault(fault.kind, **fault.params)
+
         def on_event(ev: ProgressEvent) -> None:
             if ev.kind == "step" and ev.step == step and not fired.is_set():
                 fired.set()
-                injected_at.append(ev.station_time_s)
-                bench.control.fault(fault.kind, **fault.params)
+                after_s = INJECT_AFTER_S.get(step, 0.0)
+                if after_s > 0:
+                    timer = threading.Timer(after_s / speed, inject)
+                    timer.daemon = True
+                    timer.start()
+                else:
+                    inject()
 
         runner.progress.subscribe(on_event)
         result = runner.run({1: SERIAL})
