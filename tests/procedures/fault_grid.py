@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.sim.launcher import launch_bench
+from drivers.sim.launcher import BenchStartError, launch_bench
 from procedures.progress import ProgressEvent
 from procedures.record import RAW_DATA_FILE, Verdict, read_record
 from station.settings import load_settings
@@ -187,7 +187,18 @@ def first_page_text(pdf: Path) -> str:
 
 
 def run_cell(fault_id: str, step: str, out: Path, speed: float = GRID_SPEED) -> CellResult:
-    """Run one cell on a fresh bench and judge it."""
+    """Run one cell on a fresh bench and judge it (a bench that fails to start on a loaded
+    machine is started again: that is the test rig, not the cell)."""
+    for attempt in range(3):
+        try:
+            return _run_cell(fault_id, step, out / f"try{attempt}", speed)
+        except BenchStartError:
+            if attempt == 2:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _run_cell(fault_id: str, step: str, out: Path, speed: float) -> CellResult:
     import time
 
     fault = FAULTS_BY_ID[fault_id]
@@ -195,7 +206,9 @@ def run_cell(fault_id: str, step: str, out: Path, speed: float = GRID_SPEED) -> 
     wall0 = time.monotonic()
     injected_at: list[float] = []
     part = {"socket": 1, "serial": SERIAL}
-    with launch_bench(config={"parts": [part]}, speed=speed, sockets=1) as bench:
+    with launch_bench(
+        config={"parts": [part]}, speed=speed, sockets=1, start_timeout_s=60.0
+    ) as bench:
         runner = UutRunner(
             load_settings(),
             procedure_path=GRID_PROCEDURE,
