@@ -66,8 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     ):
         times = [c.fault_to_safe_s for c in group if c.fault_to_safe_s is not None]
         if times:
-            print(f"  {label}: median {statistics.median(times):.1f} s, max {max(times):.1f} s "
-                  f"station ({len(times)} cells)")
+            med, top = statistics.median(times), max(times)
+            print(f"  {label}: median {med:.1f} s, max {top:.1f} s station ({len(times)} "
+                  f"cells; {med / args.speed:.1f} / {top / args.speed:.1f} s wall)")
     return 0 if correct == n else 1
 
 
