@@ -53,6 +53,7 @@ from procedures.record import (
     write_record,
 )
 from procedures.safe_state import (
+    InstrumentSafeState,
     SafeStatePass,
     SafeStatePolicy,
     SafeStateReport,
@@ -652,7 +653,18 @@ class Engine:
         targets.append(SafeTarget("streams", acquisition.close, retry=False))
         targets.append(supply_target(bench.supply))
         targets.append(chamber_target(bench.chamber, safe_temp_c))
-        report = SafeStatePass(targets, ctx.clock, self.safe_state_policy).run()
+        try:
+            report = SafeStatePass(targets, ctx.clock, self.safe_state_policy).run()
+        except Exception as exc:  # a bug here must still end in a record that says so
+            log.exception("the safe-state pass failed")
+            report = SafeStateReport(
+                instruments={
+                    t.name: InstrumentSafeState(
+                        t.name, False, f"internal error in the safe-state pass: {exc}"
+                    )
+                    for t in targets
+                }
+            )
         report.safe_temp_c = safe_temp_c
         self.safe_state = report
         self.safe_state_report = report.legacy()
