@@ -7,7 +7,7 @@ station seconds (median, max; cells where an instrument could not be made safe h
 time and are counted apart). A slow Modbus link costs wall seconds per request, which the
 bench's speed turns into many station seconds: those cells are listed apart too.
 
-    python3 benchmarks/bench_faults.py [--quick] [--speed 200] [--only FAULT_ID ...]
+    python3 benchmarks/bench_faults.py [--quick] [--speed 200] [--only FAULT ...] [--steps STEP ...]
 """
 
 from __future__ import annotations
@@ -31,10 +31,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="the representative cells only")
     ap.add_argument("--speed", type=float, default=fault_grid.GRID_SPEED)
     ap.add_argument("--only", nargs="*", default=None, help="fault ids to run")
+    ap.add_argument("--steps", nargs="*", default=None, help="steps to run")
     args = ap.parse_args(argv)
     cells = list(fault_grid.REPRESENTATIVE) if args.quick else fault_grid.grid_cells()
     if args.only:
         cells = [c for c in cells if c[0] in args.only]
+    if args.steps:
+        cells = [c for c in cells if c[1] in args.steps]
     results = []
     wall0 = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp:

@@ -620,6 +620,7 @@ class Engine:
             ctx.begin_step(step, estimate_s)
             t0 = ctx.clock.now_s()
             try:
+                ctx.watchdog.poll(force=True)  # every step starts on a checked bench
                 step.setup(ctx)
                 step.main(ctx)
                 return
