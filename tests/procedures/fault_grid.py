@@ -106,7 +106,7 @@ FAULTS = (
         "part_silent",
         "part_silent",
         {"socket": 1},
-        ("stopped streaming", "no samples", "not responding"),
+        ("stopped streaming", "stopped sending", "no samples", "not responding"),
         ("power_identify", "thermal", "rate_table", "verify"),
     ),
 )
