@@ -22,6 +22,10 @@ log = logging.getLogger(__name__)
 
 # station seconds between polls: with the 1 s slices of RunContext.sleep, a poll every 2 s
 WATCHDOG_PERIOD_S = 1.5
+# ... but never more often than this in wall time: on a simulated bench above 100x, station
+# seconds are milliseconds and polls would crowd the bench's one event loop (at 200x the
+# watchdog then polls every 4 station s; a real bench runs at 1x)
+WATCHDOG_MIN_WALL_S = 0.02
 
 
 class Watchdog:
@@ -36,8 +40,12 @@ class Watchdog:
         self._last_s: float | None = None
         self.polls = 0
 
+    @property
+    def effective_period_s(self) -> float:
+        return max(self.period_s, WATCHDOG_MIN_WALL_S * self.clock.speed)
+
     def due(self) -> bool:
-        return self._last_s is None or self.clock.now_s() - self._last_s >= self.period_s
+        return self._last_s is None or self.clock.now_s() - self._last_s >= self.effective_period_s
 
     def poll(self, force: bool = False) -> None:
         """Check every instrument if the period has passed; raises its InstrumentError."""

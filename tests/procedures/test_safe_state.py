@@ -155,7 +155,7 @@ def _ctx(tmp_path: Path, table: FakeTable, chamber: FakeChamber) -> RunContext:
         chamber=chamber,  # type: ignore[arg-type]
         supply=FakeSupply(),  # type: ignore[arg-type]
         links={},
-        clock=ScaledClock(1000.0),
+        clock=ScaledClock(50.0),  # the watchdog's wall floor (20 ms) is 1 station s here
         table=table,  # type: ignore[arg-type]
     )
     ref = FileRef(path="x", sha256="0" * 64)
