@@ -12,9 +12,21 @@ import logging
 
 from drivers.chamber_map import DEVICE_ID, STRING_REGS, TENTHS, Reg, State
 from drivers.clock import Clock
-from drivers.errors import ChamberSetpointNotReached, InstrumentError, SetpointOutOfRange
-from drivers.modbus_link import ModbusLink, ModbusRefused, i16_to_u16, read_identity, u16_to_i16
-from drivers.protocols import InstrumentIdentity
+from drivers.errors import (
+    ChamberFault,
+    ChamberSetpointNotReached,
+    InstrumentError,
+    SetpointOutOfRange,
+)
+from drivers.modbus_link import (
+    ModbusLink,
+    ModbusRefused,
+    i16_to_u16,
+    read_identity,
+    reopen_link,
+    u16_to_i16,
+)
+from drivers.protocols import InstrumentIdentity, SafeReadback
 
 log = logging.getLogger(__name__)
 
@@ -155,3 +167,28 @@ class ModbusChamber:
 
     def close(self) -> None:
         self._link.close()
+
+    # ------------------------------------------------------------ safe-state readback, watchdog
+
+    def check_safe(self, safe_temp_c: float) -> SafeReadback:
+        """Read back whether the controller holds the safe setpoint (within its limits)."""
+        low, high = self.setpoint_limits()
+        target = min(max(safe_temp_c, low), high)
+        setpoint = self.read_setpoint()
+        air = self.read_temperature()
+        running = "running" if self.is_running() else "stopped"
+        detail = f"setpoint {setpoint:g} C (safe {target:g} C), air {air:g} C, {running}"
+        return SafeReadback(abs(setpoint - target) <= 0.5 / TENTHS, detail)
+
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        reopen_link(self._link, timeout_s)
+
+    def watchdog_check(self) -> None:
+        """Raise ChamberFault when the controller reports its FAULT state."""
+        if self.read_state() == State.FAULT:
+            air = self.read_temperature()
+            raise ChamberFault(
+                f"the chamber reports a fault at {air:g} C (setpoint {self.read_setpoint():g} "
+                "C): compressor, heater or sensor fault; check the chamber, then rerun",
+                instrument=NAME,
+            )

@@ -75,7 +75,15 @@ class StreamCorrupted(InstrumentError):
     """More frames were lost or corrupted than the procedure allows."""
 
 
-class ChamberAlarm(ChamberSetpointNotReached):
+class ChamberFault(InstrumentError):
+    """The chamber controller reports its FAULT state (compressor, heater, sensor)."""
+
+
+class ControllerHung(InstrumentError):
+    """An instrument answers but its controller has stopped (its heartbeat does not advance)."""
+
+
+class ChamberAlarm(ChamberSetpointNotReached, ChamberFault):
     """The chamber controller reports an alarm (deviation, heater, refrigeration, limit):
     it will not hold its setpoint until the alarm is cleared at the chamber."""
 

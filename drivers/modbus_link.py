@@ -251,3 +251,14 @@ def read_identity(
         serial=text(serial_reg),
         firmware=text(firmware_reg),
     )
+
+
+def reopen_link(link: ModbusLink, timeout_s: float | None = None) -> None:
+    """Close `link`'s connection and connect again, with a new reply timeout (wall s) if
+    given: used by the safe-state pass to get through to a slow or re-plugged controller."""
+    with link._lock:
+        link._client.close()
+        if timeout_s is not None:
+            link.timeout_s = timeout_s
+        link._client = ModbusTcpClient(link.host, port=link.port, timeout=link.timeout_s, retries=0)
+        link._ensure_connected()

@@ -259,3 +259,49 @@ class PartLink(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+# ---------------------------------------------------------------- safe-state readback
+
+
+@dataclass(frozen=True)
+class SafeReadback:
+    """What an instrument itself reports about its safe state, read back after commanding it.
+
+    `safe` is the instrument's own answer (table at rest and disabled, supply output off,
+    chamber setpoint at its safe temperature); `detail` says what was read, in words an
+    operator can act on.
+    """
+
+    safe: bool
+    detail: str
+
+
+@runtime_checkable
+class ReadsBackSafe(Protocol):
+    """A table or supply that can read back whether it is in its safe state."""
+
+    def check_safe(self) -> SafeReadback: ...
+
+
+@runtime_checkable
+class ChamberReadsBackSafe(Protocol):
+    """A chamber that can read back whether it holds its safe temperature."""
+
+    def check_safe(self, safe_temp_c: float) -> SafeReadback: ...
+
+
+@runtime_checkable
+class Reconnectable(Protocol):
+    """A driver that can drop its connection and open a new one, optionally with a longer
+    reply timeout (wall seconds) for a slow link."""
+
+    def reconnect(self, timeout_s: float | None = None) -> None: ...
+
+
+@runtime_checkable
+class Watched(Protocol):
+    """An instrument the run's watchdog polls: raises an `InstrumentError` subclass when the
+    instrument reports a fault (e-stop, interlock, chamber FAULT, a stalled heartbeat)."""
+
+    def watchdog_check(self) -> None: ...

@@ -20,14 +20,21 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drivers.clock import Clock, ScaledClock
-from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
-from drivers.modbus_link import ModbusLink, ModbusRefused, Unwrapper, regs_to_str
-from drivers.protocols import InstrumentIdentity, TableStatus
+from drivers.errors import (
+    ControllerHung,
+    InstrumentError,
+    InstrumentTimeout,
+    InterlockOpen,
+    TableFault,
+)
+from drivers.modbus_link import ModbusLink, ModbusRefused, Unwrapper, regs_to_str, reopen_link
+from drivers.protocols import InstrumentIdentity, SafeReadback, TableStatus
 from drivers.servo_profile import (
     COMMAND_FIELDS,
     DEFAULT_PROFILE,
     STATUS_FIELDS,
     STRING_FIELDS,
+    WATCHDOG_FIELDS,
     Register,
     ServoProfile,
     load_profile,
@@ -41,6 +48,11 @@ NAME = "rate table"
 _RATE_MATCH_DPS = 0.5
 _RATE_MATCH_REL = 0.005
 _POSITION_MATCH_DEG = 0.05
+SAFE_REST_DPS = 0.01  # |rate| below this, not moving: the table is at rest
+# the heartbeat register must advance within this much station time (and readings further
+# apart than the window are not compared: the 16-bit counter may have wrapped)
+HEARTBEAT_STALL_S = 1.0
+HEARTBEAT_WINDOW_S = 300.0
 
 
 def split_host_port(address: str) -> tuple[str, int]:
@@ -173,10 +185,12 @@ class ModbusRateTable:
         return self.profile.limits.max_accel_dps2
 
     def read_status(self) -> TableStatus:
+        first, end = self._status_span
+        return self._status_from(self._link.read(first, end - first), first)
+
+    def _status_from(self, block: list[int], first: int) -> TableStatus:
         p = self.profile
         regs = p.registers
-        first, end = self._status_span
-        block = self._link.read(first, end - first)
         word = int(p.decode(regs.status, block, first, raw=True))
 
         def bit(name: str) -> bool:
@@ -371,3 +385,45 @@ class ModbusRateTable:
 
     def close(self) -> None:
         self._link.close()
+
+    # ------------------------------------------------------------ safe-state readback, watchdog
+
+    def check_safe(self) -> SafeReadback:
+        """Read back whether the table is at rest and disabled (its own status registers)."""
+        status = self.read_status()
+        at_rest = not status.moving and abs(status.rate_dps) < SAFE_REST_DPS
+        state = "enabled" if status.enabled else "disabled"
+        detail = f"rate {status.rate_dps:.3f} deg/s, {state}"
+        if status.moving:
+            detail += ", still moving"
+        if status.fault:
+            detail += f", fault {status.fault_code}: {fault_message(status.fault_code)}"
+        if status.interlock_open:
+            detail += ", interlock open"
+        return SafeReadback(at_rest and not status.enabled, detail)
+
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        reopen_link(self._link, timeout_s)
+
+    def watchdog_check(self) -> None:
+        """Raise TableFault/InterlockOpen on a fault or open interlock (at rest too), and
+        ControllerHung when the controller's heartbeat register has stopped advancing."""
+        first, end = self.profile.registers.span(WATCHDOG_FIELDS)
+        block = self._link.read(first, end - first)  # status and heartbeat in one request
+        self.check(self._status_from(block, first))  # raises with the fault's text
+        hb = self.profile.registers.heartbeat
+        if hb is None:
+            return  # this profile's controller has no heartbeat register to judge
+        beat = int(self.profile.decode(hb, block, first, raw=True))
+        now = self._clock.now_s()
+        last = getattr(self, "_heartbeat", None)
+        if last is not None and beat == last[0] and 0 < now - last[1] < HEARTBEAT_WINDOW_S:
+            if now - last[1] >= HEARTBEAT_STALL_S:
+                raise ControllerHung(
+                    f"the rate table's controller heartbeat (register {hb.address}) has "
+                    f"not advanced for {now - last[1]:.1f} s: the controller has hung; power-"
+                    "cycle it before moving the table",
+                    instrument=NAME,
+                )
+            return  # too soon to judge: keep the first reading of this value
+        self._heartbeat = (beat, now)

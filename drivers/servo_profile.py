@@ -32,6 +32,8 @@ RegType = Literal["u16", "i16", "u32", "i32"]
 FaultKind = Literal["overspeed", "following_error", "encoder_loss", "estop", "other"]
 COMMAND_FIELDS = ("mode", "position_command", "rate_command", "accel_limit", "move_time")
 STATUS_FIELDS = ("status", "fault_code", "encoder_counts", "position", "rate", "time")
+# read with the status block, in the same request, when the profile has it
+WATCHDOG_FIELDS = (*STATUS_FIELDS, "heartbeat")
 STRING_FIELDS = ("model", "serial", "firmware")
 
 
@@ -86,6 +88,11 @@ class Registers(_Strict):
     position: Register = Field(description="position feedback since zeroing, deg")
     rate: Register = Field(description="rate feedback, deg/s")
     time: Register = Field(description="controller clock at the snapshot, s, wrapping")
+    heartbeat: Register | None = Field(
+        None,
+        description="counter the controller advances while it runs, u16 (optional: the "
+        "station's watchdog judges a hung controller by it when given)",
+    )
     model: Text
     serial: Text
     firmware: Text
@@ -98,13 +105,15 @@ class Registers(_Strict):
         taken: dict[int, str] = {}
         for name in type(self).model_fields:
             reg = getattr(self, name)
+            if reg is None:
+                continue
             count = reg.count if isinstance(reg, Text) else reg.words
             for a in range(reg.address, reg.address + count):
                 if a in taken:
                     raise ValueError(f"registers.{name} overlaps registers.{taken[a]} at {a}")
                 taken[a] = name
         for group, limit in (
-            (COMMAND_FIELDS, MAX_WRITE_SPAN), (STATUS_FIELDS, MAX_READ_SPAN),
+            (COMMAND_FIELDS, MAX_WRITE_SPAN), (WATCHDOG_FIELDS, MAX_READ_SPAN),
             (STRING_FIELDS, MAX_READ_SPAN),
         ):
             first, end = self.span(group)
@@ -117,7 +126,7 @@ class Registers(_Strict):
 
     def span(self, names: tuple[str, ...]) -> tuple[int, int]:
         """First register and one past the last of the named fields."""
-        regs = [getattr(self, n) for n in names]
+        regs = [r for r in (getattr(self, n) for n in names) if r is not None]
         first = min(r.address for r in regs)
         end = max(r.address + (r.count if isinstance(r, Text) else r.words) for r in regs)
         return first, end

@@ -17,7 +17,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drivers.errors import InstrumentError, ProtocolError, ScpiError, SupplyCurrentLimit
-from drivers.protocols import InstrumentIdentity
+from drivers.protocols import InstrumentIdentity, SafeReadback
 from drivers.scpi import ScpiCommands, ScpiTransport, parse_float
 from drivers.visa import VisaTransport, resource_name
 
@@ -181,6 +181,13 @@ class ScpiSupply:
     def close(self) -> None:
         self._scpi.close()
 
+    # ------------------------------------------------------------ safe-state readback
+
+    def check_safe(self) -> SafeReadback:
+        """Read back whether the output is off (OUTP?)."""
+        if self.output_is_on():
+            return SafeReadback(False, f"output ON, measuring {self.measure_voltage():.3f} V")
+        return SafeReadback(True, "output off")
 
 # ---------------------------------------------------------------- configuration
 

@@ -192,6 +192,11 @@ class ProductConfig(_Strict):
         "(default: the ADIS16130's 24-bit offset-binary codes)",
     )
     limits: Limits = Field(default_factory=Limits, description="acceptance limits")
+    handling_temp_range_c: tuple[float, float] = Field(
+        (10.0, 40.0),
+        description="chamber temperatures [low, high] C at which the part and fixture may be "
+        "handled; a procedure's chamber.safe_temp_c must lie within",
+    )
 
     @field_validator("serial_pattern")
     @classmethod
@@ -405,6 +410,9 @@ class StreamConfig(_Strict):
     max_lost_fraction: float = Field(0.001, ge=0, le=1, description="allowed lost/expected frames")
     silent_timeout_s: float = Field(
         5.0, gt=0, le=ONE_HOUR_S, description="no frames this long: part is silent"
+    )
+    max_lost_frames_per_window: int = Field(
+        2, ge=0, le=100_000, description="lost frames allowed in any one analysis window"
     )
 
 

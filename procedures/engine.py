@@ -52,7 +52,18 @@ from procedures.record import (
     Verdict,
     write_record,
 )
+from procedures.safe_state import (
+    InstrumentSafeState,
+    SafeStatePass,
+    SafeStatePolicy,
+    SafeStateReport,
+    SafeTarget,
+    chamber_target,
+    supply_target,
+    table_target,
+)
 from procedures.streams import Acquisition, PartStream
+from procedures.watchdog import Watchdog
 
 log = logging.getLogger(__name__)
 SUPPLY_SETTLE_S = 0.2  # station seconds after a change of supply setting before reading it
@@ -228,6 +239,7 @@ class RunContext:
         self.done_estimate_s = 0.0
         self.total_estimate_s = 1.0
         self._last_progress_wall = 0.0
+        self.watchdog = Watchdog({"rate_table": bench.table, "chamber": bench.chamber}, bench.clock)
 
     # ------------------------------------------------------------ parts
 
@@ -292,6 +304,7 @@ class RunContext:
         """Raise Aborted / StepTimeout when due; drop parts whose stream failed."""
         if self._abort.is_set():
             raise Aborted(self.abort_reason or "operator abort")
+        self.watchdog.poll()
         limit = self.procedure.stream.max_lost_fraction
         for part in self.alive():
             part.rows.flush_if_due()
@@ -555,6 +568,8 @@ class Engine:
         self.ctx = ctx
         self.steps = steps
         self.safe_state_report: dict[str, str] = {}
+        self.safe_state: SafeStateReport | None = None
+        self.safe_state_policy = SafeStatePolicy()
 
     def abort(self, reason: str = "operator abort") -> None:
         self.ctx.abort(reason)
@@ -608,6 +623,7 @@ class Engine:
             ctx.begin_step(step, estimate_s)
             t0 = ctx.clock.now_s()
             try:
+                ctx.watchdog.poll(force=True)  # every step starts on a checked bench
                 step.setup(ctx)
                 step.main(ctx)
                 return
@@ -630,38 +646,60 @@ class Engine:
 
     # ------------------------------------------------------------ the guaranteed end
 
-    def _safe_state(self, acquisition: Acquisition) -> None:
-        """Table to rest, streams stopped, supply off, chamber to its safe setpoint."""
+    def _safe_state(self, acquisition: Acquisition) -> SafeStateReport:
+        """Table to rest, streams stopped, supply off, chamber to its safe setpoint: each
+        read back from the instrument itself, retried until safe or the deadline passes."""
         bench, ctx = self.ctx.bench, self.ctx
-        actions: list[tuple[str, Callable[[], None]]] = []
+        safe_temp_c = ctx.procedure.chamber.safe_temp_c
+        targets: list[SafeTarget] = []
         if bench.table is not None:
-            actions.append(("rate_table", bench.table.safe_state))
-        actions.append(("streams", acquisition.close))
-        actions.append(("supply", bench.supply.safe_state))
-        actions.append(
-            ("chamber", lambda: bench.chamber.safe_state(ctx.procedure.chamber.safe_temp_c))
-        )
-        for name, action in actions:
-            try:
-                action()
-                self.safe_state_report[name] = "safe"
-            except Exception as exc:  # keep going: the other instruments must be made safe too
-                self.safe_state_report[name] = f"FAILED: {exc}"
-                log.error("could not bring %s to its safe state: %s", name, exc)
+            targets.append(table_target(bench.table))
+        targets.append(SafeTarget("streams", acquisition.close, retry=False))
+        targets.append(supply_target(bench.supply))
+        targets.append(chamber_target(bench.chamber, safe_temp_c))
+        try:
+            report = SafeStatePass(targets, ctx.clock, self.safe_state_policy).run()
+        except Exception as exc:  # a bug here must still end in a record that says so
+            log.exception("the safe-state pass failed")
+            report = SafeStateReport(
+                instruments={
+                    t.name: InstrumentSafeState(
+                        t.name, False, f"internal error in the safe-state pass: {exc}"
+                    )
+                    for t in targets
+                }
+            )
+        report.safe_temp_c = safe_temp_c
+        self.safe_state = report
+        self.safe_state_report = report.legacy()
+        for state in report.instruments.values():
+            if state.safe:
+                ctx.event(
+                    f"safe state: {state.label} safe ({state.detail}; {state.attempts} "
+                    "attempt(s))",
+                    parts=ctx.parts,
+                )
+            else:
+                ctx.event(
+                    f"SAFE STATE FAILED: {state.label} is NOT safe: {state.detail}",
+                    level="ERROR",
+                    parts=ctx.parts,
+                )
+        return report
 
     def _finish(
         self, acquisition: Acquisition, started_s: float, run_error: tuple[Verdict, str] | None
     ) -> None:
         ctx = self.ctx
         ctx.step_name = "cleanup"
-        self._safe_state(acquisition)
-        failed_safe = {k: v for k, v in self.safe_state_report.items() if v != "safe"}
-        if failed_safe and run_error is None:
-            run_error = (
-                Verdict.ERROR,
-                "could not bring the bench to a safe state: "
-                + "; ".join(f"{k}: {v}" for k, v in failed_safe.items()),
-            )
+        report = self._safe_state(acquisition)
+        unsafe = report.failure_text()
+        if unsafe:  # a bench left unsafe is an ERROR whatever else happened, and says so
+            run_error = (Verdict.ERROR, f"{run_error[1]}; {unsafe}" if run_error else unsafe)
+            for part in ctx.parts:
+                if not part.alive:
+                    part.verdict = Verdict.ERROR
+                    part.reason = f"{part.reason}; {unsafe}" if part.reason else unsafe
         for part in ctx.parts:
             if part.alive and part.stream is not None:
                 lost, ok = part.stream.frames_lost, part.stream.frames_ok
@@ -684,6 +722,7 @@ class Engine:
             rec.finished_utc = _utc()
             rec.timings["total"] = round(ctx.clock.now_s() - started_s, 3)
             rec.analysis["safe_state"] = dict(self.safe_state_report)
+            rec.analysis["safe_state_report"] = report.as_record()
             if part.stream is not None:
                 rec.analysis["stream"] = {
                     "frames_ok": part.stream.frames_ok,

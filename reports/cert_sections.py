@@ -19,6 +19,7 @@ from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table,
 from procedures.record import Measurement, Outcome, RunRecord
 from reports import record_keys
 from reports.cert_inputs import CertificateInputs
+from reports.cert_safe_state import safe_state_box
 from reports.pdfdoc import parse_utc
 from reports.styles import (
     BODY,
@@ -106,6 +107,7 @@ def header(inputs: CertificateInputs) -> list[Flowable]:
         ("VALIGN", (0, 0), (-1, -1), "MIDDLE"),
     ]))
     story += [Spacer(1, 2 * mm), banner, Spacer(1, 1.5 * mm)]
+    story += safe_state_box(rec, CONTENT_WIDTH)
     if verdict == "FAIL" and rec is not None:
         names = [
             f"{m.name}{' @ ' + m.condition if m.condition else ''} = "

@@ -50,6 +50,7 @@ from procedures.record import (
     Verdict,
     write_record,
 )
+from procedures.safe_state import SafeSettingsError, check_safe_temperature
 from procedures.steps.plan import build_plan
 from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
@@ -310,6 +311,7 @@ class UutRunner:
         """Check the link speed, sockets and serials before anything is written or any
         instrument is touched; UserError says what to fix."""
         self.check_link_speed()
+        self.check_safe_settings()
         if not duts:
             raise UserError("no part given: scan at least one serial (--dut SERIAL)")
         n_sockets = self.settings.settings.instruments.fixture.sockets
@@ -335,6 +337,18 @@ class UutRunner:
                 f"procedure {self.procedure_path.name} cannot run on this station ("
                 f"{self.settings.source.path}): {problem}"
             )
+
+    def check_safe_settings(self, chamber_limits_c: tuple[float, float] | None = None) -> None:
+        """The chamber's safe temperature within the product's handling range (and the
+        chamber's setpoint limits once known); UserError in one line otherwise."""
+        try:
+            check_safe_temperature(
+                self.procedure.chamber.safe_temp_c,
+                self.product.handling_temp_range_c,
+                chamber_limits_c,
+            )
+        except SafeSettingsError as exc:
+            raise UserError(f"procedure {self.procedure_path.name}: {exc}") from None
 
     def fixture_ports(self) -> dict[int, str]:
         """Socket -> fixture port: the bench's sockets, or station.yaml's."""
@@ -396,6 +410,10 @@ class UutRunner:
                 remaining_s=last.remaining_s,
                 sockets=last.sockets,
             )
+        engine = self._engine
+        if engine is not None and engine.safe_state is not None:
+            # the station's own safe-state readback of the last run (never the simulator's)
+            out["safe_state"] = engine.safe_state.as_record()
         if self._result is not None:
             out["verdicts"] = {s: str(v) for s, v in self._result.verdicts.items()}
             out["folders"] = {s: str(p) for s, p in self._result.folders.items()}
@@ -415,6 +433,7 @@ class UutRunner:
         duts = self.validate(duts)
         self.check_ports(duts)
         self._state = "running"
+        self._engine = None
         wall0 = dt.datetime.now(dt.UTC)
         self.recover()
         parts = [self._new_part(sock, serial) for sock, serial in sorted(duts.items())]
@@ -444,6 +463,10 @@ class UutRunner:
                             for s in unscanned
                         )
                     self._finish_unstarted(parts)
+                elif (refused := self._refuse_unsafe_settings(opened)) is not None:
+                    for part in parts:
+                        part.verdict, part.reason = Verdict.ERROR, refused
+                    self._finish_unstarted(parts)
                 else:
                     self._run_engine(opened, parts, unknown)
         finally:
@@ -468,6 +491,16 @@ class UutRunner:
         self._result = result
         self._state = "finished"
         return result
+
+    def _refuse_unsafe_settings(self, opened: OpenBench) -> str | None:
+        """Why the run must not start with this chamber's setpoint limits, or None."""
+        try:
+            self.check_safe_settings(opened.bench.chamber.setpoint_limits())
+        except UserError as exc:
+            return f"refused before the run started: {exc}"
+        except InstrumentError as exc:
+            return f"could not read the chamber's setpoint limits: {exc}"
+        return None
 
     def _unscanned_parts(
         self, clock: ScaledClock, scanned: set[int]

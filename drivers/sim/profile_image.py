@@ -66,7 +66,7 @@ class ProfileImage:
         self._fault_codes = {f: kinds[k] for f, k in _FAULT_KINDS.items()}
         regs = profile.registers
         self.fields: dict[str, Register | Text] = {
-            n: getattr(regs, n) for n in type(regs).model_fields
+            n: f for n in type(regs).model_fields if (f := getattr(regs, n)) is not None
         }
         self.first = min(f.address for f in self.fields.values())
         self.end = max(f.address + self._size(f) for f in self.fields.values())
@@ -120,6 +120,8 @@ class ProfileImage:
         put(image, regs.position, counts * 360.0 / table.cpr)
         put(image, regs.rate, float(table.rate_dps(t_s)[0]))
         put(image, regs.time, t_s)
+        if regs.heartbeat is not None:  # the drive's counter, 100 per second as the native map
+            put(image, regs.heartbeat, native[Reg.HEARTBEAT])
         cfg = table.cfg
         for name, text in (("model", cfg.model), ("serial", cfg.serial),
                            ("firmware", cfg.firmware)):

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.fixture_protocol import SampleStatus
+from drivers.fixture_protocol import SEQ_MODULO, SampleStatus
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
 
@@ -58,10 +58,21 @@ def samples_between(
     return stream.window(f0, f1)
 
 
+def frames_lost_in(data: dict[str, NDArray[Any]]) -> int:
+    """Frames missing inside a window: the gaps in its (wrapping) sequence numbers."""
+    seq = np.asarray(data["seq"], dtype=np.int64)
+    if seq.size < 2:
+        return 0
+    steps = np.diff(seq) % SEQ_MODULO
+    return int(np.sum(np.maximum(steps - 1, 0)))
+
+
 def check_window(
     ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]], what: str, expected_s: float
 ) -> bool:
-    """Refuse a window with too few samples or over-range samples; drops the part if so."""
+    """Refuse a window with too few samples, more lost frames than the per-window limit
+    (`stream.max_lost_frames_per_window`, or the lost fraction if that allows more), or
+    over-range samples; drops the part if so."""
     fs = sample_rate_hz(ctx)
     n = int(data["time_s"].size)
     expected = expected_s * fs
@@ -73,6 +84,20 @@ def check_window(
             f"{what}: only {n} samples where about {expected:.0f} were expected: the part "
             "stopped streaming or the stream is losing data; check the part's seating "
             "and the fixture cable",
+        )
+        return False
+    lost = frames_lost_in(data)
+    allowed = max(
+        ctx.procedure.stream.max_lost_frames_per_window,
+        int(ctx.procedure.stream.max_lost_fraction * (n + lost)),
+    )
+    if lost > allowed:
+        ctx.drop(
+            part,
+            Verdict.ERROR,
+            f"{what}: stream damaged: {lost} frames lost in this window of {n + lost} (at most "
+            f"{allowed} allowed per window): the window cannot be trusted; check the fixture "
+            "cable and its grounding",
         )
         return False
     over = int(

@@ -48,7 +48,9 @@ class Program(BaseStep):
         for part in ctx.alive():
             assert part.stream is not None
             ctx.per_part(part, lambda p: p.stream.stop())  # type: ignore[union-attr]
+        ctx.check()  # the watchdog: programming is no reason to miss an e-stop
         ctx.each(lambda part: self._program(ctx, part))
+        ctx.check()
         for part in ctx.alive():
             ctx.per_part(part, lambda p: p.stream.start())  # type: ignore[union-attr]
 

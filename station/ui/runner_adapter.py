@@ -101,7 +101,7 @@ class Runner(Protocol):
           {"type": "log", "level": str, "message": str}
           {"type": "finished", "results": [{"socket", "serial", "verdict", "reason",
            "failed": [{"name", "value", "units", "low", "high"}], "run_folder"}],
-           "safe_state": {name: bool} | None}
+           "safe_state": {"all": bool, name: bool, "unsafe": [why]} | None}
         "finished" is always the last event of a run, also after an abort or an error.
         """
         ...
@@ -432,7 +432,7 @@ class EngineRunner:
             {
                 "type": "finished",
                 "results": results,
-                "safe_state": self._safe_state(),
+                "safe_state": station_safe_state(uut),
                 "message": message,
             }
         )
@@ -456,17 +456,6 @@ class EngineRunner:
             "failed": [],
             "run_folder": str(folder) if folder else None,
         }
-
-    def _safe_state(self) -> dict[str, bool] | None:
-        if self.control is None:
-            return None
-        try:
-            with self._control_lock:
-                safe = self.control.truth().get("safe")
-        except Exception as exc:  # noqa: BLE001 - the verdict stands without it
-            log.warning("could not read the bench's safe state: %s", exc)
-            return None
-        return {str(k): bool(v) for k, v in safe.items()} if isinstance(safe, dict) else None
 
     def _sample_loop(self, uut: Any, sink: EventSink, stop: threading.Event) -> None:
         """Forward each part's new samples (the engine keeps them in its PartStreams)."""
@@ -508,3 +497,23 @@ def _example_serial(pattern: str) -> str:
     if m:
         return "ABCD"[: int(m.group(1))] + "-" + "12345678"[: int(m.group(2))]
     return ""
+
+
+def station_safe_state(uut: Any) -> dict[str, Any] | None:
+    """The station's own safe-state readback of the run just finished (what each
+    instrument reported about itself), never the simulator's truth: a real station has no
+    such channel. {"all": bool, <instrument>: bool, ..., "unsafe": [why, ...]}."""
+    state = uut.state() if callable(getattr(uut, "state", None)) else {}
+    report = state.get("safe_state") if isinstance(state, dict) else None
+    if not isinstance(report, dict) or not isinstance(report.get("instruments"), dict):
+        return None
+    out: dict[str, Any] = {"all": bool(report.get("all_safe"))}
+    unsafe: list[str] = []
+    for name, inst in report["instruments"].items():
+        safe = bool(inst.get("safe")) if isinstance(inst, dict) else False
+        out[str(name)] = safe
+        if not safe:
+            detail = inst.get("detail", "") if isinstance(inst, dict) else ""
+            unsafe.append(f"{str(name).replace('_', ' ')}: {detail}")
+    out["unsafe"] = unsafe
+    return out

@@ -170,8 +170,10 @@ function renderLast() {
   if (last && last.safe_state) {
     const st = last.safe_state;
     safe.className = "safe-state " + (st.all ? "ok" : "bad");
-    safe.textContent = st.all ? "Bench safe: table stopped, supply off, chamber safe"
-      : "Bench NOT safe: " + Object.keys(st).filter((k) => k !== "all" && !st[k]).join(", ").replace(/_/g, " ");
+    // the station's own readback of each instrument (station/ui/runner_adapter.py)
+    safe.textContent = st.all ? "Bench safe (read back): table at rest and disabled, supply off, chamber at its safe temperature"
+      : "SAFE STATE FAILED - bench NOT safe: " + (st.unsafe && st.unsafe.length ? st.unsafe.join("; ")
+        : Object.keys(st).filter((k) => k !== "all" && k !== "unsafe" && !st[k]).join(", ").replace(/_/g, " "));
   }
   if (last && last.message) $("message").textContent = last.message;
   if (!last) return;

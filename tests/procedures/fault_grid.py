@@ -1,0 +1,278 @@
+"""The fault x step grid: one simulated-bench run per cell, a fault injected through the bench's
+control channel when the step starts, and the cell judged on what a factory needs.
+
+A cell is correct when the run ends ERROR or ABORTED with the fault named in its reason, every
+instrument is safe by the bench's own truth or the station says which one is not (in the
+record and on page one of the certificate, never claiming safe what is not), and the data are
+kept (record.json, raw.h5, certificate.pdf). Used by tests/procedures/test_fault_grid.py and
+benchmarks/bench_faults.py (no relative imports: the benchmark imports this file directly).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from drivers.sim.launcher import BenchStartError, launch_bench
+from procedures.progress import ProgressEvent
+from procedures.record import RAW_DATA_FILE, Verdict, read_record
+from station.settings import load_settings
+from station.uut import Endpoints, UutRunner
+
+GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"
+SERIAL = "SIM-0901"
+GRID_SPEED = 200.0
+STEPS = ("power_identify", "thermal", "bias", "rate_table", "stop_method", "program", "verify")
+ALL = STEPS
+AT_REST_AND_MOVING = ALL
+MOVING = ("rate_table", "stop_method", "verify")
+# station seconds into the step at which the fault is injected: while the table turns
+INJECT_AFTER_S = {"rate_table": 3.0, "stop_method": 4.0, "verify": 5.0}
+# bench truth key -> the station's name for the instrument
+TRUTH_KEYS = {
+    "table_stopped_and_disabled": "rate_table",
+    "supply_off": "supply",
+    "chamber_safe": "chamber",
+}
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault kind as injected, the words (any of) its reason must hold, the steps it
+    applies to."""
+
+    id: str
+    kind: str
+    params: dict[str, Any]
+    words: tuple[str, ...]
+    steps: tuple[str, ...] = ALL
+
+
+FAULTS = (
+    Fault("table_link_lost", "modbus_drop", {"target": "table"}, ("rate table",)),
+    Fault("table_link_slow", "modbus_delay", {"target": "table", "delay_s": 1.5}, ("rate table",)),
+    Fault(
+        "chamber_link_lost",
+        "modbus_drop",
+        {"target": "chamber"},
+        ("chamber",),
+        ("power_identify", "thermal", "bias", "rate_table", "verify"),
+    ),
+    Fault(
+        "chamber_link_slow",
+        "modbus_delay",
+        {"target": "chamber", "delay_s": 1.5},
+        ("chamber",),
+        ("thermal", "bias", "verify"),
+    ),
+    Fault("estop", "table_fault", {"code": "estop"}, ("emergency stop",)),
+    Fault("interlock", "interlock_open", {}, ("interlock",)),
+    Fault(
+        "following_error", "table_fault", {"code": "following_error"}, ("following error",), MOVING
+    ),
+    Fault(
+        "chamber_fault",
+        "chamber_stuck",
+        {"report_fault": True},
+        ("chamber reports a fault",),
+        ("thermal", "bias", "rate_table"),
+    ),
+    Fault(
+        "supply_short",
+        "supply_short",
+        {"socket": 1},
+        ("current-limiting",),
+        ("power_identify", "thermal", "bias", "rate_table", "verify"),
+    ),
+    Fault(
+        "stream_drop",
+        "stream_drop",
+        {"socket": 1, "frame_drop_rate": 0.02},
+        ("frames lost",),
+        ("bias", "rate_table", "stop_method", "verify"),
+    ),
+    Fault(
+        "stream_corrupt",
+        "stream_corrupt",
+        {"socket": 1, "byte_error_rate": 0.002},
+        ("frames lost", "stream corrupted"),
+        ("bias", "rate_table", "verify"),
+    ),
+    Fault(
+        "part_silent",
+        "part_silent",
+        {"socket": 1},
+        ("stopped streaming", "stopped sending", "no samples", "not responding"),
+        ("power_identify", "thermal", "rate_table", "verify"),
+    ),
+)
+FAULTS_BY_ID = {f.id: f for f in FAULTS}
+
+# the default test run: one cell per mechanism (retried safe state through a slow link, a
+# safe-state failure on the certificate, the watchdog at rest, a chamber FAULT, a damaged
+# window, a part fault)
+REPRESENTATIVE = (
+    ("table_link_slow", "rate_table"),
+    ("table_link_lost", "verify"),
+    ("estop", "thermal"),
+    ("chamber_fault", "thermal"),
+    ("stream_drop", "verify"),
+)
+
+
+def grid_cells() -> list[tuple[str, str]]:
+    return [(f.id, step) for f in FAULTS for step in f.steps]
+
+
+@dataclass
+class CellResult:
+    fault: str
+    step: str
+    verdict: str = ""
+    reason: str = ""
+    injected: bool = False
+    fault_named: bool = False
+    truth_safe: dict[str, bool] = field(default_factory=dict)
+    station_safe: dict[str, bool] = field(default_factory=dict)
+    certificate_text: str = ""
+    data_kept: bool = False
+    fault_to_safe_s: float | None = None
+    wall_s: float = 0.0
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def all_safe(self) -> bool:
+        return bool(self.truth_safe) and all(self.truth_safe.values())
+
+    @property
+    def safe_or_reported(self) -> bool:
+        """Every instrument safe by the bench's truth, or named unsafe by the station (in the
+        record and on the certificate's first page)."""
+        for name, safe in self.truth_safe.items():
+            if safe:
+                continue
+            if self.station_safe.get(name, True):
+                return False
+            if "SAFE STATE FAILED" not in self.certificate_text:
+                return False
+        return bool(self.truth_safe)
+
+    @property
+    def correct(self) -> bool:
+        return (
+            self.injected
+            and self.verdict in (str(Verdict.ERROR), str(Verdict.ABORTED))
+            and self.fault_named
+            and self.safe_or_reported
+            and self.data_kept
+        )
+
+
+def first_page_text(pdf: Path) -> str:
+    """Page one of a PDF as text ('' without pdftotext)."""
+    if shutil.which("pdftotext") is None or not pdf.exists():
+        return ""
+    done = subprocess.run(
+        ["pdftotext", "-f", "1", "-l", "1", "-layout", str(pdf), "-"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    return done.stdout
+
+
+def run_cell(fault_id: str, step: str, out: Path, speed: float = GRID_SPEED) -> CellResult:
+    """Run one cell on a fresh bench and judge it (a bench that fails to start on a loaded
+    machine is started again: that is the test rig, not the cell)."""
+    for attempt in range(3):
+        try:
+            return _run_cell(fault_id, step, out / f"try{attempt}", speed)
+        except BenchStartError:
+            if attempt == 2:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _run_cell(fault_id: str, step: str, out: Path, speed: float) -> CellResult:
+    import time
+
+    fault = FAULTS_BY_ID[fault_id]
+    cell = CellResult(fault_id, step)
+    wall0 = time.monotonic()
+    injected_at: list[float] = []
+    part = {"socket": 1, "serial": SERIAL}
+    with launch_bench(
+        config={"parts": [part]}, speed=speed, sockets=1, start_timeout_s=60.0
+    ) as bench:
+        runner = UutRunner(
+            load_settings(),
+            procedure_path=GRID_PROCEDURE,
+            out=out,
+            endpoints=Endpoints.of_bench(bench.endpoints),
+            certificate=True,
+            operator="fault-grid",
+        )
+        fired = threading.Event()
+
+        def inject() -> None:
+            ctx = runner.context
+            if ctx is None:  # the run ended before the fault was due
+                return
+            injected_at.append(ctx.clock.now_s())
+            bench.control.fault(fault.kind, **fault.params)
+
+        def on_event(ev: ProgressEvent) -> None:
+            if ev.kind == "step" and ev.step == step and not fired.is_set():
+                fired.set()
+                after_s = INJECT_AFTER_S.get(step, 0.0)
+                if after_s > 0:
+                    timer = threading.Timer(after_s / speed, inject)
+                    timer.daemon = True
+                    timer.start()
+                else:
+                    inject()
+
+        runner.progress.subscribe(on_event)
+        result = runner.run({1: SERIAL})
+        truth = bench.control.truth()
+    cell.wall_s = time.monotonic() - wall0
+    cell.injected = bool(injected_at)
+    folder = result.folders[1]
+    rec = read_record(folder)
+    cell.verdict, cell.reason = str(rec.verdict), rec.reason
+    cell.fault_named = any(w.lower() in rec.reason.lower() for w in fault.words)
+    cell.truth_safe = {TRUTH_KEYS[k]: bool(v) for k, v in truth["safe"].items() if k in TRUTH_KEYS}
+    report = rec.analysis.get("safe_state_report", {})
+    instruments = report.get("instruments", {})
+    cell.station_safe = {name: bool(s.get("safe")) for name, s in instruments.items()}
+    pdf = folder / "certificate.pdf"
+    cell.certificate_text = first_page_text(pdf)
+    cell.data_kept = all((folder / f).exists() for f in ("record.json", RAW_DATA_FILE)) and (
+        pdf.exists()
+    )
+    times = [s.get("safe_at_station_s") for s in instruments.values() if s.get("safe")]
+    if injected_at and times and len(times) == len(instruments):
+        cell.fault_to_safe_s = max(float(t) for t in times) - injected_at[0]
+    if not cell.correct:
+        cell.problems = _problems(cell)
+    return cell
+
+
+def _problems(cell: CellResult) -> list[str]:
+    out = []
+    if not cell.injected:
+        out.append(f"the fault was never injected (step {cell.step} not reached)")
+    if cell.verdict not in (str(Verdict.ERROR), str(Verdict.ABORTED)):
+        out.append(f"verdict {cell.verdict}")
+    if not cell.fault_named:
+        out.append(f"fault not named in the reason: {cell.reason!r}")
+    if not cell.safe_or_reported:
+        out.append(f"unsafe and not reported: truth {cell.truth_safe}, station {cell.station_safe}")
+    if not cell.data_kept:
+        out.append("record, raw data or certificate missing")
+    return out
