@@ -10,8 +10,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import Any
 
-from drivers.clock import Clock
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from drivers.address import check_host_port, split_host_port
+from drivers.clock import Clock, ScaledClock
 from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
 from drivers.modbus_link import (
     ModbusLink,
@@ -39,6 +43,7 @@ from drivers.rate_table_map import (
 log = logging.getLogger(__name__)
 
 NAME = "rate table"
+DEFAULT_MAX_ACCEL_DPS2 = 2000.0  # the drive's acceleration limit (not in the register map)
 _NO_BITS = Control(0)
 _STATUS_FIRST = Reg.STATUS
 _STATUS_COUNT = Reg.SNAPSHOT_TIME + 2 - Reg.STATUS  # 20..29: status, fault, snapshot
@@ -74,6 +79,7 @@ class ModbusRateTable:
         self._time_us = Unwrapper(1 << 32)
         self._rate_cmd_dps: float | None = None
         self._pos_cmd_deg: float | None = None
+        self.max_accel_dps2 = DEFAULT_MAX_ACCEL_DPS2
 
     @classmethod
     def connect(
@@ -90,6 +96,20 @@ class ModbusRateTable:
 
     def counts_per_rev(self) -> int:
         return COUNTS_PER_REV
+
+    def attach_clock(self, clock: Clock) -> None:
+        self._clock = clock
+
+    def rate_limits(self) -> tuple[float, float]:
+        """(largest |rate| deg/s, largest acceleration deg/s^2) for the pre-flight."""
+        return MAX_RATE_DPS, self.max_accel_dps2
+
+    def probe(self) -> str:
+        """'' when the table answers with no fault and a closed interlock, else which."""
+        status = self.read_status()
+        if status.interlock_open:
+            return "interlock open"
+        return f"fault code {status.fault_code}" if status.fault else ""
 
     def read_status(self) -> TableStatus:
         regs = self._link.read(_STATUS_FIRST, _STATUS_COUNT)
@@ -278,3 +298,35 @@ class ModbusRateTable:
 
     def close(self) -> None:
         self._link.close()
+
+
+# ---------------------------------------------------------------- configuration
+# (rate_table.modbus-servo; minimal, for the registry: the tables engineer's profile version
+# replaces it)
+
+
+class Settings(BaseModel):
+    """station.yaml `instruments.rate_table` for `driver: rate_table.modbus-servo`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    address: str = Field(description="host:port of the drive's Modbus TCP server")
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per Modbus reply")
+    poll_s: float = Field(0.05, gt=0, le=10, description="station seconds between polls")
+    max_accel_dps2: float = Field(
+        DEFAULT_MAX_ACCEL_DPS2, gt=0, le=1e6, description="the drive's acceleration limit"
+    )
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, value: str) -> str:
+        return check_host_port(value)
+
+
+def factory(settings: dict[str, Any]) -> ModbusRateTable:
+    s = Settings.model_validate(settings)
+    table = ModbusRateTable.connect(
+        *split_host_port(s.address), ScaledClock(1.0), timeout_s=s.timeout_s, poll_s=s.poll_s
+    )
+    table.max_accel_dps2 = s.max_accel_dps2
+    return table

@@ -10,6 +10,9 @@ raises `SupplyCurrentLimit`.
 from __future__ import annotations
 
 import logging
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from drivers.errors import InstrumentError, ProtocolError, ScpiError, SupplyCurrentLimit
 from drivers.protocols import InstrumentIdentity
@@ -36,6 +39,7 @@ class ScpiSupply:
         self._scpi = ScpiPort(port, timeout_s=timeout_s, instrument=NAME)
         self._voltage_set_v: float | None = None
         self._current_limit_a: float | None = None
+        self.limits: tuple[float | None, float | None] = (None, None)
 
     @classmethod
     def open(cls, path: str, *, baudrate: int = 115200, timeout_s: float = 1.0) -> ScpiSupply:
@@ -112,6 +116,15 @@ class ScpiSupply:
             )
         return volts, amps
 
+    def output_limits(self) -> tuple[float | None, float | None]:
+        """(highest voltage V, highest current limit A) from station.yaml; None: unknown."""
+        return self.limits
+
+    def probe(self) -> str:
+        """'' when the supply answers *IDN?."""
+        self.identify()
+        return ""
+
     def safe_state(self) -> None:
         try:
             self._scpi.setting("OUTP OFF")
@@ -121,3 +134,26 @@ class ScpiSupply:
 
     def close(self) -> None:
         self._scpi.close()
+
+
+# ---------------------------------------------------------------- configuration
+# (supply.scpi; minimal, for the registry: the supplies engineer's pyvisa version replaces it)
+
+
+class Settings(BaseModel):
+    """station.yaml `instruments.supply` for `driver: supply.scpi`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    address: str = Field(min_length=1, description="serial device of the supply")
+    baud: int = Field(115200, gt=0, le=10_000_000, description="serial baud rate")
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per query")
+    max_voltage_v: float | None = Field(None, gt=0, le=1000, description="rated output, V")
+    max_current_a: float | None = Field(None, gt=0, le=100, description="rated output, A")
+
+
+def factory(settings: dict[str, Any]) -> ScpiSupply:
+    s = Settings.model_validate(settings)
+    supply = ScpiSupply.open(s.address, baudrate=s.baud, timeout_s=s.timeout_s)
+    supply.limits = (s.max_voltage_v, s.max_current_a)
+    return supply

@@ -58,8 +58,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(handler(args))
-    except UserError as exc:
-        print(f"station {args.command}: error: {exc}", file=sys.stderr)
+    except UserError as exc:  # one line per problem, each naming the command
+        for line in str(exc).splitlines() or [""]:
+            print(f"station {args.command}: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"station {args.command}: interrupted", file=sys.stderr)
