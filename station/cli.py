@@ -52,6 +52,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    if args.verbose < 2:  # the drivers say what failed in their own errors, once
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()
