@@ -82,7 +82,9 @@ def test_every_problem_is_its_own_line(tmp_path: Path) -> None:
 
 def test_rate_beyond_the_parts_range_is_refused_not_failed(tmp_path: Path) -> None:
     # today a 300 deg/s rate on a 250 deg/s part saturated it and FAILed the part
-    proc = _procedure(tmp_path, "rates_dps: [50, -50, 200, -200]", "rates_dps: [50, -50, 300, -200]")
+    proc = _procedure(
+        tmp_path, "rates_dps: [50, -50, 200, -200]", "rates_dps: [50, -50, 300, -200]"
+    )
     out = tmp_path / "out"
     r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
     (line,) = _refused(r, out)
