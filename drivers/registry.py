@@ -56,7 +56,7 @@ def registered(role: str | None = None) -> list[str]:
 def full_name(role: str, driver: str) -> str:
     """`watlow-f4` -> `chamber.watlow-f4`; a `module:attr` or a full name is kept."""
     driver = driver.strip()
-    if ":" in driver or driver.startswith(f"{role}."):
+    if ":" in driver or driver.split(".", 1)[0] in ROLES:
         return driver
     return f"{role}.{driver}"
 
@@ -82,16 +82,21 @@ def resolve(role: str, driver: str | None) -> tuple[str, Factory]:
 
 def _listing(role: str) -> str:
     names = registered(role)
-    return ", ".join(names) if names else "none; is the station installed (pip install -e .)?"
+    if names:
+        return ", ".join(names)
+    return "none" if registered() else "none; is the station installed (pip install -e .)?"
 
 
 def _load_entry_point(role: str, name: str) -> Factory:
+    if name.split(".", 1)[0] != role:
+        raise DriverError(
+            f"instruments.{role}.driver: {name!r} is not a {role} driver; registered "
+            f"{role} drivers: {_listing(role)} (or give module:attr)"
+        )
     matches = [ep for ep in _entry_points() if ep.name == name]
     if not matches:
-        other_role = name.split(".", 1)[0] != role
-        hint = f" ({name} is not a {role} driver)" if other_role else ""
         raise DriverError(
-            f"instruments.{role}.driver: unknown driver {name!r}{hint}; registered "
+            f"instruments.{role}.driver: unknown driver {name!r}; registered "
             f"{role} drivers: {_listing(role)} (or give module:attr)"
         )
     ep = matches[0]
