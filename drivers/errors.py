@@ -73,3 +73,13 @@ class PartSilent(InstrumentTimeout):
 
 class StreamCorrupted(InstrumentError):
     """More frames were lost or corrupted than the procedure allows."""
+
+
+class ChamberAlarm(ChamberSetpointNotReached):
+    """The chamber controller reports an alarm (deviation, heater, refrigeration, limit):
+    it will not hold its setpoint until the alarm is cleared at the chamber."""
+
+
+class ChamberRefused(InstrumentError):
+    """The chamber controller understood a command but refused it in its present state
+    (panel protection on, controller not ready): the message says what to change there."""

@@ -39,8 +39,11 @@ On the serial line (10 bits a byte) the sample stream alone needs output rate x 
 (`sample_stream_baud`): 500 Hz needs 125,000 baud, more than the usual 115,200; the station
 refuses a procedure whose rate the fixture's configured baud cannot carry.
 
-Codes are the ADIS16130's: rate offset binary, 0 deg/s = 8,388,608 counts, 23,488 counts per
-deg/s; temperature 0 C = 8,036,283 counts, 14,093 counts per C.
+The rate and temperature fields carry the part's codes as the part gives them; what they mean
+in deg/s and C is the product's (`codes:` in its product file, `drivers.part_codes`). The
+simulated part's codes are the ADIS16130's: rate offset binary, 0 deg/s = 8,388,608 counts,
+23,488 counts per deg/s; temperature 0 C = 8,036,283 counts, 14,093 counts per C.
+The full specification, for a fixture's firmware: docs/fixture-protocol.md.
 
 A frame whose CRC fails is counted as corrupted and dropped; the parser then searches for
 the next sync word from the byte after the bad frame's sync, so it resynchronises on the
@@ -64,6 +67,8 @@ from enum import IntEnum, IntFlag
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.part_codes import ADIS16130, CODE_FIELD_BITS
+
 SYNC = b"\xa5\x5a"
 HEADER_SIZE = 4
 CRC_SIZE = 4
@@ -73,11 +78,12 @@ LEGACY_SAMPLE_PAYLOAD_SIZE = 13  # older fixture firmware: no encoder field
 LEGACY_SAMPLE_FRAME_SIZE = HEADER_SIZE + LEGACY_SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 21
 MAX_REPLY_PAYLOAD = 250
 
-RATE_ZERO_CODE = 8_388_608
-RATE_COUNTS_PER_DPS = 23_488.0
-TEMP_ZERO_CODE = 8_036_283
-TEMP_COUNTS_PER_C = 14_093.0
-CODE_MAX = (1 << 24) - 1
+# the ADIS16130's codes; a product states its own in its file (drivers.part_codes.CodeFormat)
+RATE_ZERO_CODE = ADIS16130.rate_zero_code
+RATE_COUNTS_PER_DPS = ADIS16130.rate_counts_per_dps
+TEMP_ZERO_CODE = ADIS16130.temp_zero_code
+TEMP_COUNTS_PER_C = ADIS16130.temp_counts_per_c
+CODE_MAX = (1 << CODE_FIELD_BITS) - 1
 RATED_RANGE_DPS = 250.0
 
 OUTPUT_RATES_HZ = (50, 100, 200, 500, 1000)
@@ -138,22 +144,24 @@ class ReplyError(IntEnum):
 # ---------------------------------------------------------------- code conversions
 
 
+# The ADIS16130's conversion (the simulated part's codes). The station converts with the
+# product file's `codes:` (drivers.part_codes.CodeFormat), whose defaults are these.
+
+
 def rate_dps_to_code(rate_dps: NDArray[np.float64]) -> NDArray[np.int64]:
-    code = np.rint(np.asarray(rate_dps) * RATE_COUNTS_PER_DPS + RATE_ZERO_CODE)
-    return np.clip(code, 0, CODE_MAX).astype(np.int64)
+    return ADIS16130.rate_dps_to_code(rate_dps)
 
 
 def rate_code_to_dps(code: NDArray[np.int64] | int) -> NDArray[np.float64]:
-    return (np.asarray(code, dtype=np.float64) - RATE_ZERO_CODE) / RATE_COUNTS_PER_DPS
+    return ADIS16130.rate_code_to_dps(code)
 
 
 def temp_c_to_code(temp_c: NDArray[np.float64]) -> NDArray[np.int64]:
-    code = np.rint(np.asarray(temp_c) * TEMP_COUNTS_PER_C + TEMP_ZERO_CODE)
-    return np.clip(code, 0, CODE_MAX).astype(np.int64)
+    return ADIS16130.temp_c_to_code(temp_c)
 
 
 def temp_code_to_c(code: NDArray[np.int64] | int) -> NDArray[np.float64]:
-    return (np.asarray(code, dtype=np.float64) - TEMP_ZERO_CODE) / TEMP_COUNTS_PER_C
+    return ADIS16130.temp_code_to_c(code)
 
 
 # ---------------------------------------------------------------- CRC over many sample frames

@@ -11,6 +11,7 @@ While streaming, a part that sends nothing for `silent_after_s` of station time 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import math
 import queue
@@ -68,6 +69,34 @@ def _pause_for(rate_bytes_per_s: float, longest_s: float) -> float:
 
 _CAL_TOLERANCE_REL = 1e-5
 _CAL_TOLERANCE_ABS = 1e-9
+
+
+def _port_errors() -> tuple[type[BaseException], ...]:
+    """What a serial port raises when the device goes away: OSError (pyserial's
+    SerialException is one) and, from the tty layer, termios.error (which is not)."""
+    try:
+        import termios
+    except ImportError:  # not a POSIX system: no tty layer
+        return (OSError,)
+    return (OSError, termios.error)
+
+
+_PORT_ERRORS = _port_errors()
+_OPEN_ERRORS: tuple[type[BaseException], ...] = (*_PORT_ERRORS, ValueError)  # pyserial open
+
+
+def port_error_reason(exc: BaseException) -> str:
+    """A serial port error as a reason for an operator: its text, with the OS error's name."""
+    number, text = getattr(exc, "errno", None), getattr(exc, "strerror", None)
+    if not isinstance(exc, OSError) and len(exc.args) == 2:  # termios.error(errno, text)
+        number, text = exc.args
+    if isinstance(number, int) and text:
+        return f"{text} [{errno_name(number)}]"
+    return str(exc) or type(exc).__name__
+
+
+def errno_name(number: int) -> str:
+    return errno.errorcode.get(number, f"errno {number}")
 
 
 class NoReply(PartAbsent, InstrumentTimeout):
@@ -144,7 +173,15 @@ class SerialPartLink:
     ) -> SerialPartLink:
         """Open the fixture's serial port at `baudrate` (the fixture's configured rate; see
         `drivers.fixture_protocol.sample_stream_baud` for what an output rate needs)."""
-        return cls(open_serial(path, baudrate=baudrate, read_timeout_s=0.02), clock, **kwargs)
+        try:
+            port = open_serial(path, baudrate=baudrate, read_timeout_s=0.02)
+        except _OPEN_ERRORS as exc:  # pyserial lets termios.error and ValueError through
+            raise ConnectionLost(
+                f"cannot open the fixture's serial port {path} at {baudrate} baud "
+                f"({port_error_reason(exc)}): check the port name and that the port supports "
+                "that baud rate",
+            ) from exc
+        return cls(port, clock, **kwargs)
 
     def attach_clock(self, clock: Clock) -> None:
         """Judge silence in station time on `clock` from now on."""
@@ -218,10 +255,11 @@ class SerialPartLink:
     def _check_reader(self) -> None:
         if self._reader_error is not None:
             raise ConnectionLost(
-                f"the serial port of the {self.name} failed ({self._reader_error}): check the "
-                "fixture's cable, then reconnect",
+                f"the serial port of the {self.name} failed "
+                f"({port_error_reason(self._reader_error)}): check the fixture's cable, then "
+                "reconnect",
                 instrument=self.name,
-            )
+            ) from self._reader_error
 
     # ------------------------------------------------------------ commands
 
@@ -235,7 +273,8 @@ class SerialPartLink:
                 self._port.write(text.encode("ascii") + b"\n")
             except Exception as exc:  # noqa: BLE001 - pyserial raises several types
                 raise ConnectionLost(
-                    f"cannot write to the {self.name}: {exc}; check its cable",
+                    f"cannot write to the {self.name} ({port_error_reason(exc)}): check its "
+                    "cable",
                     instrument=self.name,
                 ) from exc
             try:

@@ -135,8 +135,12 @@ class TableReadable(Protocol):
 class RateLimited(Protocol):
     """Optional: the table's own limits, for the pre-flight."""
 
-    def rate_limits(self) -> tuple[float, float]:
-        """(largest |rate| deg/s, largest acceleration deg/s^2) the table accepts."""
+    def max_rate_dps(self) -> float:
+        """The largest |rate| the table accepts, deg/s."""
+        ...
+
+    def max_accel_dps2(self) -> float:
+        """The largest acceleration the table accepts, deg/s^2."""
         ...
 
 

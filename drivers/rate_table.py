@@ -1,9 +1,14 @@
-"""Servo rate table with an optical encoder, over Modbus TCP (map: drivers.rate_table_map).
+"""Servo rate table with an optical encoder, over Modbus TCP, register map from a profile.
 
-Commands that change motion write MODE..MOVE_TIME (registers 1..9) in one request, so the
-controller plans a move once from a consistent command set. Status and the feedback snapshot
-(registers 20..29) are read in one request. Waits are in station seconds on the injected
-clock; each Modbus reply has its own wall timeout in `ModbusLink`.
+The register map (addresses, types, scaling, word order, status/control bits, fault codes,
+counts per revolution, limits) is a YAML profile (`drivers.servo_profile`); the default,
+`servo-default`, is the station's own controller (`drivers/rate_table_map.py`).
+Commands that change motion write the command group (mode .. move_time) in one request, so
+the controller plans a move once from a consistent command set. Status and the feedback
+snapshot are read in one request. Waits are in station seconds on the injected clock; each
+Modbus reply has its own wall timeout in `ModbusLink`.
+
+Station configuration (`instruments.rate_table`, driver `modbus-servo`): see `Settings`.
 """
 
 from __future__ import annotations
@@ -14,52 +19,83 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.address import check_host_port, split_host_port
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
-from drivers.modbus_link import (
-    ModbusLink,
-    ModbusRefused,
-    Unwrapper,
-    i32_to_regs,
-    read_identity,
-    regs_to_i32,
-    regs_to_u32,
-)
+from drivers.modbus_link import ModbusLink, ModbusRefused, Unwrapper, regs_to_str
 from drivers.protocols import InstrumentIdentity, TableStatus
-from drivers.rate_table_map import (
-    COUNTS_PER_REV,
-    DEVICE_ID,
-    FAULT_TEXT,
-    MAX_RATE_DPS,
-    STRING_REGS,
-    Control,
-    Fault,
-    Mode,
-    Reg,
-    Status,
+from drivers.servo_profile import (
+    COMMAND_FIELDS,
+    DEFAULT_PROFILE,
+    STATUS_FIELDS,
+    STRING_FIELDS,
+    Register,
+    ServoProfile,
+    load_profile,
 )
+from drivers.yaml_lines import DriverConfigError
 
 log = logging.getLogger(__name__)
 
 NAME = "rate table"
-DEFAULT_MAX_ACCEL_DPS2 = 2000.0  # the drive's acceleration limit (not in the register map)
-_NO_BITS = Control(0)
-_STATUS_FIRST = Reg.STATUS
-_STATUS_COUNT = Reg.SNAPSHOT_TIME + 2 - Reg.STATUS  # 20..29: status, fault, snapshot
-_CMD_FIRST = Reg.MODE
-_CMD_COUNT = Reg.MOVE_TIME + 2 - Reg.MODE  # 1..9
 # a stale AT_RATE / IN_POSITION from the previous command must not end a wait for a new one
 _RATE_MATCH_DPS = 0.5
 _RATE_MATCH_REL = 0.005
 _POSITION_MATCH_DEG = 0.05
 
 
-def fault_message(code: int) -> str:
-    try:
-        return FAULT_TEXT[Fault(code)]
-    except ValueError:
-        return f"unknown fault code {code}: see the controller's manual, then reset the fault"
+def split_host_port(address: str) -> tuple[str, int]:
+    """`host:port` -> (host, port); ValueError saying the expected form."""
+    host, sep, port = address.strip().rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(
+            f"address {address!r} is not host:port (for example 192.168.1.20:502)"
+        )
+    return host.strip("[]"), int(port)
+
+
+class Settings(BaseModel):
+    """`instruments.rate_table` in station.yaml for driver `modbus-servo`."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    address: str = Field(description="host:port of the drive's Modbus TCP server")
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per reply")
+    device_id: int = Field(1, ge=0, le=255, description="Modbus unit/device id")
+    profile: str = Field(
+        DEFAULT_PROFILE,
+        description="register map: a built-in profile's name (servo-default, "
+        "servo-lowword-example) or the path of a profile YAML file",
+    )
+    poll_s: float = Field(0.05, gt=0, le=5, description="station s between polls in waits")
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, v: str) -> str:
+        split_host_port(v)
+        return v
+
+    @field_validator("profile")
+    @classmethod
+    def _profile(cls, v: str) -> str:
+        try:
+            load_profile(v)
+        except DriverConfigError as exc:
+            raise ValueError(f"the servo profile is not usable:\n{exc}") from None
+        return v
+
+
+def factory(settings: dict[str, Any]) -> ModbusRateTable:
+    """The `rate_table.modbus-servo` driver: validate, connect, return it."""
+    s = Settings.model_validate(settings)
+    host, port = split_host_port(s.address)
+    return ModbusRateTable.connect(
+        host, port, ScaledClock(1.0), timeout_s=s.timeout_s, poll_s=s.poll_s,
+        profile=load_profile(s.profile), device_id=s.device_id,
+    )
+
+
+def fault_message(code: int, profile: ServoProfile | None = None) -> str:
+    return (profile or load_profile()).fault_text(code)
 
 
 class ModbusRateTable:
@@ -69,70 +105,106 @@ class ModbusRateTable:
         link: an open or openable `ModbusLink` to the controller.
         clock: the station clock; waits and polls use its time.
         poll_s: station seconds between status polls while waiting.
+        profile: the drive's register map (default: `servo-default`).
     """
 
-    def __init__(self, link: ModbusLink, clock: Clock, *, poll_s: float = 0.05) -> None:
+    def __init__(
+        self, link: ModbusLink, clock: Clock, *, poll_s: float = 0.05,
+        profile: ServoProfile | None = None,
+    ) -> None:
         self._link = link
         self._clock = clock
         self._poll_s = poll_s
-        self._counts = Unwrapper(1 << 32)
-        self._time_us = Unwrapper(1 << 32)
+        self.profile = profile or load_profile()
+        regs = self.profile.registers
+        self._counts = Unwrapper(1 << regs.encoder_counts.bits)
+        self._time_raw = Unwrapper(1 << regs.time.bits)
+        self._status_span = regs.span(STATUS_FIELDS)
+        self._cmd_span = regs.span(COMMAND_FIELDS)
+        self._control_mask = self.profile.control_bits.mask(
+            "enable", "halt", "fault_reset", "zero_encoder"
+        )
         self._rate_cmd_dps: float | None = None
         self._pos_cmd_deg: float | None = None
-        self.max_accel_dps2 = DEFAULT_MAX_ACCEL_DPS2
 
     @classmethod
     def connect(
-        cls, host: str, port: int, clock: Clock, *, timeout_s: float = 1.0, poll_s: float = 0.05
+        cls, host: str, port: int, clock: Clock, *, timeout_s: float = 1.0, poll_s: float = 0.05,
+        profile: ServoProfile | None = None, device_id: int = 1,
     ) -> ModbusRateTable:
-        link = ModbusLink(host, port, device_id=DEVICE_ID, timeout_s=timeout_s, instrument=NAME)
+        link = ModbusLink(host, port, device_id=device_id, timeout_s=timeout_s, instrument=NAME)
         link.connect()
-        return cls(link, clock, poll_s=poll_s)
+        return cls(link, clock, poll_s=poll_s, profile=profile)
+
+    def attach_clock(self, clock: Clock) -> None:
+        """Use the station's clock for waits and polls (ScaledClock(1.0) until called)."""
+        self._clock = clock
 
     # ------------------------------------------------------------ identity and status
 
     def identify(self) -> InstrumentIdentity:
-        return read_identity(self._link, Reg.MODEL, Reg.SERIAL, Reg.FIRMWARE, STRING_REGS)
+        """Model, serial and firmware strings read in one request; the manufacturer is the
+        model string's first word when it has more than one."""
+        regs = self.profile.registers
+        first, end = regs.span(STRING_FIELDS)
+        block = self._link.read(first, end - first)
+
+        def text(name: str) -> str:
+            field = getattr(regs, name)
+            at = field.address - first
+            return regs_to_str(block[at : at + field.count])
+
+        model = text("model")
+        maker, _, rest = model.partition(" ")
+        return InstrumentIdentity(
+            manufacturer=maker if rest else "", model=model, serial=text("serial"),
+            firmware=text("firmware"),
+        )
 
     def counts_per_rev(self) -> int:
-        return COUNTS_PER_REV
+        return self.profile.counts_per_rev
 
-    def attach_clock(self, clock: Clock) -> None:
-        self._clock = clock
+    def max_rate_dps(self) -> float:
+        """The drive's rate limit from its profile (for pre-flight checks)."""
+        return self.profile.limits.max_rate_dps
 
-    def rate_limits(self) -> tuple[float, float]:
-        """(largest |rate| deg/s, largest acceleration deg/s^2) for the pre-flight."""
-        return MAX_RATE_DPS, self.max_accel_dps2
+    def max_accel_dps2(self) -> float:
+        """The highest acceleration limit the drive accepts, from its profile."""
+        return self.profile.limits.max_accel_dps2
 
     def probe(self) -> str:
-        """'' when the table answers with no fault and a closed interlock, else which."""
+        """For the instrument lights: '' when the drive answers with no fault and a closed
+        interlock, else which (raises an InstrumentError when it does not answer)."""
         status = self.read_status()
         if status.interlock_open:
             return "interlock open"
         return f"fault code {status.fault_code}" if status.fault else ""
 
     def read_status(self) -> TableStatus:
-        regs = self._link.read(_STATUS_FIRST, _STATUS_COUNT)
-        bits = Status(regs[0])
+        p = self.profile
+        regs = p.registers
+        first, end = self._status_span
+        block = self._link.read(first, end - first)
+        word = int(p.decode(regs.status, block, first, raw=True))
 
-        def at(reg: Reg) -> list[int]:
-            i = reg - _STATUS_FIRST
-            return regs[i : i + 2]
+        def bit(name: str) -> bool:
+            return bool(word >> getattr(p.status_bits, name) & 1)
 
-        counts = regs_to_u32(at(Reg.ENCODER_COUNTS))
+        counts = int(p.decode(regs.encoder_counts, block, first, raw=True))
+        time_raw = int(p.decode(regs.time, block, first, raw=True))
         return TableStatus(
-            ready=Status.READY in bits,
-            enabled=Status.ENABLED in bits,
-            fault=Status.FAULT in bits,
-            in_position=Status.IN_POSITION in bits,
-            at_rate=Status.AT_RATE in bits,
-            moving=Status.MOVING in bits,
-            interlock_open=Status.INTERLOCK_OPEN in bits,
-            fault_code=regs[1],
+            ready=bit("ready"),
+            enabled=bit("enabled"),
+            fault=bit("fault"),
+            in_position=bit("in_position"),
+            at_rate=bit("at_rate"),
+            moving=bit("moving"),
+            interlock_open=bit("interlock_open"),
+            fault_code=int(p.decode(regs.fault_code, block, first, raw=True)),
             encoder_counts=counts,
-            position_deg=regs_to_i32(at(Reg.POS_FB)) / 1000.0,
-            rate_dps=regs_to_i32(at(Reg.RATE_FB)) / 1000.0,
-            controller_time_s=self._time_us(regs_to_u32(at(Reg.SNAPSHOT_TIME))) * 1e-6,
+            position_deg=p.decode(regs.position, block, first),
+            rate_dps=p.decode(regs.rate, block, first),
+            controller_time_s=self._time_raw(time_raw) * regs.time.scale,
             encoder_counts_unwrapped=self._counts(counts),
         )
 
@@ -148,7 +220,8 @@ class ModbusRateTable:
             )
         if status.fault:
             raise TableFault(
-                f"rate table fault {status.fault_code}: {fault_message(status.fault_code)}; "
+                f"rate table fault {status.fault_code}: "
+                f"{self.profile.fault_text(status.fault_code)}; "
                 "the table stopped and is disabled",
                 fault_code=status.fault_code,
                 instrument=NAME,
@@ -157,61 +230,66 @@ class ModbusRateTable:
 
     # ------------------------------------------------------------ control
 
-    def _control(self, set_bits: Control, clear_bits: Control = _NO_BITS) -> None:
-        current = Control(self._link.read(Reg.CONTROL, 1)[0] & 0x0F)
-        current &= ~(Control.FAULT_RESET | Control.ZERO_ENCODER)  # edge bits: never re-send
-        self._link.write(Reg.CONTROL, int((current | set_bits) & ~clear_bits))
+    def _bits(self, *names: str) -> int:
+        return self.profile.control_bits.mask(*names)
+
+    def _control(self, set_bits: int, clear_bits: int = 0) -> None:
+        address = self.profile.registers.control.address
+        current = self._link.read(address, 1)[0] & self._control_mask
+        current &= ~self._bits("fault_reset", "zero_encoder")  # edge bits: never re-send
+        self._link.write(address, (current | set_bits) & ~clear_bits)
 
     def enable(self) -> None:
         self.check()
-        self._control(Control.ENABLE, Control.HALT)
+        self._control(self._bits("enable"), self._bits("halt"))
         status = self._wait(lambda s: s.enabled, 1.0, "enable")
         log.info("rate table enabled at %.3f deg", status.position_deg)
 
     def disable(self) -> None:
-        self._link.write(Reg.CONTROL, 0)
+        self._link.write(self.profile.registers.control.address, 0)
 
     def reset_fault(self) -> None:
-        self._control(Control.FAULT_RESET)
+        self._control(self._bits("fault_reset"))
         status = self.read_status()
         if status.fault and not status.interlock_open:
             raise TableFault(
-                f"the rate table's fault did not clear: {fault_message(status.fault_code)}",
+                "the rate table's fault did not clear: "
+                f"{self.profile.fault_text(status.fault_code)}",
                 fault_code=status.fault_code,
                 instrument=NAME,
             )
         self.check(status)
 
     def zero_encoder(self) -> None:
-        self._control(Control.ZERO_ENCODER)
-        self._counts = Unwrapper(1 << 32)
+        self._control(self._bits("zero_encoder"))
+        self._counts = Unwrapper(1 << self.profile.registers.encoder_counts.bits)
         self._pos_cmd_deg = None
 
     def _command(
-        self, mode: Mode, *, pos_deg: float | None = None, rate_dps: float | None = None,
+        self, mode: str, *, pos_deg: float | None = None, rate_dps: float | None = None,
         accel_dps2: float | None = None, move_time_s: float | None = None,
     ) -> None:
-        regs = self._link.read(_CMD_FIRST, _CMD_COUNT)
-        new = list(regs)
+        p = self.profile
+        regs = p.registers
+        first, end = self._cmd_span
+        block = list(self._link.read(first, end - first))
 
-        def put(reg: Reg, value: float) -> None:
-            i = reg - _CMD_FIRST
-            new[i : i + 2] = i32_to_regs(int(round(value)))
+        def put(reg: Register, value: float) -> None:
+            at = reg.address - first
+            block[at : at + reg.words] = p.encode(reg, value)
 
-        new[0] = int(mode)
-        if pos_deg is not None:
-            put(Reg.POS_CMD, pos_deg * 1000.0)
-        if rate_dps is not None:
-            put(Reg.RATE_CMD, rate_dps * 1000.0)
-        if accel_dps2 is not None:
-            put(Reg.ACCEL_LIMIT, accel_dps2 * 1000.0)
-        if move_time_s is not None:
-            put(Reg.MOVE_TIME, move_time_s * 1000.0)
+        put(regs.mode, getattr(p.modes, mode))
+        for reg, value in (
+            (regs.position_command, pos_deg), (regs.rate_command, rate_dps),
+            (regs.accel_limit, accel_dps2), (regs.move_time, move_time_s),
+        ):
+            if value is not None:
+                put(reg, value)
         try:
-            self._link.write_many(_CMD_FIRST, new)
+            self._link.write_many(first, block)
         except ModbusRefused as exc:
             raise InstrumentError(
-                f"the rate table refused the command (mode {mode.name.lower()}, position "
+                f"the rate table refused the command (mode {mode}, position "
                 f"{pos_deg} deg, rate {rate_dps} deg/s, acceleration {accel_dps2} deg/s^2, move "
                 f"time {move_time_s} s): a value is outside its limits; check the procedure",
                 instrument=NAME,
@@ -219,15 +297,16 @@ class ModbusRateTable:
         self.check()
 
     def set_rate(self, rate_dps: float, accel_dps2: float | None = None) -> None:
-        if not abs(rate_dps) <= MAX_RATE_DPS:
+        max_rate = self.profile.limits.max_rate_dps
+        if not abs(rate_dps) <= max_rate:
             raise ValueError(
-                f"rate {rate_dps} deg/s is beyond the table's limit of {MAX_RATE_DPS} deg/s"
+                f"rate {rate_dps} deg/s is beyond the table's limit of {max_rate} deg/s"
             )
         if accel_dps2 is not None and not accel_dps2 > 0:
             raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
         self._rate_cmd_dps = float(rate_dps)
         self._pos_cmd_deg = None
-        self._command(Mode.RATE, rate_dps=rate_dps, accel_dps2=accel_dps2)
+        self._command("rate", rate_dps=rate_dps, accel_dps2=accel_dps2)
 
     def move_to(
         self, angle_deg: float, *, accel_dps2: float | None = None, move_time_s: float | None = None
@@ -241,7 +320,7 @@ class ModbusRateTable:
         self._pos_cmd_deg = float(angle_deg)
         self._rate_cmd_dps = None
         self._command(
-            Mode.POSITION, pos_deg=angle_deg, accel_dps2=accel_dps2,
+            "position", pos_deg=angle_deg, accel_dps2=accel_dps2,
             move_time_s=move_time_s if move_time_s is not None else 0.0,
         )
 
@@ -289,44 +368,14 @@ class ModbusRateTable:
     def safe_state(self, timeout_s: float = 30.0) -> None:
         status = self.read_status()
         if status.enabled and not status.fault and status.moving:
-            self._link.write(Reg.CONTROL, int(Control.ENABLE | Control.HALT))
+            self._link.write(
+                self.profile.registers.control.address, self._bits("enable", "halt")
+            )
             try:
                 self._wait(lambda s: not s.moving, timeout_s, "stop")
             except InstrumentError as exc:  # a fault stops the table anyway
                 log.warning("while stopping the rate table: %s", exc)
-        self._link.write(Reg.CONTROL, 0)
+        self.disable()
 
     def close(self) -> None:
         self._link.close()
-
-
-# ---------------------------------------------------------------- configuration
-# (rate_table.modbus-servo; minimal, for the registry: the tables engineer's profile version
-# replaces it)
-
-
-class Settings(BaseModel):
-    """station.yaml `instruments.rate_table` for `driver: rate_table.modbus-servo`."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    address: str = Field(description="host:port of the drive's Modbus TCP server")
-    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per Modbus reply")
-    poll_s: float = Field(0.05, gt=0, le=10, description="station seconds between polls")
-    max_accel_dps2: float = Field(
-        DEFAULT_MAX_ACCEL_DPS2, gt=0, le=1e6, description="the drive's acceleration limit"
-    )
-
-    @field_validator("address")
-    @classmethod
-    def _address(cls, value: str) -> str:
-        return check_host_port(value)
-
-
-def factory(settings: dict[str, Any]) -> ModbusRateTable:
-    s = Settings.model_validate(settings)
-    table = ModbusRateTable.connect(
-        *split_host_port(s.address), ScaledClock(1.0), timeout_s=s.timeout_s, poll_s=s.poll_s
-    )
-    table.max_accel_dps2 = s.max_accel_dps2
-    return table

@@ -1,10 +1,12 @@
-"""Programmable DC supply, SCPI over a serial port.
+"""Programmable DC supply over SCPI on any VISA resource: the `scpi` family (generic, single
+channel) and the driver every SCPI supply family shares.
 
-Every setting is followed by draining SYST:ERR? (see `drivers.scpi.ScpiPort.setting`), so a
-refused value raises `ScpiError` at the command that caused it. A shorted part drives the
-supply into constant-current mode: `check_current_limit` (call it after switching the output
-on and after each voltage change) sees the output voltage collapse at the current limit and
-raises `SupplyCurrentLimit`.
+A family differs only in its command strings (`ScpiDialect`: `drivers.keysight_e36300`,
+`drivers.rigol_dp800`); `ScpiSupply` holds the semantics. Every setting is followed by draining
+the error queue (see `drivers.scpi.ScpiCommands.setting`), so a refused value raises `ScpiError`
+at the command that caused it. A shorted part drives the supply into constant-current mode:
+`check_current_limit` (call it after switching the output on and after each voltage change)
+sees the output voltage collapse at the current limit and raises `SupplyCurrentLimit`.
 """
 
 from __future__ import annotations
@@ -12,11 +14,12 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drivers.errors import InstrumentError, ProtocolError, ScpiError, SupplyCurrentLimit
 from drivers.protocols import InstrumentIdentity
-from drivers.scpi import ScpiPort, SerialLike, open_serial, parse_float
+from drivers.scpi import ScpiCommands, ScpiTransport, parse_float
+from drivers.visa import VisaTransport, resource_name
 
 log = logging.getLogger(__name__)
 
@@ -27,23 +30,69 @@ CC_VOLTAGE_SAG_V = 0.05
 CC_CURRENT_FRACTION = 0.98
 
 
+class ScpiDialect:
+    """The generic single-channel SCPI command set (IEEE 488.2 + SCPI 1999 source subsystem)."""
+
+    error_query = "SYST:ERR?"
+
+    def set_voltage(self, supply_v: float) -> str:
+        return f"VOLT {supply_v:.3f}"
+
+    def set_current_limit(self, current_a: float) -> str:
+        return f"CURR {current_a:.4f}"
+
+    def output(self, on: bool) -> str:
+        return "OUTP ON" if on else "OUTP OFF"
+
+    def output_query(self) -> str:
+        return "OUTP?"
+
+    def measure_voltage(self) -> str:
+        return "MEAS:VOLT?"
+
+    def measure_current(self) -> str:
+        return "MEAS:CURR?"
+
+    def voltage_setting_query(self) -> str:
+        return "VOLT?"
+
+    def current_limit_query(self) -> str:
+        return "CURR?"
+
+
 class ScpiSupply:
-    """`drivers.protocols.Supply` speaking SCPI over a serial port.
+    """`drivers.protocols.Supply` speaking SCPI over a line transport.
 
     Args:
-        port: an open serial port (pyserial `Serial` or a stand-in with its API).
-        timeout_s: wall seconds each query waits for its reply.
+        transport: an open line transport (`VisaTransport.open(...)`, or a test stand-in).
+        dialect: the family's command strings (default: generic single-channel SCPI).
+        name: the instrument's name in messages.
     """
 
-    def __init__(self, port: SerialLike, *, timeout_s: float = 1.0) -> None:
-        self._scpi = ScpiPort(port, timeout_s=timeout_s, instrument=NAME)
+    def __init__(
+        self, transport: ScpiTransport, dialect: ScpiDialect | None = None, *, name: str = NAME
+    ) -> None:
+        self.dialect = dialect or ScpiDialect()
+        self.name = name
+        self._scpi = ScpiCommands(transport, error_query=self.dialect.error_query)
         self._voltage_set_v: float | None = None
         self._current_limit_a: float | None = None
+        # the supply's rating (station.yaml max_voltage_v / max_current_a), for the pre-flight
         self.limits: tuple[float | None, float | None] = (None, None)
 
     @classmethod
-    def open(cls, path: str, *, baudrate: int = 115200, timeout_s: float = 1.0) -> ScpiSupply:
-        return cls(open_serial(path, baudrate=baudrate), timeout_s=timeout_s)
+    def open(
+        cls,
+        address: str,
+        *,
+        baudrate: int = 115200,
+        timeout_s: float = 1.0,
+        dialect: ScpiDialect | None = None,
+        name: str = NAME,
+    ) -> ScpiSupply:
+        """Open a VISA resource string, a serial device path or host:port (`drivers.visa`)."""
+        transport = VisaTransport.open(address, baud=baudrate, timeout_s=timeout_s, instrument=name)
+        return cls(transport, dialect, name=name)
 
     def identify(self) -> InstrumentIdentity:
         reply = self._scpi.query("*IDN?")
@@ -52,7 +101,7 @@ class ScpiSupply:
             raise ProtocolError(
                 f"*IDN? answered {reply!r}, not 'maker,model,serial,firmware': is this port "
                 "really the supply?",
-                instrument=NAME,
+                instrument=self.name,
             )
         return InstrumentIdentity(*fields)
 
@@ -64,72 +113,75 @@ class ScpiSupply:
     def set_voltage(self, supply_v: float) -> None:
         if not 0 <= supply_v < 1000:
             raise ValueError(f"supply voltage must be 0..1000 V, got {supply_v!r}")
-        self._scpi.setting(f"VOLT {supply_v:.3f}")
+        self._scpi.setting(self.dialect.set_voltage(supply_v))
         self._voltage_set_v = round(supply_v, 3)
 
     def set_current_limit(self, current_a: float) -> None:
         if not 0 < current_a < 100:
             raise ValueError(f"current limit must be 0..100 A, got {current_a!r}")
-        self._scpi.setting(f"CURR {current_a:.4f}")
+        self._scpi.setting(self.dialect.set_current_limit(current_a))
         self._current_limit_a = round(current_a, 4)
 
     def output(self, on: bool) -> None:
-        self._scpi.setting("OUTP ON" if on else "OUTP OFF")
+        self._scpi.setting(self.dialect.output(on))
 
     def output_is_on(self) -> bool:
-        reply = self._scpi.query("OUTP?").strip().upper()
+        command = self.dialect.output_query()
+        reply = self._scpi.query(command).strip().upper()
         if reply in ("1", "ON"):
             return True
         if reply in ("0", "OFF"):
             return False
-        raise ProtocolError(f"OUTP? answered {reply!r}, not 1 or 0", instrument=NAME)
+        raise ProtocolError(
+            f"{command} answered {reply!r}, not 1/ON or 0/OFF", instrument=self.name
+        )
 
     def measure_voltage(self) -> float:
-        return parse_float(self._scpi.query("MEAS:VOLT?"), "MEAS:VOLT?")
+        return self._float(self.dialect.measure_voltage())
 
     def measure_current(self) -> float:
-        return parse_float(self._scpi.query("MEAS:CURR?"), "MEAS:CURR?")
+        return self._float(self.dialect.measure_current())
+
+    def _float(self, command: str) -> float:
+        return parse_float(self._scpi.query(command), command)
 
     def check_errors(self) -> None:
         found = self._scpi.errors()
         if found:
             code, text = found[0]
-            raise ScpiError(f"the {NAME} reports error {code} {text}", code=code, instrument=NAME)
+            raise ScpiError(
+                f"the {self.name} reports error {code} {text}", code=code, instrument=self.name
+            )
 
     def check_current_limit(self) -> tuple[float, float]:
         """Measure (volts, amps); raise SupplyCurrentLimit if the supply is current-limiting."""
         if self._voltage_set_v is None:
-            self._voltage_set_v = parse_float(self._scpi.query("VOLT?"), "VOLT?")
+            self._voltage_set_v = self._float(self.dialect.voltage_setting_query())
         if self._current_limit_a is None:
-            self._current_limit_a = parse_float(self._scpi.query("CURR?"), "CURR?")
+            self._current_limit_a = self._float(self.dialect.current_limit_query())
         volts = self.measure_voltage()
         amps = self.measure_current()
         sagging = volts < self._voltage_set_v - CC_VOLTAGE_SAG_V
         limiting = amps >= CC_CURRENT_FRACTION * self._current_limit_a
         if sagging and limiting:
             raise SupplyCurrentLimit(
-                f"the {NAME} is current-limiting: {volts:.3f} V at {amps:.4f} A against "
+                f"the {self.name} is current-limiting: {volts:.3f} V at {amps:.4f} A against "
                 f"{self._voltage_set_v:.3f} V set and a {self._current_limit_a:.4f} A limit; "
                 "a part or the fixture is probably shorted: switch off, remove the part and "
                 "inspect it",
-                instrument=NAME,
+                instrument=self.name,
             )
         return volts, amps
 
     def output_limits(self) -> tuple[float | None, float | None]:
-        """(highest voltage V, highest current limit A) from station.yaml; None: unknown."""
+        """(highest voltage V, highest current limit A) it can set; None: not configured."""
         return self.limits
-
-    def probe(self) -> str:
-        """'' when the supply answers *IDN?."""
-        self.identify()
-        return ""
 
     def safe_state(self) -> None:
         try:
-            self._scpi.setting("OUTP OFF")
+            self._scpi.setting(self.dialect.output(False))
         except InstrumentError as exc:
-            log.warning("switching the %s off: %s", NAME, exc)
+            log.warning("switching the %s off: %s", self.name, exc)
             raise
 
     def close(self) -> None:
@@ -137,23 +189,66 @@ class ScpiSupply:
 
 
 # ---------------------------------------------------------------- configuration
-# (supply.scpi; minimal, for the registry: the supplies engineer's pyvisa version replaces it)
 
 
-class Settings(BaseModel):
-    """station.yaml `instruments.supply` for `driver: supply.scpi`."""
+class SupplySettings(BaseModel):
+    """What every SCPI supply family's station.yaml entry has (`driver` and
+    `calibration_due` are taken off by the station)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    address: str = Field(min_length=1, description="serial device of the supply")
-    baud: int = Field(115200, gt=0, le=10_000_000, description="serial baud rate")
-    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per query")
-    max_voltage_v: float | None = Field(None, gt=0, le=1000, description="rated output, V")
-    max_current_a: float | None = Field(None, gt=0, le=100, description="rated output, A")
+    address: str = Field(
+        description="a VISA resource string (ASRL/dev/ttyUSB0::INSTR, "
+        "TCPIP::192.168.1.20::5025::SOCKET, TCPIP::192.168.1.20::INSTR, USB0::...::INSTR), "
+        "a serial device path (/dev/ttyUSB0) or host:port (a raw SCPI socket)",
+    )
+    timeout_s: float = Field(1.0, gt=0.0, le=60.0, description="reply timeout, wall seconds")
+    expected_model: str = Field("", description="if set, *IDN?'s model must contain this")
+    max_voltage_v: float | None = Field(
+        None, gt=0, le=1000, description="the supply's rated output voltage (pre-flight check)"
+    )
+    max_current_a: float | None = Field(
+        None, gt=0, le=100, description="the supply's rated output current (pre-flight check)"
+    )
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, value: str) -> str:
+        resource_name(value)  # ValueError says which forms are accepted
+        return value.strip()
+
+
+class Settings(SupplySettings):
+    """The `supply.scpi` entry of station.yaml."""
+
+    baud: int = Field(115200, ge=300, le=4_000_000, description="serial baud rate (ASRL only)")
+
+
+def open_checked(
+    settings: SupplySettings, dialect: ScpiDialect, *, baud: int, name: str
+) -> ScpiSupply:
+    """Open a supply family from its validated settings; with `expected_model`, its *IDN?
+    must name that model (ProtocolError otherwise, and the connection is closed)."""
+    supply = ScpiSupply.open(
+        settings.address, baudrate=baud, timeout_s=settings.timeout_s, dialect=dialect, name=name
+    )
+    supply.limits = (settings.max_voltage_v, settings.max_current_a)
+    if settings.expected_model:
+        try:
+            model = supply.identify().model
+            if settings.expected_model not in model:
+                raise ProtocolError(
+                    f"the {name} at {settings.address} says it is a {model!r}, not the "
+                    f"expected {settings.expected_model!r}: check the address or expected_model",
+                    instrument=name,
+                )
+        except BaseException:
+            supply.close()
+            raise
+    return supply
 
 
 def factory(settings: dict[str, Any]) -> ScpiSupply:
+    """Entry point `supply.scpi`: validate the settings (ValidationError propagates), connect."""
     s = Settings.model_validate(settings)
-    supply = ScpiSupply.open(s.address, baudrate=s.baud, timeout_s=s.timeout_s)
-    supply.limits = (s.max_voltage_v, s.max_current_a)
-    return supply
+    return open_checked(s, ScpiDialect(), baud=s.baud, name=NAME)

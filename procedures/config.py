@@ -18,6 +18,8 @@ from typing import Any, Literal, TypeVar
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from drivers.part_codes import CodeFormat
+
 # ---------------------------------------------------------------- YAML with line numbers
 
 
@@ -272,6 +274,11 @@ class ProductConfig(_Strict):
         "about this much between conditions (a floor for the bias uncertainty when the record "
         "is too short to resolve it)",
     )
+    codes: CodeFormat = Field(
+        default_factory=CodeFormat,
+        description="how the part's raw rate and temperature codes read in deg/s and C "
+        "(default: the ADIS16130's 24-bit offset-binary codes)",
+    )
     limits: Limits = Field(default_factory=Limits, description="acceptance limits")
 
     @field_validator("serial_pattern")
@@ -282,6 +289,17 @@ class ProductConfig(_Strict):
         except re.error as exc:
             raise ValueError(f"not a valid regular expression ({exc})") from exc
         return value
+
+    @model_validator(mode="after")
+    def _codes_cover_range(self) -> ProductConfig:
+        low_dps, high_dps = self.codes.rate_span_dps()
+        if low_dps > -self.range_dps or high_dps < self.range_dps:
+            raise ValueError(
+                f"codes: the rate code reaches only {low_dps:g} .. {high_dps:g} deg/s, less "
+                f"than the rated range +/-{self.range_dps:g} deg/s; check rate_zero_code, "
+                "rate_counts_per_dps and rate_width_bits against the datasheet"
+            )
+        return self
 
 
 # ---------------------------------------------------------------- procedure file

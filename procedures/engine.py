@@ -213,6 +213,9 @@ class RunContext:
         self.procedure = procedure
         self.product = product
         self.parts = parts
+        for part in parts:  # the product says how its parts' codes read
+            if part.stream is not None:
+                part.stream.codes = product.codes
         self.progress = progress or ProgressBus()
         self.clock = bench.clock
         self._abort = threading.Event()

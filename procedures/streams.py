@@ -2,8 +2,9 @@
 
 One background thread reads every streaming `PartLink` (the fixture streams whether or not
 the engine is looking, and a blocked serial buffer would lose frames), converts codes to
-engineering units, estimates each sample's station time, keeps everything in memory for the
-steps and appends it to the part's raw data file in batches.
+engineering units (with the product's code format, `ProductConfig.codes`), estimates each
+sample's station time, keeps everything in memory for the steps and appends it to the part's
+raw data file in batches.
 
 Station time of a sample: fixture clock + offset, where the offset is the smallest
 (station time at read - fixture time of the newest sample) seen so far; transport latency only
@@ -26,7 +27,7 @@ from numpy.typing import NDArray
 
 from drivers.clock import Clock
 from drivers.errors import InstrumentError, PartSilent
-from drivers.fixture_protocol import rate_code_to_dps, temp_code_to_c
+from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import PartLink, SampleBlock
 from procedures.rawdata import RawDataWriter
 
@@ -87,8 +88,11 @@ class PartStream:
         clock: Clock,
         writer: RawDataWriter | None = None,
         silent_timeout_s: float = 5.0,
+        codes: CodeFormat = ADIS16130,
     ) -> None:
         self.socket = socket
+        # how the part's codes read (the product's `codes:`; the run context sets it)
+        self.codes = codes
         self.link = link
         self.clock = clock
         self.writer = writer
@@ -185,8 +189,8 @@ class PartStream:
             "rate_code": np.asarray(block.rate_code, dtype=np.int64),
             "temp_code": np.asarray(block.temp_code, dtype=np.int64),
             "status": np.asarray(block.status, dtype=np.int64),
-            "rate_dps": rate_code_to_dps(block.rate_code),
-            "temp_c": temp_code_to_c(block.temp_code),
+            "rate_dps": self.codes.rate_code_to_dps(block.rate_code),
+            "temp_c": self.codes.temp_code_to_c(block.temp_code),
             "encoder_counts": (
                 np.zeros(n, dtype=np.int64)
                 if block.encoder_counts is None

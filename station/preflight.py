@@ -123,7 +123,7 @@ def _table(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: st
     if not isinstance(bench.table, RateLimited):
         log.info("%s reports no rate limits: rates and accelerations not checked", who)
         return []
-    max_rate, max_accel = bench.table.rate_limits()
+    max_rate, max_accel = bench.table.max_rate_dps(), bench.table.max_accel_dps2()
     out = [
         f"{_where(loaded, s.path)}: {s.text} {s.value:g} deg/s is beyond the {max_rate:g} deg/s "
         f"that {who} allows: lower the rate"

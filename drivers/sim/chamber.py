@@ -111,3 +111,10 @@ class ChamberModel:
             "state": self.state().name.lower(),
             "stuck": self.stuck,
         }
+
+    def set_running(self, on: bool) -> None:
+        """Control on (the ramp starts from the air, as a RUN write does) or off: for twins
+        whose protocol switches the chamber some other way than the RUN register."""
+        if on and not self.running:
+            self.ramped_sp_c = self.air_c
+        self.running = on

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers import fixture_protocol as fp
+from drivers.part_codes import ADIS16130
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.gyro import PartModel
 
@@ -212,9 +213,9 @@ class FixtureSocket:
         if part.compensation:
             out = part.compensate(raw, die, supply_v)
             status |= fp.SampleStatus.COMPENSATED
-        code_f = np.rint(out * fp.RATE_COUNTS_PER_DPS + fp.RATE_ZERO_CODE)
+        rate_code = fp.rate_dps_to_code(out)  # the simulated part's codes are the ADIS16130's
         status[np.abs(out) > fp.RATED_RANGE_DPS] |= fp.SampleStatus.OVER_RANGE
-        status[(code_f <= 0) | (code_f >= fp.CODE_MAX)] |= fp.SampleStatus.SATURATED
+        status[ADIS16130.rate_code_at_rail(rate_code)] |= fp.SampleStatus.SATURATED
         if supply_v < self.world.config.part_physics.supply_low_v:
             status |= fp.SampleStatus.SUPPLY_LOW
         temp_noise = self.rng.normal(0.0, self.world.config.part_physics.temp_noise_c, k.size)
@@ -223,7 +224,7 @@ class FixtureSocket:
         frames = fp.encode_samples(
             seq,
             np.rint((times + self.clock_offset_s) * 1e6).astype(np.int64),
-            fp.rate_dps_to_code(out),
+            rate_code,
             fp.temp_c_to_code(die + temp_noise),
             status,
             encoder,

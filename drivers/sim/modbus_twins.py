@@ -20,6 +20,8 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers import chamber_map as cm
 from drivers import rate_table_map as rm
+from drivers.servo_profile import ServoProfile, load_profile
+from drivers.sim.profile_image import ProfileImage
 from drivers.sim.table import REGISTER_COUNT, CommandRefusedError
 from drivers.sim.world import World
 
@@ -136,10 +138,25 @@ def splits_pair(address: int, count: int) -> bool:
 
 
 class TableTwin(ModbusTwin):
-    def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
-        blocks = [SimData(address=0, count=REGISTER_COUNT, values=0, datatype=DataType.REGISTERS)]
-        super().__init__("rate table", blocks, host, port)
+    """The rate table's Modbus TCP server. With no `profile` it serves the controller's own
+    map (`drivers.rate_table_map`, registers 0..63); given a servo profile (an object, a
+    built-in profile's name or a file path), it serves that profile's layout over the same
+    table model (`drivers.sim.profile_image`)."""
+
+    def __init__(
+        self, world: World, host: str = "127.0.0.1", port: int = 0,
+        profile: ServoProfile | str | None = None,
+    ) -> None:
         self.world = world
+        self.image: ProfileImage | None = None
+        if profile is not None:
+            loaded = load_profile(profile) if isinstance(profile, str) else profile
+            self.image = ProfileImage(loaded, world.table)
+            first, count = self.image.first, self.image.count
+        else:
+            first, count = 0, REGISTER_COUNT
+        blocks = [SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)]
+        super().__init__("rate table", blocks, host, port)
 
     async def handle(
         self,
@@ -150,6 +167,8 @@ class TableTwin(ModbusTwin):
         registers: list[int],
         values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
+        if self.image is not None:
+            return self._handle_profile(address, registers, values)
         table = self.world.table
         t = self.world.advance()
         if values is not None:
@@ -172,6 +191,23 @@ class TableTwin(ModbusTwin):
                 log.info("rate table refused a write: %s", exc)
                 return ExcCodes.ILLEGAL_VALUE
         registers[0:REGISTER_COUNT] = table.registers(t)
+        return None
+
+    def _handle_profile(
+        self, address: int, registers: list[int], values: list[int] | list[bool] | None
+    ) -> ExcCodes | None:
+        image = self.image
+        assert image is not None
+        t = self.world.advance()
+        if values is not None:
+            hook = getattr(self, "before_write", None)
+            if hook is not None:
+                hook(t)
+            refused = image.write(t, address, [int(v) for v in values])
+            if refused is not None:
+                log.info("rate table refused a write at %d: %s", address, refused.name)
+                return refused
+        registers[0 : image.count] = image.image(t)
         return None
 
 

@@ -106,6 +106,11 @@ class TableModel:
         gives a counter; the registers report it minus the zero taken by ZERO_ENCODER)."""
         return np.floor(np.asarray(angle_deg) * self.cpr / 360.0 + 1e-9).astype(np.int64)
 
+    def counts_since_zero(self, t_s: float) -> int:
+        """The encoder's count since ZERO_ENCODER at `t_s`, not wrapped (what the registers'
+        U32 ENCODER_COUNTS wraps); for twins that report position rather than counts."""
+        return self._abs_counts(float(self.angle_deg(t_s)[0])) - self.zero_counts
+
     def _zero_angle_deg(self) -> float:
         return self.zero_counts * 360.0 / self.cpr
 

@@ -1,0 +1,144 @@
+"""A scripted SCPI instrument on a real loopback socket or pseudo-terminal (pymeasure's
+expected-protocol idea, one level down): every message the driver sends through pyvisa is
+checked byte for byte against the script, and the scripted reply bytes go back, so the tests see
+exactly what is on the wire, terminators included.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import socket
+import threading
+import time
+import tty
+from dataclasses import dataclass
+
+
+@dataclass
+class Say:
+    request: bytes  # the exact message expected, LF included
+    reply: bytes = b""  # bytes sent back (may lack the LF, or be several lines)
+    delay_s: float = 0.0  # wall seconds before the reply
+    close: bool = False  # close the connection (TCP) / the master (pty) instead of answering
+
+
+NO_ERROR = b'+0,"No error"\n'
+
+
+class ScriptedScpi:
+    """Serves `script` on `kind` ("tcp": a SOCKET resource, "pty": an ASRL resource)."""
+
+    def __init__(self, script: list[Say], kind: str = "tcp") -> None:
+        self.script = list(script)
+        self.kind = kind
+        self.errors: list[str] = []
+        self.received: list[bytes] = []
+        self._stop = threading.Event()
+        self._conn: socket.socket | None = None
+        if kind == "tcp":
+            self._server = socket.create_server(("127.0.0.1", 0))
+            self.port = self._server.getsockname()[1]
+            self.resource = f"TCPIP::127.0.0.1::{self.port}::SOCKET"
+        else:
+            self.master, self.slave = os.openpty()
+            tty.setraw(self.slave)
+            self.path = os.ttyname(self.slave)
+            self.resource = f"ASRL{self.path}::INSTR"
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    @property
+    def done(self) -> bool:
+        return not self.script
+
+    def assert_done(self) -> None:
+        assert self.errors == [], self.errors
+        assert self.done, f"script not used up: {self.script}"
+
+    # ------------------------------------------------------------ serving
+
+    def _run(self) -> None:
+        if self.kind == "tcp":
+            self._server.settimeout(0.05)
+            while not self._stop.is_set():
+                try:
+                    conn, _ = self._server.accept()
+                except (TimeoutError, OSError):
+                    continue
+                self._conn = conn
+                self._serve(conn.fileno(), lambda data, c=conn: c.sendall(data))
+                with contextlib.suppress(OSError):
+                    conn.close()
+        else:
+            master = self.master
+            self._serve(master, lambda data: os.write(master, data))
+
+    def _serve(self, fd: int, send: object) -> None:
+        buf = b""
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([fd], [], [], 0.05)
+                if not ready:
+                    continue
+                chunk = os.read(fd, 4096)
+            except OSError:
+                return
+            if not chunk:
+                return
+            buf += chunk
+            while b"\n" in buf:
+                message, buf = buf.split(b"\n", 1)
+                if self._answer(message + b"\n", send):
+                    return
+
+    def _answer(self, message: bytes, send: object) -> bool:
+        """True when the connection is to be closed."""
+        self.received.append(message)
+        if not self.script:
+            self.errors.append(f"unexpected {message!r} after the script ended")
+            return False
+        step = self.script.pop(0)
+        if message != step.request:
+            self.errors.append(f"expected {step.request!r}, got {message!r}")
+        if step.delay_s:
+            time.sleep(step.delay_s)
+        if step.close:
+            self._close_link()
+            return True
+        if step.reply:
+            try:
+                send(step.reply)  # type: ignore[operator]
+            except OSError:
+                return True
+        return False
+
+    def _close_link(self) -> None:
+        if self.kind == "tcp":
+            if self._conn is not None:
+                with contextlib.suppress(OSError):
+                    self._conn.shutdown(socket.SHUT_RDWR)
+                    self._conn.close()
+            self._stop.set()
+            with contextlib.suppress(OSError):
+                self._server.close()
+        else:  # the other side of a pty dies: the slave reads EIO from now on
+            self._close_fd("master")
+
+    def _close_fd(self, which: str) -> None:
+        fd = getattr(self, which)
+        if fd >= 0:
+            setattr(self, which, -1)  # never close a number the process may have reused
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        if self.kind == "tcp":
+            with contextlib.suppress(OSError):
+                self._server.close()
+        else:
+            self._close_fd("master")
+            self._close_fd("slave")
