@@ -21,10 +21,14 @@ from typing import Any
 from pydantic import ValidationError
 
 from drivers.rate_table_map import Fault
+from drivers.sim.acutrol_twin import AcutrolTwin
 from drivers.sim.config import PartSpec, SimConfig
 from drivers.sim.control import ControlRequestError, ControlServer
+from drivers.sim.espec_twin import EspecP300Twin
 from drivers.sim.modbus_twins import ChamberTwin, TableTwin
 from drivers.sim.pty_twins import FixtureTwin, SupplyTwin
+from drivers.sim.scpi_lan_twins import KeysightE36300Twin, RigolDp800Twin
+from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -83,11 +87,15 @@ class SerialSupplyTwin:
 
 # (role, family) -> twin class: Twin(world, host, port) with async start(), endpoint (a
 # method, or a property as on the Modbus twins), async drop()/restore()/shutdown(), delay_s.
-# The integrator adds the new families' twins here.
 TWINS: dict[tuple[str, str], Any] = {
     ("rate_table", "modbus-servo"): TableTwin,
+    ("rate_table", "acutrol"): AcutrolTwin,
     ("chamber", "watlow-f4"): ChamberTwin,
+    ("chamber", "watlow-f4t"): WatlowF4TTwin,
+    ("chamber", "espec-p300"): EspecP300Twin,
     ("supply", "scpi"): SerialSupplyTwin,
+    ("supply", "keysight-e36300"): KeysightE36300Twin,
+    ("supply", "rigol-dp800"): RigolDp800Twin,
 }
 
 
