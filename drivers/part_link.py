@@ -509,7 +509,8 @@ class SerialPartLink:
 class Settings(BaseModel):
     """One socket's `part.fixture` link: station.yaml `instruments.fixture` (its baud and
     timeout_s) with the socket's serial port from `ports` as `address` and its number as
-    `socket` (the station fills both)."""
+    `socket` (the station fills both). Silence is judged after the procedure's
+    stream.silent_timeout_s: the station sets `silent_after_s` on the link."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -517,9 +518,6 @@ class Settings(BaseModel):
     socket: int = Field(1, ge=1, le=64, description="fixture socket number (for messages)")
     baud: int = Field(115200, gt=0, le=10_000_000, description="serial baud rate")
     timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds a command waits")
-    silent_after_s: float = Field(
-        5.0, gt=0, le=3600, description="station seconds without a frame while streaming"
-    )
 
 
 def factory(settings: dict[str, Any]) -> SerialPartLink:
@@ -531,6 +529,5 @@ def factory(settings: dict[str, Any]) -> SerialPartLink:
         baudrate=s.baud,
         socket=s.socket,
         reply_timeout_s=s.timeout_s,
-        silent_after_s=s.silent_after_s,
-        loss_limit=None,
+        loss_limit=None,  # the engine judges loss against the procedure's fraction
     )

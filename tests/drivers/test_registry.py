@@ -121,3 +121,18 @@ def test_builtin_settings_are_validated_before_connecting() -> None:
     assert registry.driver_settings(
         {"driver": "x", "calibration_due": "2027-01-01", "expected_model": "M", "address": "a"}
     ) == {"address": "a"}
+
+
+def test_docs_list_every_registered_drivers_settings() -> None:
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs/instruments.md").read_text()
+    for name in PINNED:
+        role = name.split(".", 1)[0]
+        model = registry.settings_model(registry.resolve(role, name)[1])
+        assert model is not None, name
+        head = f"#### `{name}`\n"
+        assert head in doc, name
+        section = doc.split(head, 1)[1].split("\n#", 1)[0]
+        missing = [f for f in model.model_fields if f"| `{f}` |" not in section]
+        assert not missing, (name, missing)
