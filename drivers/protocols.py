@@ -14,6 +14,7 @@ Every method may raise a subclass of `drivers.errors.InstrumentError`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntFlag
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -273,6 +274,21 @@ class CalibrationRegisters:
     scale_vc_per_v: float = 0.0
     t0_c: float = 25.0
     v0_v: float = 5.0
+
+
+class SampleStatus(IntFlag):
+    """Status bits of each sample (`SampleBlock.status`), as every part link reports them
+    (the fixture's frames carry them on the wire: drivers/fixture_protocol.py)."""
+
+    OVER_RANGE = 1 << 0  # |output| beyond the rated range (250 deg/s): out of specification
+    SATURATED = 1 << 1  # the rate code hit a rail: the sample is clipped
+    COMPENSATED = 1 << 2  # the part applied its calibration registers to this sample
+    TEMP_INVALID = 1 << 3  # the on-chip temperature sensor reading is not valid
+    SUPPLY_LOW = 1 << 4  # the part's supply is below its operating minimum
+    ENCODER_LATCHED = 1 << 5  # the encoder field holds the table's count at this sample
+
+
+ENCODER_MODULO = 1 << 32  # SampleBlock.encoder_counts wrap here (a u32 counter)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.fixture_protocol import SampleStatus
+from drivers.protocols import SampleStatus
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
 
