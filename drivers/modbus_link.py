@@ -167,7 +167,8 @@ class ModbusLink:
             except OSError as exc:
                 self._client.close()
                 raise ConnectionLost(
-                    f"socket error talking to the {self.where} during {what}: {exc}",
+                    f"socket error talking to the {self.where} during {what}: {exc}; check the "
+                    "network cable and the controller's power, then retry",
                     instrument=self.instrument,
                 ) from exc
         if response.isError():

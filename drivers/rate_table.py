@@ -32,7 +32,7 @@ from drivers.servo_profile import (
     ServoProfile,
     load_profile,
 )
-from drivers.yaml_lines import DriverConfigError
+from drivers.yaml_input import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ class Settings(BaseModel):
     def _profile(cls, v: str) -> str:
         try:
             load_profile(v)
-        except DriverConfigError as exc:
+        except ConfigError as exc:
             raise ValueError(f"the servo profile is not usable:\n{exc}") from None
         return v
 

@@ -21,7 +21,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from drivers.yaml_lines import DriverConfigError, load_model
+from drivers.yaml_input import ConfigError, load_yaml_model
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
 DEFAULT_PROFILE = "servo-default"
@@ -263,7 +263,7 @@ def resolve_profile_path(profile: str) -> Path:
     if "/" not in profile and "\\" not in profile and not profile.endswith((".yaml", ".yml")):
         path = PROFILE_DIR / f"{profile}.yaml"
         if not path.is_file():
-            raise DriverConfigError(
+            raise ConfigError(
                 f"no built-in servo profile {profile!r}; built-in: "
                 f"{', '.join(builtin_profiles())}, or give the path of a profile YAML file"
             )
@@ -273,7 +273,7 @@ def resolve_profile_path(profile: str) -> Path:
 
 @functools.lru_cache(maxsize=16)
 def _builtin(path: Path) -> ServoProfile:
-    return load_model(path, ServoProfile)
+    return load_yaml_model(path, ServoProfile)[0]
 
 
 def load_profile(profile: str | Path = DEFAULT_PROFILE) -> ServoProfile:
@@ -284,4 +284,4 @@ def load_profile(profile: str | Path = DEFAULT_PROFILE) -> ServoProfile:
     path = profile if isinstance(profile, Path) else resolve_profile_path(profile)
     if path.parent == PROFILE_DIR:
         return _builtin(path)
-    return load_model(path, ServoProfile)
+    return load_yaml_model(path, ServoProfile)[0]

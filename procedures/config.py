@@ -8,154 +8,54 @@ reading Python. `load_yaml_model` is the one entry point (station.yaml uses it t
 
 from __future__ import annotations
 
-import hashlib
 import re
-from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Annotated, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from drivers.bounded import (
+    MAX_ACCEL_DPS2,
+    MAX_LIST,
+    MAX_RATE_DPS,
+    MAX_REPEATS,
+    MAX_SUPPLY_V,
+    ONE_DAY_S,
+    ONE_HOUR_S,
+    TEMP_HIGH_C,
+    TEMP_LOW_C,
+    Name,
+    PathText,
+    ShortName,
+    Text,
+)
 from drivers.part_codes import CodeFormat
+from drivers.yaml_input import ConfigError as ConfigError
+from drivers.yaml_input import LoadedYaml as LoadedYaml
+from drivers.yaml_input import format_validation_error as format_validation_error
+from drivers.yaml_input import load_yaml_model as load_yaml_model
+from drivers.yaml_input import read_yaml
 
 # ---------------------------------------------------------------- YAML with line numbers
-
-
-class ConfigError(ValueError):
-    """A configuration file is missing, not YAML, or holds a value that is not allowed."""
-
-
-@dataclass(frozen=True)
-class LoadedYaml:
-    path: Path
-    data: Any
-    lines: dict[tuple[str | int, ...], int]  # field path -> 1-based line of its value
-    sha256: str
-
-
-def _walk(node: yaml.Node, path: tuple[str | int, ...], lines: dict, file: Path) -> None:
-    lines[path] = node.start_mark.line + 1
-    if isinstance(node, yaml.MappingNode):
-        seen: dict[str, int] = {}
-        for key_node, value_node in node.value:
-            key = key_node.value
-            if key in seen:
-                raise ConfigError(
-                    f"{file}:{key_node.start_mark.line + 1}: field {key!r} appears twice "
-                    f"(first on line {seen[key]}); keep only one"
-                )
-            seen[key] = key_node.start_mark.line + 1
-            lines[(*path, key)] = key_node.start_mark.line + 1
-            _walk(value_node, (*path, key), lines, file)
-            lines[(*path, key)] = key_node.start_mark.line + 1
-    elif isinstance(node, yaml.SequenceNode):
-        for i, item in enumerate(node.value):
-            _walk(item, (*path, i), lines, file)
+# The bounded reader lives with the lowest layer (drivers.yaml_input) so that the simulated
+# bench's configuration is read by the same code; these names are re-exported from here.
 
 
 def load_yaml(path: Path) -> LoadedYaml:
-    """Read a YAML file, remembering the line of every field for error messages."""
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError as exc:
-        raise ConfigError(
-            f"{path}: file not found; give the path of an existing YAML file"
-        ) from exc
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from exc
-    text = raw.decode("utf-8", errors="replace")
-    try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
-    except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}{line}: not valid YAML: {exc.problem or exc}") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
-    lines: dict[tuple[str | int, ...], int] = {}
-    if node is not None:
-        _walk(node, (), lines, path)
-    return LoadedYaml(path=path, data=data, lines=lines, sha256=hashlib.sha256(raw).hexdigest())
-
-
-M = TypeVar("M", bound=BaseModel)
-
-
-def _field_help(model: type[BaseModel], loc: Sequence[str | int]) -> tuple[str, list[str]]:
-    """The description of the field at `loc` and the fields allowed at its level."""
-    current: Any = model
-    allowed: list[str] = sorted(model.model_fields)
-    description = ""
-    for part in loc:
-        if not (isinstance(current, type) and issubclass(current, BaseModel)):
-            break
-        allowed = sorted(current.model_fields)
-        if not isinstance(part, str) or part not in current.model_fields:
-            break
-        info = current.model_fields[part]
-        description = info.description or ""
-        current = _inner_model(info.annotation)
-    return description, allowed
-
-
-def _inner_model(annotation: Any) -> Any:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for arg in getattr(annotation, "__args__", ()) or ():
-        found = _inner_model(arg)
-        if found is not None:
-            return found
-    return None
-
-
-def format_validation_error(
-    exc: ValidationError, loaded: LoadedYaml, model: type[BaseModel]
-) -> str:
-    """One line per problem: `file:line: field a.b: message (what is allowed)`."""
-    out = []
-    for err in exc.errors():
-        # pydantic adds union member tags (e.g. 'float', 'literal[...]') to loc: drop them
-        loc = [p for p in err["loc"] if isinstance(p, int) or not re.match(r"^[a-z\-]+\[", str(p))]
-        loc = [p for p in loc if p not in ("float", "int", "str", "bool")] or loc
-        line = None
-        for n in range(len(loc), -1, -1):
-            line = loaded.lines.get(tuple(loc[:n]))
-            if line is not None:
-                break
-        where = f"{loaded.path}:{line}" if line else str(loaded.path)
-        field = ".".join(str(p) for p in loc) or "(top level)"
-        description, allowed = _field_help(model, loc)
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = f"unknown field; allowed here: {', '.join(allowed)}"
-        elif err["type"] == "missing":
-            msg = "required field is missing" + (f" ({description})" if description else "")
-        elif description:
-            msg = f"{msg} ({description})"
-        out.append(f"{where}: field {field}: {msg}")
-    return "\n".join(out)
-
-
-def load_yaml_model(path: Path, model: type[M]) -> tuple[M, LoadedYaml]:
-    """Load and validate `path` as `model`; ConfigError with file:line:field on any problem."""
-    loaded = load_yaml(path)
-    if not isinstance(loaded.data, dict):
-        raise ConfigError(
-            f"{loaded.path}:1: expected a mapping of fields at the top level "
-            f"(allowed: {', '.join(sorted(model.model_fields))})"
-        )
-    try:
-        return model.model_validate(loaded.data), loaded
-    except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, loaded, model)) from None
+    """Read a YAML file within the input bounds (size, depth, aliases, UTF-8, no control
+    characters), remembering the line of every field for error messages."""
+    return read_yaml(path)
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+Seconds = Annotated[float, Field(le=ONE_DAY_S)]  # a duration or timeout: within a day
+Rate = Annotated[float, Field(ge=-MAX_RATE_DPS, le=MAX_RATE_DPS)]
+ChamberTemp = Annotated[float, Field(ge=TEMP_LOW_C, le=TEMP_HIGH_C)]
+Volts = Annotated[float, Field(gt=0, le=MAX_SUPPLY_V)]
+LimitValue = Annotated[float, Field(ge=-1e9, le=1e9)]
 
 
 # ---------------------------------------------------------------- product file
@@ -168,11 +68,15 @@ class Limit(_Strict):
     [marginal_low, marginal_high] is MARGINAL: it passes but is flagged for review.
     """
 
-    low: float | None = Field(None, description="lowest passing value (omit for no lower limit)")
-    high: float | None = Field(None, description="highest passing value (omit for no upper limit)")
-    marginal_low: float | None = Field(None, description="below this (and >= low): MARGINAL")
-    marginal_high: float | None = Field(None, description="above this (and <= high): MARGINAL")
-    units: str = Field("", description="units of the value, for the certificate")
+    low: LimitValue | None = Field(
+        None, description="lowest passing value (omit for no lower limit)"
+    )
+    high: LimitValue | None = Field(
+        None, description="highest passing value (omit for no upper limit)"
+    )
+    marginal_low: LimitValue | None = Field(None, description="below this (and >= low): MARGINAL")
+    marginal_high: LimitValue | None = Field(None, description="above this (and <= high): MARGINAL")
+    units: ShortName = Field("", description="units of the value, for the certificate")
 
     @model_validator(mode="after")
     def _ordered(self) -> Limit:
@@ -257,19 +161,27 @@ class Limits(_Strict):
 class ProductConfig(_Strict):
     """One product (part number): its range, nominal values, serial format and limits."""
 
-    product: str = Field(description="product name shown on the certificate")
-    part_number: str = Field("", description="part number")
+    product: Name = Field(min_length=1, description="product name shown on the certificate")
+    part_number: ShortName = Field("", description="part number")
     serial_pattern: str = Field(
+        max_length=200,
         description="regular expression a scanned serial must match in full, e.g. '^SIM-[0-9]{4}$'"
     )
-    range_dps: float = Field(gt=0, description="rated measurement range, +/- deg/s")
-    nominal_scale: float = Field(1.0, gt=0, description="nominal output per input (1 = datasheet)")
-    reference_temperature_c: float = Field(25.0, description="T0 of the calibration")
-    reference_supply_v: float = Field(5.0, gt=0, description="V0 of the calibration")
-    current_limit_a: float = Field(0.05, gt=0, description="supply current limit per part, A")
+    range_dps: float = Field(
+        gt=0, le=MAX_RATE_DPS, description="rated measurement range, +/- deg/s"
+    )
+    nominal_scale: float = Field(
+        1.0, gt=0, le=1e6, description="nominal output per input (1 = datasheet)"
+    )
+    reference_temperature_c: ChamberTemp = Field(25.0, description="T0 of the calibration")
+    reference_supply_v: Volts = Field(5.0, description="V0 of the calibration")
+    current_limit_a: float = Field(
+        0.05, gt=0, le=20, description="supply current limit per part, A"
+    )
     bias_instability_deg_per_h: float = Field(
         15.0,
         ge=0,
+        le=1e6,
         description="typical bias instability of the product: the bias wanders by "
         "about this much between conditions (a floor for the bias uncertainty when the record "
         "is too short to resolve it)",
@@ -306,21 +218,31 @@ class ProductConfig(_Strict):
 
 
 class StepPolicy(_Strict):
-    timeout_s: float = Field(3600.0, gt=0, description="station seconds before the step times out")
+    timeout_s: Seconds = Field(
+        3600.0, gt=0, description="station seconds before the step times out"
+    )
     retries: int = Field(0, ge=0, le=5, description="extra attempts after an instrument timeout")
 
 
 class PowerConfig(_Strict):
-    settle_s: float = Field(2.0, ge=0, description="wait after switching the supply on")
-    supply_tolerance_v: float = Field(0.05, gt=0, description="allowed |measured - set| supply")
+    settle_s: float = Field(
+        2.0, ge=0, le=ONE_HOUR_S, description="wait after switching the supply on"
+    )
+    supply_tolerance_v: float = Field(
+        0.05, gt=0, le=10, description="allowed |measured - set| supply"
+    )
     output_rate_hz: Literal[50, 100, 200, 500, 1000] = Field(
         100, description="part output data rate, Hz"
     )
 
 
 class ConditionsConfig(_Strict):
-    temperatures_c: list[float] = Field(min_length=1, description="chamber setpoints, C")
-    supplies_v: list[float] = Field(min_length=1, description="supply levels, V")
+    temperatures_c: list[ChamberTemp] = Field(
+        min_length=1, max_length=MAX_LIST, description="chamber setpoints, C"
+    )
+    supplies_v: list[Volts] = Field(
+        min_length=1, max_length=MAX_LIST, description="supply levels, V"
+    )
     order: Literal["min_transitions", "as_listed"] = Field(
         "min_transitions",
         description="min_transitions: both supplies at one temperature, start at the "
@@ -336,37 +258,45 @@ class ConditionsConfig(_Strict):
 
 
 class ChamberConfig(_Strict):
-    ramp_c_per_min: float = Field(5.0, ge=0, description="chamber ramp rate (0 = fastest)")
-    safe_temp_c: float = Field(25.0, description="setpoint the chamber goes to on any exit")
-    setpoint_band_c: float = Field(0.5, gt=0, description="air within this of setpoint")
-    setpoint_timeout_s: float = Field(3600.0, gt=0, description="time allowed to reach setpoint")
+    ramp_c_per_min: float = Field(5.0, ge=0, le=100, description="chamber ramp rate (0 = fastest)")
+    safe_temp_c: float = Field(
+        25.0, ge=0, le=50, description="setpoint the chamber goes to on any exit (0..50 C: "
+        "a part must be safe to handle)"
+    )
+    setpoint_band_c: float = Field(0.5, gt=0, le=50, description="air within this of setpoint")
+    setpoint_timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach setpoint")
 
 
 class StabilityConfig(_Strict):
     """Thermal stability, judged on each part's own temperature sensor."""
 
-    window_s: float = Field(60.0, gt=0, description="window over which slope and band are judged")
-    slope_c_per_min: float = Field(0.05, gt=0, description="largest |die temperature slope|")
+    window_s: Seconds = Field(60.0, gt=0, description="window over which slope and band are judged")
+    slope_c_per_min: float = Field(
+        0.05, gt=0, le=100, description="largest |die temperature slope|"
+    )
     band_c: float = Field(
-        0.1, gt=0, description="largest peak-to-peak die temperature in the window"
+        0.1, gt=0, le=100, description="largest peak-to-peak die temperature in the window"
     )
     target_tolerance_c: float | None = Field(
-        None, gt=0, description="optional: die temperature within this of the setpoint"
+        None, gt=0, le=100, description="optional: die temperature within this of the setpoint"
     )
-    timeout_s: float = Field(3600.0, gt=0, description="time allowed to reach stability")
-    check_interval_s: float = Field(5.0, gt=0, description="how often stability is evaluated")
+    timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach stability")
+    check_interval_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="how often stability is evaluated"
+    )
 
 
 class BiasConfig(_Strict):
-    dwell_s: float | Literal["auto"] = Field(
+    dwell_s: Seconds | Literal["auto"] = Field(
         30.0, description="static averaging time, s, or 'auto' (from Allan deviation and target)"
     )
-    target_accuracy_dps: float = Field(0.005, gt=0, description="k=2 target for 'auto'")
-    min_dwell_s: float = Field(10.0, gt=0, description="pilot dwell for 'auto'")
-    max_dwell_s: float = Field(300.0, gt=0, description="cap for 'auto'")
+    target_accuracy_dps: float = Field(0.005, gt=0, le=100, description="k=2 target for 'auto'")
+    min_dwell_s: Seconds = Field(10.0, gt=0, description="pilot dwell for 'auto'")
+    max_dwell_s: Seconds = Field(300.0, gt=0, description="cap for 'auto'")
     wander_factor: float = Field(
         1.5,
         ge=0,
+        le=100,
         description="bias wander between conditions, in units of the bias "
         "instability, added to each condition's bias uncertainty (0: white noise only)",
     )
@@ -381,25 +311,35 @@ class BiasConfig(_Strict):
 
 class RateTableConfig(_Strict):
     enabled: bool = True
-    rates_dps: list[float] = Field(min_length=2, description="rate set, deg/s (both signs)")
-    plateau_dwell_s: float = Field(10.0, gt=0, description="averaging time on each plateau")
-    settle_s: float = Field(1.0, ge=0, description="wait after at-rate before averaging")
-    accel_dps2: float = Field(200.0, gt=0, description="table acceleration, deg/s^2")
-    repeats: int = Field(1, ge=1, description="passes through the rate set")
-    at_rate_timeout_s: float = Field(60.0, gt=0, description="time allowed to reach a rate")
+    rates_dps: list[Rate] = Field(
+        min_length=2, max_length=MAX_LIST, description="rate set, deg/s (both signs)"
+    )
+    plateau_dwell_s: Seconds = Field(10.0, gt=0, description="averaging time on each plateau")
+    settle_s: float = Field(
+        1.0, ge=0, le=ONE_HOUR_S, description="wait after at-rate before averaging"
+    )
+    accel_dps2: float = Field(
+        200.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
+    )
+    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="passes through the rate set")
+    at_rate_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed to reach a rate")
 
 
 class StopMethodConfig(_Strict):
     enabled: bool = True
     stop_angle_deg: float = Field(90.0, gt=0, le=360, description="angle between the stops")
-    move_time_s: float = Field(3.5, gt=0, description="duration of each smooth move")
-    static_s: float = Field(5.0, gt=0, description="rest before, between and after the moves")
-    bias_window_s: float = Field(3.0, gt=0, description="leading rest used for the bias")
-    repeats: int = Field(1, ge=1, description="out-and-back pairs")
+    move_time_s: float = Field(3.5, gt=0, le=ONE_HOUR_S, description="duration of each smooth move")
+    static_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="rest before, between and after the moves"
+    )
+    bias_window_s: float = Field(
+        3.0, gt=0, le=ONE_HOUR_S, description="leading rest used for the bias"
+    )
+    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="out-and-back pairs")
     reference: Literal["encoder", "fixture"] = Field(
         "encoder", description="angle reference: the table encoder or the fixture's stop angle"
     )
-    move_timeout_s: float = Field(60.0, gt=0, description="time allowed for a move")
+    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
 
 
 class PositionsConfig(_Strict):
@@ -414,17 +354,22 @@ class PositionsConfig(_Strict):
     angles_deg: list[float] = Field(
         default_factory=lambda: [0.0, 90.0, 180.0, 270.0],
         min_length=1,
+        max_length=MAX_LIST,
         description="table angles (encoder, deg) at which the part rests, in this order",
     )
-    dwell_s: float = Field(10.0, gt=0, description="static window at each angle, s")
-    settle_s: float = Field(1.0, ge=0, description="wait after in-position before the window")
-    accel_dps2: float = Field(100.0, gt=0, description="acceleration of each move, deg/s^2")
+    dwell_s: Seconds = Field(10.0, gt=0, description="static window at each angle, s")
+    settle_s: float = Field(
+        1.0, ge=0, le=ONE_HOUR_S, description="wait after in-position before the window"
+    )
+    accel_dps2: float = Field(
+        100.0, gt=0, le=MAX_ACCEL_DPS2, description="acceleration of each move, deg/s^2"
+    )
     at: Literal["every_condition", "first_condition"] = Field(
         "every_condition",
         description="every_condition: after the bias step at each condition; "
         "first_condition: only at the first",
     )
-    move_timeout_s: float = Field(60.0, gt=0, description="time allowed for a move")
+    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
 
     @field_validator("angles_deg")
     @classmethod
@@ -446,17 +391,21 @@ class VerifyConfig(_Strict):
     method: Literal["auto", "rate_table", "stop_method"] = Field(
         "auto", description="auto: rate table if enabled, else stop moves with compensation on"
     )
-    rates_dps: list[float] = Field(
-        default_factory=list, description="verification rates, deg/s (rate_table method)"
+    rates_dps: list[Rate] = Field(
+        default_factory=list,
+        max_length=MAX_LIST,
+        description="verification rates, deg/s (rate_table method)",
     )
-    dwell_s: float = Field(10.0, gt=0, description="averaging time at each rate")
-    settle_s: float = Field(1.0, ge=0)
-    supply_v: float | None = Field(None, description="supply during verification (default V0)")
+    dwell_s: Seconds = Field(10.0, gt=0, description="averaging time at each rate")
+    settle_s: float = Field(1.0, ge=0, le=ONE_HOUR_S)
+    supply_v: Volts | None = Field(None, description="supply during verification (default V0)")
 
 
 class StreamConfig(_Strict):
     max_lost_fraction: float = Field(0.001, ge=0, le=1, description="allowed lost/expected frames")
-    silent_timeout_s: float = Field(5.0, gt=0, description="no frames this long: part is silent")
+    silent_timeout_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="no frames this long: part is silent"
+    )
 
 
 class StepsConfig(_Strict):
@@ -478,10 +427,10 @@ class StepsConfig(_Strict):
 class ProcedureConfig(_Strict):
     """A calibration procedure: what to measure, where, and how long."""
 
-    name: str = Field(description="procedure name shown on the certificate")
-    version: str = Field("1", description="procedure version")
-    description: str = ""
-    product: str | None = Field(
+    name: Name = Field(min_length=1, description="procedure name shown on the certificate")
+    version: ShortName = Field("1", description="procedure version")
+    description: Text = ""
+    product: PathText | None = Field(
         None, description="product file, relative to this file (overridden by --product)"
     )
     power: PowerConfig = PowerConfig()
@@ -549,3 +498,29 @@ def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:
 
 def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
     return load_yaml_model(path, ProcedureConfig)
+
+
+def check_procedure_for_product(
+    procedure: ProcedureConfig,
+    procedure_file: LoadedYaml,
+    product: ProductConfig,
+    product_file: LoadedYaml,
+) -> None:
+    """Cross-checks of a procedure against the product it calibrates: every rate of the rate
+    set and of the verification within the part's rated range. ConfigError naming the
+    procedure's file and line and the product's range otherwise."""
+    for section, rates in (
+        ("rate_table", procedure.rate_table.rates_dps if procedure.rate_table else []),
+        ("verify", procedure.verify.rates_dps if procedure.verify else []),
+    ):
+        for i, rate in enumerate(rates):
+            if abs(rate) > product.range_dps:
+                line = procedure_file.lines.get((section, "rates_dps", i)) or (
+                    procedure_file.lines.get((section, "rates_dps"))
+                )
+                where = f"{procedure_file.path}:{line}" if line else str(procedure_file.path)
+                raise ConfigError(
+                    f"{where}: field {section}.rates_dps.{i}: {rate:g} deg/s is beyond the "
+                    f"range of {product.product} (+/-{product.range_dps:g} deg/s, "
+                    f"{product_file.path}); give rates within the part's range"
+                )

@@ -25,6 +25,7 @@ from procedures.record import CERTIFICATE_FILE
 from reports import cert_plots, cert_sections
 from reports.cert_inputs import CertificateInputs, load_inputs
 from reports.pdfdoc import PageFurniture, build_pdf, parse_utc, write_atomic
+from reports.styles import bounded
 
 log = logging.getLogger(__name__)
 
@@ -61,13 +62,14 @@ def certificate_bytes(run_folder: Path) -> bytes:
     """The certificate of a run folder as PDF bytes (nothing written)."""
     inputs = load_inputs(run_folder)
     rec = inputs.record
-    serial = rec.dut.serial if rec else "unknown serial"
+    serial = bounded(rec.dut.serial if rec else "unknown serial", 64)
+    run_id = bounded(rec.run_id if rec else run_folder.name, 80)
     furniture = PageFurniture(
         title="Calibration certificate",
-        identity=f"{serial}  |  {rec.run_id if rec else run_folder.name}  |  {inputs.verdict}",
+        identity=f"{serial}  |  {run_id}  |  {inputs.verdict}",
         simulated=bool(rec.simulated) if rec else False,
         document_time=document_time(inputs),
-        author=rec.operator if rec else "",
+        author=bounded(rec.operator, 120) if rec else "",
         subject=f"{inputs.verdict} {serial}",
     )
     return build_pdf(build_story(inputs), furniture)

@@ -111,6 +111,18 @@ def titled(label: str, units: str) -> str:
     return label if units.strip() in DIMENSIONLESS else f"{label} ({units})"
 
 
+MAX_TEXT_CHARS = 600  # longer text from a record is cut: layout time grows with its length
+
+
+def bounded(text: object, limit: int = MAX_TEXT_CHARS) -> str:
+    """`text` as a string of at most about `limit` characters: a longer one is cut, saying
+    how much was left out (a record's text is input: a 2 MB name must not stall a render)."""
+    s = str(text)
+    if len(s) <= limit:
+        return s
+    return f"{s[:limit]}... ({len(s) - limit} more characters not shown)"
+
+
 def escape(text: object) -> str:
-    """Text safe inside a reportlab Paragraph (which parses a little XML)."""
-    return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    """Text safe inside a reportlab Paragraph (which parses a little XML), bounded in length."""
+    return bounded(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")

@@ -55,7 +55,10 @@ def main() -> int:
                 page = browser.new_page(viewport={"width": 1280, "height": 860})
                 page.set_default_timeout(RUN_TIMEOUT_MS)
                 page.goto(station.url)
-                page.fill("#operator-id", "ana")
+                page.click("#signin-btn")  # an open station: the operator's name
+                page.fill("#operator-input", "ana")
+                page.press("#operator-input", "Enter")
+                page.wait_for_selector("#signin-dialog:not([open])", state="attached")
                 # A bad serial refused with its reason.
                 page.fill("#serial-1", "12345")
                 page.press("#serial-1", "Enter")

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.bounded import MAX_RATE_DPS
 from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
 from procedures.analysis.allan import check_static
@@ -25,6 +26,13 @@ from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
 from station.errors import UserError
 
 REQUIRED = ("time_s", "rate_dps")
+# plausible values of each column: a record is at most years long, a rate within any
+# table's reach, status a 32-bit word of flags
+COLUMN_BOUNDS = {
+    "time_s": (-1e9, 1e9),
+    "rate_dps": (-MAX_RATE_DPS, MAX_RATE_DPS),
+    "status": (0.0, float(2**32 - 1)),
+}
 MIN_ROWS = 16
 
 
@@ -67,13 +75,26 @@ def _help(parser: argparse.ArgumentParser) -> int:
 
 def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
     """Columns of a rate CSV as float arrays; UserError naming the problem otherwise."""
+    reader = None
     try:
         with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
+            reader = csv.reader(fh)
+            rows = list(reader)
     except FileNotFoundError:
         raise UserError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: cannot read it ({exc})") from None
+    except IsADirectoryError:
+        raise UserError(f"{path}: is a folder; give a CSV file") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(
+            f"{path}: not UTF-8 text (byte {exc.start}); save it as 'CSV UTF-8'"
+        ) from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    except csv.Error as exc:
+        line = f": line {reader.line_num}" if reader is not None else ""
+        raise UserError(
+            f"{path}{line}: not a readable CSV ({exc}); a rate record has short numeric fields"
+        ) from None
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
         raise UserError(f"{path}: the file is empty; expected a header row time_s,rate_dps")
@@ -109,6 +130,17 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
                 f"{path}: column {c} holds NaN or infinite values (first at data row "
                 f"{int(np.argmax(bad)) + 1}); repair or remove those rows"
             )
+        low, high = COLUMN_BOUNDS[c]
+        bad = (arr < low) | (arr > high)
+        if c == "status":
+            bad |= arr != np.round(arr)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise UserError(
+                f"{path}: column {c} holds {float(arr[i]):.6g} at data row {i + 1}, outside "
+                f"{low:g}..{high:g}" + (" or not a whole number" if c == "status" else "")
+                + "; this is not a plausible record"
+            )
     steps = np.diff(data["time_s"])
     if np.any(steps <= 0):
         i = int(np.argmax(steps <= 0))
@@ -120,7 +152,23 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
     return data
 
 
+def check_stop_method_args(args: argparse.Namespace) -> None:
+    """The numbers on the command line, finite and within reason, before the file is read."""
+    angle = args.reference_angle
+    if not 0 < angle <= 360:  # NaN fails too
+        raise UserError(f"--reference-angle must be in (0, 360] deg, got {angle:g}")
+    u = args.reference_angle_uncertainty
+    if not 0 <= u < angle:
+        raise UserError(
+            f"--reference-angle-uncertainty must be from 0 to below the angle, got {u:g}"
+        )
+    fs = args.full_scale
+    if fs is not None and not 0 < fs <= MAX_RATE_DPS:
+        raise UserError(f"--full-scale must be in (0, {MAX_RATE_DPS:g}] deg/s, got {fs:g}")
+
+
 def run_stop_method(args: argparse.Namespace) -> int:
+    check_stop_method_args(args)
     data = read_rate_csv(args.csv)
     full_scale = RATED_RANGE_DPS if args.full_scale is None else args.full_scale
     settings = StopMethodSettings(full_scale_dps=full_scale)

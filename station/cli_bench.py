@@ -25,14 +25,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def handle(args: argparse.Namespace) -> int:
     # imported here so `station --help` stays fast and other commands need no pymodbus
     from drivers.sim.bench import run_bench, twin_class
-    from drivers.sim.config import SimConfigError, load_sim_config
+    from drivers.sim.config import SimConfigError, load_sim_config, speed_problem
 
     try:
         config = load_sim_config(args.config)
     except SimConfigError as exc:
         raise UserError(str(exc)) from None
-    if args.speed is not None and not 0 < args.speed <= 10000:
-        raise UserError(f"--speed must be in (0, 10000], got {args.speed}")
+    if args.speed is not None and (problem := speed_problem(args.speed)):
+        raise UserError(problem)
     if args.sockets is not None:
         if not 1 <= args.sockets <= 64:
             raise UserError(f"--sockets must be 1..64, got {args.sockets}")

@@ -109,18 +109,39 @@ def history_table(runs: list[RunRow]) -> list[str]:
             + ("  " + row[-1]).rstrip() for row in [header, *rows]]
 
 
+def _recover(runs_dir: Path | None, db_path: Path | None) -> None:
+    """Runs a dead station left RUNNING become ERROR (naming their last completed step) and
+    are indexed before anything is listed (station/run_folder.py)."""
+    from station.run_folder import recover_results
+
+    if runs_dir is None:
+        try:
+            from station.settings import load_settings
+
+            settings = load_settings()
+        except Exception as exc:  # no station file here: nothing to recover from
+            log.info("no station settings (%s): no crash recovery", exc)
+            return
+        runs_dir, db_path = settings.output_folder, db_path or settings.results_db
+    for folder in recover_results(runs_dir, db_path):
+        print(f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr)
+
+
 def cmd_history(args: argparse.Namespace) -> int:
     if args.reindex:
         root = Path(args.reindex)
         if not root.is_dir():
             raise UserError(f"--reindex {root}: no such folder; give the folder holding the "
                             "run folders (station.yaml's output_folder)")
+        _recover(root, None)  # reindexed just below
         db = _open_db(args, must_exist=False)
         added, problems = db.reindex(root)
         for p in problems:
             print(f"skipped: {p}", file=sys.stderr)
         print(f"indexed {added} run folders from {root} into {db.path}", file=sys.stderr)
     else:
+        if not args.db:  # the station's own database: its runs folder is known
+            _recover(None, None)
         db = _open_db(args, must_exist=True)
     try:
         runs = db.runs(**_filters(args))

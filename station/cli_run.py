@@ -18,7 +18,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel
 
 from procedures.config import ConfigError, ProcedureConfig, ProductConfig
@@ -147,10 +146,15 @@ def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | No
         p = Path(path)
         if not p.is_file():
             raise UserError(f"--sim-config {path}: no such file")
+        from drivers.sim.config import SimConfigError, load_sim_config
+        from drivers.yaml_input import read_yaml
+
         try:
-            has_speed = "speed" in (yaml.safe_load(p.read_text(encoding="utf-8")) or {})
-        except (yaml.YAMLError, AttributeError, TypeError):
-            has_speed = True  # let the bench report what is wrong with the file
+            load_sim_config(p)  # refused here, before a bench or a run folder exists
+            data = read_yaml(p).data
+        except (SimConfigError, ValueError) as exc:
+            raise UserError(f"--sim-config {exc}") from None
+        has_speed = isinstance(data, dict) and "speed" in data
         return p.resolve(), None if has_speed else DEFAULT_SIM_SPEED
     return {
         "parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
@@ -188,6 +192,9 @@ def run_cycle(
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
     from station.uut import Endpoints, UutRunner
 
+    operator = getattr(args, "operator", "") or ""
+    if len(operator) > 200 or not operator.isprintable():
+        raise UserError("--operator must be at most 200 printable characters (a name or badge)")
     try:
         settings = load_settings(Path(args.station) if args.station else None)
         runner_kwargs = dict(
@@ -205,8 +212,11 @@ def run_cycle(
     except ConfigError as exc:
         raise UserError(str(exc)) from None
     _check_out(args.out)
-    if speed is not None and not 0 < speed <= 10000:
-        raise UserError(f"--speed must be in (0, 10000], got {speed:g}")
+    if speed is not None:
+        from drivers.sim.config import speed_problem
+
+        if problem := speed_problem(speed):
+            raise UserError(problem)
     bench_cm: Any = contextlib.nullcontext(None)
     if sim:
         from drivers.sim.launcher import launch_bench

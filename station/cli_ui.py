@@ -5,37 +5,58 @@ from __future__ import annotations
 import argparse
 import getpass
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from station.errors import UserError
 
 
-def _hash_password() -> int:
-    from station.ui.auth import hash_password
-
+def _read_secret(what: str) -> str:
     if sys.stdin.isatty():
-        password = getpass.getpass("engineer password: ")
-        if getpass.getpass("again: ") != password:
-            raise UserError("the two passwords differ; run the command again")
-    else:
-        password = sys.stdin.readline().rstrip("\r\n")
+        secret = getpass.getpass(f"{what}: ")
+        if getpass.getpass("again: ") != secret:
+            raise UserError(f"the two {what}s differ; run the command again")
+        return secret
+    return sys.stdin.readline(1024).rstrip("\r\n")
+
+
+def _hash_secret(kind: str) -> int:
+    from station.ui.auth import hash_badge, hash_password, hash_pin
+
+    makers: dict[str, tuple[str, Callable[[str], str], str]] = {
+        "password": ("engineer password", hash_password, "engineer_password_hash"),
+        "pin": ("PIN", hash_pin, "pin_hash"),
+        "badge": ("badge code", hash_badge, "badge_hash"),
+    }
+    what, make, key = makers[kind]
     try:
-        hashed = hash_password(password)
+        hashed = make(_read_secret(what))
     except ValueError as exc:
         raise UserError(str(exc)) from None
     print("# put this in station.yaml:")
     print("ui:")
-    print(f"  engineer_password_hash: '{hashed}'")
+    if kind == "password":
+        print(f"  {key}: '{hashed}'")
+    else:
+        print("  operators:")
+        print("    - name: <operator name>")
+        print(f"      {key}: '{hashed}'")
     return 0
 
 
 def _ui(args: argparse.Namespace) -> int:
-    if args.hash_password:
-        return _hash_password()
+    for kind in ("password", "pin", "badge"):
+        if getattr(args, f"hash_{kind}"):
+            return _hash_secret(kind)
     if not 0 <= args.port <= 65535:
         raise UserError(f"--port must be 0..65535, got {args.port}")
     if args.sim_config and not args.sim:
         raise UserError("--sim-config needs --sim (it configures the simulated bench)")
+    if args.speed is not None:
+        from drivers.sim.config import speed_problem
+
+        if problem := speed_problem(args.speed):
+            raise UserError(problem)
     from station.ui.launch import ui_station
     from station.ui.server import serve_forever
 
@@ -46,6 +67,7 @@ def _ui(args: argparse.Namespace) -> int:
         speed=args.speed,
         sockets=args.sockets,
         out=Path(args.out) if args.out else None,
+        host=args.host,
     ) as station:
         if station.bench is not None:
             print(
@@ -53,19 +75,16 @@ def _ui(args: argparse.Namespace) -> int:
                 f"(pid {station.bench.endpoints.pid})",
                 flush=True,
             )
-        if args.host not in ("127.0.0.1", "localhost", "::1"):
-            print(
-                f"warning: listening on {args.host}: every machine on that network can reach "
-                "the station; the engineer password crosses it unencrypted",
-                flush=True,
-            )
+        for folder in station.recovered:
+            print(f"marked as ERROR (the station stopped during that run): {folder}", flush=True)
+        scheme = "https" if station.tls else "http"
         print(
-            f"operator screen: http://{args.host}:{args.port}/   "
-            f"review: http://{args.host}:{args.port}/review   (Ctrl-C stops)",
+            f"operator screen: {scheme}://{args.host}:{args.port}/   "
+            f"review: {scheme}://{args.host}:{args.port}/review   (Ctrl-C stops)",
             flush=True,
         )
         try:
-            serve_forever(station.app, args.host, args.port)
+            serve_forever(station.app, args.host, args.port, tls=station.tls)
         except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled: a normal stop
             pass
         except OSError as exc:
@@ -80,7 +99,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--host",
         default="127.0.0.1",
-        help="address to listen on (default loopback only; 0.0.0.0 for the line network)",
+        help="address to listen on (default loopback only; 0.0.0.0 for the line network, "
+        "which needs ui.tls_certificate and ui.tls_key in station.yaml)",
     )
     p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080)")
     p.add_argument("--sim", action="store_true", help="start the simulated bench and run on it")
@@ -95,5 +115,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--hash-password",
         action="store_true",
         help="read an engineer password (stdin) and print the station.yaml line",
+    )
+    p.add_argument(
+        "--hash-pin",
+        action="store_true",
+        help="read an operator's PIN (stdin) and print the station.yaml lines",
+    )
+    p.add_argument(
+        "--hash-badge",
+        action="store_true",
+        help="read an operator's badge code (stdin or a scan) and print the station.yaml lines",
     )
     p.set_defaults(handler=_ui)

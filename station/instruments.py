@@ -146,12 +146,17 @@ def plan_part(
     )
 
 
-def format_settings_error(exc: ValidationError, loaded: LoadedSettings, plan: RoleDriver) -> str:
-    """One line per problem: `station.yaml:line: field instruments.<key>.<field>: message`."""
+def format_settings_error(
+    exc: ValidationError, loaded: LoadedSettings, plan: RoleDriver, *, missing: bool = True
+) -> str:
+    """One line per problem: `station.yaml:line: field instruments.<key>.<field>: message`
+    (`missing=False`: required settings left out are not reported)."""
     model = registry.settings_model(plan.factory)
     allowed = sorted(model.model_fields) if model is not None else []
     out = []
     for err in exc.errors():
+        if not missing and err["type"] == "missing":
+            continue
         loc = [str(p) for p in err["loc"]]
         path: list[str | int] = [*plan.yaml_path, *loc]
         if plan.socket is not None and loc[:1] == ["address"]:
@@ -170,7 +175,9 @@ def format_settings_error(exc: ValidationError, loaded: LoadedSettings, plan: Ro
     return "\n".join(out)
 
 
-def check_settings(loaded: LoadedSettings, plan: RoleDriver) -> list[str]:
+def check_settings(
+    loaded: LoadedSettings, plan: RoleDriver, *, missing: bool = True
+) -> list[str]:
     """Problems with a role's settings, found without connecting (where the driver's model
     can be found; otherwise the factory itself checks them when it is called)."""
     model = registry.settings_model(plan.factory)
@@ -179,7 +186,7 @@ def check_settings(loaded: LoadedSettings, plan: RoleDriver) -> list[str]:
     try:
         model.model_validate(plan.settings)
     except ValidationError as exc:
-        return format_settings_error(exc, loaded, plan).splitlines()
+        return format_settings_error(exc, loaded, plan, missing=missing).splitlines()
     return []
 
 
@@ -256,3 +263,30 @@ def station_roles(needs_table: bool) -> list[str]:
     """The roles a run opens besides the part links, in opening order."""
     return [*(["rate_table"] if needs_table else []), "chamber", "supply", "inclinometer"]
 
+
+
+def settings_problems(loaded: LoadedSettings) -> list[str]:
+    """Every role's driver resolved and its settings checked against the driver's own model,
+    without connecting (station.yaml's load): one line per problem, file:line."""
+    problems: list[str] = []
+    plans: list[RoleDriver] = []
+    for role in station_roles(needs_table=True):
+        if ("instruments", role) not in loaded.source.lines:
+            continue  # not configured here: checked when a run needs it
+        try:
+            plan = plan_role(loaded, role)
+        except UserError as exc:
+            problems.append(str(exc))
+            continue
+        if plan is not None:
+            plans.append(plan)
+    fixture = loaded.settings.instruments.fixture
+    for sock, port in sorted(fixture.ports.items()):
+        try:
+            plans.append(plan_part(loaded, sock, port))
+        except UserError as exc:
+            problems.append(str(exc))
+            break
+    for plan in plans:  # a setting left out is said when a run needs the instrument
+        problems += check_settings(loaded, plan, missing=False)
+    return list(dict.fromkeys(problems))

@@ -17,7 +17,14 @@ import re
 import socket
 from pathlib import Path
 
-from procedures.record import RECORD_FILE, Event, Verdict, read_record, write_record
+from procedures.record import (
+    RECORD_FILE,
+    Event,
+    RunRecord,
+    Verdict,
+    read_record,
+    write_record,
+)
 from station.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -97,17 +104,49 @@ def _process_alive(lock: Path) -> bool:
     return True
 
 
-def recover_crashed_runs(out: Path) -> list[Path]:
-    """Mark ERROR every run under `out` left RUNNING by a process that no longer exists."""
+def last_completed_step(record: RunRecord) -> str:
+    """The last step the run finished before it stopped, '' when none had.
+
+    The engine adds a step's time to `timings` when the step ends (in the order the steps
+    ran, "total" only at the very end), so the last key is the last completed step; the
+    events' last step is the one that was still running, which is not the one to name."""
+    done = [k for k in record.timings if k != "total"]
+    return done[-1] if done else ""
+
+
+def _crash_reason(record: RunRecord) -> str:
+    last = last_completed_step(record)
+    running = record.events[-1].step if record.events else ""
+    where = f"after step {last!r} completed" if last else "before any step completed"
+    if running and running != last and running not in ("recovery", "finish"):
+        where += f" (last event from {running!r})"
+    return (
+        "the station stopped during the run (crash, kill or power loss) "
+        + where
+        + "; everything measured up to then is kept in this folder; rerun the part"
+    )
+
+
+def _candidates(root: Path, locks_only: bool) -> list[Path]:
+    if locks_only:  # cheap: a run that was RUNNING when its station died still has its lock
+        return sorted(lock.parent for lock in root.glob(f"*/{LOCK_FILE}"))
+    return sorted(record_path.parent for record_path in root.glob(f"*/{RECORD_FILE}"))
+
+
+def recover_crashed_runs(out: Path, *, locks_only: bool = False) -> list[Path]:
+    """Mark ERROR every run under `out` left RUNNING by a process that no longer exists,
+    naming the last step it completed. `locks_only` looks only at folders still holding a
+    `.running` lock (cheap enough for every refresh of the review screen)."""
     root = Path(out)
     if not root.is_dir():
         return []
     recovered: list[Path] = []
-    for record_path in sorted(root.glob(f"*/{RECORD_FILE}")):
-        folder = record_path.parent
+    for folder in _candidates(root, locks_only):
+        if not (folder / RECORD_FILE).is_file():
+            continue
         try:
             record = read_record(folder)
-        except ValueError as exc:
+        except (ValueError, OSError) as exc:
             log.warning("skipping unreadable run folder %s: %s", folder, exc)
             continue
         if record.verdict is not Verdict.RUNNING:
@@ -116,13 +155,8 @@ def recover_crashed_runs(out: Path) -> list[Path]:
         if lock.exists() and _process_alive(lock):
             continue
         now = dt.datetime.now(dt.UTC).isoformat()
-        last_step = record.events[-1].step if record.events else ""
         record.verdict = Verdict.ERROR
-        record.reason = (
-            "the station stopped during the run (crash, kill or power loss)"
-            + (f" in step {last_step!r}" if last_step else "")
-            + "; everything measured up to then is kept in this folder; rerun the part"
-        )
+        record.reason = _crash_reason(record)
         record.finished_utc = record.finished_utc or now
         record.events.append(
             Event(
@@ -133,8 +167,28 @@ def recover_crashed_runs(out: Path) -> list[Path]:
                 message=record.reason,
             )
         )
-        write_record(folder, record)
-        lock.unlink(missing_ok=True)
+        try:
+            write_record(folder, record)
+            lock.unlink(missing_ok=True)
+        except OSError as exc:
+            log.error("could not mark crashed run %s as ERROR: %s", folder, exc)
+            continue
         recovered.append(folder)
         log.warning("marked crashed run %s as ERROR", folder)
     return recovered
+
+
+def recover_results(out: Path, db_path: Path | None, *, locks_only: bool = False) -> list[Path]:
+    """Recovery for an entry point that opens the results: crashed runs marked ERROR and
+    indexed in the results database (when there is one), so that history and review list them."""
+    folders = recover_crashed_runs(out, locks_only=locks_only)
+    if folders and db_path is not None:
+        try:
+            from station.results_db import ResultsDB
+
+            db = ResultsDB(db_path)
+            for folder in folders:
+                db.add_run(folder, read_record(folder))
+        except Exception as exc:  # the run folders are the master copy; the index can be rebuilt
+            log.error("results database: could not record crashed runs: %s", exc)
+    return folders

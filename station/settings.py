@@ -8,27 +8,31 @@ folder that holds it, so the file can travel with its configuration folder.
 from __future__ import annotations
 
 import datetime as dt
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from procedures.config import LoadedYaml, load_yaml_model
+from drivers.bounded import Name, PathText, ShortName
+from procedures.config import ConfigError, LoadedYaml, load_yaml_model
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"
 DEFAULT_STATION_FILE = CONFIG_DIR / "station.yaml"
+MAX_BAUD = 10_000_000
+MAX_TIMEOUT_S = 600.0  # a communication timeout, wall seconds
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class StationInfo(_Strict):
-    id: str = Field(description="station identifier printed on certificates")
-    name: str = ""
-    location: str = ""
+    id: ShortName = Field(min_length=1, description="station identifier printed on certificates")
+    name: Name = ""
+    location: Name = ""
 
 
 _DRIVER_HELP = (
@@ -42,15 +46,15 @@ class InstrumentSettings(BaseModel):
     expected_model) every key is the driver's setting, checked by the driver's own model when
     the station prepares a run (address in the driver's form, timeout_s, ...)."""
 
-    model_config = ConfigDict(extra="allow", frozen=True)
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
 
-    driver: str | None = Field(None, min_length=1, description=_DRIVER_HELP)
-    address: str = Field(
+    driver: PathText | None = Field(None, min_length=1, description=_DRIVER_HELP)
+    address: PathText = Field(
         "",
         description="in the driver's own form: host:port (Modbus TCP, ASCII over TCP), a VISA "
         "resource (TCPIP::host::5025::SOCKET, ASRL/dev/ttyUSB0::INSTR) or a serial device",
     )
-    expected_model: str = Field("", description="if set, the identity must contain this model")
+    expected_model: Name = Field("", description="if set, the identity must contain this model")
     calibration_due: dt.date | None = Field(
         None, description="ISO date (YYYY-MM-DD) the instrument's own calibration expires"
     )
@@ -69,16 +73,19 @@ class FixtureSettings(BaseModel):
     """The part role (key fixture, or part): the fixture's sockets and their ports; other
     keys are the part driver's settings (baud, timeout_s, ...)."""
 
-    model_config = ConfigDict(extra="allow", frozen=True)
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
 
-    driver: str | None = Field(None, min_length=1, description=_DRIVER_HELP)
+    driver: PathText | None = Field(None, min_length=1, description=_DRIVER_HELP)
     sockets: int = Field(1, ge=1, le=16, description="number of part sockets")
-    ports: dict[int, str] = Field(
-        default_factory=dict, description="socket number -> serial port of its microcontroller"
+    ports: dict[int, PathText] = Field(
+        default_factory=dict,
+        max_length=16,
+        description="socket number -> serial port of its microcontroller",
     )
     baud: int = Field(
         115200,
         gt=0,
+        le=MAX_BAUD,
         description="serial baud rate of every socket; must carry the procedure's output rate "
         "(25-byte frames, 10 bits a byte: 200 Hz needs 50,000, 500 Hz needs 230,400)",
     )
@@ -99,8 +106,8 @@ class FixtureSettings(BaseModel):
     @field_validator("ports")
     @classmethod
     def _sockets(cls, value: dict[int, str]) -> dict[int, str]:
-        if any(k < 1 for k in value):
-            raise ValueError("socket numbers start at 1")
+        if any(not 1 <= k <= 16 for k in value):
+            raise ValueError("socket numbers are 1..16")
         return value
 
 
@@ -125,14 +132,83 @@ class Instruments(_Strict):
         return entry if isinstance(entry, InstrumentSettings) else None
 
 
+class OperatorEntry(_Strict):
+    """One operator who may sign in at the browser station (badge scan, or name and PIN)."""
+
+    name: str = Field(
+        min_length=1,
+        max_length=64,
+        pattern=r"^[^\x00-\x1f\x7f]+$",
+        description="the name recorded on every run the operator starts",
+    )
+    pin_hash: str | None = Field(
+        None,
+        max_length=256,
+        description="scrypt hash of the operator's PIN; make it with `station ui --hash-pin`",
+    )
+    badge_hash: str | None = Field(
+        None,
+        max_length=256,
+        description="salted hash of the operator's badge code; make it with "
+        "`station ui --hash-badge`",
+    )
+
+
 class UiSettings(_Strict):
     """The browser UI (`station ui`)."""
 
     engineer_password_hash: str | None = Field(
         None,
+        max_length=256,
         description="scrypt hash of the engineer password; make it with "
         "`station ui --hash-password` (never the password itself)",
     )
+    operators: list[OperatorEntry] = Field(
+        default_factory=list,
+        max_length=1000,
+        description="operators who sign in by badge or name and PIN; empty: an open station "
+        "where the operator signs in with a name only",
+    )
+    require_operator: bool = Field(
+        False, description="refuse to start a run until an operator has signed in"
+    )
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        max_length=64,
+        description="host names the browser may use to reach the station besides the loopback "
+        "names and the --host address (e.g. the station's DNS name on the line network)",
+    )
+    tls_certificate: str | None = Field(
+        None,
+        max_length=4096,
+        description="PEM certificate for HTTPS (relative to this file); needed to listen "
+        "beyond loopback",
+    )
+    tls_key: str | None = Field(
+        None, max_length=4096, description="PEM private key of tls_certificate (relative)"
+    )
+
+    @field_validator("allowed_hosts")
+    @classmethod
+    def _hosts(cls, value: list[str]) -> list[str]:
+        for host in value:
+            if not re.fullmatch(r"[A-Za-z0-9._:\[\]-]{1,253}", host):
+                raise ValueError(f"{host!r} is not a host name or address")
+        return [h.lower() for h in value]
+
+    @model_validator(mode="after")
+    def _consistent(self) -> UiSettings:
+        if self.require_operator and not self.operators:
+            raise ValueError("require_operator needs at least one entry under ui.operators")
+        names = [o.name.casefold() for o in self.operators]
+        if len(set(names)) != len(names):
+            raise ValueError("two operators have the same name; names must be unique")
+        for o in self.operators:
+            if not o.pin_hash and not o.badge_hash:
+                raise ValueError(f"operator {o.name!r} has neither pin_hash nor badge_hash")
+        if (self.tls_certificate is None) != (self.tls_key is None):
+            raise ValueError("tls_certificate and tls_key go together; set both or neither")
+        return self
 
 
 class StationSettings(_Strict):
@@ -140,14 +216,16 @@ class StationSettings(_Strict):
 
     station: StationInfo
     instruments: Instruments = Instruments()
-    output_folder: str = Field("runs", description="run folders go here (relative to this file)")
-    results_db: str = Field(
+    output_folder: PathText = Field(
+        "runs", description="run folders go here (relative to this file)"
+    )
+    results_db: PathText = Field(
         "runs/results.sqlite", description="SQLite results database (relative to this file)"
     )
-    procedure: str = Field(
+    procedure: PathText = Field(
         "procedures/eol-rate-table.yaml", description="default procedure (relative to this file)"
     )
-    sim_config: str | None = Field(
+    sim_config: PathText | None = Field(
         None, description="simulated bench configuration used by --sim (relative to this file)"
     )
     refuse_overdue_instruments: bool = Field(
@@ -185,4 +263,11 @@ class LoadedSettings:
 def load_settings(path: Path | None = None) -> LoadedSettings:
     """Load station.yaml (default: config/station.yaml of this installation)."""
     model, loaded = load_yaml_model(Path(path or DEFAULT_STATION_FILE), StationSettings)
-    return LoadedSettings(settings=model, source=loaded)
+    settings = LoadedSettings(settings=model, source=loaded)
+    # each instrument's settings belong to its driver: checked by the driver's own model
+    from station.instruments import settings_problems
+
+    problems = settings_problems(settings)
+    if problems:
+        raise ConfigError("\n".join(problems))
+    return settings

@@ -36,6 +36,7 @@ from procedures.config import (
     ConfigError,
     ProcedureConfig,
     ProductConfig,
+    check_procedure_for_product,
     load_procedure,
     load_product,
 )
@@ -277,6 +278,9 @@ class UutRunner:
             product_path = (self.procedure_path.parent / self.procedure.product).resolve()
         self.product_path = Path(product_path)
         self.product, self.product_file = load_product(self.product_path)
+        check_procedure_for_product(
+            self.procedure, self.procedure_file, self.product, self.product_file
+        )
         self.operator = operator
         # resolved, so that --out naming station.yaml's output folder keeps its results_db
         self.out = Path(out).expanduser().resolve() if out else settings.output_folder
@@ -740,14 +744,15 @@ def procedure_product(
     procedure_path: Path, product_path: Path | None
 ) -> tuple[ProcedureConfig, ProductConfig]:
     """Load both files (ConfigError with file:line:field on any problem)."""
-    procedure, _ = load_procedure(procedure_path)
+    procedure, procedure_file = load_procedure(procedure_path)
     if product_path is None:
         if not procedure.product:
             raise ConfigError(
                 f"{procedure_path}: no product given; add 'product:' or pass --product"
             )
         product_path = (procedure_path.parent / procedure.product).resolve()
-    product, _ = load_product(product_path)
+    product, product_file = load_product(product_path)
+    check_procedure_for_product(procedure, procedure_file, product, product_file)
     return procedure, product
 
 

@@ -224,7 +224,7 @@ class Bench:
     def _socket_index(self, req: dict[str, Any]) -> int:
         try:
             index = int(req.get("socket", 1))
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ControlRequestError("socket must be an integer") from None
         if index not in self.world.sockets:
             raise ControlRequestError(
@@ -234,7 +234,12 @@ class Bench:
 
     def _load(self, req: dict[str, Any]) -> dict[str, Any]:
         index = self._socket_index(req)
-        part = dict(req.get("part") or {})
+        part = req.get("part") or {}
+        if not isinstance(part, dict):
+            raise ControlRequestError(
+                'part must be an object of part parameters, e.g. {"serial": "SIM-0001"}'
+            )
+        part = dict(part)
         part["socket"] = index
         try:
             spec = PartSpec.model_validate(part)
@@ -247,7 +252,7 @@ class Bench:
 
     async def _fault(self, req: dict[str, Any]) -> dict[str, Any]:
         kind = req.get("kind")
-        if kind not in FAULT_KINDS:
+        if not isinstance(kind, str) or kind not in FAULT_KINDS:
             raise ControlRequestError(
                 f"unknown fault kind {kind!r}; use one of {', '.join(FAULT_KINDS)}"
             )
@@ -257,13 +262,10 @@ class Bench:
                 if kind == "modbus_drop":
                     await twin.drop()
                 else:
-                    delay = float(req.get("delay_s", 5.0))
-                    if not 0 <= delay <= 600:
-                        raise ControlRequestError("delay_s must be between 0 and 600 (wall s)")
-                    twin.delay_s = delay
+                    twin.delay_s = _number(req, "delay_s", 5.0, 0.0, 600.0)
         elif kind == "table_fault":
             code = req.get("code", "following_error")
-            if code not in _TABLE_FAULTS:
+            if not isinstance(code, str) or code not in _TABLE_FAULTS:
                 raise ControlRequestError(
                     f"table_fault code {code!r}; use one of {', '.join(_TABLE_FAULTS)}"
                 )
@@ -305,7 +307,7 @@ class Bench:
             "chamber": [self.chamber],
             "all": [self.table, self.chamber],
         }
-        if target not in options:
+        if not isinstance(target, str) or target not in options:
             raise ControlRequestError(f"target {target!r}; use table, chamber or all")
         return options[target]
 
@@ -333,11 +335,21 @@ class Bench:
         return out
 
 
-def _rate(req: dict[str, Any], key: str, default: float) -> float:
-    value = float(req.get(key, default))
-    if not 0.0 <= value <= 1.0:
-        raise ControlRequestError(f"{key} must be between 0 and 1")
+def _number(req: dict[str, Any], key: str, default: float, low: float, high: float) -> float:
+    """The number `req[key]` (default if absent) within [low, high]; ControlRequestError if it
+    is not a number or out of range (NaN included)."""
+    raw = req.get(key, default)
+    try:
+        value = float(raw) if not isinstance(raw, bool) else float("nan")
+    except (TypeError, ValueError, OverflowError):
+        value = float("nan")
+    if not low <= value <= high:
+        raise ControlRequestError(f"{key} must be between {low:g} and {high:g}")
     return value
+
+
+def _rate(req: dict[str, Any], key: str, default: float) -> float:
+    return _number(req, key, default, 0.0, 1.0)
 
 
 def write_state(path: Path, state: dict[str, Any]) -> None:

@@ -10,12 +10,21 @@ chamber, supply, fixture and part physics) has defaults close to the real bench.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from drivers.bounded import (
+    MAX_ACCEL_DPS2,
+    MAX_RATE_DPS,
+    MAX_SUPPLY_V,
+    ONE_DAY_S,
+    TEMP_HIGH_C,
+    TEMP_LOW_C,
+    ShortName,
+)
 from drivers.rate_table_map import COUNTS_PER_REV
+from drivers.yaml_input import ConfigError, format_validation_error, read_yaml
 
 # effect id -> parameter names it accepts (DESIGN.md's catalog)
 EFFECT_PARAMS: dict[str, frozenset[str]] = {
@@ -41,12 +50,21 @@ REQUIRED_EFFECT_PARAMS: dict[str, frozenset[str]] = {
 }
 
 
+MIN_SPEED = 0.01  # slower than this and a run does not visibly advance
+MAX_SPEED = 10_000.0
+
+
 class SimConfigError(ValueError):
     """The sim config file is missing, unreadable or has a bad value (message names it)."""
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+Coefficient = Annotated[float, Field(ge=-1e3, le=1e3)]
+Tau = Annotated[float, Field(gt=0.0, le=ONE_DAY_S * 10)]
+Temp = Annotated[float, Field(ge=TEMP_LOW_C, le=TEMP_HIGH_C)]
 
 
 class PartSpec(_Model):
@@ -54,17 +72,19 @@ class PartSpec(_Model):
 
     socket: int = Field(ge=1, le=64)
     serial: str = Field(min_length=1, max_length=40, pattern=r"^[\x21-\x7e]+$")
-    bias_dps: float | None = None
+    bias_dps: float | None = Field(default=None, ge=-MAX_RATE_DPS, le=MAX_RATE_DPS)
     scale: float | None = Field(default=None, gt=0.5, lt=2.0)
-    bias_temp_coeff_dps_per_c: float | None = None
-    bias_supply_coeff_dps_per_v: float | None = None
-    scale_temp_coeff_per_c: float | None = None
-    scale_supply_coeff_per_v: float | None = None
-    arw_deg_per_sqrt_h: float | None = Field(default=None, ge=0.0)
-    bias_instability_deg_per_h: float | None = Field(default=None, ge=0.0)
-    rrw_deg_per_h_per_sqrt_h: float | None = Field(default=None, ge=0.0)
+    bias_temp_coeff_dps_per_c: Coefficient | None = None
+    bias_supply_coeff_dps_per_v: Coefficient | None = None
+    scale_temp_coeff_per_c: Coefficient | None = None
+    scale_supply_coeff_per_v: Coefficient | None = None
+    arw_deg_per_sqrt_h: float | None = Field(default=None, ge=0.0, le=1e4)
+    bias_instability_deg_per_h: float | None = Field(default=None, ge=0.0, le=1e6)
+    rrw_deg_per_h_per_sqrt_h: float | None = Field(default=None, ge=0.0, le=1e6)
     supply_current_a: float | None = Field(default=None, gt=0.0, le=0.5)
-    effects: dict[str, dict[str, float]] = Field(default_factory=dict)
+    effects: dict[str, dict[str, Annotated[float, Field(ge=-1e6, le=1e6)]]] = Field(
+        default_factory=dict, max_length=len(EFFECT_PARAMS)
+    )
 
     @field_validator("effects")
     @classmethod
@@ -82,8 +102,8 @@ class PartSpec(_Model):
             missing = REQUIRED_EFFECT_PARAMS.get(effect_id, frozenset()) - set(params)
             if missing:
                 raise ValueError(f"effect {effect_id!r} needs parameter(s) {sorted(missing)}")
-            if effect_id in ("sensor_lag", "warmup_drift") and params["tau_s"] <= 0:
-                raise ValueError(f"effect {effect_id!r}: tau_s must be positive")
+            if effect_id in ("sensor_lag", "warmup_drift") and not 0 < params["tau_s"] <= 1e5:
+                raise ValueError(f"effect {effect_id!r}: tau_s must be in (0, 100000] s")
         return effects
 
 
@@ -96,32 +116,32 @@ class BounceConfig(_Model):
 
 
 class TableConfig(_Model):
-    model: str = "SIM-RT-360"
-    serial: str = "RT-0001"
-    firmware: str = "2.4.1"
-    counts_per_rev: int = Field(default=COUNTS_PER_REV, ge=COUNTS_PER_REV)
-    accel_limit_dps2: float = Field(default=100.0, gt=0.0)
-    max_accel_dps2: float = Field(default=2000.0, gt=0.0)
-    slew_rate_dps: float = Field(default=90.0, gt=0.0, description="position-mode speed limit")
-    ripple_dps: float = Field(default=0.004, ge=0.0, description="rate ripple amplitude")
-    ripple_hz: float = Field(default=7.3, gt=0.0)
-    at_rate_settle_s: float = Field(default=0.2, ge=0.0)
+    model: ShortName = "SIM-RT-360"
+    serial: ShortName = "RT-0001"
+    firmware: ShortName = "2.4.1"
+    counts_per_rev: int = Field(default=COUNTS_PER_REV, ge=COUNTS_PER_REV, le=COUNTS_PER_REV << 8)
+    accel_limit_dps2: float = Field(default=100.0, gt=0.0, le=MAX_ACCEL_DPS2)
+    max_accel_dps2: float = Field(default=2000.0, gt=0.0, le=MAX_ACCEL_DPS2)
+    slew_rate_dps: float = Field(
+        default=90.0, gt=0.0, le=MAX_RATE_DPS, description="position-mode speed limit"
+    )
+    ripple_dps: float = Field(default=0.004, ge=0.0, le=100.0, description="rate ripple amplitude")
+    ripple_hz: float = Field(default=7.3, gt=0.0, le=1000.0)
+    at_rate_settle_s: float = Field(default=0.2, ge=0.0, le=600.0)
     bounce: BounceConfig | None = None
 
 
 class ChamberConfig(_Model):
-    model: str = "SIM-F4-CHAMBER"
-    serial: str = "CH-0001"
-    firmware: str = "1.9"
-    ambient_c: float = 25.0
-    air_tau_s: float = Field(
-        default=60.0, gt=0.0, description="air response to the ramped setpoint"
-    )
-    idle_tau_s: float = Field(default=900.0, gt=0.0, description="drift to ambient when stopped")
-    max_ramp_c_per_min: float = Field(default=5.0, gt=0.0)
-    setpoint_low_c: float = -40.0
-    setpoint_high_c: float = 125.0
-    initial_setpoint_c: float = 25.0
+    model: ShortName = "SIM-F4-CHAMBER"
+    serial: ShortName = "CH-0001"
+    firmware: ShortName = "1.9"
+    ambient_c: float = Field(default=25.0, ge=-40.0, le=60.0)
+    air_tau_s: Tau = Field(default=60.0, description="air response to the ramped setpoint")
+    idle_tau_s: Tau = Field(default=900.0, description="drift to ambient when stopped")
+    max_ramp_c_per_min: float = Field(default=5.0, gt=0.0, le=100.0)
+    setpoint_low_c: Temp = -40.0
+    setpoint_high_c: Temp = 125.0
+    initial_setpoint_c: Temp = 25.0
 
     @model_validator(mode="after")
     def _limits(self) -> ChamberConfig:
@@ -131,21 +151,23 @@ class ChamberConfig(_Model):
 
 
 class SupplyConfig(_Model):
-    manufacturer: str = "SIMPOWER"
-    model: str = "SP-3005"
-    serial: str = "PS-0001"
-    firmware: str = "1.2"
-    max_voltage_v: float = Field(default=30.0, gt=0.0)
-    max_current_a: float = Field(default=3.0, gt=0.0)
-    short_resistance_ohm: float = Field(default=0.5, gt=0.0)
+    manufacturer: ShortName = "SIMPOWER"
+    model: ShortName = "SP-3005"
+    serial: ShortName = "PS-0001"
+    firmware: ShortName = "1.2"
+    max_voltage_v: float = Field(default=30.0, gt=0.0, le=MAX_SUPPLY_V)
+    max_current_a: float = Field(default=3.0, gt=0.0, le=100.0)
+    short_resistance_ohm: float = Field(default=0.5, gt=0.0, le=1e6)
 
 
 class FixtureConfig(_Model):
     sockets: int = Field(default=1, ge=1, le=64)
-    fifo_bytes: int = Field(default=1 << 20, ge=1024, description="outgoing FIFO per socket")
+    fifo_bytes: int = Field(
+        default=1 << 20, ge=1024, le=1 << 28, description="outgoing FIFO per socket"
+    )
     stop_angle_deg: float | None = Field(default=None, gt=10.0, lt=350.0)
-    stop_angle_uncertainty_deg: float = Field(default=0.01, gt=0.0)
-    clock_offset_s: float = Field(default=12.5, ge=0.0)
+    stop_angle_uncertainty_deg: float = Field(default=0.01, gt=0.0, le=10.0)
+    clock_offset_s: float = Field(default=12.5, ge=0.0, le=1e6)
     encoder_input: bool = Field(
         default=True,
         description="the table's encoder output is wired to the fixture, which latches its "
@@ -156,12 +178,12 @@ class FixtureConfig(_Model):
 class PartPhysicsConfig(_Model):
     """Thermal and electrical behaviour shared by all parts."""
 
-    die_tau_s: float = Field(default=300.0, gt=0.0, description="die lag behind chamber air")
-    self_heat_c_per_w: float = Field(default=40.0, ge=0.0)
-    self_heat_tau_s: float = Field(default=90.0, gt=0.0)
-    brownout_v: float = Field(default=4.0, gt=0.0)
-    supply_low_v: float = Field(default=4.5, gt=0.0)
-    temp_noise_c: float = Field(default=0.02, ge=0.0)
+    die_tau_s: Tau = Field(default=300.0, description="die lag behind chamber air")
+    self_heat_c_per_w: float = Field(default=40.0, ge=0.0, le=1e4)
+    self_heat_tau_s: Tau = Field(default=90.0)
+    brownout_v: float = Field(default=4.0, gt=0.0, le=MAX_SUPPLY_V)
+    supply_low_v: float = Field(default=4.5, gt=0.0, le=MAX_SUPPLY_V)
+    temp_noise_c: float = Field(default=0.02, ge=0.0, le=10.0)
 
 
 # the instrument family each twin serves by default (today's instruments)
@@ -198,9 +220,14 @@ class InstrumentsConfig(_Model):
 
 
 class SimConfig(_Model):
-    speed: float = Field(default=1.0, gt=0.0, le=10000.0)
-    seed: int = 0
-    parts: list[PartSpec] = Field(default_factory=list)
+    speed: float = Field(
+        default=1.0,
+        ge=MIN_SPEED,
+        le=MAX_SPEED,
+        description=f"station seconds per wall second, {MIN_SPEED:g} to {MAX_SPEED:g}",
+    )
+    seed: int = Field(default=0, ge=0, le=2**32 - 1)
+    parts: list[PartSpec] = Field(default_factory=list, max_length=64)
     table: TableConfig = Field(default_factory=TableConfig)
     chamber: ChamberConfig = Field(default_factory=ChamberConfig)
     supply: SupplyConfig = Field(default_factory=SupplyConfig)
@@ -233,6 +260,16 @@ def _format_validation(exc: ValidationError, source: str) -> str:
     return f"{source}: invalid sim config: " + "; ".join(lines) + " (fix it in the YAML file)"
 
 
+def speed_problem(speed: float) -> str | None:
+    """Why `speed` is not a usable bench speed factor (None if it is)."""
+    if not MIN_SPEED <= speed <= MAX_SPEED:  # NaN fails too
+        return (
+            f"--speed must be from {MIN_SPEED:g} to {MAX_SPEED:g} (station seconds per wall "
+            f"second; 1 is real time), got {speed:g}"
+        )
+    return None
+
+
 def parse_sim_config(data: Any, source: str = "<sim config>") -> SimConfig:
     """Validate a mapping as a SimConfig; errors name the source and the field."""
     if data is None:
@@ -248,18 +285,24 @@ def parse_sim_config(data: Any, source: str = "<sim config>") -> SimConfig:
 
 
 def load_sim_config(path: str | Path | None) -> SimConfig:
-    """Read and validate a sim config file; None gives the defaults (one empty socket)."""
+    """Read and validate a sim config file; None gives the defaults (one empty socket).
+
+    Read by the product's bounded YAML reader; errors are `file:line: field ...` lines."""
     if path is None:
         return SimConfig()
     p = Path(path)
+    if not p.is_file():
+        raise SimConfigError(f"{p}: cannot read the sim config (no such file); check the path")
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
+        loaded = read_yaml(p)
+    except ConfigError as exc:
+        raise SimConfigError(str(exc)) from None
+    data = {} if loaded.data is None else loaded.data
+    if not isinstance(data, dict):
         raise SimConfigError(
-            f"{p}: cannot read the sim config ({exc.strerror}); check the path"
-        ) from None
+            f"{p}:1: the sim config must be a YAML mapping, got {type(data).__name__}"
+        )
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise SimConfigError(f"{p}: not valid YAML ({exc}); fix the syntax") from None
-    return parse_sim_config(data, str(p))
+        return SimConfig.model_validate(data)
+    except ValidationError as exc:
+        raise SimConfigError(format_validation_error(exc, loaded, SimConfig)) from None

@@ -63,9 +63,12 @@ class ControlServer:
 
     async def _answer(self, line: bytes) -> dict[str, Any]:
         try:
-            request = json.loads(line)
-        except json.JSONDecodeError as exc:
-            return {"ok": False, "error": f"not JSON ({exc}); send one JSON object per line"}
+            request = json.loads(line.decode("utf-8"))
+        except UnicodeDecodeError as exc:
+            return {"ok": False, "error": f"not UTF-8 text (byte {exc.start}); send JSON"}
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError, or nested too deep
+            what = "nested too deep" if isinstance(exc, RecursionError) else str(exc)
+            return {"ok": False, "error": f"not JSON ({what}); send one JSON object per line"}
         if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
             return {"ok": False, "error": 'send an object with a "cmd" string'}
         try:

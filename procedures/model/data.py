@@ -17,9 +17,9 @@ from __future__ import annotations
 import csv
 import difflib
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -34,6 +34,8 @@ STOP_MOVE_MIN_DEG = 5.0
 # rate spans less than this (static only, or one constant rate) cannot be analysed.
 MIN_RATE_SPAN_DPS = 1.0
 DELIMITERS = (",", ";", "\t")
+MAX_HEADER_CHARS = 4096
+MAX_ABS_VALUE = 1e9  # any column: seconds, deg/s, deg, C, V
 DELIMITER_NAMES = {",": "','", ";": "';'", "\t": "tab"}
 
 
@@ -184,9 +186,13 @@ def load_csv(path: Path) -> Trajectory:
     """Read a discrepancy CSV; ValueError says which file, line and column is wrong."""
     if not path.exists():
         raise ValueError(f"{path}: file not found")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; give a CSV file")
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
             return _read_csv(path, fh)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     except UnicodeDecodeError as exc:
         raise ValueError(
             f"{path}: not UTF-8 text (byte {exc.start}); save it as 'CSV UTF-8' from the "
@@ -194,18 +200,33 @@ def load_csv(path: Path) -> Trajectory:
         ) from None
 
 
+def _csv_error(path: Path, line: int, exc: csv.Error) -> ValueError:
+    return ValueError(
+        f"{path}: line {line}: not a readable CSV ({exc}); a discrepancy CSV holds short "
+        "numeric fields (and an optional segment_kind)"
+    )
+
+
 def _read_csv(path: Path, fh: TextIO) -> Trajectory:
-    first = fh.readline()
+    first = fh.readline(MAX_HEADER_CHARS)
+    if len(first) >= MAX_HEADER_CHARS and not first.endswith("\n"):
+        raise ValueError(
+            f"{path}: line 1 is longer than {MAX_HEADER_CHARS} characters; expected a header "
+            f"{', '.join(CSV_COLUMNS)}"
+        )
     header_line = 1
     delimiter = None
     if first.strip().lower().startswith("sep=") and len(first.strip()) == 5:  # Excel hint
         delimiter = first.strip()[4]
-        first = fh.readline()
+        first = fh.readline(MAX_HEADER_CHARS)
         header_line = 2
     if not first.strip():
         raise ValueError(f"{path}: empty file; expected a header {', '.join(CSV_COLUMNS)}")
-    delimiter = delimiter or _header_delimiter(first)
-    fields = [f.strip() for f in next(csv.reader([first], delimiter=delimiter), [])]
+    try:
+        delimiter = delimiter or _header_delimiter(first)
+        fields = [f.strip() for f in next(csv.reader([first], delimiter=delimiter), [])]
+    except csv.Error as exc:
+        raise _csv_error(path, header_line, exc) from None
     missing = [c for c in CSV_COLUMNS if c not in fields]
     if missing:
         raise ValueError(
@@ -225,7 +246,7 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
     kinds: list[str] | None = [] if kind_col is not None else None
     lines: list[int] = []
     reader = csv.reader(fh, delimiter=delimiter)
-    for row in reader:
+    for row in _rows(reader, path, header_line):
         lineno = header_line + reader.line_num
         if not any(f.strip() for f in row):
             continue  # blank line, or a spreadsheet's empty row
@@ -247,6 +268,11 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
                 raise ValueError(
                     f"{path}: line {lineno}: column {c} is {text!r}, not a finite number; "
                     "remove the row or give the measured value"
+                )
+            if abs(value) > MAX_ABS_VALUE:
+                raise ValueError(
+                    f"{path}: line {lineno}: column {c} is {value:g}, beyond +/-"
+                    f"{MAX_ABS_VALUE:g}; not a plausible measurement"
                 )
             values[c].append(value)
         lines.append(lineno)
@@ -273,6 +299,19 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
             f"{a}; every row needs its own time (remove the repeated row)"
         )
     return trajectory_from_columns(values, kinds=kinds, source=str(path))
+
+
+def _rows(reader: Any, path: Path, header_line: int) -> Iterator[list[str]]:
+    """The reader's rows; a csv.Error (a field over the size limit, ...) as a ValueError
+    naming the line."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise _csv_error(path, header_line + reader.line_num, exc) from None
+        yield row
 
 
 def write_csv(path: Path, traj: Trajectory, with_kinds: bool = True) -> Path:

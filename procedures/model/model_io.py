@@ -25,6 +25,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
 
+from drivers.bounded import MAX_RATE_DPS, Name, ShortName
 from procedures.config import ConfigError, LoadedYaml, format_validation_error, load_yaml
 from procedures.model import effects as fx
 from procedures.model.effects import CATALOG
@@ -32,6 +33,9 @@ from procedures.model.gyro_model import BUILT_IN, GyroModel, zero_params
 from procedures.model.trajectory import REFERENCE_SUPPLY_V, REFERENCE_TEMPERATURE_C
 
 Sigma = Annotated[float, Field(ge=0.0)]  # .inf allowed: a fit that could not bound it
+ParamValue = Annotated[FiniteFloat, Field(ge=-1e9, le=1e9)]
+MAX_SCALE = 100.0  # |output per deg/s|; a datasheet part is near 1
+MAX_UNCERTAINTIES = 200
 
 # Allowed values of parameters whose physics or conversion has limits (all others: any
 # finite number), as (low, high, inclusive); time constants only where the workflow
@@ -65,23 +69,29 @@ def param_problem(effect_id: str, name: str, value: float) -> str | None:
 class ModelFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field("custom", description="a name for the model")
+    name: Name = Field("custom", description="a name for the model")
     reference_temperature_c: FiniteFloat = Field(
         REFERENCE_TEMPERATURE_C, description=f"must be {REFERENCE_TEMPERATURE_C:g} C"
     )
     reference_supply_v: FiniteFloat = Field(
         REFERENCE_SUPPLY_V, description=f"must be {REFERENCE_SUPPLY_V:g} V"
     )
-    bias_dps: FiniteFloat = Field(0.0, description="bias at 25 C and 5.0 V, deg/s")
+    bias_dps: FiniteFloat = Field(
+        0.0, ge=-MAX_RATE_DPS, le=MAX_RATE_DPS, description="bias at 25 C and 5.0 V, deg/s"
+    )
     scale: FiniteFloat = Field(
+        ge=-MAX_SCALE,
+        le=MAX_SCALE,
         description="output per deg/s of rate at 25 C and 5.0 V, a nonzero number near 1"
     )
-    effects: dict[str, dict[str, FiniteFloat]] = Field(
+    effects: dict[ShortName, dict[ShortName, ParamValue]] = Field(
         default_factory=dict,
+        max_length=len(CATALOG),
         description="catalog effect -> {parameter: finite number}",
     )
-    uncertainties: dict[str, Sigma] = Field(
-        default_factory=dict, description="optional 1 sigma by parameter path"
+    uncertainties: dict[ShortName, Sigma] = Field(
+        default_factory=dict,
+        max_length=MAX_UNCERTAINTIES, description="optional 1 sigma by parameter path"
     )
 
 

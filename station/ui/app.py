@@ -2,7 +2,12 @@
 
 Pages: `/` operator screen, `/review` review screen. JSON API under `/api`, live updates as
 server-sent events on `/api/events`. Errors come back as {"error": message} with the status
-code saying whose move it is (409 refused now, 422 bad input, 401/403 role).
+code saying whose move it is (409 refused now, 422 bad input, 401 not signed in / no session,
+403 role or another site, 421 wrong host, 429 locked out).
+
+Every state-changing request (each POST) needs a session and its CSRF token
+(station/ui/requests.py); sign-in routes are in station/ui/signin.py; the host check, body cap
+and security headers around every request in station/ui/guard.py.
 """
 
 from __future__ import annotations
@@ -16,17 +21,29 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from station.errors import UserError
-from station.ui.auth import LoginThrottle, Sessions, verify_password
 from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
+from station.ui.guard import Guard
 from station.ui.history import History, RunFilter
+from station.ui.requests import (
+    Guarded,
+    Refused,
+    Security,
+    SelectBody,
+    StartBody,
+    ValidateBody,
+    current,
+    error,
+    role,
+)
+from station.ui.sessions import LoginThrottle, Sessions
+from station.ui.signin import add_sign_in_routes
 
 log = logging.getLogger(__name__)
 
 STATIC_DIR = Path(__file__).parent / "static"
-SESSION_COOKIE = "station_session"
 # Everything the pages use comes from the station itself (no network on the line): the
 # browser is told to refuse anything else.
 PAGE_HEADERS = {
@@ -36,55 +53,58 @@ PAGE_HEADERS = {
 _ISO_DATE = re.compile(r"^\d{4}-\d{2}-\d{2}([T ][0-9:.]+(Z|[+-]\d{2}:?\d{2})?)?$")
 
 
-class StartBody(BaseModel):
-    serials: dict[int, str] = Field(description="socket -> scanned serial")
-    operator: str = Field(default="", max_length=64)
-
-
-class ValidateBody(BaseModel):
-    socket: int
-    serial: str = Field(max_length=256)
-
-
-class LoginBody(BaseModel):
-    password: str = Field(max_length=256)
-
-
-class SelectBody(BaseModel):
-    procedure: str | None = None
-    product: str | None = None
-
-
-def _error(status: int, message: str, **extra: Any) -> JSONResponse:
-    return JSONResponse({"error": message, **extra}, status_code=status)
-
-
 def create_app(
     controller: Controller,
     history: History,
     *,
-    engineer_password_hash: str | None,
-) -> FastAPI:
-    app = FastAPI(title="Gyro calibration station", docs_url=None, redoc_url=None)
+    engineer_password_hash: str | None = None,
+    security: Security | None = None,
+) -> Any:
+    """The station's ASGI app: the FastAPI routes inside the Guard (host, body cap, headers)."""
+    if security is None:
+        security = Security(engineer_password_hash=engineer_password_hash)
+    sec = security
+    app = FastAPI(title="Gyro calibration station", docs_url=None, redoc_url=None, openapi_url=None)
     sessions = Sessions()
     throttle = LoginThrottle()
+    app.state.sessions, app.state.throttle = sessions, throttle
+    add_sign_in_routes(app, sec)
 
     def is_engineer(request: Request) -> bool:
-        return sessions.is_engineer(request.cookies.get(SESSION_COOKIE))
+        session = current(request)
+        return session is not None and session.engineer
+
+    @app.exception_handler(Refused)
+    async def refused(_: Request, exc: Refused) -> JSONResponse:
+        return error(exc.status, exc.message)
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(_: Request, exc: RequestValidationError) -> JSONResponse:
         first = exc.errors()[0] if exc.errors() else {}
-        where = ".".join(str(p) for p in first.get("loc", ()) if p != "body") or "request"
-        return _error(422, f"bad request: {where}: {first.get('msg', 'invalid')}; fix the request")
+        parts = [str(p) for p in first.get("loc", ()) if p != "body"]
+        where = ".".join(p if p.isprintable() else repr(p) for p in parts)[:200] or "request"
+        msg = " ".join(str(first.get("msg", "invalid")).split())[:300]  # one line
+        return error(422, f"bad request: {where}: {msg}; fix the request")
+
+    @app.exception_handler(StarletteHTTPException)
+    async def httperror(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        detail = exc.detail if isinstance(exc.detail, str) else "request refused"
+        if exc.status_code == 400:
+            detail = f"bad request: {detail}; send a JSON object"
+        return error(exc.status_code, detail, headers=getattr(exc, "headers", None))
 
     @app.exception_handler(UserError)
-    async def user_error(_: Request, exc: UserError) -> JSONResponse:
+    async def usererror(_: Request, exc: UserError) -> JSONResponse:
         if isinstance(exc, SerialRejectedError):
-            return _error(422, str(exc), socket=exc.socket)
+            return error(422, str(exc), socket=exc.socket)
         if isinstance(exc, RunRefusedError):
-            return _error(409, str(exc))
-        return _error(422, str(exc))
+            return error(409, str(exc))
+        return error(422, str(exc))
+
+    @app.exception_handler(Exception)
+    async def internal(_: Request, exc: Exception) -> JSONResponse:
+        log.error("internal error in the UI: %s", exc, exc_info=exc)
+        return error(500, "internal error in the station UI; see the station's log")
 
     # ------------------------------------------------------------------ pages
 
@@ -102,7 +122,7 @@ def create_app(
 
     @app.get("/api/state")
     def state(request: Request) -> dict[str, Any]:
-        return {**controller.snapshot(), "role": _role(is_engineer(request))}
+        return {**controller.snapshot(), "role": role(is_engineer(request))}
 
     @app.get("/api/events")
     async def events() -> StreamingResponse:
@@ -116,60 +136,33 @@ def create_app(
 
     # Sync handlers run in the thread pool: the event loop stays free to push events.
     @app.post("/api/validate")
-    def validate(body: ValidateBody) -> dict[str, Any]:
+    def validate(body: ValidateBody, session: Guarded) -> dict[str, Any]:
         return {
             "socket": body.socket,
             "serial": controller.validate_serial(body.socket, body.serial),
         }
 
     @app.post("/api/start")
-    def start(body: StartBody) -> dict[str, Any]:
-        run_id = controller.start(body.serials, operator=body.operator.strip())
-        return {"run_id": run_id}
+    def start(body: StartBody, session: Guarded) -> Response:
+        if sec.require_operator and not session.operator:
+            return error(401, "no operator signed in: scan your badge or sign in to start")
+        operator = session.operator or ("engineer" if session.engineer else "")
+        run_id = controller.start(body.serials, operator=operator)
+        return JSONResponse({"run_id": run_id, "operator": operator})
 
     @app.post("/api/abort")
-    def abort() -> dict[str, Any]:
+    def abort(session: Guarded) -> dict[str, Any]:
+        # Any session may abort (a safety action); no operator sign-in needed for it.
+        log.info("abort requested by %s", session.operator or "an unsigned session")
         controller.abort()
         return {"aborting": True}
 
     # ------------------------------------------------------------------ engineer
 
-    @app.get("/api/whoami")
-    async def whoami(request: Request) -> dict[str, Any]:
-        return {"role": _role(is_engineer(request))}
-
-    @app.post("/api/login")
-    def login(body: LoginBody) -> Response:
-        if not engineer_password_hash:
-            return _error(
-                403,
-                "no engineer password is set for this station; run `station ui --hash-password`"
-                " and put its output under ui.engineer_password_hash in station.yaml",
-            )
-        wait_s = throttle.wait_s()
-        if wait_s > 0:
-            return _error(429, f"too many wrong passwords; try again in {wait_s:.0f} s")
-        if not verify_password(body.password, engineer_password_hash):
-            throttle.failed()
-            return _error(401, "wrong engineer password; try again")
-        throttle.reset()
-        response = JSONResponse({"role": "engineer"})
-        response.set_cookie(
-            SESSION_COOKIE, sessions.open(), httponly=True, samesite="strict", max_age=8 * 3600
-        )
-        return response
-
-    @app.post("/api/logout")
-    async def logout(request: Request) -> Response:
-        sessions.close(request.cookies.get(SESSION_COOKIE))
-        response = JSONResponse({"role": "operator"})
-        response.delete_cookie(SESSION_COOKIE)
-        return response
-
     @app.get("/api/choices")
     def choices(request: Request) -> Response:
         if not is_engineer(request):
-            return _error(403, "procedure selection needs the engineer role; log in as engineer")
+            return error(403, "procedure selection needs the engineer role; log in as engineer")
         return JSONResponse(
             {
                 "procedures": [vars(p) for p in controller.runner.procedures()],
@@ -179,9 +172,9 @@ def create_app(
         )
 
     @app.post("/api/select")
-    def select(request: Request, body: SelectBody) -> Response:
-        if not is_engineer(request):
-            return _error(403, "procedure selection needs the engineer role; log in as engineer")
+    def select(body: SelectBody, session: Guarded) -> Response:
+        if not session.engineer:
+            return error(403, "procedure selection needs the engineer role; log in as engineer")
         controller.select(body.procedure, body.product)
         return JSONResponse({"selection": controller.snapshot()["selection"]})
 
@@ -210,15 +203,11 @@ def create_app(
     async def certificate(key: str) -> Response:
         folder = controller.run_folders.get(key) or history.folder(key)
         if folder is None or not (folder / "certificate.pdf").is_file():
-            return _error(404, f"no certificate for run {key}; it may have ended in an error")
+            return error(404, f"no certificate for run {key}; it may have ended in an error")
         return FileResponse(
             folder / "certificate.pdf",
             media_type="application/pdf",
             headers={"Content-Disposition": f'inline; filename="{key}.pdf"'},
         )
 
-    return app
-
-
-def _role(engineer: bool) -> str:
-    return "engineer" if engineer else "operator"
+    return Guard(app, sec.hosts)

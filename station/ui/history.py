@@ -11,6 +11,7 @@ import datetime as dt
 import logging
 import re
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -75,11 +76,22 @@ class History:
     """The runs under `out_dir`; through the results database when there is one (an index
     that stays fast over months of runs), else by reading every run folder's record."""
 
+    RECOVER_EVERY_S = 2.0  # a crashed station's run is looked for at most this often
+
     def __init__(self, out_dir: Path, db_path: Path | None = None) -> None:
         self.out_dir = out_dir
         self.db_path = db_path
         self._lock = threading.Lock()
         self._cache: dict[Path, tuple[float, dict[str, Any] | None]] = {}
+        self._recovered_at = -1e9
+
+    def recover(self, *, locks_only: bool = False) -> list[Path]:
+        """Mark ERROR (and index) the runs of a station that died mid-run: they show here
+        as ERROR with the last step they completed, not as missing or RUNNING."""
+        from station.run_folder import recover_results
+
+        self._recovered_at = time.monotonic()
+        return recover_results(self.out_dir, self.db_path, locks_only=locks_only)
 
     def query(
         self, flt: RunFilter, limit: int = 500
@@ -97,6 +109,8 @@ class History:
     def rows(self, flt: RunFilter | None = None) -> list[dict[str, Any]]:
         """Every run, newest first, as flat rows for the review table."""
         flt = flt or RunFilter()
+        if time.monotonic() - self._recovered_at > self.RECOVER_EVERY_S:
+            self.recover(locks_only=True)
         source = self._db_rows(flt) if self._use_db() else self._scan()
         rows = [r for r in source if flt.matches(r)]
         rows.sort(key=lambda r: r["started_utc"], reverse=True)

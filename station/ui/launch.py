@@ -8,22 +8,22 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import ssl
 import threading
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-from fastapi import FastAPI
-
 from station.errors import UserError
-from station.ui.app import create_app
-from station.ui.auth import check_hash_format
+from station.ui.app import Security, create_app
+from station.ui.auth import Operator, OperatorBook, check_hash_format
 from station.ui.controller import Controller
+from station.ui.guard import LOOPBACK_HOSTS, allowed_hosts
 from station.ui.history import History
 from station.ui.hub import Hub
 from station.ui.runner_adapter import EngineRunner, engine_available
+from station.ui.server import Tls
 
 log = logging.getLogger(__name__)
 
@@ -33,22 +33,89 @@ INSTRUMENT_POLL_S = 10.0  # between runs; the engine owns the instruments during
 
 @dataclass
 class UiStation:
-    app: FastAPI
+    app: Any  # ASGI: the FastAPI routes inside station.ui.guard.Guard
     controller: Controller
     runner: EngineRunner
     bench: Any  # drivers.sim.launcher.BenchHandle | None
+    tls: Tls | None = None
+    recovered: list[Path] = field(default_factory=list)
+
+
+def is_loopback(host: str) -> bool:
+    return host.strip("[]").lower() in LOOPBACK_HOSTS or host.startswith("127.")
+
+
+def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
+    """The app's admission rules and HTTPS files from station.yaml's ui section.
+
+    Listening beyond loopback needs HTTPS (ui.tls_certificate and ui.tls_key): the session
+    cookie, PINs and the engineer password would otherwise cross the line network in clear."""
+    ui = settings.settings.ui
+    problems: list[str] = []
+    if ui.engineer_password_hash:
+        try:
+            check_hash_format(ui.engineer_password_hash)
+        except ValueError as exc:
+            problems.append(str(exc))
+    else:
+        log.warning(
+            "no ui.engineer_password_hash in %s: the engineer role is disabled",
+            settings.source.path,
+        )
+    book = OperatorBook(
+        tuple(Operator(o.name, o.pin_hash, o.badge_hash) for o in ui.operators)
+    )
+    try:
+        book.check()
+    except ValueError as exc:
+        problems.append(str(exc))
+    if problems:
+        raise UserError(f"{settings.source.path}: " + "; ".join(problems))
+    if book.open:
+        log.warning(
+            "no ui.operators in %s: operators sign in with a name only", settings.source.path
+        )
+    tls: Tls | None = None
+    if ui.tls_certificate and ui.tls_key:
+        tls = Tls(settings.resolve(ui.tls_certificate), settings.resolve(ui.tls_key))
+        for what, path in (("ui.tls_certificate", tls.certificate), ("ui.tls_key", tls.key)):
+            if not path.is_file():
+                raise UserError(f"{settings.source.path}: {what} {path}: no such file")
+        try:
+            ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(tls.certificate, tls.key)
+        except (ssl.SSLError, OSError) as exc:
+            raise UserError(
+                f"{settings.source.path}: ui.tls_certificate/ui.tls_key cannot be used ({exc}); "
+                "give a PEM certificate and its matching private key"
+            ) from None
+    if tls is None and not is_loopback(host):
+        raise UserError(
+            f"refusing to listen on {host} without HTTPS: every machine on that network could "
+            "read the operators' PINs and the engineer password; set ui.tls_certificate and "
+            f"ui.tls_key (PEM files) in {settings.source.path}, or listen on 127.0.0.1"
+        )
+    security = Security(
+        engineer_password_hash=ui.engineer_password_hash,
+        operators=book,
+        require_operator=ui.require_operator,
+        hosts=allowed_hosts(host, ui.allowed_hosts),
+        https=tls is not None,
+    )
+    return security, tls
 
 
 def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int]:
     """Parts of the sim config by serial, and the number of sockets it needs."""
     if sim_config is None:
         return {}, 0
+    from drivers.sim.config import SimConfigError, load_sim_config
+    from drivers.yaml_input import read_yaml
+
     try:
-        data = yaml.safe_load(sim_config.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise UserError(
-            f"--sim-config {sim_config}: cannot read it ({exc}); check the file"
-        ) from None
+        load_sim_config(sim_config)  # bounded reader and schema: refused here, in one line
+        data = read_yaml(sim_config).data or {}
+    except (SimConfigError, ValueError) as exc:
+        raise UserError(f"--sim-config {exc}") from None
     parts = data.get("parts") or [] if isinstance(data, dict) else []
     by_serial = {str(p["serial"]): dict(p) for p in parts if isinstance(p, dict) and "serial" in p}
     sockets = max([int(p.get("socket", 1)) for p in parts if isinstance(p, dict)], default=0)
@@ -64,6 +131,7 @@ def ui_station(
     speed: float | None = None,
     sockets: int | None = None,
     out: Path | None = None,
+    host: str = "127.0.0.1",
 ) -> Iterator[UiStation]:
     """The whole UI station; with `sim` the simulated bench runs for the block's duration."""
     if not engine_available():
@@ -75,17 +143,7 @@ def ui_station(
         settings = load_settings(station_file)
     except ConfigError as exc:
         raise UserError(str(exc)) from None
-    password_hash = settings.settings.ui.engineer_password_hash
-    if password_hash:
-        try:
-            check_hash_format(password_hash)
-        except ValueError as exc:
-            raise UserError(str(exc)) from None
-    else:
-        log.warning(
-            "no ui.engineer_password_hash in %s: the engineer role is disabled",
-            settings.source.path,
-        )
+    security, tls = security_of(settings, host)
     if sim_config is None and sim and settings.settings.sim_config:
         sim_config = settings.resolve(settings.settings.sim_config)
     if sim_config is not None and not sim_config.is_file():
@@ -120,11 +178,15 @@ def ui_station(
             else runner.out / "results.sqlite"
         )
         history = History(runner.out, db_path)
-        app = create_app(controller, history, engineer_password_hash=password_hash)
+        # A station that died mid-run left that run RUNNING: ERROR now, before the screens open.
+        recovered = history.recover()
+        for folder in recovered:
+            log.warning("marked as ERROR (the station stopped during that run): %s", folder)
+        app = create_app(controller, history, security=security)
         stop_watch = threading.Event()
         controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)
         try:
-            yield UiStation(app, controller, runner, bench)
+            yield UiStation(app, controller, runner, bench, tls, recovered)
         finally:
             stop_watch.set()
             controller.hub.close()

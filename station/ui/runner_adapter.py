@@ -72,7 +72,8 @@ class StationInfo:
     sockets: list[int] = field(default_factory=lambda: [1])
     simulated: bool = False
     out_dir: str = "runs"
-    bench_control: str = ""  # the simulated bench's control endpoint (host:port), sim only
+    # Never the simulated bench's control endpoint: it answers anyone who reaches it, so the
+    # pages get what they need of the bench through this server only.
 
 
 class Runner(Protocol):
@@ -167,7 +168,6 @@ class EngineRunner:
             sockets=list(range(1, n_sockets + 1)),
             simulated=endpoints is not None,
             out_dir=str(self.out),
-            bench_control=str(getattr(control, "endpoint", "") or ""),
         )
         self._uut: Any = None
         self._thread: threading.Thread | None = None

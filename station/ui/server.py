@@ -7,9 +7,12 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import uvicorn
-from fastapi import FastAPI
+
+ASGIApp = Any  # the station's app: FastAPI routes inside station.ui.guard.Guard
 
 
 @dataclass
@@ -32,7 +35,17 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
-def _config(app: FastAPI, host: str, port: int, log_level: str) -> uvicorn.Config:
+@dataclass(frozen=True)
+class Tls:
+    """HTTPS: PEM certificate and private key files."""
+
+    certificate: Path
+    key: Path
+
+
+def _config(
+    app: ASGIApp, host: str, port: int, log_level: str, tls: Tls | None = None
+) -> uvicorn.Config:
     # Short graceful shutdown: open event streams would otherwise hold it up.
     return uvicorn.Config(
         app,
@@ -41,23 +54,29 @@ def _config(app: FastAPI, host: str, port: int, log_level: str) -> uvicorn.Confi
         log_level=log_level,
         timeout_graceful_shutdown=1,
         access_log=False,
+        ssl_certfile=str(tls.certificate) if tls else None,
+        ssl_keyfile=str(tls.key) if tls else None,
+        server_header=False,
     )
 
 
-def serve_forever(app: FastAPI, host: str, port: int, log_level: str = "warning") -> None:
-    uvicorn.Server(_config(app, host, port, log_level)).run()
+def serve_forever(
+    app: ASGIApp, host: str, port: int, log_level: str = "warning", tls: Tls | None = None
+) -> None:
+    uvicorn.Server(_config(app, host, port, log_level, tls)).run()
 
 
 def serve_in_thread(
-    app: FastAPI,
+    app: ASGIApp,
     host: str = "127.0.0.1",
     port: int = 0,
     startup_timeout_s: float = 10.0,
     before_stop: Callable[[], None] | None = None,
+    tls: Tls | None = None,
 ) -> BackgroundServer:
     """Start the app on a background thread; returns once it accepts connections."""
     port = port or free_port(host)
-    server = uvicorn.Server(_config(app, host, port, "warning"))
+    server = uvicorn.Server(_config(app, host, port, "warning", tls))
     thread = threading.Thread(target=server.run, name="station-ui", daemon=True)
     thread.start()
     deadline = time.monotonic() + startup_timeout_s
@@ -65,4 +84,5 @@ def serve_in_thread(
         if not thread.is_alive() or time.monotonic() > deadline:
             raise RuntimeError(f"the UI server did not start on {host}:{port}")
         time.sleep(0.02)
-    return BackgroundServer(server, thread, f"http://{host}:{port}", before_stop)
+    scheme = "https" if tls else "http"
+    return BackgroundServer(server, thread, f"{scheme}://{host}:{port}", before_stop)

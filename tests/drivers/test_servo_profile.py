@@ -13,7 +13,7 @@ from pydantic import ValidationError
 from drivers import rate_table_map as rm
 from drivers.rate_table import Settings
 from drivers.servo_profile import Register, builtin_profiles, load_profile
-from drivers.yaml_lines import DriverConfigError
+from drivers.yaml_input import ConfigError
 
 EXAMPLE = "servo-lowword-example"
 
@@ -110,7 +110,7 @@ def test_a_broken_profile_is_refused_naming_file_line_and_field(
     tmp_path, old, new, field, what
 ):
     path, line = _write_variant(tmp_path, old, new)
-    with pytest.raises(DriverConfigError) as info:
+    with pytest.raises(ConfigError) as info:
         load_profile(path)
     msg = str(info.value)
     assert f"field {field}" in msg and what in msg

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from procedures.config import ConfigError
 from station import instruments as roles
-from station.errors import UserError
 from station.settings import load_settings
 from station.uut import Endpoints
 
@@ -67,10 +67,25 @@ def test_driver_settings_are_the_drivers_own(tmp_path: Path) -> None:
 
 
 def test_an_inclinometer_needs_a_named_driver(tmp_path: Path) -> None:
-    settings = _settings(tmp_path, "  inclinometer: {address: 10.0.0.9:4001}\n")
-    with pytest.raises(UserError, match=r"station.yaml:3: instruments.inclinometer has no "
+    with pytest.raises(ConfigError, match=r"station.yaml:3: instruments.inclinometer has no "
                        r"default driver: name one with driver: \(registered: none\)"):
-        roles.plan_role(settings, "inclinometer")  # type: ignore[arg-type]
+        _settings(tmp_path, "  inclinometer: {address: 10.0.0.9:4001}\n")
+
+
+def test_station_yaml_is_checked_against_each_drivers_model_when_loaded(
+    tmp_path: Path,
+) -> None:
+    with pytest.raises(ConfigError) as info:
+        _settings(
+            tmp_path,
+            "  chamber: {address: 10.0.0.5:502, timeout_s: .nan}\n"
+            "  supply: {driver: scpi, volts: 5}\n",
+        )
+    lines = str(info.value).splitlines()
+    assert len(lines) == 2, lines  # the supply's missing address waits for a run
+    assert ":3: field instruments.chamber.timeout_s: " in lines[0], lines
+    assert lines[0].endswith("(driver chamber.watlow-f4)"), lines
+    assert ":4: field instruments.supply.volts: unknown field for this driver" in lines[1]
 
 
 def test_on_the_bench_each_role_gets_the_driver_of_its_twins_family() -> None:

@@ -71,7 +71,7 @@ def test_relative_invalid_sim_config_is_one_line_error(
         "--procedure", str(SHORT), "--out", str(out), cwd=tmp_path,
     )  # fmt: skip
     _one_line_error(r, words)
-    assert "simulated bench did not start" in r.stderr
+    assert "--sim-config cfg/sim.yaml:2:" in r.stderr  # refused before any bench starts
     assert "cannot read" not in r.stderr
     assert not list(out.glob("*/.running"))
 

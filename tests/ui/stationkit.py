@@ -60,6 +60,50 @@ def make_station_config(folder: Path, password_hash: str | None = _HASH) -> Path
     return folder / "station.yaml"
 
 
+class StationClient(httpx.Client):
+    """An httpx client that has already opened its session (usable in a with block)."""
+
+    def __enter__(self) -> StationClient:
+        return self
+
+
+def station_client(url: str, **kwargs: object) -> StationClient:
+    """An API client as the station's own page is one: a session cookie and its CSRF token."""
+    kwargs.setdefault("timeout", 10)
+    client = StationClient(base_url=url, **kwargs)  # type: ignore[arg-type]
+    r = client.get("/api/session")
+    r.raise_for_status()
+    client.headers["X-CSRF-Token"] = r.json()["csrf"]
+    return client
+
+
+def renew_token(client: httpx.Client, response: httpx.Response) -> httpx.Response:
+    """After a sign-in, login or logout the session has new tokens: keep the client's in step."""
+    if response.status_code == 200 and "csrf" in response.json():
+        client.headers["X-CSRF-Token"] = response.json()["csrf"]
+    return response
+
+
+def bench_control_of(ui_log: Path, timeout_s: float = 10.0) -> str:
+    """The simulated bench's control endpoint, found as its owner finds it on this machine:
+    `station ui` prints the bench's pid; the bench's --state file holds its endpoints. The
+    station never publishes it (it answers anyone who reaches it)."""
+    import json
+    import re
+
+    deadline = time.monotonic() + timeout_s
+    while True:
+        m = re.search(r"simulated bench running at \S+ \(pid (\d+)\)", ui_log.read_text())
+        if m or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    if not m:
+        raise RuntimeError(f"no bench pid in {ui_log}")
+    argv = Path(f"/proc/{m.group(1)}/cmdline").read_bytes().split(b"\0")
+    state = Path(argv[argv.index(b"--state") + 1].decode())
+    return str(json.loads(state.read_text(encoding="utf-8"))["control"])
+
+
 @dataclass
 class SimStation:
     url: str
@@ -72,6 +116,9 @@ class SimStation:
 
         with ControlClient(self.bench_control) as control:
             return control.truth()
+
+    def client(self) -> httpx.Client:
+        return station_client(self.url)
 
 
 def start_ui_process(config: Path, log_path: Path, speed: float = SIM_SPEED) -> SimStation:
@@ -110,8 +157,8 @@ def start_ui_process(config: Path, log_path: Path, speed: float = SIM_SPEED) -> 
                 f"station ui exited ({proc.returncode}): {log_path.read_text()[-2000:]}"
             )
         try:
-            state = httpx.get(url + "/api/state", timeout=2).json()
-            return SimStation(url, config, proc, state["station"]["bench_control"])
+            httpx.get(url + "/api/state", timeout=2).raise_for_status()
+            return SimStation(url, config, proc, bench_control_of(log_path))
         except httpx.HTTPError as exc:
             if time.monotonic() > deadline:
                 proc.kill()

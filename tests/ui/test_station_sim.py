@@ -109,7 +109,8 @@ def test_abort_mid_run_reload_and_second_start(sim_station: SimStation, page: Pa
     page.click("#start-btn")
     expect(page.locator("#step-name")).to_contain_text("thermal", timeout=RUN_TIMEOUT_MS)
     # A second Start while running is refused with a message.
-    r = httpx.post(sim_station.url + "/api/start", json={"serials": {"2": "SIM-0003"}})
+    with sim_station.client() as client:
+        r = client.post("/api/start", json={"serials": {"2": "SIM-0003"}})
     assert r.status_code == 409 and "already in progress" in r.json()["error"]
     # The page survives a reload mid-run and shows the run in progress.
     page.reload()
@@ -146,8 +147,9 @@ def test_operator_cannot_reach_procedure_selection(sim_station: SimStation, page
     r = page.request.post(
         sim_station.url + "/api/select",
         data={"procedure": str(sim_station.config / "procedures/eol-rate-table.yaml")},
+        headers={"X-CSRF-Token": page.evaluate("S.csrf")},  # the page's session, not engineer
     )
-    assert r.status == 403
+    assert r.status == 403 and "engineer role" in r.json()["error"]
     expect(page.locator("#procedure-name")).to_have_text("ui-test-short")
 
 
@@ -170,3 +172,13 @@ def test_engineer_selects_procedure_after_password(sim_station: SimStation, page
     page.select_option("#procedure-select", label="ui-test-short")  # leave it as found
     page.click("#apply-selection")
     expect(page.locator("#procedure-name")).to_have_text("ui-test-short")
+
+
+def test_state_never_publishes_the_bench_control_endpoint(sim_station: SimStation) -> None:
+    """The bench's control channel answers anyone who reaches it: the station keeps it to
+    itself (the pages get the bench's state through the station's own API)."""
+    port = sim_station.bench_control.rpartition(":")[2]
+    for path in ("/api/state", "/api/session", "/"):
+        text = httpx.get(sim_station.url + path, timeout=10).text
+        assert sim_station.bench_control not in text and f":{port}" not in text, path
+    assert sim_station.truth()["safe"] is not None  # the endpoint is real, only unpublished

@@ -11,6 +11,17 @@ import httpx
 import pytest
 
 from tests.ui.conftest import ENGINEER_PASSWORD, FakeStation
+from tests.ui.stationkit import renew_token, station_client
+
+_clients: dict[str, httpx.Client] = {}
+
+
+def _post(url: str, json: Any = None) -> httpx.Response:
+    """POST as the station's page does (session cookie + CSRF token), one session per station."""
+    base, _, path = url.partition("/api/")
+    if base not in _clients:
+        _clients[base] = station_client(base)
+    return _clients[base].post("/api/" + path, json=json)
 
 
 def _wait_idle(station: FakeStation, timeout_s: float = 10.0) -> None:
@@ -30,7 +41,7 @@ def _collect_events(url: str, stop: threading.Event, out: list[dict[str, Any]]) 
 
 
 def test_bad_serial_is_refused_with_the_reason(fake_station: FakeStation) -> None:
-    r = httpx.post(fake_station.url + "/api/start", json={"serials": {"1": "hello world"}})
+    r = _post(fake_station.url + "/api/start", json={"serials": {"1": "hello world"}})
     assert r.status_code == 422
     body = r.json()
     assert body["socket"] == 1
@@ -39,28 +50,28 @@ def test_bad_serial_is_refused_with_the_reason(fake_station: FakeStation) -> Non
 
 
 def test_validate_trims_scanner_whitespace(fake_station: FakeStation) -> None:
-    r = httpx.post(fake_station.url + "/api/validate", json={"socket": 2, "serial": " AB-1234\r"})
+    r = _post(fake_station.url + "/api/validate", json={"socket": 2, "serial": " AB-1234\r"})
     assert r.status_code == 200 and r.json()["serial"] == "AB-1234"
-    r = httpx.post(fake_station.url + "/api/validate", json={"socket": 9, "serial": "AB-1234"})
+    r = _post(fake_station.url + "/api/validate", json={"socket": 9, "serial": "AB-1234"})
     assert r.status_code == 422 and "socket 9 does not exist" in r.json()["error"]
 
 
 def test_second_start_while_running_is_refused(fake_station: FakeStation) -> None:
     url = fake_station.url
-    r1 = httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0001"}})
+    r1 = _post(url + "/api/start", json={"serials": {"1": "SIM-0001"}})
     assert r1.status_code == 200
-    r2 = httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0002"}})
+    r2 = _post(url + "/api/start", json={"serials": {"1": "SIM-0002"}})
     assert r2.status_code == 409
     assert "already in progress" in r2.json()["error"] and "SIM-0001" in r2.json()["error"]
     assert len(fake_station.runner.started) == 1
     _wait_idle(fake_station)
-    r3 = httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0002"}})
+    r3 = _post(url + "/api/start", json={"serials": {"1": "SIM-0002"}})
     assert r3.status_code == 200  # free again once the first run ended
     _wait_idle(fake_station)
 
 
 def test_duplicate_serial_in_two_sockets_is_refused(fake_station: FakeStation) -> None:
-    r = httpx.post(
+    r = _post(
         fake_station.url + "/api/start", json={"serials": {"1": "AB-1111", "2": "AB-1111"}}
     )
     assert r.status_code == 409 and "same serial" in r.json()["error"]
@@ -76,7 +87,7 @@ def test_events_push_progress_then_verdict_with_certificate(fake_station: FakeSt
     while not events and time.monotonic() < deadline:
         time.sleep(0.01)
     assert events and events[0]["type"] == "snapshot" and events[0]["run"] is None
-    r = httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0001", "2": "BAD-0001"}})
+    r = _post(url + "/api/start", json={"serials": {"1": "SIM-0001", "2": "BAD-0001"}})
     assert r.status_code == 200, r.text
     _wait_idle(fake_station)
     time.sleep(0.2)
@@ -98,7 +109,7 @@ def test_events_push_progress_then_verdict_with_certificate(fake_station: FakeSt
 
 def test_snapshot_mid_run_shows_the_run(fake_station: FakeStation) -> None:
     url = fake_station.url
-    assert httpx.post(url + "/api/start", json={"serials": {"2": "SIM-0007"}}).status_code == 200
+    assert _post(url + "/api/start", json={"serials": {"2": "SIM-0007"}}).status_code == 200
     time.sleep(0.3)
     state = httpx.get(url + "/api/state").json()
     assert state["run"] is not None and state["run"]["serials"] == {"2": "SIM-0007"}
@@ -111,10 +122,10 @@ def test_snapshot_mid_run_shows_the_run(fake_station: FakeStation) -> None:
 
 def test_abort_ends_aborted_after_cleanup(fake_station: FakeStation) -> None:
     url = fake_station.url
-    assert httpx.post(url + "/api/abort").status_code == 409  # nothing to abort
-    assert httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0003"}}).status_code == 200
+    assert _post(url + "/api/abort").status_code == 409  # nothing to abort
+    assert _post(url + "/api/start", json={"serials": {"1": "SIM-0003"}}).status_code == 200
     time.sleep(0.2)
-    assert httpx.post(url + "/api/abort").status_code == 200
+    assert _post(url + "/api/abort").status_code == 200
     _wait_idle(fake_station)
     last = httpx.get(url + "/api/state").json()["last"]
     assert last["results"][0]["verdict"] == "ABORTED"
@@ -124,13 +135,14 @@ def test_abort_ends_aborted_after_cleanup(fake_station: FakeStation) -> None:
 
 def test_operator_cannot_select_engineer_can_after_password(fake_station: FakeStation) -> None:
     url = fake_station.url
-    with httpx.Client(base_url=url) as client:
+    with station_client(url) as client:
         assert client.get("/api/choices").status_code == 403
         r = client.post("/api/select", json={"procedure": "/cfg/short.yaml"})
         assert r.status_code == 403 and "engineer" in r.json()["error"]
         assert client.post("/api/login", json={"password": "wrong-one"}).status_code == 401
         assert client.get("/api/whoami").json()["role"] == "operator"
-        assert client.post("/api/login", json={"password": ENGINEER_PASSWORD}).status_code == 200
+        ok = renew_token(client, client.post("/api/login", json={"password": ENGINEER_PASSWORD}))
+        assert ok.status_code == 200
         assert client.get("/api/whoami").json()["role"] == "engineer"
         choices = client.get("/api/choices").json()
         assert {p["name"] for p in choices["procedures"]} == {"eol-full", "eol-short"}
@@ -140,12 +152,12 @@ def test_operator_cannot_select_engineer_can_after_password(fake_station: FakeSt
         assert r.status_code == 200 and r.json()["selection"]["procedure_name"] == "eol-short"
         bad = client.post("/api/select", json={"procedure": "/etc/passwd"})
         assert bad.status_code == 422 and "unknown procedure" in bad.json()["error"]
-        client.post("/api/logout")
+        renew_token(client, client.post("/api/logout"))
         assert client.get("/api/choices").status_code == 403
     # The new product's pattern now applies to every serial, also server-side.
-    r = httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0001"}})
+    r = _post(url + "/api/start", json={"serials": {"1": "SIM-0001"}})
     assert r.status_code == 422 and "GYR-200" in r.json()["error"]
-    r = httpx.post(url + "/api/start", json={"serials": {"1": "G2-123456"}})
+    r = _post(url + "/api/start", json={"serials": {"1": "G2-123456"}})
     assert r.status_code == 200
     assert fake_station.runner.started[-1].procedure_path == "/cfg/short.yaml"
     _wait_idle(fake_station)
@@ -154,7 +166,7 @@ def test_operator_cannot_select_engineer_can_after_password(fake_station: FakeSt
 def test_review_filters_and_yield(fake_station: FakeStation) -> None:
     url = fake_station.url
     for serials in ({"1": "SIM-0001", "2": "BAD-0002"}, {"1": "SIM-0004"}):
-        assert httpx.post(url + "/api/start", json={"serials": serials}).status_code == 200
+        assert _post(url + "/api/start", json={"serials": serials}).status_code == 200
         _wait_idle(fake_station)
     data = httpx.get(url + "/api/runs").json()
     assert data["summary"]["counts"]["PASS"] == 2 and data["summary"]["counts"]["FAIL"] == 1
@@ -207,12 +219,12 @@ def test_instrument_lights_follow_the_probe(fake_station: FakeStation) -> None:
 
 def test_start_refused_by_the_engine_keeps_the_last_verdict(fake_station: FakeStation) -> None:
     url = fake_station.url
-    assert httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0008"}}).status_code == 200
+    assert _post(url + "/api/start", json={"serials": {"1": "SIM-0008"}}).status_code == 200
     _wait_idle(fake_station)
-    r = httpx.post(url + "/api/start", json={"serials": {"1": "NO-0001"}})
+    r = _post(url + "/api/start", json={"serials": {"1": "NO-0001"}})
     assert r.status_code == 422 and "refused by the engine" in r.json()["error"]
     state = httpx.get(url + "/api/state").json()
     assert state["run"] is None
     assert state["last"]["results"][0]["serial"] == "SIM-0008"
-    assert httpx.post(url + "/api/start", json={"serials": {"1": "SIM-0009"}}).status_code == 200
+    assert _post(url + "/api/start", json={"serials": {"1": "SIM-0009"}}).status_code == 200
     _wait_idle(fake_station)

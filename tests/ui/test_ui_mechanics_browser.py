@@ -88,7 +88,12 @@ def test_second_start_refused_and_reload_mid_run(fake_station: FakeStation, page
     _scan(page, 1, "SIM-0003")
     page.click("#start-btn")
     expect(page.locator("#step-name")).not_to_have_text("-")
-    r = page.request.post(fake_station.url + "/api/start", data={"serials": {"2": "SIM-0004"}})
+    csrf = page.evaluate("S.csrf")  # the page's own session: refused because a run is going
+    r = page.request.post(
+        fake_station.url + "/api/start",
+        data={"serials": {"2": "SIM-0004"}},
+        headers={"X-CSRF-Token": csrf},
+    )
     assert r.status == 409 and "already in progress" in r.json()["error"]
     page.reload()
     expect(page.locator("#progress")).to_be_visible()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from station.ui.auth import Sessions, check_hash_format, hash_password, verify_password
+from station.ui.auth import check_hash_format, hash_password, verify_password
 from station.ui.history import RunFilter, yield_summary
 from station.ui.hub import format_sse
 from station.ui.runner_adapter import _example_serial
@@ -34,14 +34,39 @@ def test_malformed_hash_says_how_to_fix(bad: str) -> None:
         check_hash_format(bad)
 
 
-def test_sessions_expire_and_close() -> None:
+def test_sessions_expire_close_and_renew() -> None:
+    from station.ui.sessions import Sessions
+
     sessions = Sessions(lifetime_s=3600)
-    token = sessions.open()
-    assert sessions.is_engineer(token) and not sessions.is_engineer("forged")
-    sessions.close(token)
-    assert not sessions.is_engineer(token)
+    session = sessions.open("127.0.0.1")
+    assert sessions.get(session.token) is session and sessions.get("forged") is None
+    session.operator = "ana"
+    fresh = sessions.renew(session)
+    assert sessions.get(session.token) is None  # the token seen before sign-in is void
+    assert fresh.operator == "ana" and fresh.csrf != session.csrf
+    sessions.close(fresh.token)
+    assert sessions.get(fresh.token) is None
     expired = Sessions(lifetime_s=-1)
-    assert not expired.is_engineer(expired.open())
+    assert expired.get(expired.open("127.0.0.1").token) is None
+    capped = Sessions(max_sessions=3)
+    signed = capped.open("a")
+    signed.operator = "ana"
+    first = capped.open("b")
+    for _ in range(3):
+        capped.open("c")
+    assert capped.get(first.token) is None  # bounded: the oldest unsigned went...
+    assert capped.get(signed.token) is signed  # ...not the one an operator signed in on
+
+
+def test_an_address_cannot_flood_new_sessions() -> None:
+    from station.ui.sessions import Sessions, TooManySessions
+
+    sessions = Sessions(per_minute=5)
+    kept = [sessions.open("10.0.0.66") for _ in range(5)]
+    with pytest.raises(TooManySessions):
+        sessions.open("10.0.0.66")
+    assert sessions.open("10.0.0.9") is not None  # another address is not affected
+    assert sessions.renew(kept[0]) is not None  # renewals are not new sessions
 
 
 def test_events_never_carry_nan_to_the_page() -> None:
@@ -107,6 +132,25 @@ def test_cli_hash_password_prints_a_working_yaml_line() -> None:
     assert verify_password("line-eng-42", stored)
 
 
+def test_cli_hash_pin_and_badge_print_working_operator_entries() -> None:
+    from station.ui.auth import Operator, OperatorBook
+
+    pin = _station("--hash-pin", stdin="4711\n")
+    badge = _station("--hash-badge", stdin="0004455667\n")
+    assert pin.returncode == 0 and badge.returncode == 0, pin.stderr + badge.stderr
+    pin_hash = next(x for x in pin.stdout.splitlines() if "pin_hash" in x).split(":", 1)[1]
+    badge_hash = next(x for x in badge.stdout.splitlines() if "badge_hash" in x).split(":", 1)[1]
+    book = OperatorBook((Operator("Ana", pin_hash.strip(" '"), badge_hash.strip(" '")),))
+    book.check()
+    assert "4711" not in pin.stdout.replace(pin_hash.strip(" '"), "")  # only its hash
+    assert "0004455667" not in badge.stdout
+    assert book.by_pin("ana", "4711") is not None and book.by_pin("Ana", "4712") is None
+    assert book.by_pin("Bob", "4711") is None
+    assert book.by_badge("0004455667") is not None and book.by_badge("0004455668") is None
+    short = _station("--hash-pin", stdin="12\n")
+    assert short.returncode == 2 and "at least 4" in short.stderr
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [(("--port", "99999"), "--port must be"), (("--sim-config", "x.yaml"), "needs --sim")],
@@ -117,15 +161,17 @@ def test_cli_bad_options_exit_2_with_one_line(args: tuple[str, ...], message: st
     assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1
 
 
-def test_login_throttle_locks_after_repeated_failures() -> None:
-    from station.ui.auth import LoginThrottle
+def test_login_throttle_backs_off_per_client() -> None:
+    from station.ui.sessions import LoginThrottle
 
-    throttle = LoginThrottle(limit=3, window_s=60, lockout_s=30)
-    throttle.failed()
-    throttle.failed()
-    assert throttle.wait_s() == 0
-    throttle.failed()
-    assert 29 < throttle.wait_s() <= 30
+    throttle = LoginThrottle(free=2, base_s=10, max_s=35)
+    assert throttle.failed("a") == 0 and throttle.failed("a") == 0
+    assert 9 < throttle.failed("a") <= 10  # third failure: locked
+    assert 19 < throttle.failed("a") <= 20  # doubles
+    assert 34 < throttle.failed("a") <= 35  # capped
+    assert throttle.wait_s("b") == 0  # another client is not locked out
+    throttle.reset("a")
+    assert throttle.wait_s("a") == 0
 
 
 def test_review_reads_the_results_database_when_there_is_one(tmp_path: Path) -> None:

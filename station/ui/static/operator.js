@@ -1,18 +1,41 @@
 // Operator screen: state comes from the server as a snapshot, then as pushed events (SSE).
 "use strict";
 const $ = (id) => document.getElementById(id);
-const S = { station: null, selection: null, run: null, last: null, instruments: [], chart: {}, role: "operator" };
+const S = { station: null, selection: null, run: null, last: null, instruments: [], chart: {}, role: "operator",
+  csrf: "", operator: "", operatorsOpen: true, operatorRequired: false };
 const sockets = {};  // socket number -> {root, input, msg, ...}
 let progressAt = 0;  // performance.now() when the last progress event arrived
 // Timings for the benchmark: Start pressed -> run acknowledged / first progress / first engine step.
 window.__ui = { startClickedAt: null, firstProgressMs: null, firstRunEventMs: null, firstStepMs: null, events: 0 };
 
-async function api(path, body) {
-  const opt = body === undefined ? {} : { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) };
+async function call(path, body) {
+  const opt = body === undefined ? {} : { method: "POST", headers: { "Content-Type": "application/json", "X-CSRF-Token": S.csrf }, body: JSON.stringify(body) };
   const r = await fetch(path, opt);
   let data = {};
   try { data = await r.json(); } catch (e) { data = { error: "the station answered " + r.status }; }
   return { ok: r.ok, status: r.status, data };
+}
+
+// Every command needs the session's CSRF token; a station restarted since the page loaded
+// has forgotten the session: open a new one and send the command once more.
+async function api(path, body) {
+  const r = await call(path, body);
+  if (body !== undefined && (r.status === 401 || r.status === 403) && /no session|X-CSRF-Token/.test(r.data.error || "")) {
+    if (await openSession()) return call(path, body);
+  }
+  return r;
+}
+
+async function openSession() {
+  const r = await call("/api/session");
+  if (r.ok) applySession(r.data);
+  return r.ok;
+}
+
+function applySession(d) {
+  S.csrf = d.csrf; S.role = d.role; S.operator = d.operator || "";
+  S.operatorsOpen = !!d.operators_open; S.operatorRequired = !!d.operator_required;
+  renderRole(); renderOperator();
 }
 
 // ---------------------------------------------------------------- rendering
@@ -70,6 +93,33 @@ function renderRole() {
   $("engineer-btn").textContent = eng ? "Log out" : "Engineer";
   $("engineer-panel").hidden = !eng;
   if (eng) loadChoices(); else { $("procedure-select").textContent = ""; $("product-select").textContent = ""; }
+}
+
+function renderOperator() {
+  $("operator-name").textContent = S.operator || (S.operatorRequired ? "not signed in" : "-");
+  $("signin-btn").textContent = S.operator ? "Sign out" : "Sign in";
+  $("badge-row").hidden = S.operatorsOpen;
+  $("pin-row").hidden = S.operatorsOpen;
+  $("signin-title").textContent = S.operatorsOpen ? "Operator sign-in: your name" : "Operator sign-in: scan your badge, or enter your name and PIN";
+}
+
+async function signinButton() {
+  if (S.operator) { const r = await api("/api/signout", {}); if (r.ok) applySession(r.data); return; }
+  for (const id of ["badge", "operator-input", "pin"]) $(id).value = "";
+  $("signin-msg").textContent = "";
+  $("signin-dialog").showModal();
+  (S.operatorsOpen ? $("operator-input") : $("badge")).focus();
+}
+
+async function signin(e) {
+  e.preventDefault();
+  const badge = $("badge").value.trim(), name = $("operator-input").value.trim(), pin = $("pin").value;
+  const body = !S.operatorsOpen && badge ? { badge } : S.operatorsOpen ? { name } : { name, pin };
+  const r = await api("/api/signin", body);
+  $("pin").value = ""; $("badge").value = "";
+  if (!r.ok) { $("signin-msg").textContent = r.data.error; return; }
+  $("signin-dialog").close();
+  applySession(r.data);
 }
 
 function renderRun() {
@@ -225,7 +275,7 @@ async function start() {
   for (const n in sockets) serials[n] = sockets[n].input.value;
   window.__ui.startClickedAt = performance.now();
   window.__ui.firstProgressMs = null; window.__ui.firstRunEventMs = null; window.__ui.firstStepMs = null;
-  const r = await api("/api/start", { serials, operator: $("operator-id").value });
+  const r = await api("/api/start", { serials });
   if (!r.ok) {
     window.__ui.startClickedAt = null;
     $("message").textContent = r.data.error;
@@ -265,7 +315,7 @@ async function applySelection() {
 }
 
 async function engineerButton() {
-  if (S.role === "engineer") { await api("/api/logout", {}); S.role = "operator"; renderRole(); return; }
+  if (S.role === "engineer") { const r = await api("/api/logout", {}); if (r.ok) applySession(r.data); return; }
   $("login-msg").textContent = ""; $("password").value = "";
   $("login-dialog").showModal();
 }
@@ -275,7 +325,7 @@ async function login(e) {
   const r = await api("/api/login", { password: $("password").value });
   if (!r.ok) { $("login-msg").textContent = r.data.error; return; }
   $("login-dialog").close();
-  S.role = "engineer"; renderRole();
+  applySession(r.data);
 }
 
 // ---------------------------------------------------------------- wiring
@@ -290,8 +340,9 @@ $("apply-selection").addEventListener("click", applySelection);
 for (const id of ["procedure-select", "product-select"]) {
   $(id).addEventListener("change", () => { $(id).dataset.dirty = "1"; });
 }
-$("operator-id").value = localStorage.getItem("operator") || "";
-$("operator-id").addEventListener("change", () => localStorage.setItem("operator", $("operator-id").value));
+$("signin-btn").addEventListener("click", signinButton);
+$("signin-form").addEventListener("submit", signin);
+$("signin-cancel").addEventListener("click", () => $("signin-dialog").close());
 // A scan while no field has the focus (after a touch elsewhere) goes to the first empty socket.
 document.addEventListener("keydown", (e) => {
   const t = e.target;
@@ -303,5 +354,8 @@ document.addEventListener("keydown", (e) => {
 });
 setInterval(renderRemaining, 1000);
 window.addEventListener("resize", scheduleCharts);
-api("/api/whoami").then((r) => { if (r.ok) { S.role = r.data.role; renderRole(); } });
-connect();
+// The session first (its token signs every command), then the live state.
+openSession().then(() => {
+  connect();
+  if (S.operatorRequired && !S.operator) signinButton();  // a badge scan signs in at once
+});

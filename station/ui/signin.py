@@ -1,0 +1,155 @@
+"""Sign-in routes: the page's session, operator sign-in and sign-out, engineer login.
+
+Operators sign in by badge scan or name and PIN (station.yaml ui.operators; on an open
+station, with no operators listed, by name only). Failures are throttled per client
+(station/ui/sessions.py). Every change of who is signed in issues new tokens.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse, Response
+
+from station.ui.auth import verify_password
+from station.ui.requests import (
+    SESSION_COOKIE,
+    Guarded,
+    LoginBody,
+    Security,
+    SignInBody,
+    client_address,
+    current,
+    error,
+    role,
+)
+from station.ui.sessions import LoginThrottle, Session, Sessions, TooManySessions
+
+log = logging.getLogger(__name__)
+
+
+def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
+    sessions: Sessions = app.state.sessions
+    throttle: LoginThrottle = app.state.throttle
+
+    # ------------------------------------------------------------------ session, sign-in
+
+    def session_view(session: Session) -> dict[str, Any]:
+        return {
+            "role": role(session.engineer),
+            "operator": session.operator,
+            "csrf": session.csrf,
+            "operators_open": sec.operators.open,
+            "operator_required": sec.require_operator,
+        }
+
+    def with_cookie(response: Response, session: Session) -> Response:
+        response.set_cookie(
+            SESSION_COOKIE,
+            session.token,
+            httponly=True,
+            samesite="strict",
+            secure=sec.https,
+            path="/",
+        )
+        return response
+
+    @app.get("/api/session")
+    def open_session(request: Request) -> Response:
+        """The page's session (opened here when it has none) and its CSRF token."""
+        session = current(request)
+        if session is not None:
+            return JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
+        address = client_address(request)
+        wait_s = throttle.wait_s("addr:" + address)
+        if wait_s > 0:
+            return error(429, f"too many failed sign-ins from {address}; wait {wait_s:.0f} s")
+        try:
+            session = sessions.open(address)
+        except TooManySessions:
+            return error(429, f"too many new sessions from {address}; wait a minute")
+        response = JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
+        return with_cookie(response, session)
+
+    def locked(session: Session) -> JSONResponse | None:
+        wait_s = throttle.wait_s(session.token)
+        if wait_s > 0:
+            return error(
+                429, f"too many failed sign-ins on this screen; try again in {wait_s:.0f} s"
+            )
+        return None
+
+    def failed(session: Session, message: str) -> JSONResponse:
+        wait_s = throttle.failed_from(session.token, session.address)
+        more = f"; wait {wait_s:.0f} s before the next try" if wait_s > 0 else "; try again"
+        return error(401, message + more)
+
+    @app.post("/api/signin")
+    def sign_in(body: SignInBody, session: Guarded) -> Response:
+        refusal = locked(session)
+        if refusal is not None:
+            return refusal
+        book = sec.operators
+        if body.badge is not None:
+            if book.open:
+                return error(422, "this station has no badges configured; sign in by name")
+            found = book.by_badge(body.badge)
+            if found is None:
+                return failed(session, "badge not known at this station")
+            name = found.name
+        elif body.name is not None and book.open:
+            name = body.name.strip()
+            if not name or not name.isprintable():
+                return error(422, "operator name must be printable text; type your name")
+        elif body.name is not None and body.pin is not None:
+            found = book.by_pin(body.name, body.pin)
+            if found is None:
+                return failed(session, "unknown operator or wrong PIN")
+            name = found.name
+        else:
+            return error(422, "sign in with a badge scan, or your name and PIN")
+        throttle.reset(session.token)
+        session.operator = name
+        fresh = sessions.renew(session)
+        log.info("operator %s signed in", name)
+        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+
+    @app.post("/api/signout")
+    def sign_out(session: Guarded) -> Response:
+        session.operator, session.engineer = "", False
+        fresh = sessions.renew(session)
+        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+
+    @app.get("/api/whoami")
+    async def whoami(request: Request) -> dict[str, Any]:
+        session = current(request)
+        return {
+            "role": role(session is not None and session.engineer),
+            "operator": session.operator if session else "",
+        }
+
+    @app.post("/api/login")
+    def login(body: LoginBody, session: Guarded) -> Response:
+        if not sec.engineer_password_hash:
+            return error(
+                403,
+                "no engineer password is set for this station; run `station ui --hash-password`"
+                " and put its output under ui.engineer_password_hash in station.yaml",
+            )
+        refusal = locked(session)
+        if refusal is not None:
+            return refusal
+        if not verify_password(body.password, sec.engineer_password_hash):
+            return failed(session, "wrong engineer password")
+        throttle.reset(session.token)
+        session.engineer = True
+        fresh = sessions.renew(session)
+        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+
+    @app.post("/api/logout")
+    def logout(session: Guarded) -> Response:
+        session.engineer = False
+        fresh = sessions.renew(session)
+        return with_cookie(JSONResponse(session_view(fresh)), fresh)
