@@ -9,9 +9,13 @@ time and gives up early when the controller reports it cannot reach the setpoint
 from __future__ import annotations
 
 import logging
+from typing import Any
 
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from drivers.address import check_host_port, split_host_port
 from drivers.chamber_map import DEVICE_ID, STRING_REGS, TENTHS, Reg, State
-from drivers.clock import Clock
+from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ChamberFault,
     ChamberSetpointNotReached,
@@ -65,8 +69,16 @@ class ModbusChamber:
         link.connect()
         return cls(link, clock, poll_s=poll_s)
 
+    def attach_clock(self, clock: Clock) -> None:
+        """Wait and time out on the station clock from now on."""
+        self._clock = clock
+
     def identify(self) -> InstrumentIdentity:
         return read_identity(self._link, Reg.MODEL, Reg.SERIAL, Reg.FIRMWARE, STRING_REGS)
+
+    def probe(self) -> str:
+        """'' when the controller answers and reports no fault, else what it reports."""
+        return "chamber reports a fault" if self.read_state() == State.FAULT else ""
 
     # ------------------------------------------------------------ setpoint and limits
 
@@ -192,3 +204,32 @@ class ModbusChamber:
                 "C): compressor, heater or sensor fault; check the chamber, then rerun",
                 instrument=NAME,
             )
+
+
+# ---------------------------------------------------------------- configuration (chamber.watlow-f4)
+
+
+class Settings(BaseModel):
+    """station.yaml `instruments.chamber` for `driver: chamber.watlow-f4` (the default)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    address: str = Field(description="host:port of the controller's Modbus TCP server")
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per Modbus reply")
+    poll_s: float = Field(
+        1.0, gt=0, le=60, description="station seconds between polls while waiting"
+    )
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, value: str) -> str:
+        return check_host_port(value)
+
+
+def factory(settings: dict[str, Any]) -> ModbusChamber:
+    """Validate `settings` (ValidationError propagates), connect, return the driver."""
+    s = Settings.model_validate(settings)
+    host, port = split_host_port(s.address)
+    return ModbusChamber.connect(
+        host, port, ScaledClock(1.0), timeout_s=s.timeout_s, poll_s=s.poll_s
+    )

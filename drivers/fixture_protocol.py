@@ -62,12 +62,14 @@ import re
 import struct
 import zlib
 from dataclasses import dataclass, field
-from enum import IntEnum, IntFlag
+from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivers.part_codes import ADIS16130, CODE_FIELD_BITS
+from drivers.protocols import ENCODER_MODULO as ENCODER_MODULO  # the wire carries both as
+from drivers.protocols import SampleStatus as SampleStatus  # every part link reports them
 
 SYNC = b"\xa5\x5a"
 HEADER_SIZE = 4
@@ -89,7 +91,6 @@ RATED_RANGE_DPS = 250.0
 OUTPUT_RATES_HZ = (50, 100, 200, 500, 1000)
 SEQ_MODULO = 1 << 16
 TIME_MODULO_US = 1 << 32
-ENCODER_MODULO = 1 << 32
 UART_BITS_PER_BYTE = 10  # start bit, 8 data bits, stop bit
 
 
@@ -101,15 +102,6 @@ def sample_stream_baud(output_rate_hz: float) -> int:
 class FrameType(IntEnum):
     SAMPLE = 0x01
     REPLY = 0x02
-
-
-class SampleStatus(IntFlag):
-    OVER_RANGE = 1 << 0  # |output| beyond the rated range (250 deg/s): out of specification
-    SATURATED = 1 << 1  # the rate code hit a rail: the sample is clipped
-    COMPENSATED = 1 << 2  # the part applied its calibration registers to this sample
-    TEMP_INVALID = 1 << 3  # the on-chip temperature sensor reading is not valid
-    SUPPLY_LOW = 1 << 4  # the part's supply is below its operating minimum
-    ENCODER_LATCHED = 1 << 5  # the encoder field holds the table's count at this sample
 
 
 class Command:

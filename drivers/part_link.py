@@ -20,8 +20,9 @@ import time
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from drivers.clock import Clock
+from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ConnectionLost,
     InstrumentError,
@@ -181,6 +182,17 @@ class SerialPartLink:
                 "that baud rate",
             ) from exc
         return cls(port, clock, **kwargs)
+
+    def attach_clock(self, clock: Clock) -> None:
+        """Judge silence in station time on `clock` from now on."""
+        with self._lock:
+            self._clock = clock
+            self._last_frame_s = clock.now_s()
+
+    def probe(self) -> str:
+        """'' when the fixture answers its identity query (its port is open and it talks)."""
+        self.identify()
+        return ""
 
     # ------------------------------------------------------------ reader thread
 
@@ -489,3 +501,33 @@ class SerialPartLink:
             self._port.close()
         except OSError as exc:
             log.warning("closing the %s: %s", self.name, exc)
+
+
+# ---------------------------------------------------------------- configuration (part.fixture)
+
+
+class Settings(BaseModel):
+    """One socket's `part.fixture` link: station.yaml `instruments.fixture` (its baud and
+    timeout_s) with the socket's serial port from `ports` as `address` and its number as
+    `socket` (the station fills both). Silence is judged after the procedure's
+    stream.silent_timeout_s: the station sets `silent_after_s` on the link."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    address: str = Field(min_length=1, description="serial device of the socket's fixture")
+    socket: int = Field(1, ge=1, le=64, description="fixture socket number (for messages)")
+    baud: int = Field(115200, gt=0, le=10_000_000, description="serial baud rate")
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds a command waits")
+
+
+def factory(settings: dict[str, Any]) -> SerialPartLink:
+    """Validate `settings` (ValidationError propagates), open the port, return the link."""
+    s = Settings.model_validate(settings)
+    return SerialPartLink.open(
+        s.address,
+        ScaledClock(1.0),
+        baudrate=s.baud,
+        socket=s.socket,
+        reply_timeout_s=s.timeout_s,
+        loss_limit=None,  # the engine judges loss against the procedure's fraction
+    )

@@ -1,7 +1,12 @@
 """What the station expects of each instrument, as small typing Protocols.
 
-Code that sequences hardware types against these, so a real driver and any other
-implementation speaking the same contract are interchangeable (bluesky's protocols.py idea).
+Each capability is a Protocol of one to four methods (bluesky's protocols.py idea): what the
+engine needs to identify, probe, move, read, power and close an instrument. The role
+protocols (RateTable, Chamber, Supply, PartLink) are compositions of them, so code that
+sequences a whole role keeps one name, while code that needs one capability (the UI's
+instrument lights: `Probeable`; the pre-flight: `RateLimited`, `SetpointLimited`,
+`OutputLimited`) asks only for that, at run time with `isinstance`. A driver is any object
+that implements its role's composition; the optional capabilities are checked where present.
 All angles in degrees, rates in deg/s, temperatures in C, supply in V and A, station time in s.
 Every method may raise a subclass of `drivers.errors.InstrumentError`.
 """
@@ -9,10 +14,13 @@ Every method may raise a subclass of `drivers.errors.InstrumentError`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntFlag
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
+
+from drivers.clock import Clock
 
 
 @dataclass(frozen=True)
@@ -23,6 +31,35 @@ class InstrumentIdentity:
     model: str
     serial: str
     firmware: str = ""
+
+
+# ---------------------------------------------------------------- shared capabilities
+
+
+@runtime_checkable
+class Identifiable(Protocol):
+    def identify(self) -> InstrumentIdentity: ...
+
+
+@runtime_checkable
+class Probeable(Protocol):
+    def probe(self) -> str:
+        """A cheap health check for the instrument lights: '' when the instrument answers and
+        reports no fault, else what it reports (a fault, an open interlock). Raises an
+        `InstrumentError` when it cannot be reached at all."""
+        ...
+
+
+@runtime_checkable
+class Closable(Protocol):
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class ClockUser(Protocol):
+    def attach_clock(self, clock: Clock) -> None:
+        """Use the station clock for waits and timeouts (ScaledClock(1.0) until called)."""
+        ...
 
 
 # ---------------------------------------------------------------- rate table
@@ -50,8 +87,8 @@ class TableStatus:
 
 
 @runtime_checkable
-class RateTable(Protocol):
-    def identify(self) -> InstrumentIdentity: ...
+class Energizable(Protocol):
+    """The table's drive: enable, disable, clear a fault, zero the encoder."""
 
     def enable(self) -> None: ...
 
@@ -61,10 +98,18 @@ class RateTable(Protocol):
 
     def zero_encoder(self) -> None: ...
 
+
+@runtime_checkable
+class RateSettable(Protocol):
     def set_rate(self, rate_dps: float, accel_dps2: float | None = None) -> None:
         """Rate mode at `rate_dps`, ramping at `accel_dps2` (default: the configured limit)."""
         ...
 
+    def wait_at_rate(self, timeout_s: float) -> TableStatus: ...
+
+
+@runtime_checkable
+class Movable(Protocol):
     def move_to(
         self,
         angle_deg: float,
@@ -75,62 +120,97 @@ class RateTable(Protocol):
         """Position mode to `angle_deg`; either an acceleration limit or a move time."""
         ...
 
-    def read_status(self) -> TableStatus: ...
-
-    def wait_at_rate(self, timeout_s: float) -> TableStatus: ...
-
     def wait_in_position(self, timeout_s: float) -> TableStatus: ...
 
-    def counts_per_rev(self) -> int: ...
 
+@runtime_checkable
+class TableReadable(Protocol):
+    def read_status(self) -> TableStatus: ...
+
+    def counts_per_rev(self) -> int:
+        """Encoder counts per revolution (the fixture latches this encoder into samples)."""
+        ...
+
+
+@runtime_checkable
+class RateLimited(Protocol):
+    """Optional: the table's own limits, for the pre-flight."""
+
+    def max_rate_dps(self) -> float:
+        """The largest |rate| the table accepts, deg/s."""
+        ...
+
+    def max_accel_dps2(self) -> float:
+        """The largest acceleration the table accepts, deg/s^2."""
+        ...
+
+
+@runtime_checkable
+class RateTable(
+    Identifiable, Energizable, RateSettable, Movable, TableReadable, Closable, Protocol
+):
     def safe_state(self) -> None:
         """Bring the table to rest and disable it. Must not raise if it is already safe."""
         ...
-
-    def close(self) -> None: ...
 
 
 # ---------------------------------------------------------------- thermal chamber
 
 
 @runtime_checkable
-class Chamber(Protocol):
-    def identify(self) -> InstrumentIdentity: ...
-
-    def set_setpoint(self, temp_c: float) -> None: ...
-
-    def read_setpoint(self) -> float: ...
-
+class TemperatureReadable(Protocol):
     def read_temperature(self) -> float:
         """The chamber's process value (air temperature), C."""
         ...
 
+
+@runtime_checkable
+class SetpointLimited(Protocol):
+    def setpoint_limits(self) -> tuple[float, float]:
+        """(lowest, highest) setpoint the controller accepts, C (read from the controller)."""
+        ...
+
+
+@runtime_checkable
+class TemperatureSettable(Protocol):
+    def set_setpoint(self, temp_c: float) -> None: ...
+
+    def read_setpoint(self) -> float: ...
+
     def set_ramp_rate(self, c_per_min: float) -> None: ...
 
-    def setpoint_limits(self) -> tuple[float, float]: ...
+    def wait_setpoint(self, band_c: float, timeout_s: float) -> float:
+        """Wait until the process value is within `band_c` of the setpoint."""
+        ...
 
+
+@runtime_checkable
+class Runnable(Protocol):
     def run(self) -> None: ...
 
     def stop(self) -> None: ...
 
     def is_running(self) -> bool: ...
 
-    def wait_setpoint(self, band_c: float, timeout_s: float) -> float:
-        """Wait until the process value is within `band_c` of the setpoint."""
-        ...
 
+@runtime_checkable
+class Chamber(
+    Identifiable,
+    TemperatureReadable,
+    SetpointLimited,
+    TemperatureSettable,
+    Runnable,
+    Closable,
+    Protocol,
+):
     def safe_state(self, safe_temp_c: float = 25.0) -> None: ...
-
-    def close(self) -> None: ...
 
 
 # ---------------------------------------------------------------- DC supply
 
 
 @runtime_checkable
-class Supply(Protocol):
-    def identify(self) -> InstrumentIdentity: ...
-
+class VoltageSource(Protocol):
     def reset(self) -> None: ...
 
     def set_voltage(self, supply_v: float) -> None: ...
@@ -141,6 +221,9 @@ class Supply(Protocol):
 
     def output_is_on(self) -> bool: ...
 
+
+@runtime_checkable
+class SupplyMeasurable(Protocol):
     def measure_voltage(self) -> float: ...
 
     def measure_current(self) -> float: ...
@@ -154,9 +237,19 @@ class Supply(Protocol):
         (a shorted part). Call it after switching the output on and after voltage changes."""
         ...
 
-    def safe_state(self) -> None: ...
 
-    def close(self) -> None: ...
+@runtime_checkable
+class OutputLimited(Protocol):
+    """Optional: the supply's output limits, for the pre-flight."""
+
+    def output_limits(self) -> tuple[float | None, float | None]:
+        """(highest voltage V, highest current limit A) the supply can set; None: unknown."""
+        ...
+
+
+@runtime_checkable
+class Supply(Identifiable, VoltageSource, SupplyMeasurable, Closable, Protocol):
+    def safe_state(self) -> None: ...
 
 
 # ---------------------------------------------------------------- part link (fixture)
@@ -181,6 +274,21 @@ class CalibrationRegisters:
     scale_vc_per_v: float = 0.0
     t0_c: float = 25.0
     v0_v: float = 5.0
+
+
+class SampleStatus(IntFlag):
+    """Status bits of each sample (`SampleBlock.status`), as every part link reports them
+    (the fixture's frames carry them on the wire: drivers/fixture_protocol.py)."""
+
+    OVER_RANGE = 1 << 0  # |output| beyond the rated range (250 deg/s): out of specification
+    SATURATED = 1 << 1  # the rate code hit a rail: the sample is clipped
+    COMPENSATED = 1 << 2  # the part applied its calibration registers to this sample
+    TEMP_INVALID = 1 << 3  # the on-chip temperature sensor reading is not valid
+    SUPPLY_LOW = 1 << 4  # the part's supply is below its operating minimum
+    ENCODER_LATCHED = 1 << 5  # the encoder field holds the table's count at this sample
+
+
+ENCODER_MODULO = 1 << 32  # SampleBlock.encoder_counts wrap here (a u32 counter)
 
 
 @dataclass(frozen=True)
@@ -222,17 +330,16 @@ class LinkStats:
 
 
 @runtime_checkable
-class PartLink(Protocol):
-    def identify(self) -> InstrumentIdentity:
-        """The fixture microcontroller's identity (not the part's)."""
-        ...
-
+class PartPresence(Protocol):
     def part_present(self) -> bool: ...
 
     def read_part_serial(self) -> str:
         """The part's own serial-number register, to check against the scanned label."""
         ...
 
+
+@runtime_checkable
+class Streaming(Protocol):
     def set_output_rate(self, rate_hz: int) -> None: ...
 
     def start_stream(self) -> None: ...
@@ -245,6 +352,9 @@ class PartLink(Protocol):
 
     def stats(self) -> LinkStats: ...
 
+
+@runtime_checkable
+class CalibrationStore(Protocol):
     def read_calibration(self) -> CalibrationRegisters: ...
 
     def write_calibration(self, registers: CalibrationRegisters) -> None: ...
@@ -253,12 +363,26 @@ class PartLink(Protocol):
         """Let the part apply its calibration registers to its output (or not: raw output)."""
         ...
 
+
+@runtime_checkable
+class StopAngleSource(Protocol):
     def stop_angle(self) -> tuple[float, float]:
         """The fixture's measured angle between its mechanical stops and its standard
         uncertainty, deg (measured once with an inclinometer, stored in the fixture)."""
         ...
 
-    def close(self) -> None: ...
+
+@runtime_checkable
+class PartLink(
+    Identifiable,  # the fixture microcontroller's identity (not the part's)
+    PartPresence,
+    Streaming,
+    CalibrationStore,
+    StopAngleSource,
+    Closable,
+    Protocol,
+):
+    """One fixture socket's link to its part."""
 
 
 # ---------------------------------------------------------------- safe-state readback

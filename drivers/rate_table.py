@@ -184,6 +184,14 @@ class ModbusRateTable:
         """The highest acceleration limit the drive accepts, from its profile."""
         return self.profile.limits.max_accel_dps2
 
+    def probe(self) -> str:
+        """For the instrument lights: '' when the drive answers with no fault and a closed
+        interlock, else which (raises an InstrumentError when it does not answer)."""
+        status = self.read_status()
+        if status.interlock_open:
+            return "interlock open"
+        return f"fault code {status.fault_code}" if status.fault else ""
+
     def read_status(self) -> TableStatus:
         first, end = self._status_span
         return self._status_from(self._link.read(first, end - first), first)

@@ -77,6 +77,8 @@ class ScpiSupply:
         self._scpi = ScpiCommands(transport, error_query=self.dialect.error_query)
         self._voltage_set_v: float | None = None
         self._current_limit_a: float | None = None
+        # the supply's rating (station.yaml max_voltage_v / max_current_a), for the pre-flight
+        self.limits: tuple[float | None, float | None] = (None, None)
 
     @classmethod
     def open(
@@ -171,6 +173,10 @@ class ScpiSupply:
             )
         return volts, amps
 
+    def output_limits(self) -> tuple[float | None, float | None]:
+        """(highest voltage V, highest current limit A) it can set; None: not configured."""
+        return self.limits
+
     def safe_state(self) -> None:
         try:
             self._scpi.setting(self.dialect.output(False))
@@ -205,6 +211,12 @@ class SupplySettings(BaseModel):
     )
     timeout_s: float = Field(1.0, gt=0.0, le=60.0, description="reply timeout, wall seconds")
     expected_model: str = Field("", description="if set, *IDN?'s model must contain this")
+    max_voltage_v: float | None = Field(
+        None, gt=0, le=1000, description="the supply's rated output voltage (pre-flight check)"
+    )
+    max_current_a: float | None = Field(
+        None, gt=0, le=100, description="the supply's rated output current (pre-flight check)"
+    )
 
     @field_validator("address")
     @classmethod
@@ -227,6 +239,7 @@ def open_checked(
     supply = ScpiSupply.open(
         settings.address, baudrate=baud, timeout_s=settings.timeout_s, dialect=dialect, name=name
     )
+    supply.limits = (settings.max_voltage_v, settings.max_current_a)
     if settings.expected_model:
         try:
             model = supply.identify().model

@@ -52,14 +52,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    if args.verbose < 2:  # the drivers say what failed in their own errors, once
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()
         return 2
     try:
         return int(handler(args))
-    except UserError as exc:
-        print(f"station {args.command}: error: {exc}", file=sys.stderr)
+    except UserError as exc:  # one line per problem, each naming the command
+        for line in str(exc).splitlines() or [""]:
+            print(f"station {args.command}: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"station {args.command}: interrupted", file=sys.stderr)

@@ -24,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def handle(args: argparse.Namespace) -> int:
     # imported here so `station --help` stays fast and other commands need no pymodbus
-    from drivers.sim.bench import run_bench
+    from drivers.sim.bench import run_bench, twin_class
     from drivers.sim.config import SimConfigError, load_sim_config, speed_problem
 
     try:
@@ -38,6 +38,13 @@ def handle(args: argparse.Namespace) -> int:
             raise UserError(f"--sockets must be 1..64, got {args.sockets}")
         fixture = config.fixture.model_copy(update={"sockets": args.sockets})
         config = config.model_copy(update={"fixture": fixture})
+    for role, family in config.instruments.families().items():
+        if role == "part":
+            continue
+        try:
+            twin_class(role, family)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
     if args.state is not None and not args.state.parent.is_dir():
         raise UserError(f"--state: directory {args.state.parent} does not exist; create it first")
     return run_bench(config, args.state, args.speed)

@@ -11,11 +11,12 @@ import datetime as dt
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.bounded import Name, PathText, ShortName
-from procedures.config import LoadedYaml, load_yaml_model
+from procedures.config import ConfigError, LoadedYaml, load_yaml_model
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"
@@ -34,23 +35,47 @@ class StationInfo(_Strict):
     location: Name = ""
 
 
-class InstrumentSettings(_Strict):
+_DRIVER_HELP = (
+    "driver of this role: a registered name such as chamber.watlow-f4t (see docs/"
+    "instruments.md) or module:attr of any factory(settings) -> driver; default: today's family"
+)
+
+
+class InstrumentSettings(BaseModel):
+    """One instrument role. Besides the station's own keys (driver, calibration_due,
+    expected_model) every key is the driver's setting, checked by the driver's own model when
+    the station prepares a run (address in the driver's form, timeout_s, ...)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
+
+    driver: PathText | None = Field(None, min_length=1, description=_DRIVER_HELP)
     address: PathText = Field(
-        "", description="host:port for Modbus TCP, or a serial port (e.g. /dev/ttyUSB0)"
-    )
-    baud: int = Field(
-        115200, gt=0, le=MAX_BAUD, description="serial baud rate (serial instruments only)"
+        "",
+        description="in the driver's own form: host:port (Modbus TCP, ASCII over TCP), a VISA "
+        "resource (TCPIP::host::5025::SOCKET, ASRL/dev/ttyUSB0::INSTR) or a serial device",
     )
     expected_model: Name = Field("", description="if set, the identity must contain this model")
     calibration_due: dt.date | None = Field(
         None, description="ISO date (YYYY-MM-DD) the instrument's own calibration expires"
     )
-    timeout_s: float = Field(
-        1.0, gt=0, le=MAX_TIMEOUT_S, description="communication timeout, wall seconds"
-    )
+
+    def driver_settings(self) -> dict[str, Any]:
+        """The keys for the driver: those given in station.yaml, the station's own left out."""
+        given = self.model_dump(exclude_unset=True)
+        given.update(self.model_extra or {})
+        return {
+            k: v for k, v in given.items()
+            if k not in ("driver", "calibration_due", "expected_model")
+        }
 
 
-class FixtureSettings(_Strict):
+class FixtureSettings(BaseModel):
+    """The part role (key fixture, or part): the fixture's sockets and their ports; other
+    keys are the part driver's settings (baud, timeout_s, ...)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
+
+    driver: PathText | None = Field(None, min_length=1, description=_DRIVER_HELP)
     sockets: int = Field(1, ge=1, le=16, description="number of part sockets")
     ports: dict[int, PathText] = Field(
         default_factory=dict,
@@ -66,6 +91,18 @@ class FixtureSettings(_Strict):
     )
     calibration_due: dt.date | None = Field(None, description="stop-angle calibration expiry")
 
+    def driver_settings(self, socket: int, address: str) -> dict[str, Any]:
+        """One socket's settings for the part driver: the given keys (the station's own and
+        sockets/ports left out), the socket's port as `address` and its number as `socket`."""
+        given = self.model_dump(exclude_unset=True)
+        given.update(self.model_extra or {})
+        out = {
+            k: v for k, v in given.items()
+            if k not in ("driver", "calibration_due", "sockets", "ports")
+        }
+        out.update(address=address, socket=socket)
+        return out
+
     @field_validator("ports")
     @classmethod
     def _sockets(cls, value: dict[int, str]) -> dict[int, str]:
@@ -75,10 +112,24 @@ class FixtureSettings(_Strict):
 
 
 class Instruments(_Strict):
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
     rate_table: InstrumentSettings = InstrumentSettings()
     chamber: InstrumentSettings = InstrumentSettings()
     supply: InstrumentSettings = InstrumentSettings()
-    fixture: FixtureSettings = FixtureSettings()
+    fixture: FixtureSettings = Field(
+        FixtureSettings(),
+        validation_alias=AliasChoices("fixture", "part"),
+        description="the part role: the fixture's sockets (key fixture or part)",
+    )
+    inclinometer: InstrumentSettings | None = Field(
+        None, description="optional: an inclinometer (no built-in driver; name one)"
+    )
+
+    def role_entry(self, role: str) -> InstrumentSettings | None:
+        """The entry of a station role (rate_table, chamber, supply, inclinometer)."""
+        entry = getattr(self, role, None)
+        return entry if isinstance(entry, InstrumentSettings) else None
 
 
 class OperatorEntry(_Strict):
@@ -212,4 +263,11 @@ class LoadedSettings:
 def load_settings(path: Path | None = None) -> LoadedSettings:
     """Load station.yaml (default: config/station.yaml of this installation)."""
     model, loaded = load_yaml_model(Path(path or DEFAULT_STATION_FILE), StationSettings)
-    return LoadedSettings(settings=model, source=loaded)
+    settings = LoadedSettings(settings=model, source=loaded)
+    # each instrument's settings belong to its driver: checked by the driver's own model
+    from station.instruments import settings_problems
+
+    problems = settings_problems(settings)
+    if problems:
+        raise ConfigError("\n".join(problems))
+    return settings

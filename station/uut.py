@@ -9,8 +9,12 @@ The small API the CLI uses and the browser UI will use:
     runner.state()                                        # {"state": "running", "step": ...}
     result = runner.wait()                                # UutResult: folders, verdicts, PDFs
 
-`endpoints` (from the simulated bench's state file) replaces the addresses of station.yaml
-and sets the clock's speed; real instruments run at speed 1.
+`endpoints` (from the simulated bench's state file) replaces the addresses of station.yaml,
+chooses the driver of every role station.yaml leaves to its default (the family each twin
+serves) and sets the clock's speed; real instruments run at speed 1. Every instrument is
+opened through its configured driver (`station.instruments`, `drivers.registry`) and the
+procedure is checked against what they report (`station.preflight`) before any run folder
+exists.
 """
 
 from __future__ import annotations
@@ -28,7 +32,6 @@ from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError
 from drivers.fixture_protocol import OUTPUT_RATES_HZ, SAMPLE_FRAME_SIZE, sample_stream_baud
 from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
-from drivers.rate_table_map import COUNTS_PER_REV
 from procedures.config import (
     ConfigError,
     ProcedureConfig,
@@ -54,10 +57,11 @@ from procedures.safe_state import SafeSettingsError, check_safe_temperature
 from procedures.steps.plan import build_plan
 from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
-from station import __version__
+from station import __version__, preflight
+from station import instruments as roles
 from station.errors import UserError
 from station.run_folder import create_run_folder, recover_crashed_runs, release, validate_serial
-from station.settings import InstrumentSettings, LoadedSettings
+from station.settings import LoadedSettings
 
 if TYPE_CHECKING:
     from drivers.sim.launcher import BenchEndpoints
@@ -74,14 +78,21 @@ class Endpoints:
     chamber: str
     supply: str
     duts: dict[int, str]
+    # role -> the family its twin serves (the station picks `<role>.<family>`)
+    families: dict[str, str] = field(default_factory=dict)
 
     @classmethod
     def of_bench(cls, e: BenchEndpoints) -> Endpoints:
         """The simulated bench's endpoints (its state file) as the station's."""
         return cls(
             speed=e.speed, rate_table=e.rate_table, chamber=e.chamber, supply=e.supply,
-            duts=dict(e.duts),
+            duts=dict(e.duts), families=dict(e.families),
         )
+
+    def address(self, role: str) -> str:
+        """The twin's address of a station role in its driver's form ('' if none)."""
+        return str(getattr(self, role, "") or "") if role in (
+            "rate_table", "chamber", "supply") else ""
 
 
 @dataclass
@@ -106,18 +117,12 @@ class UutResult:
 # ---------------------------------------------------------------- instruments
 
 
-def _host_port(address: str, role: str) -> tuple[str, int]:
-    host, _, port = address.rpartition(":")
-    if not host or not port.isdigit():
-        raise UserError(f"{role} address {address!r} is not host:port; fix it in station.yaml")
-    return host, int(port)
-
-
 @dataclass
 class OpenBench:
     bench: Bench
     instruments: list[InstrumentRecord]
     closers: list[Callable[[], None]]
+    names: dict[str, str] = field(default_factory=dict)  # role -> "driver at address"
 
     def close(self) -> None:
         for closer in reversed(self.closers):
@@ -131,10 +136,8 @@ def _record(
     role: str,
     ident: InstrumentIdentity | None,
     address: str,
-    cfg: InstrumentSettings | None,
     due: dt.date | None = None,
 ) -> InstrumentRecord:
-    due = due if due is not None else (cfg.calibration_due if cfg else None)
     return InstrumentRecord(
         role=role,
         manufacturer=ident.manufacturer if ident else "",
@@ -171,21 +174,22 @@ def link_speed_problem(output_rate_hz: int, baud: int) -> str | None:
 
 
 def open_part_link(
-    path: str, clock: ScaledClock, socket: int, silent_after_s: float, *, baudrate: int
+    settings: LoadedSettings,
+    socket: int,
+    port: str,
+    clock: ScaledClock,
+    silent_after_s: float,
+    endpoints: Endpoints | None = None,
 ) -> PartLink:
-    """The fixture driver of one socket (drivers.part_link), at the fixture's configured baud."""
-    from drivers.part_link import SerialPartLink
-
-    # frame loss is judged by the engine against the procedure's fraction, not by the driver;
-    # silence needs a wall-time floor too: at 200x, 5 station s are 25 wall ms of scheduling
-    return SerialPartLink.open(
-        path,
-        clock,
-        baudrate=baudrate,
-        socket=socket,
-        silent_after_s=silent_floor_s(silent_after_s, clock),
-        loss_limit=None,
-    )
+    """The part driver of one socket (station.yaml's part role, default `part.fixture`), at the
+    fixture's configured baud; it judges silence after `silent_after_s` station s (floored)."""
+    plan = roles.plan_part(settings, socket, port, endpoints)
+    link: PartLink = roles.open_role(settings, plan, clock)
+    if hasattr(link, "silent_after_s"):
+        # frame loss is judged by the engine against the procedure's fraction, not by the
+        # driver; silence needs a wall-time floor too: at 200x, 5 station s are 25 wall ms
+        link.silent_after_s = silent_floor_s(silent_after_s, clock)
+    return link
 
 
 def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: float = 1.0) -> float:
@@ -200,52 +204,46 @@ def open_bench(
     needs_table: bool,
     silent_after_s: float = 5.0,
 ) -> OpenBench:
-    """Connect every instrument the run needs; InstrumentError names the one that failed."""
-    from drivers.chamber import ModbusChamber
-    from drivers.rate_table import ModbusRateTable
-    from drivers.supply import ScpiSupply
-
-    cfg = settings.settings.instruments
+    """Open every role through its configured driver (station.yaml `driver:`, or the family
+    the bench's twin serves). A bad driver name or setting is a UserError (file:line); an
+    instrument that cannot be reached raises `station.instruments.Unreachable`."""
     clock = ScaledClock(endpoints.speed if endpoints else 1.0)
     closers: list[Callable[[], None]] = []
     records: list[InstrumentRecord] = []
+    names: dict[str, str] = {}
+    opened: dict[str, Any] = {}
     try:
-        table: RateTable | None = None
-        if needs_table:
-            addr = endpoints.rate_table if endpoints else cfg.rate_table.address
-            t = ModbusRateTable.connect(
-                *_host_port(addr, "rate_table"), clock, timeout_s=cfg.rate_table.timeout_s
+        for role in roles.station_roles(needs_table):
+            plan = roles.plan_role(settings, role, endpoints)
+            if plan is None:
+                continue
+            driver = roles.open_role(settings, plan, clock)
+            closers.append(driver.close)
+            opened[role] = driver
+            names[role] = f"the {plan.label} ({plan.name} at {plan.address})"
+            records.append(
+                _record(role, roles.identity(driver), plan.address, plan.calibration_due)
             )
-            closers.append(t.close)
-            table = t
-            records.append(_record("rate_table", t.identify(), addr, cfg.rate_table))
-        addr = endpoints.chamber if endpoints else cfg.chamber.address
-        chamber: Chamber = ModbusChamber.connect(
-            *_host_port(addr, "chamber"), clock, timeout_s=cfg.chamber.timeout_s
-        )
-        closers.append(chamber.close)
-        records.append(_record("chamber", chamber.identify(), addr, cfg.chamber))
-        addr = endpoints.supply if endpoints else cfg.supply.address
-        supply: Supply = ScpiSupply.open(
-            addr, baudrate=cfg.supply.baud, timeout_s=cfg.supply.timeout_s
-        )
-        closers.append(supply.close)
-        records.append(_record("supply", supply.identify(), addr, cfg.supply))
+        ports = endpoints.duts if endpoints else settings.settings.instruments.fixture.ports
         links: dict[int, PartLink] = {}
         for s in sockets:
-            port = endpoints.duts.get(s) if endpoints else cfg.fixture.ports.get(s)
+            port = ports.get(s)
             if not port:
                 raise UserError(
                     f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
                     "or the bench's sockets); load fewer parts or configure the socket"
                 )
-            link = open_part_link(port, clock, s, silent_after_s, baudrate=cfg.fixture.baud)
+            link = open_part_link(settings, s, port, clock, silent_after_s, endpoints)
             closers.append(link.close)
             links[s] = link
+        chamber: Chamber = opened["chamber"]
+        supply: Supply = opened["supply"]
+        table: RateTable | None = opened.get("rate_table")
         return OpenBench(
             Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
             records,
             closers,
+            names,
         )
     except BaseException:
         OpenBench(None, [], closers).close()  # type: ignore[arg-type]
@@ -312,6 +310,7 @@ class UutRunner:
         instrument is touched; UserError says what to fix."""
         self.check_link_speed()
         self.check_safe_settings()
+        self.check_product()
         if not duts:
             raise UserError("no part given: scan at least one serial (--dut SERIAL)")
         n_sockets = self.settings.settings.instruments.fixture.sockets
@@ -349,6 +348,72 @@ class UutRunner:
             )
         except SafeSettingsError as exc:
             raise UserError(f"procedure {self.procedure_path.name}: {exc}") from None
+
+    def check_product(self) -> None:
+        """Settings the product refuses (a rate beyond the part's range): one line each."""
+        problems = preflight.product_problems(
+            self.procedure, self.procedure_file, self.product, self.product_path.name
+        )
+        if problems:
+            raise UserError("\n".join(problems))
+
+    @property
+    def needs_table(self) -> bool:
+        return self.procedure.table_enabled or self.procedure.stop_enabled
+
+    def check_drivers(self, sockets: list[int]) -> None:
+        """Resolve every role's driver and check its settings, without connecting: a bad
+        driver name or setting is a UserError, one station.yaml file:line per problem."""
+        problems: list[str] = []
+        for role in roles.station_roles(self.needs_table):
+            plan = roles.plan_role(self.settings, role, self.endpoints)
+            if plan is not None:
+                problems += roles.check_settings(self.settings, plan)
+        ports = self.fixture_ports()
+        for sock in sockets:
+            if ports.get(sock):
+                plan = roles.plan_part(self.settings, sock, ports[sock], self.endpoints)
+                problems += roles.check_settings(self.settings, plan)
+        if problems:
+            raise UserError("\n".join(dict.fromkeys(problems)))
+
+    def connect(self, sockets: list[int]) -> OpenBench:
+        """Open the instruments and check the procedure against what they report (the
+        pre-flight). Any problem is a UserError, one line each, with nothing written and
+        nothing left open: an unreachable instrument refuses the run."""
+        self.check_drivers(sockets)
+        try:
+            opened = open_bench(
+                self.settings, sockets, self.endpoints, self.needs_table,
+                self.procedure.stream.silent_timeout_s,
+            )
+        except (InstrumentError, OSError) as exc:
+            raise UserError(
+                f"{exc}; the run is refused until every instrument answers"
+            ) from None
+        try:
+            problems = preflight.instrument_problems(
+                self.procedure, self.procedure_file, self.product, opened.bench, len(sockets),
+                opened.names,
+            )
+        except InstrumentError as exc:
+            opened.close()
+            raise UserError(f"pre-flight: an instrument did not answer: {exc}") from None
+        except BaseException:
+            opened.close()
+            raise
+        if problems:
+            opened.close()
+            raise UserError("\n".join(problems))
+        return opened
+
+    def preflight(self, duts: dict[int, str]) -> dict[int, str]:
+        """Every check before a run, the instruments opened and closed again (the UI's
+        START): UserError, one line per problem, nothing written."""
+        duts = self.validate(duts)
+        self.check_ports(duts)
+        self.connect(sorted(duts)).close()
+        return duts
 
     def fixture_ports(self) -> dict[int, str]:
         """Socket -> fixture port: the bench's sockets, or station.yaml's."""
@@ -429,54 +494,40 @@ class UutRunner:
     # ------------------------------------------------------------ one cycle
 
     def run(self, duts: dict[int, str]) -> UutResult:
-        """Validate, create run folders, run the procedure, certificates, results database."""
+        """Validate, open the instruments and check the procedure against them (nothing is
+        written if any check fails), create run folders, run the procedure, certificates,
+        results database."""
         duts = self.validate(duts)
         self.check_ports(duts)
-        self._state = "running"
         self._engine = None
         wall0 = dt.datetime.now(dt.UTC)
         self.recover()
-        parts = [self._new_part(sock, serial) for sock, serial in sorted(duts.items())]
-        result = UutResult(folders={p.socket: p.folder for p in parts})
-        opened: OpenBench | None = None
+        opened = self.connect(sorted(duts))
+        parts: list[PartRun] = []
         try:
-            try:
-                opened = open_bench(
-                    self.settings,
-                    sorted(duts),
-                    self.endpoints,
-                    self.procedure.table_enabled or self.procedure.stop_enabled,
-                    self.procedure.stream.silent_timeout_s,
-                )
-            except (InstrumentError, OSError, UserError) as exc:
+            self._state = "running"
+            counts = opened.bench.table.counts_per_rev() if opened.bench.table else None
+            for sock, serial in sorted(duts.items()):
+                parts.append(self._new_part(sock, serial, counts))
+            unscanned, unknown = self._unscanned_parts(opened.bench.clock, set(duts))
+            if unscanned:
                 for part in parts:
                     part.verdict = Verdict.ERROR
-                    part.reason = f"could not connect the instruments: {exc}"
+                    part.reason = "; ".join(
+                        f"socket {s} holds a part that was not scanned: scan it or take it out"
+                        for s in unscanned
+                    )
                 self._finish_unstarted(parts)
             else:
-                unscanned, unknown = self._unscanned_parts(opened.bench.clock, set(duts))
-                if unscanned:
-                    for part in parts:
-                        part.verdict = Verdict.ERROR
-                        part.reason = "; ".join(
-                            f"socket {s} holds a part that was not scanned: scan it or take it out"
-                            for s in unscanned
-                        )
-                    self._finish_unstarted(parts)
-                elif (refused := self._refuse_unsafe_settings(opened)) is not None:
-                    for part in parts:
-                        part.verdict, part.reason = Verdict.ERROR, refused
-                    self._finish_unstarted(parts)
-                else:
-                    self._run_engine(opened, parts, unknown)
+                self._run_engine(opened, parts, unknown)
         finally:
             with self._lock:
                 self._abort_requested = ""  # consumed by this run (or too late for it)
                 self._ctx = None
-            if opened is not None:
-                opened.close()
+            opened.close()
             for part in parts:
                 release(part.folder)
+        result = UutResult(folders={p.socket: p.folder for p in parts})
         for part in parts:
             result.verdicts[part.socket] = part.record.verdict
             result.reasons[part.socket] = part.record.reason
@@ -491,16 +542,6 @@ class UutRunner:
         self._result = result
         self._state = "finished"
         return result
-
-    def _refuse_unsafe_settings(self, opened: OpenBench) -> str | None:
-        """Why the run must not start with this chamber's setpoint limits, or None."""
-        try:
-            self.check_safe_settings(opened.bench.chamber.setpoint_limits())
-        except UserError as exc:
-            return f"refused before the run started: {exc}"
-        except InstrumentError as exc:
-            return f"could not read the chamber's setpoint limits: {exc}"
-        return None
 
     def _unscanned_parts(
         self, clock: ScaledClock, scanned: set[int]
@@ -517,11 +558,8 @@ class UutRunner:
             link: PartLink | None = None
             try:
                 link = open_part_link(
-                    port,
-                    clock,
-                    sock,
-                    self.procedure.stream.silent_timeout_s,
-                    baudrate=self.settings.settings.instruments.fixture.baud,
+                    self.settings, sock, port, clock, self.procedure.stream.silent_timeout_s,
+                    self.endpoints,
                 )
                 if link.part_present():
                     present.append(sock)
@@ -549,10 +587,7 @@ class UutRunner:
                 _record(
                     f"fixture_{part.socket}",
                     None,
-                    self.endpoints.duts.get(part.socket, "")
-                    if self.endpoints
-                    else cfg.fixture.ports.get(part.socket, ""),
-                    None,
+                    self.fixture_ports().get(part.socket, ""),
                     cfg.fixture.calibration_due,
                 )
             )
@@ -617,7 +652,7 @@ class UutRunner:
                 part.writer.close()
             write_record(part.folder, part.record)
 
-    def _new_part(self, sock: int, serial: str) -> PartRun:
+    def _new_part(self, sock: int, serial: str, counts_per_rev: int | None) -> PartRun:
         folder = create_run_folder(self.out, serial)
         info = self.settings.settings.station
         now = dt.datetime.now(dt.UTC)
@@ -668,8 +703,9 @@ class UutRunner:
                 "simulated": self.endpoints is not None,
                 "software_version": __version__,
                 "time_base": "fixture clock (s); station_time_s: station clock estimate",
-                # scales /samples/encoder_counts (the fixture latches the table's encoder)
-                "encoder_counts_per_rev": COUNTS_PER_REV,
+                # scales /samples/encoder_counts (the fixture latches the table's encoder);
+                # the table driver says how many counts it has per turn
+                **({"encoder_counts_per_rev": counts_per_rev} if counts_per_rev else {}),
             },
         )
         return PartRun(socket=sock, serial=serial, folder=folder, record=record, writer=writer)

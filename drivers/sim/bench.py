@@ -21,10 +21,14 @@ from typing import Any
 from pydantic import ValidationError
 
 from drivers.rate_table_map import Fault
+from drivers.sim.acutrol_twin import AcutrolTwin
 from drivers.sim.config import PartSpec, SimConfig
 from drivers.sim.control import ControlRequestError, ControlServer
-from drivers.sim.modbus_twins import ChamberTwin, ModbusTwin, TableTwin
+from drivers.sim.espec_twin import EspecP300Twin
+from drivers.sim.modbus_twins import ChamberTwin, TableTwin
 from drivers.sim.pty_twins import FixtureTwin, SupplyTwin
+from drivers.sim.scpi_lan_twins import KeysightE36300Twin, RigolDp800Twin
+from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -52,6 +56,67 @@ _TABLE_FAULTS = {
 }
 
 
+class SerialSupplyTwin:
+    """Today's SCPI supply twin (a pseudo-terminal) in the bench's twin form: its endpoint is
+    the pty path, the `supply.scpi` driver's address. Faults on it are injected per part
+    (supply_short); drop/restore and delay_s are accepted and do nothing."""
+
+    def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.world = world
+        self.delay_s = 0.0
+        self.twin: SupplyTwin | None = None
+
+    async def start(self) -> None:
+        self.twin = SupplyTwin(self.world, asyncio.get_running_loop())
+
+    def endpoint(self) -> str:
+        assert self.twin is not None, "start() the twin first"
+        return self.twin.port.path
+
+    async def drop(self) -> None:
+        log.info("the serial supply twin cannot drop its pty; fault ignored")
+
+    async def restore(self) -> None:
+        return None
+
+    async def shutdown(self) -> None:
+        if self.twin is not None:
+            self.twin.close()
+            self.twin = None
+
+
+# (role, family) -> twin class: Twin(world, host, port) with async start(), endpoint (a
+# method, or a property as on the Modbus twins), async drop()/restore()/shutdown(), delay_s.
+TWINS: dict[tuple[str, str], Any] = {
+    ("rate_table", "modbus-servo"): TableTwin,
+    ("rate_table", "acutrol"): AcutrolTwin,
+    ("chamber", "watlow-f4"): ChamberTwin,
+    ("chamber", "watlow-f4t"): WatlowF4TTwin,
+    ("chamber", "espec-p300"): EspecP300Twin,
+    ("supply", "scpi"): SerialSupplyTwin,
+    ("supply", "keysight-e36300"): KeysightE36300Twin,
+    ("supply", "rigol-dp800"): RigolDp800Twin,
+}
+
+
+def twin_class(role: str, family: str) -> Any:
+    """The twin class serving `family` for `role`; ValueError naming those there are."""
+    try:
+        return TWINS[(role, family)]
+    except KeyError:
+        served = ", ".join(f for r, f in TWINS if r == role)
+        raise ValueError(
+            f"the simulated bench has no {role} twin for {family!r} (it serves: {served}); "
+            "choose another family under instruments: in the sim config"
+        ) from None
+
+
+def endpoint_of(twin: Any) -> str:
+    """A twin's address in its driver's form (endpoint is a method or a property)."""
+    ep = twin.endpoint
+    return str(ep() if callable(ep) else ep)
+
+
 class Bench:
     """Everything the bench process serves, on one asyncio loop."""
 
@@ -66,14 +131,19 @@ class Bench:
     ) -> None:
         self.world = World(config, speed)
         self.host = host
-        self.table = TableTwin(self.world, host, table_port)
-        self.chamber = ChamberTwin(self.world, host, chamber_port)
+        self.families = config.instruments.families()
+        self.table: Any = twin_class("rate_table", self.families["rate_table"])(
+            self.world, host, table_port
+        )
+        self.chamber: Any = twin_class("chamber", self.families["chamber"])(
+            self.world, host, chamber_port
+        )
+        self.supply: Any = twin_class("supply", self.families["supply"])(self.world, host, 0)
         self.control = ControlServer(self.dispatch, host, control_port)
-        self.supply: SupplyTwin | None = None
         self.fixtures: dict[int, FixtureTwin] = {}
         self._tick_task: asyncio.Task[None] | None = None
         self.ticks = 0
-        self.table.before_write = self._flush_samples  # type: ignore[attr-defined]
+        self.table.before_write = self._flush_samples
 
     def _flush_samples(self, t_s: float) -> None:
         """Send every sample due before a motion command, so none is computed with the new
@@ -85,7 +155,7 @@ class Bench:
         loop = asyncio.get_running_loop()
         await self.table.start()
         await self.chamber.start()
-        self.supply = SupplyTwin(self.world, loop)
+        await self.supply.start()
         fifo = self.world.config.fixture.fifo_bytes
         for index, sock in self.world.sockets.items():
             self.fixtures[index] = FixtureTwin(self.world, sock, loop, fifo)
@@ -93,16 +163,18 @@ class Bench:
         self._tick_task = asyncio.create_task(self._tick_loop())
 
     def endpoints(self) -> dict[str, Any]:
-        assert self.supply is not None
+        """The state file: each role's endpoint in its driver's address form, and the
+        family each twin serves (the station picks the matching driver)."""
         return {
             "speed": self.world.speed,
-            "rate_table": self.table.endpoint,
-            "chamber": self.chamber.endpoint,
-            "supply": self.supply.port.path,
+            "rate_table": endpoint_of(self.table),
+            "chamber": endpoint_of(self.chamber),
+            "supply": endpoint_of(self.supply),
             "duts": {str(i): f.port.path for i, f in self.fixtures.items()},
             "control": self.control.endpoint,
             "pid": os.getpid(),
             "sockets": len(self.fixtures),
+            "families": dict(self.families),
         }
 
     async def _tick_loop(self) -> None:
@@ -120,10 +192,8 @@ class Bench:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._tick_task
         await self.control.shutdown()
-        for twin in (self.table, self.chamber):
+        for twin in (self.table, self.chamber, self.supply):
             await twin.shutdown()
-        if self.supply is not None:
-            self.supply.close()
         for fixture in self.fixtures.values():
             fixture.close()
 
@@ -231,8 +301,8 @@ class Bench:
         elif kind == "part_absent":
             sock.absent = True
 
-    def _modbus_targets(self, target: str) -> list[ModbusTwin]:
-        options: dict[str, list[ModbusTwin]] = {
+    def _modbus_targets(self, target: str) -> list[Any]:
+        options: dict[str, list[Any]] = {
             "table": [self.table],
             "chamber": [self.chamber],
             "all": [self.table, self.chamber],
@@ -250,16 +320,12 @@ class Bench:
     def truth(self) -> dict[str, Any]:
         out = self.world.truth()
         out["modbus"] = {
-            "table": {
-                "dropped": self.table.dropped,
-                "delay_s": self.table.delay_s,
-                "requests": self.table.requests,
-            },
-            "chamber": {
-                "dropped": self.chamber.dropped,
-                "delay_s": self.chamber.delay_s,
-                "requests": self.chamber.requests,
-            },
+            name: {
+                "dropped": getattr(twin, "dropped", False),
+                "delay_s": twin.delay_s,
+                "requests": getattr(twin, "requests", 0),
+            }
+            for name, twin in (("table", self.table), ("chamber", self.chamber))
         }
         for index, fixture in self.fixtures.items():
             out["sockets"][str(index)]["fifo_pending_bytes"] = fixture.port.pending_bytes

@@ -10,7 +10,7 @@ chamber, supply, fixture and part physics) has defaults close to the real bench.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -186,6 +186,39 @@ class PartPhysicsConfig(_Model):
     temp_noise_c: float = Field(default=0.02, ge=0.0, le=10.0)
 
 
+# the instrument family each twin serves by default (today's instruments)
+DEFAULT_FAMILIES: dict[str, str] = {
+    "rate_table": "modbus-servo",
+    "chamber": "watlow-f4",
+    "supply": "scpi",
+    "part": "fixture",
+}
+
+
+class InstrumentsConfig(_Model):
+    """Which instrument family each twin serves (names pinned: the station picks the
+    registered driver `<role>.<family>` for each)."""
+
+    rate_table: Literal["modbus-servo", "acutrol"] = Field(
+        "modbus-servo", description="rate table twin: modbus-servo or acutrol"
+    )
+    chamber: Literal["watlow-f4", "watlow-f4t", "espec-p300"] = Field(
+        "watlow-f4", description="chamber twin: watlow-f4, watlow-f4t or espec-p300"
+    )
+    supply: Literal["scpi", "keysight-e36300", "rigol-dp800"] = Field(
+        "scpi", description="supply twin: scpi, keysight-e36300 or rigol-dp800"
+    )
+
+    def families(self) -> dict[str, str]:
+        """role -> family, the part role included (the fixture protocol)."""
+        return {
+            "rate_table": self.rate_table,
+            "chamber": self.chamber,
+            "supply": self.supply,
+            "part": DEFAULT_FAMILIES["part"],
+        }
+
+
 class SimConfig(_Model):
     speed: float = Field(
         default=1.0,
@@ -200,6 +233,9 @@ class SimConfig(_Model):
     supply: SupplyConfig = Field(default_factory=SupplyConfig)
     fixture: FixtureConfig = Field(default_factory=FixtureConfig)
     part_physics: PartPhysicsConfig = Field(default_factory=PartPhysicsConfig)
+    instruments: InstrumentsConfig = Field(
+        default_factory=InstrumentsConfig, description="the family each twin serves"
+    )
 
     @model_validator(mode="after")
     def _sockets(self) -> SimConfig:

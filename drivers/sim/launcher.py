@@ -21,12 +21,13 @@ import tempfile
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from drivers.sim.config import DEFAULT_FAMILIES
 from drivers.sim.control_client import ControlClient
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -41,16 +42,20 @@ class BenchEndpoints:
     """Where each twin listens (the state file's content)."""
 
     speed: float
-    rate_table: str  # host:port, Modbus TCP
-    chamber: str  # host:port, Modbus TCP
-    supply: str  # pty path, SCPI
+    rate_table: str  # in its driver's address form (host:port for the TCP twins)
+    chamber: str  # in its driver's address form
+    supply: str  # in its driver's address form (a pty path for today's scpi twin)
     duts: dict[int, str]  # socket -> pty path, fixture protocol
     control: str  # host:port, JSON lines
     pid: int
     raw: dict[str, Any]
+    # role -> the instrument family its twin serves (sim config `instruments:`)
+    families: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_FAMILIES))
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> BenchEndpoints:
+        families = dict(DEFAULT_FAMILIES)
+        families.update({str(k): str(v) for k, v in (state.get("families") or {}).items()})
         return cls(
             speed=float(state["speed"]),
             rate_table=state["rate_table"],
@@ -60,6 +65,7 @@ class BenchEndpoints:
             control=state["control"],
             pid=int(state.get("pid", 0)),
             raw=dict(state),
+            families=families,
         )
 
     @staticmethod

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2 as chi2_dist
 
-from drivers.fixture_protocol import SampleStatus
+from drivers.protocols import SampleStatus
 from procedures.analysis._checks import finite_1d, monotonic_time, non_negative, positive
 from procedures.analysis.allan import FLICKER_AVAR_FACTOR, NoiseModel
 from procedures.analysis.bias import BiasEstimate, estimate_bias

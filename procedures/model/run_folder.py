@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.fixture_protocol import ENCODER_MODULO, SampleStatus
+from drivers.protocols import ENCODER_MODULO, SampleStatus
 from procedures.model.data import load_csv
 from procedures.model.trajectory import FloatArray, Segment, Trajectory
 from procedures.rawdata import RawDataError, read_raw

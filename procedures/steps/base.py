@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.fixture_protocol import SEQ_MODULO, SampleStatus
+from drivers.fixture_protocol import SEQ_MODULO
+from drivers.protocols import SampleStatus
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
 

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.rate_table_map import COUNTS_PER_REV, IN_POSITION_TOLERANCE_DEG
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import stop_vs_rate_table
 from procedures.analysis.errors import AnalysisError
@@ -28,6 +27,9 @@ from procedures.analysis.stop_method import (
 from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
 from procedures.steps.base import BaseStep, check_window, samples_between
+
+# the table counts as already at the first stop within this (a move is skipped)
+AT_STOP_TOLERANCE_DEG = 0.001
 
 
 def stop_noise_model(ctx: RunContext, part: PartRun) -> NoiseModel | None:
@@ -66,7 +68,7 @@ class StopMethod(BaseStep):
         # the same stops and table angles stay comparable across the whole run.
         _, here = ctx.snapshot()
         origin = 360.0 * round(here.position_deg / 360.0)
-        if abs(here.position_deg - origin) > IN_POSITION_TOLERANCE_DEG:
+        if abs(here.position_deg - origin) > AT_STOP_TOLERANCE_DEG:
             table.move_to(origin, move_time_s=cfg.move_time_s)
             table.wait_in_position(cfg.move_timeout_s)
         t_start = ctx.clock.now_s()
@@ -88,7 +90,8 @@ class StopMethod(BaseStep):
         travel = np.abs(np.diff(positions))
         self._encoder_angle = float(travel.mean())
         # each end quantised to one count; two ends per move, averaged over the moves
-        self._encoder_u = (360.0 / COUNTS_PER_REV) * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
+        count_deg = 360.0 / table.counts_per_rev()  # the table driver's encoder resolution
+        self._encoder_u = count_deg * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
         ctx.each(lambda part: self._analyse(ctx, part, t_start, t_end))
 
     def _scale(

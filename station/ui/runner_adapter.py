@@ -277,29 +277,40 @@ class EngineRunner:
     # ------------------------------------------------------------ instruments
 
     def instruments(self) -> list[InstrumentLight]:
+        from station import instruments as roles
         from station.ui.instruments import InstrumentAddress, probe
 
         if self.busy():
             return []
         cfg = self.settings.settings.instruments
         e = self.endpoints
-        addresses = [
-            InstrumentAddress(
-                "rate table",
-                e.rate_table if e else cfg.rate_table.address,
-                cfg.rate_table.calibration_due,
-            ),
-            InstrumentAddress(
-                "chamber", e.chamber if e else cfg.chamber.address, cfg.chamber.calibration_due
-            ),
-            InstrumentAddress(
-                "supply", e.supply if e else cfg.supply.address, cfg.supply.calibration_due
-            ),
-        ]
+        addresses = []
+        for role in roles.station_roles(needs_table=True):
+            entry = getattr(cfg, role, None)
+            if entry is None:
+                continue
+            name = roles.ROLE_NAMES[role]
+            try:
+                plan = roles.plan_role(self.settings, role, e)
+            except UserError as exc:
+                addresses.append(InstrumentAddress(name, "", entry.calibration_due, None, str(exc)))
+                continue
+            if plan is not None:
+                addresses.append(
+                    InstrumentAddress(name, plan.address, entry.calibration_due, plan)
+                )
         for sock in self.info.sockets:
             port = e.duts.get(sock, "") if e else cfg.fixture.ports.get(sock, "")
+            try:
+                part = roles.plan_part(self.settings, sock, port, e) if port else None
+            except UserError as exc:
+                addresses.append(
+                    InstrumentAddress(f"fixture {sock}", "", cfg.fixture.calibration_due,
+                                      None, str(exc))
+                )
+                continue
             addresses.append(
-                InstrumentAddress(f"fixture {sock}", port, cfg.fixture.calibration_due)
+                InstrumentAddress(f"fixture {sock}", port, cfg.fixture.calibration_due, part)
             )
         return probe(addresses)
 
@@ -324,7 +335,9 @@ class EngineRunner:
             raise UserError(str(exc)) from None
         except OSError as exc:
             raise UserError(f"cannot read the procedure or product file: {exc}") from None
-        serials = uut.validate(dict(request.serials))
+        # every pre-flight check, the instruments opened and closed again: START is refused
+        # (nothing written) while an instrument is unreachable or a setting is out of its limits
+        serials = uut.preflight(dict(request.serials))
         uut.operator = request.operator
         self._uut = uut
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")

@@ -114,12 +114,12 @@ def test_configured_fixture_baud_reaches_every_part_link(
 ) -> None:
     opened: list[tuple[str, int]] = []
 
-    def fake_link(path: str, clock: ScaledClock, socket: int, silent_after_s: float, *,
-                  baudrate: int) -> _Instrument:
+    def fake_open(path: str, clock: ScaledClock, *, baudrate: int, **kwargs: Any) -> _Instrument:
         opened.append((path, baudrate))
         return _Instrument()
 
-    monkeypatch.setattr(uut, "open_part_link", fake_link)
+    # the part.fixture driver's factory opens its port through SerialPartLink.open
+    monkeypatch.setattr("drivers.part_link.SerialPartLink.open", fake_open)
     monkeypatch.setattr("drivers.chamber.ModbusChamber.connect", lambda *a, **k: _Instrument())
     monkeypatch.setattr("drivers.supply.ScpiSupply.open", lambda *a, **k: _Instrument())
     settings = _settings(tmp_path, 230_400)
@@ -133,14 +133,19 @@ def test_configured_fixture_baud_reaches_every_part_link(
     assert opened == [("/dev/fixture2", 230_400)]
 
 
-def test_real_link_opens_at_the_configured_baud() -> None:
+def test_real_link_opens_at_the_configured_baud(tmp_path: Path) -> None:
     import os
     import tty
 
     master, slave = os.openpty()
     tty.setraw(slave)
     try:
-        link = uut.open_part_link(os.ttyname(slave), ScaledClock(1.0), 1, 5.0, baudrate=460_800)
+        path = tmp_path / "station.yaml"
+        path.write_text(
+            "station: {id: LINK-TEST}\ninstruments:\n"
+            f"  fixture: {{ports: {{1: {os.ttyname(slave)}}}, baud: 460800}}\n"
+        )
+        link = uut.open_part_link(load_settings(path), 1, os.ttyname(slave), ScaledClock(1.0), 5.0)
         try:
             assert link._port.baudrate == 460_800  # type: ignore[attr-defined]
         finally:

@@ -1,0 +1,172 @@
+"""Pre-flight: every procedure setting checked against the product and the instruments,
+before any run folder exists. One line per problem, each naming the procedure file and line,
+the value, the limit and who reports it; the caller refuses the run (exit 2) if any.
+
+A setting the product refuses (a rate beyond the part's range) is found from the files alone;
+a setting an instrument refuses (a setpoint beyond the chamber's limits, a rate or an
+acceleration beyond the table's, a voltage or current beyond the supply's) needs the opened
+instrument and the capability (`SetpointLimited`, `RateLimited`, `OutputLimited`); a driver
+without it is not checked (and says so in the log).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from drivers.protocols import OutputLimited, RateLimited, SetpointLimited
+from procedures.config import LoadedYaml, ProcedureConfig, ProductConfig
+from procedures.engine import Bench
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class _Setting:
+    path: tuple[str | int, ...]  # in the procedure file
+    value: float
+    text: str  # "rate_table.rates_dps" etc.
+
+
+def _where(loaded: LoadedYaml, path: tuple[str | int, ...]) -> str:
+    for n in range(len(path), -1, -1):
+        line = loaded.lines.get(path[:n])
+        if line is not None:
+            return f"{loaded.path}:{line}"
+    return str(loaded.path)
+
+
+def _listed(section: str, key: str, values: list[float]) -> Iterator[_Setting]:
+    for i, v in enumerate(values):
+        yield _Setting((section, key, i), float(v), f"{section}.{key}")
+
+
+def _rates(procedure: ProcedureConfig) -> list[_Setting]:
+    """Every table rate the procedure commands, deg/s."""
+    out: list[_Setting] = []
+    if procedure.table_enabled and procedure.rate_table is not None:
+        out += _listed("rate_table", "rates_dps", procedure.rate_table.rates_dps)
+        if procedure.verify_method == "rate_table" and procedure.verify is not None:
+            out += _listed("verify", "rates_dps", procedure.verify.rates_dps)
+    return out
+
+
+def _accelerations(procedure: ProcedureConfig) -> list[_Setting]:
+    out: list[_Setting] = []
+    if procedure.table_enabled and procedure.rate_table is not None:
+        out.append(
+            _Setting(("rate_table", "accel_dps2"), procedure.rate_table.accel_dps2,
+                     "rate_table.accel_dps2")
+        )
+    if procedure.positions_enabled and procedure.positions is not None:
+        out.append(
+            _Setting(("positions", "accel_dps2"), procedure.positions.accel_dps2,
+                     "positions.accel_dps2")
+        )
+    return out
+
+
+def product_problems(
+    procedure: ProcedureConfig, loaded: LoadedYaml, product: ProductConfig, product_file: str
+) -> list[str]:
+    """Settings the product refuses: a table rate beyond the part's rated range."""
+    out = []
+    for s in _rates(procedure):
+        if abs(s.value) > product.range_dps:
+            out.append(
+                f"{_where(loaded, s.path)}: {s.text} {s.value:g} deg/s is beyond the part's "
+                f"range of +/-{product.range_dps:g} deg/s ({product.product}, {product_file}): "
+                "the part would saturate; lower the rate or choose the right product"
+            )
+    return out
+
+
+def instrument_problems(
+    procedure: ProcedureConfig,
+    loaded: LoadedYaml,
+    product: ProductConfig,
+    bench: Bench,
+    n_parts: int,
+    names: dict[str, str] | None = None,
+) -> list[str]:
+    """Settings the opened instruments refuse, as they report their own limits."""
+    names = names or {}
+    return [
+        *_chamber(procedure, loaded, bench, names.get("chamber", "the chamber")),
+        *_table(procedure, loaded, bench, names.get("rate_table", "the rate table")),
+        *_supply(procedure, loaded, product, bench, n_parts, names.get("supply", "the supply")),
+    ]
+
+
+def _chamber(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: str) -> list[str]:
+    if not isinstance(bench.chamber, SetpointLimited):
+        log.info("%s reports no setpoint limits: temperatures not checked", who)
+        return []
+    low, high = bench.chamber.setpoint_limits()
+    settings = list(_listed("conditions", "temperatures_c", procedure.conditions.temperatures_c))
+    settings.append(
+        _Setting(("chamber", "safe_temp_c"), procedure.chamber.safe_temp_c, "chamber.safe_temp_c")
+    )
+    return [
+        f"{_where(loaded, s.path)}: {s.text} {s.value:g} C is outside the setpoint limits "
+        f"[{low:g}, {high:g}] C that {who} reports: change the procedure's temperature or "
+        "the chamber's limits"
+        for s in settings
+        if not low <= s.value <= high
+    ]
+
+
+def _table(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: str) -> list[str]:
+    if bench.table is None:
+        return []
+    if not isinstance(bench.table, RateLimited):
+        log.info("%s reports no rate limits: rates and accelerations not checked", who)
+        return []
+    max_rate, max_accel = bench.table.max_rate_dps(), bench.table.max_accel_dps2()
+    out = [
+        f"{_where(loaded, s.path)}: {s.text} {s.value:g} deg/s is beyond the {max_rate:g} deg/s "
+        f"that {who} allows: lower the rate"
+        for s in _rates(procedure)
+        if abs(s.value) > max_rate
+    ]
+    out += [
+        f"{_where(loaded, s.path)}: {s.text} {s.value:g} deg/s^2 is beyond the {max_accel:g} "
+        f"deg/s^2 that {who} allows: lower the acceleration"
+        for s in _accelerations(procedure)
+        if s.value > max_accel
+    ]
+    return out
+
+
+def _supply(
+    procedure: ProcedureConfig,
+    loaded: LoadedYaml,
+    product: ProductConfig,
+    bench: Bench,
+    n_parts: int,
+    who: str,
+) -> list[str]:
+    if not isinstance(bench.supply, OutputLimited):
+        log.info("%s reports no output limits: supply levels not checked", who)
+        return []
+    max_v, max_a = bench.supply.output_limits()
+    out = []
+    if max_v is not None:
+        volts = list(_listed("conditions", "supplies_v", procedure.conditions.supplies_v))
+        if procedure.verify is not None and procedure.verify.supply_v is not None:
+            volts.append(_Setting(("verify", "supply_v"), procedure.verify.supply_v,
+                                  "verify.supply_v"))
+        out += [
+            f"{_where(loaded, s.path)}: {s.text} {s.value:g} V is above the {max_v:g} V "
+            f"{who} can set: lower the supply level"
+            for s in volts
+            if s.value > max_v
+        ]
+    if max_a is not None and product.current_limit_a * n_parts > max_a:
+        out.append(
+            f"{loaded.path}: {n_parts} part(s) at the product's current_limit_a "
+            f"{product.current_limit_a:g} A need a {product.current_limit_a * n_parts:g} A limit, "
+            f"above the {max_a:g} A {who} can set: load fewer parts"
+        )
+    return out

@@ -1,0 +1,201 @@
+"""Pre-flight: a configuration mistake is refused before measuring, never a part FAIL or an
+ERROR after 45 minutes. Each refusal is one line per problem, exit 2, and nothing written
+(no run folder, no results database), through `station run` on the simulated bench."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SHORT = ROOT / "tests/procedures/data/short.yaml"
+PRODUCT = ROOT / "config/products/gyr130.yaml"
+
+
+def station(
+    *args: str, env: dict[str, str] | None = None, timeout: float = 120
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "station", *args],
+        capture_output=True,
+        text=True,
+        env=env or dict(os.environ, PYTHONPATH=str(ROOT)),
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def _procedure(tmp_path: Path, old: str, new: str) -> Path:
+    text = SHORT.read_text()
+    assert text.count(old) == 1, old
+    path = tmp_path / "procedure.yaml"
+    path.write_text(
+        text.replace(old, new).replace(
+            "product: ../../../config/products/gyr130.yaml", f"product: {PRODUCT}"
+        )
+    )
+    return path
+
+
+def _line_of(path: Path, words: str) -> int:
+    return next(i + 1 for i, t in enumerate(path.read_text().splitlines()) if words in t)
+
+
+def _refused(r: subprocess.CompletedProcess[str], out: Path, n_lines: int = 1) -> list[str]:
+    """Exit 2, `n_lines` error lines naming the command, no traceback, nothing written."""
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == n_lines, r.stderr
+    assert all(line.startswith("station run: error: ") for line in lines), r.stderr
+    assert not out.exists(), sorted(p.name for p in out.rglob("*"))
+    return [line.removeprefix("station run: error: ") for line in lines]
+
+
+def test_setpoint_beyond_the_chambers_limits_is_refused_before_any_folder(
+    tmp_path: Path,
+) -> None:
+    # today the 200 C condition failed with SetpointOutOfRange after 44.8 station minutes
+    proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25.0, 200.0]")
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
+    (line,) = _refused(r, out)
+    assert line.startswith(f"{proc}:{_line_of(proc, 'temperatures_c')}: ")
+    assert "conditions.temperatures_c 200 C is outside the setpoint limits [-40, 125] C" in line
+    assert "chamber.watlow-f4" in line  # the limits are the chamber's own (read from it)
+
+
+def test_every_problem_is_its_own_line(tmp_path: Path) -> None:
+    proc = _procedure(
+        tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [-60.0, 25.0, 200.0]"
+    )
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
+    lines = _refused(r, out, n_lines=2)
+    assert "-60 C is outside" in lines[0] and "200 C is outside" in lines[1]
+
+
+def test_rate_beyond_the_parts_range_is_refused_not_failed(tmp_path: Path) -> None:
+    # today a 300 deg/s rate on a 250 deg/s part saturated it and FAILed the part
+    proc = _procedure(
+        tmp_path, "rates_dps: [50, -50, 200, -200]", "rates_dps: [50, -50, 300, -200]"
+    )
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
+    (line,) = _refused(r, out)
+    assert line.startswith(f"{proc}:{_line_of(proc, 'rates_dps: [50')}: ")
+    assert "rates_dps" in line and "300 d" in line and "250 deg/s" in line, line
+    assert "simulated bench running" not in r.stdout  # refused from the files alone
+
+
+def test_acceleration_beyond_the_tables_limit_is_refused(tmp_path: Path) -> None:
+    proc = _procedure(tmp_path, "accel_dps2: 200", "accel_dps2: 5000")
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
+    (line,) = _refused(r, out)
+    assert "rate_table.accel_dps2 5000 deg/s^2 is beyond the 2000 deg/s^2" in line
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_unreachable_instrument_refuses_the_run(tmp_path: Path) -> None:
+    port = _closed_port()
+    text = (ROOT / "config/station.yaml").read_text()
+    text = text.replace("address: 127.0.0.1:5021", f"address: 127.0.0.1:{port}")
+    text = text.replace("address: 127.0.0.1:5020", f"address: 127.0.0.1:{port}")
+    yaml = tmp_path / "station.yaml"
+    yaml.write_text(text)
+    out = tmp_path / "out"
+    r = station(
+        "run", "--station", str(yaml), "--dut", "SIM-0001", "--procedure", str(SHORT),
+        "--out", str(out),
+    )  # fmt: skip
+    (line,) = _refused(r, out)
+    assert f"cannot reach the rate table at 127.0.0.1:{port}" in line
+    assert "rate_table.modbus-servo" in line and "refused until every instrument answers" in line
+
+
+INCLINOMETER = '''
+import socket
+from drivers.errors import ConnectionLost
+from drivers.protocols import InstrumentIdentity
+
+
+class Inclinometer:
+    def __init__(self, sock):
+        self.sock = sock
+
+    def identify(self):
+        return InstrumentIdentity("ACME", "INC-1", "1", "1.0")
+
+    def close(self):
+        self.sock.close()
+
+
+def factory(settings):
+    host, _, port = settings["address"].rpartition(":")
+    try:
+        return Inclinometer(socket.create_connection((host, int(port)), timeout=0.5))
+    except OSError as exc:
+        raise ConnectionLost(f"no inclinometer at {settings['address']}: {exc}") from None
+'''
+
+
+def test_unreachable_instrument_on_the_bench_refuses_the_run(tmp_path: Path) -> None:
+    """The optional inclinometer (no twin on the bench, a plugin driver) at a dead address."""
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "acme_inclinometer.py").write_text(INCLINOMETER)
+    port = _closed_port()
+    text = (ROOT / "config/station.yaml").read_text()
+    text += (
+        f"  inclinometer:\n    driver: acme_inclinometer:factory\n"
+        f"    address: 127.0.0.1:{port}\n"
+    )
+    yaml = tmp_path / "station.yaml"
+    yaml.write_text(text)
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(tmp_path / "pkg")]))
+    r = station(
+        "run", "--sim", "--station", str(yaml), "--dut", "SIM-0001", "--procedure", str(SHORT),
+        "--out", str(out), env=env,
+    )  # fmt: skip
+    (line,) = _refused(r, out)
+    assert f"cannot reach the inclinometer at 127.0.0.1:{port}" in line
+    assert "acme_inclinometer:factory" in line
+
+
+@pytest.mark.parametrize(
+    "entry, words",
+    [
+        ("    driver: chamber.no-such\n", "unknown driver 'chamber.no-such'; registered chamber "
+         "drivers: chamber.espec-p300, chamber.watlow-f4, chamber.watlow-f4t"),
+        ("    colour: red\n", "field instruments.chamber.colour: unknown field for this driver; "
+         "allowed: address, poll_s, timeout_s (driver chamber.watlow-f4)"),
+        ("    timeout_s: -1\n", "field instruments.chamber.timeout_s: Input should be greater "
+         "than 0 (driver chamber.watlow-f4)"),
+    ],
+)
+def test_bad_driver_or_setting_is_one_line_with_station_yaml_line(
+    tmp_path: Path, entry: str, words: str
+) -> None:
+    text = (ROOT / "config/station.yaml").read_text()
+    text = text.replace("  chamber:\n", "  chamber:\n" + entry)
+    yaml = tmp_path / "station.yaml"
+    yaml.write_text(text)
+    out = tmp_path / "out"
+    r = station(
+        "run", "--sim", "--station", str(yaml), "--dut", "SIM-0001", "--procedure", str(SHORT),
+        "--out", str(out),
+    )  # fmt: skip
+    (line,) = _refused(r, out)
+    assert line.startswith(f"{yaml}:{_line_of(yaml, entry.strip())}: "), line
+    assert words in line
