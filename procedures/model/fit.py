@@ -77,9 +77,14 @@ class Fitter:
         self.y_white = self._whiten(self.y_block)
         self._cache: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
         self._sample_cache: dict[tuple[object, ...], FloatArray] = {}
+        self._basis: tuple[tuple[object, ...], FloatArray] | None = None  # last base's Q
 
     def _whiten(self, x: FloatArray) -> FloatArray:
         return self._white @ x
+
+    def whiten(self, x: FloatArray) -> FloatArray:
+        """Block-mean values in units of the noise (the Cholesky factor's inverse applied)."""
+        return self._whiten(x)
 
     def _sample_columns(self, effect_id: str, nl: Mapping[str, float]) -> FloatArray:
         if effect_id == "bias":
@@ -149,11 +154,14 @@ class Fitter:
             return 1.0 if self.blocks.has_motion_changes else 0.0
         nl = fx.nonlinear_of(effect_id, zero_params(effect_id))
         terms = [e for e in ["bias", "scale", *base] if e != "sensor_lag"]
-        xb = self._whiten(
-            np.concatenate([self._block_columns(e, base.get(e, {})) for e in terms], axis=1)
-        )
+        key = tuple((e, tuple(sorted(base.get(e, {}).items()))) for e in terms)
+        if self._basis is None or self._basis[0] != key:
+            xb = self._whiten(
+                np.concatenate([self._block_columns(e, base.get(e, {})) for e in terms], axis=1)
+            )
+            self._basis = (key, np.linalg.qr(xb)[0])
+        q = self._basis[1]
         xc = self._whiten(self._block_columns(effect_id, nl))
-        q, _ = np.linalg.qr(xb)
         resid = xc - q @ (q.T @ xc)
         norms = np.maximum(np.linalg.norm(xc, axis=0), 1e-300)
         return float(np.min(np.linalg.norm(resid, axis=0) / norms))
@@ -168,13 +176,13 @@ class Fitter:
         structure: dict[str, dict[str, float]] = {
             e: fx.nonlinear_of(e, p) for e, p in model.effects.items()
         }
-        profiled = [e for e in structure if fx.CATALOG[e].nonlinear]
+        profiled = [e for e in structure if fx.check_effect_id(e).nonlinear]
         to_profile = profiled if profile is None else [e for e in profiled if e in profile]
         tau_sigma: dict[str, float] = {}
         for _round in range(2 if len(to_profile) > 1 else 1):
             for e in to_profile:
                 structure[e]["tau_s"] = self._profile(structure, e, local)
-        for e in profiled:
+        for e in profiled if profile is None else to_profile:  # candidates: their own only
             tau_sigma[e] = self._tau_sigma(structure, e)
         sol = self.solve(structure)
         n_params = sol.theta.size + len(profiled)
