@@ -40,6 +40,7 @@ SEPARABLE_CORRELATION = 0.9
 SEPARABLE_DELTA_BIC = 10.0
 MIN_INDEPENDENT_FRACTION = 1e-3  # below this an effect's regressor is already in the model
 MAX_ITERATIONS = 10
+CATALOG_ALPHA_SHARE = 0.9  # of the family-wise alpha, spent on the catalog's candidates
 UNEXPLAINED_GAP_RATIO = 1.5  # gap above this x floor after the loop: structure remains
 
 
@@ -120,16 +121,35 @@ def bic(fit: FitResult) -> float:
     return fit.chi2 + fit.n_params * math.log(fit.n_blocks)
 
 
-def holm(p_values: list[float]) -> list[float]:
-    """Holm step-down adjusted p-values (family-wise error control)."""
+def holm(p_values: list[float], weights: list[float] | None = None) -> list[float]:
+    """Holm step-down adjusted p-values (family-wise error control); with `weights` the
+    weighted Holm procedure (Holm 1979): hypothesis i spends a share w_i of alpha, each step
+    compares p_i / w_i with alpha / (sum of the weights not yet rejected)."""
     m = len(p_values)
-    order = np.argsort(p_values)
+    w = np.ones(m) if weights is None else np.asarray(weights, dtype=float)
+    w = w / w.sum()
+    ratio = np.asarray(p_values, dtype=float) / w
+    order = np.argsort(ratio)
     adjusted = np.empty(m)
     running = 0.0
-    for rank, i in enumerate(order):
-        running = max(running, min(1.0, (m - rank) * p_values[i]))
+    remaining = 1.0
+    for i in order:
+        running = max(running, min(1.0, ratio[i] * remaining))
         adjusted[i] = running
+        remaining -= w[i]
     return adjusted.tolist()
+
+
+def holm_weights(effects: list[str]) -> list[float]:
+    """Catalog candidates share CATALOG_ALPHA_SHARE of alpha, library terms the rest: the
+    catalog holds what the physics expects and keeps its power, the library widens the
+    search without diluting it; the family-wise rate over both together stays alpha."""
+    n_lib = sum(library.is_library_id(e) for e in effects)
+    n_cat = len(effects) - n_lib
+    if n_lib == 0 or n_cat == 0:
+        return [1.0] * len(effects)
+    return [(1 - CATALOG_ALPHA_SHARE) / n_lib if library.is_library_id(e)
+            else CATALOG_ALPHA_SHARE / n_cat for e in effects]
 
 
 def _candidate(fitter: Fitter, current: FitResult, effect_id: str) -> tuple[FitResult, float]:
@@ -161,7 +181,7 @@ def test_candidates(
         f_stat = (dchi2 / q) / max(fit.chi2 / dof, 1e-300)
         p = float(stats.f.sf(f_stat, q, dof))
         raw.append((e, fit, dchi2, q, f_stat, p))
-    adjusted = holm([r[5] for r in raw]) if raw else []
+    adjusted = holm([r[5] for r in raw], holm_weights([r[0] for r in raw])) if raw else []
     bic0 = bic(current)
     tests = []
     for (e, fit, dchi2, q, f_stat, p), p_adj in zip(raw, adjusted, strict=True):

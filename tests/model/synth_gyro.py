@@ -47,7 +47,7 @@ BEYOND_CATALOG: dict[str, tuple[frozenset[str], dict[str, float]]] = {
     "scale_temperature_supply": (frozenset({"rate", "temperature", "supply"}),
                                  {"c_per_c_per_v": 2.0e-4}),
     # bias = c sign(w): a bias that depends on the direction of rotation
-    "bias_rate_sign": (frozenset({"rate"}), {"c_dps": 0.01}),
+    "bias_rate_sign": (frozenset({"rate"}), {"c_dps": 0.04}),
     # scale (1 + c dT^2)
     "scale_temperature_quadratic": (frozenset({"rate", "temperature"}), {"c_per_c2": 2.0e-6}),
 }
