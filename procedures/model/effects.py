@@ -55,7 +55,8 @@ CATALOG: dict[str, EffectSpec] = {
             "temperature",
             first_order=True,
             regressors=("temperature",),
-            formula="bias proportional to die temperature - 25 C: {bias_temp_coeff_dps_per_c:.4g} deg/s per C",
+            formula=("bias proportional to die temperature - 25 C: "
+                     "{bias_temp_coeff_dps_per_c:.4g} deg/s per C"),
         ),
         EffectSpec(
             "scale_temperature",
@@ -64,7 +65,8 @@ CATALOG: dict[str, EffectSpec] = {
             "temperature x rate",
             first_order=True,
             regressors=("rate", "temperature"),
-            formula="scale factor proportional to die temperature - 25 C: {scale_temp_coeff_per_c:.4g} per C",
+            formula=("scale factor proportional to die temperature - 25 C: "
+                     "{scale_temp_coeff_per_c:.4g} per C"),
         ),
         EffectSpec(
             "bias_supply",
@@ -73,7 +75,8 @@ CATALOG: dict[str, EffectSpec] = {
             "supply",
             first_order=True,
             regressors=("supply",),
-            formula="bias proportional to supply - 5.0 V: {bias_supply_coeff_dps_per_v:.4g} deg/s per V",
+            formula=("bias proportional to supply - 5.0 V: "
+                     "{bias_supply_coeff_dps_per_v:.4g} deg/s per V"),
         ),
         EffectSpec(
             "scale_supply",
@@ -82,7 +85,8 @@ CATALOG: dict[str, EffectSpec] = {
             "supply x rate",
             first_order=True,
             regressors=("rate", "supply"),
-            formula="scale factor proportional to supply - 5.0 V: {scale_supply_coeff_per_v:.4g} per V",
+            formula=("scale factor proportional to supply - 5.0 V: "
+                     "{scale_supply_coeff_per_v:.4g} per V"),
         ),
         EffectSpec(
             "k2_quadratic",
@@ -115,7 +119,9 @@ CATALOG: dict[str, EffectSpec] = {
             "table angle",
             n_columns=2,
             regressors=("angle",),
-            formula="bias once per table turn: g_sens {g_sens_dps_per_g:.4g} deg/s/g at tilt {tilt_deg:.3g} deg, phase {phase_deg:.3g} deg",
+            formula=("bias once per table turn: "
+                     "g_sens {g_sens_dps_per_g:.4g} deg/s/g at tilt {tilt_deg:.3g} deg, "
+                     "phase {phase_deg:.3g} deg"),
         ),
         EffectSpec(
             "sensor_lag",
@@ -134,7 +140,8 @@ CATALOG: dict[str, EffectSpec] = {
             "time since power-on",
             nonlinear=("tau_s",),
             regressors=("time",),
-            formula="bias decays after power-on: {amplitude_dps:.4g} deg/s x exp(-t / {tau_s:.4g} s)",
+            formula=("bias decays after power-on: "
+                     "{amplitude_dps:.4g} deg/s x exp(-t / {tau_s:.4g} s)"),
         ),
     )
 }
