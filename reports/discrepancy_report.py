@@ -206,7 +206,7 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
             f"{ns['reason']}.", BODY))
     if res.unexplained_remains:
         story.append(Paragraph(
-            f"<b>Unexplained structure remains.</b> {escape(res.unexplained_message)}.", BODY))
+            f"<b>Warning:</b> {escape(res.unexplained_message)}.", BODY))
     if res.not_identifiable:
         story.append(Paragraph(
             f"Not identifiable from this data (no independent signature): "
