@@ -205,9 +205,20 @@ def _spans(x: FloatArray, power: int) -> bool:
     return bool(np.linalg.norm(resid) > SPAN_FRACTION * np.linalg.norm(target))
 
 
+_last_rate: list[tuple[Trajectory, FloatArray]] = []  # the last record's, reused by its terms
+
+
 def temperature_rate_c_per_s(traj: Trajectory) -> FloatArray:
     """d(die temperature)/dt: the temperature smoothed over DTDT_SMOOTH_S (centred moving
     average within each contiguous stretch of samples), then differenced."""
+    if _last_rate and _last_rate[0][0] is traj:
+        return _last_rate[0][1]
+    out = _temperature_rate(traj)
+    _last_rate[:] = [(traj, out)]
+    return out
+
+
+def _temperature_rate(traj: Trajectory) -> FloatArray:
     from scipy.ndimage import uniform_filter1d
 
     out = np.zeros(traj.n)
