@@ -176,9 +176,12 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
     SPAN_FRACTION of its size) a combination of 1, factor, ..., factor^(p-1) over the
     record. Two supply levels, for example, do not span dV^2 (constant) nor dV^3 (~ dV); a
     constant supply does not span dV."""
+    ids = candidate_ids() if ids is None else ids
+    if _last_spanned and _last_spanned[0][0] is traj and _last_spanned[0][1] == ids:
+        return _last_spanned[0][2]
     verdict: dict[tuple[str, int], bool] = {}
     out = []
-    for e in candidate_ids() if ids is None else ids:
+    for e in ids:
         parsed = _parse(e)
         if isinstance(parsed, int):
             out.append(e)
@@ -190,7 +193,11 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
             ok = ok and verdict[(tok, p)]
         if ok:
             out.append(e)
+    _last_spanned[:] = [(traj, ids, tuple(out))]
     return tuple(out)
+
+
+_last_spanned: list[tuple[Trajectory, tuple[str, ...], tuple[str, ...]]] = []
 
 
 def _spans(x: FloatArray, power: int) -> bool:
