@@ -130,6 +130,8 @@ def test_null_runs_with_the_library_on_stay_clean() -> None:
     for seed in range(40, 44):
         res = run_discrepancy(as_trajectory(generate(realistic_part(), seed, RAMPED)),
                               first_order_model())
-        if res.effects_added or res.not_separable:
+        if res.effects_added or res.not_separable or res.unexplained_remains:
             alarms.append((seed, res.effects_added))
-    assert len(alarms) <= 1, alarms
+    # a fixed seed set, clean today; the false-alarm rate itself (documented: at most 5 %)
+    # is measured by benchmarks/bench_discrepancy.py --null-trials
+    assert not alarms, alarms
