@@ -8,6 +8,14 @@ chi^2 = 25). And the time the workflow takes on a full-length run.
 
     python3 benchmarks/bench_discrepancy.py [--trials 20] [--effects k2_quadratic,...]
                                             [--timing-only] [--run-folder DIR]
+                                            [--library-kinds KIND,...] [--null-trials N]
+
+Library term kinds (effects outside the catalog, synth_gyro.BEYOND_CATALOG, RAMPED profile:
+SHORT with a 0.2 C/s chamber ramp, `first_order` on a realistic part): "named" is a library
+term named first with the kind's base variables; its 5-sigma magnitude comes from the
+generator's own signature (the same seed with and without the effect). `--null-trials`: the
+false-alarm rate with the library on (anything named or not separable on a part with no
+hidden effect, RAMPED profile).
 
 Data: the independent test-side generator (tests/model/synth_gyro.py), short records
 (SHORT profile: 4 rates, 2 temperatures x 2 supplies, 50 Hz) for the detection figures and
@@ -31,8 +39,10 @@ sys.path.insert(0, str(ROOT / "tests" / "model"))
 
 from helpers_model import as_trajectory  # noqa: E402
 from synth_gyro import (  # noqa: E402
+    BEYOND_CATALOG,
     FIRST_ORDER_EFFECTS,
     FIRST_ORDER_REALISTIC,
+    RAMPED,
     REALISTIC_EFFECTS,
     SHORT,
     Part,
@@ -86,7 +96,7 @@ def five_sigma_on(traj: Trajectory, effect: str, start: GyroModel) -> float:
     model, has chi^2 = 25 on the record's noise (measured as the workflow measures it); the
     signature is taken at the realistic magnitude and scaled linearly."""
     blocks = make_blocks(traj)
-    fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, start))
+    fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, start)[0])
     m0 = nominal(effect)
     params = {**REALISTIC_EFFECTS.get(effect, {}), MAGNITUDE_PARAM[effect]: m0}
     with_effect = GyroModel(effects={effect: {k: v for k, v in params.items()
@@ -141,6 +151,67 @@ def timing(profile: Profile, repeats: int = 2) -> float:
     return best
 
 
+def library_named(kind: str, magnitude: float, seed: int) -> bool:
+    name = next(iter(BEYOND_CATALOG[kind][1]))
+    part = realistic_part().with_effect(kind, **{name: magnitude})
+    res = run_discrepancy(as_trajectory(generate(part, seed, RAMPED)), first_order_model())
+    return bool(res.iterations) and res.iterations[0].effect.startswith("lib_") and (
+        set(res.iterations[0].regressors) == BEYOND_CATALOG[kind][0])
+
+
+def library_five_sigma(kind: str, seed: int) -> float:
+    """Magnitude of a generator-side kind whose signature (same seed with minus without the
+    effect), after projecting out first_order, has chi^2 = 25 on the record's noise."""
+    name, m0 = next(iter(BEYOND_CATALOG[kind][1].items()))
+    plain = as_trajectory(generate(realistic_part(), seed, RAMPED))
+    with_fx = generate(realistic_part().with_effect(kind), seed, RAMPED)
+    blocks = make_blocks(plain)
+    start = first_order_model()
+    fitter = Fitter(plain, blocks, measure_record_noise(plain, blocks, start)[0])
+    signature = blocks.mean(np.asarray(with_fx["gyro_dps"]) - plain.gyro_dps)
+    structure = {e: fx.nonlinear_of(e, p) for e, p in start.effects.items()}
+    x = fitter.whiten(np.concatenate([fitter._block_columns(e, structure.get(e, {}))
+                                      for e in ["bias", "scale", *structure]], axis=1))
+    q, _ = np.linalg.qr(x)
+    s_white = fitter.whiten(signature)
+    chi = float(np.linalg.norm(s_white - q @ (q.T @ s_white)))
+    return m0 * 5.0 / chi if chi > 0 else math.inf
+
+
+def library_table(kinds: list[str], trials: int) -> None:
+    print(f"\nlibrary term kinds, {trials} trials per magnitude, RAMPED profile, first_order")
+    print(f"{'kind':28s} {'param':20s} {'95% named':>10s} {'5 sigma':>10s} {'ratio':>6s}")
+    for kind in kinds:
+        name, m0 = next(iter(BEYOND_CATALOG[kind][1].items()))
+        m95, log = math.inf, []
+        for f in FACTORS:
+            hits = misses = 0
+            for seed in range(trials):
+                ok = library_named(kind, f * m0, 8000 + seed)
+                hits, misses = hits + ok, misses + (not ok)
+                if misses > 0.05 * trials:
+                    break
+            rate = hits / (hits + misses)
+            log.append(f"{f:g}x:{rate:.2f}")
+            if rate >= 0.95:
+                m95 = f * m0
+                break
+        m5 = library_five_sigma(kind, 1)
+        print(f"{kind:28s} {name:20s} {m95:10.3g} {m5:10.3g} {m95 / m5:6.2f}   "
+              f"[{' '.join(log)}]", flush=True)
+
+
+def null_rate(trials: int) -> None:
+    alarms = []
+    for seed in range(trials):
+        res = run_discrepancy(as_trajectory(generate(realistic_part(), 9000 + seed, RAMPED)),
+                              first_order_model())
+        if res.effects_added or res.not_separable:
+            alarms.append((9000 + seed, res.effects_added))
+    print(f"false alarms with the library on (RAMPED, first_order, realistic part): "
+          f"{len(alarms)} of {trials} ({100 * len(alarms) / trials:.1f} %) {alarms}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=20)
@@ -148,6 +219,9 @@ def main() -> None:
     ap.add_argument("--timing-only", action="store_true")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--run-folder", type=Path, help="also time the workflow on a run folder")
+    ap.add_argument("--library-kinds", default="",
+                    help=f"comma-separated, or 'all': {','.join(BEYOND_CATALOG)}")
+    ap.add_argument("--null-trials", type=int, default=0)
     args = ap.parse_args()
     if not args.skip_timing:
         timing(Profile())
@@ -161,10 +235,18 @@ def main() -> None:
               f"{time.perf_counter() - t0:.2f} s, named {res.effects_added}")
     if args.timing_only:
         return
+    if args.null_trials:
+        null_rate(args.null_trials)
+    if args.library_kinds:
+        kinds = list(BEYOND_CATALOG) if args.library_kinds == "all" else \
+            args.library_kinds.split(",")
+        library_table(kinds, args.trials)
+        if not args.effects:
+            return
     print(f"\ndetection at alpha=0.01 (Holm), {args.trials} trials per magnitude, SHORT profile")
     print(f"{'effect':20s} {'param':28s} {'realistic':>10s} {'95% named':>10s} "
           f"{'5 sigma':>10s} {'ratio':>6s}")
-    for effect in args.effects.split(","):
+    for effect in [e for e in args.effects.split(",") if e]:
         m95, log = smallest_detected(effect, args.trials, SHORT)
         m5 = five_sigma_magnitude(effect, 1, SHORT)
         print(f"{effect:20s} {MAGNITUDE_PARAM[effect]:28s} {nominal(effect):10.3g} "

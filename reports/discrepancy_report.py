@@ -128,6 +128,9 @@ def _summary_rows(before: list[BinSummary], after: list[BinSummary]) -> list[lis
     return rows
 
 
+MAX_CANDIDATE_ROWS = 12
+
+
 def _iteration_story(res: DiscrepancyResult, k: int, it: Iteration) -> list[Any]:
     ev = it.evidence
     story: list[Any] = [Paragraph(f"Step {k}: named <b>{it.effect}</b>", H2)]
@@ -152,9 +155,16 @@ def _iteration_story(res: DiscrepancyResult, k: int, it: Iteration) -> list[Any]
         f"expected signature: {pat['expected']}). Gap {it.gap_before_dps:.4g} &rarr; "
         f"{it.gap_after_dps:.4g} deg/s against a floor of {res.noise_floor_dps:.4g} deg/s."
     )
-    story += [Paragraph(why, BODY), Paragraph(f"Parameters: {params}", BODY), Spacer(1, 3)]
+    story += [Paragraph(why, BODY),
+              Paragraph(f"Formula: {escape(it.formula)} (depends on: "
+                        f"{', '.join(it.regressors)})", BODY),
+              Paragraph(f"Parameters: {params}", BODY), Spacer(1, 3)]
     rows: list[list[Any]] = [["candidate", "delta chi2", "p (Holm)", "delta BIC", "significant"]]
-    for c in it.candidates:
+    shown = it.candidates[:MAX_CANDIDATE_ROWS]
+    if len(it.candidates) > len(shown):
+        story.append(Paragraph(f"The {len(shown)} best of {len(it.candidates)} candidates "
+                               "tested (catalog and library), by BIC:", NOTE))
+    for c in shown:
         rows.append([c.effect, f"{c.delta_chi2:.1f}", f"{c.p_holm:.2g}", f"{c.delta_bic:.1f}",
                      "yes" if c.significant else "no"])
     story.append(_table(rows))
@@ -194,6 +204,9 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
             f"<b>Not separable:</b> {' / '.join(ns['effects'])} (BIC differences "
             f"{ns['delta_bic']}, signature correlation {ns['signature_correlation']}): "
             f"{ns['reason']}.", BODY))
+    if res.unexplained_remains:
+        story.append(Paragraph(
+            f"<b>Warning:</b> {escape(res.unexplained_message)}.", BODY))
     if res.not_identifiable:
         story.append(Paragraph(
             f"Not identifiable from this data (no independent signature): "

@@ -309,6 +309,7 @@ def _print_summary(
             f"named {it.effect}: gap {it.gap_before_dps:.4g} -> {it.gap_after_dps:.4g} deg/s "
             f"(p_holm {it.evidence['p_holm']:.2g})"
         )
+        say(f"  {it.formula} [depends on: {', '.join(it.regressors)}]")
     for ns in result.not_separable:
         say(f"not separable: {' / '.join(ns['effects'])}: {ns['reason']}")
     if result.not_identifiable:
@@ -320,6 +321,8 @@ def _print_summary(
         say("nothing named: no candidate effect is significant")
     ratio = result.gap_final_dps / result.noise_floor_dps
     say(f"gap {result.gap_final_dps:.4g} deg/s at end ({ratio:.2f} x floor)")
+    if result.unexplained_remains:
+        say(f"WARNING: {result.unexplained_message}")
     say(f"out: {out}")
     say(f"json: {json_path if json_path is not None else 'stdout'}")
     say(f"model: {model_path}")

@@ -22,6 +22,7 @@ import numpy as np
 from scipy import stats
 
 from procedures.model import effects as fx
+from procedures.model import library, structure
 from procedures.model.blocks import Blocks, make_blocks
 from procedures.model.data import check_rate_varies
 from procedures.model.fit import FitResult, Fitter
@@ -39,6 +40,8 @@ SEPARABLE_CORRELATION = 0.9
 SEPARABLE_DELTA_BIC = 10.0
 MIN_INDEPENDENT_FRACTION = 1e-3  # below this an effect's regressor is already in the model
 MAX_ITERATIONS = 10
+CATALOG_ALPHA_SHARE = 0.9  # of the family-wise alpha, spent on the catalog's candidates
+UNEXPLAINED_GAP_RATIO = 1.5  # gap above this x floor after the loop: structure remains
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,8 @@ class Iteration:
     candidates: tuple[CandidateTest, ...]
     residual_before_dps: FloatArray
     residual_after_dps: FloatArray
+    regressors: tuple[str, ...] = ()  # base variables the term depends on (pinned vocabulary)
+    formula: str = ""  # readable formula with the fitted values
 
 
 @dataclass(frozen=True)
@@ -90,26 +95,61 @@ class DiscrepancyResult:
     last_candidates: tuple[CandidateTest, ...] = ()
     alpha: float = DEFAULT_ALPHA
     notes: tuple[str, ...] = field(default_factory=tuple)
+    # library terms held in the fixed effects when the bias wander was estimated
+    noise_nuisance_terms: tuple[str, ...] = ()
+    # when the gap stays above UNEXPLAINED_GAP_RATIO x floor: base variables ranked by how
+    # strongly the final residual shows against them (strongest first)
+    unexplained: tuple[structure.VariableTest, ...] = ()
 
     @property
     def effects_added(self) -> list[str]:
         return [it.effect for it in self.iterations]
+
+    @property
+    def unexplained_remains(self) -> bool:
+        return self.gap_final_dps > UNEXPLAINED_GAP_RATIO * self.noise_floor_dps
+
+    @property
+    def unexplained_message(self) -> str:
+        if not self.unexplained_remains:
+            return ""
+        return structure.describe(list(self.unexplained),
+                                  self.gap_final_dps / self.noise_floor_dps)
 
 
 def bic(fit: FitResult) -> float:
     return fit.chi2 + fit.n_params * math.log(fit.n_blocks)
 
 
-def holm(p_values: list[float]) -> list[float]:
-    """Holm step-down adjusted p-values (family-wise error control)."""
+def holm(p_values: list[float], weights: list[float] | None = None) -> list[float]:
+    """Holm step-down adjusted p-values (family-wise error control); with `weights` the
+    weighted Holm procedure (Holm 1979): hypothesis i spends a share w_i of alpha, each step
+    compares p_i / w_i with alpha / (sum of the weights not yet rejected)."""
     m = len(p_values)
-    order = np.argsort(p_values)
+    w = np.ones(m) if weights is None else np.asarray(weights, dtype=float)
+    w = w / w.sum()
+    ratio = np.asarray(p_values, dtype=float) / w
+    order = np.argsort(ratio)
     adjusted = np.empty(m)
     running = 0.0
-    for rank, i in enumerate(order):
-        running = max(running, min(1.0, (m - rank) * p_values[i]))
+    remaining = 1.0
+    for i in order:
+        running = max(running, min(1.0, ratio[i] * remaining))
         adjusted[i] = running
+        remaining -= w[i]
     return adjusted.tolist()
+
+
+def holm_weights(effects: list[str]) -> list[float]:
+    """Catalog candidates share CATALOG_ALPHA_SHARE of alpha, library terms the rest: the
+    catalog holds what the physics expects and keeps its power, the library widens the
+    search without diluting it; the family-wise rate over both together stays alpha."""
+    n_lib = sum(library.is_library_id(e) for e in effects)
+    n_cat = len(effects) - n_lib
+    if n_lib == 0 or n_cat == 0:
+        return [1.0] * len(effects)
+    return [(1 - CATALOG_ALPHA_SHARE) / n_lib if library.is_library_id(e)
+            else CATALOG_ALPHA_SHARE / n_cat for e in effects]
 
 
 def _candidate(fitter: Fitter, current: FitResult, effect_id: str) -> tuple[FitResult, float]:
@@ -119,16 +159,21 @@ def _candidate(fitter: Fitter, current: FitResult, effect_id: str) -> tuple[FitR
 
 
 def test_candidates(
-    fitter: Fitter, current: FitResult, alpha: float
+    fitter: Fitter, current: FitResult, alpha: float, use_library: bool = True
 ) -> tuple[list[CandidateTest], list[str]]:
-    """Add each missing catalog effect in turn; F test, Holm adjustment, BIC."""
-    missing = [e for e in fx.CATALOG if e not in current.model.effects]
+    """Add each missing catalog effect and library term in turn; F test, Holm adjustment
+    over catalog and library together, BIC. Library terms the data do not span (or that the
+    current model already spans) are left out silently; catalog effects so left out are
+    returned as not identifiable."""
+    pool = [*fx.CATALOG, *(library.spanned_ids(fitter.traj) if use_library else ())]
+    missing = [e for e in pool if e not in current.model.effects]
     base_structure = {e: fx.nonlinear_of(e, p) for e, p in current.model.effects.items()}
     raw: list[tuple[str, FitResult, float, int, float, float]] = []
     not_identifiable = []
     for e in missing:
         if fitter.column_rank_gain(base_structure, e) < MIN_INDEPENDENT_FRACTION:
-            not_identifiable.append(e)
+            if not library.is_library_id(e):
+                not_identifiable.append(e)
             continue
         fit, dchi2 = _candidate(fitter, current, e)
         q = fit.n_params - current.n_params
@@ -136,7 +181,7 @@ def test_candidates(
         f_stat = (dchi2 / q) / max(fit.chi2 / dof, 1e-300)
         p = float(stats.f.sf(f_stat, q, dof))
         raw.append((e, fit, dchi2, q, f_stat, p))
-    adjusted = holm([r[5] for r in raw]) if raw else []
+    adjusted = holm([r[5] for r in raw], holm_weights([r[0] for r in raw])) if raw else []
     bic0 = bic(current)
     tests = []
     for (e, fit, dchi2, q, f_stat, p), p_adj in zip(raw, adjusted, strict=True):
@@ -172,6 +217,7 @@ def run_discrepancy(
     alpha: float = DEFAULT_ALPHA,
     max_block_s: float = 10.0,
     max_iterations: int = MAX_ITERATIONS,
+    use_library: bool = True,
 ) -> DiscrepancyResult:
     """Fit, find the gap, name effects one at a time until none is significant.
 
@@ -180,7 +226,7 @@ def run_discrepancy(
     70x slower on 2 shared cores): BLAS runs single-threaded for the duration.
     """
     with _single_thread_blas():
-        return _run(traj, model, alpha, max_block_s, max_iterations)
+        return _run(traj, model, alpha, max_block_s, max_iterations, use_library)
 
 
 def _single_thread_blas() -> AbstractContextManager[object]:
@@ -206,10 +252,12 @@ def _run(
     alpha: float = DEFAULT_ALPHA,
     max_block_s: float = 10.0,
     max_iterations: int = MAX_ITERATIONS,
+    use_library: bool = True,
 ) -> DiscrepancyResult:
     check_rate_varies(traj.ref_rate_dps, traj.source)
     blocks = make_blocks(traj, max_block_s=max_block_s)
-    fitter = Fitter(traj, blocks, measure_record_noise(traj, blocks, model))
+    noise, nuisance = measure_record_noise(traj, blocks, model, alpha, use_library)
+    fitter = Fitter(traj, blocks, noise)
     current = fitter.fit(model)
     initial = current
     iterations: list[Iteration] = []
@@ -217,9 +265,9 @@ def _run(
     not_identifiable: list[str] = []
     tests: list[CandidateTest] = []
     if max_iterations == 0:
-        tests, not_identifiable = test_candidates(fitter, current, alpha)
+        tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
     for _ in range(max_iterations):
-        tests, not_identifiable = test_candidates(fitter, current, alpha)
+        tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
         # an effect is named only if it also shrinks the gap: a significant drop of the
         # whitened chi^2 that makes the disagreement larger explains nothing of it
         gap_now = gap_dps(current.residual_dps, blocks.duration_s)
@@ -277,7 +325,7 @@ def _run(
                 "variable": pattern,
                 "worst_z_before": round(zb[pattern], 2),
                 "worst_z_after": round(za[pattern], 2),
-                "expected": fx.CATALOG[best.effect].pattern,
+                "expected": fx.check_effect_id(best.effect).pattern,
             },
         }
         iterations.append(
@@ -295,6 +343,8 @@ def _run(
                 candidates=tuple(tests),
                 residual_before_dps=current.residual_dps,
                 residual_after_dps=new.residual_dps,
+                regressors=fx.check_effect_id(best.effect).regressors,
+                formula=fx.formula_of(best.effect, new.model.effects[best.effect]),
             )
         )
         log.info("named %s: gap %.4g -> %.4g", best.effect, iterations[-1].gap_before_dps,
@@ -303,6 +353,10 @@ def _run(
     noise = fitter.noise
     sigma = noise.floor_per_block_dps(blocks)
     floor = floor_dps(sigma, blocks.duration_s)
+    gap_final = gap_dps(current.residual_dps, blocks.duration_s)
+    unexplained: tuple[structure.VariableTest, ...] = ()
+    if gap_final > UNEXPLAINED_GAP_RATIO * floor:
+        unexplained = tuple(structure.unexplained_structure(fitter, current))
     final_model = GyroModel(
         name=_model_name(model.name, [it.effect for it in iterations]),
         bias_dps=current.model.bias_dps,
@@ -319,7 +373,7 @@ def _run(
         gap_initial_dps=gap_dps(initial.residual_dps, blocks.duration_s),
         noise_floor_dps=floor,
         iterations=tuple(iterations),
-        gap_final_dps=gap_dps(current.residual_dps, blocks.duration_s),
+        gap_final_dps=gap_final,
         residual_initial_dps=initial.residual_dps,
         residual_final_dps=current.residual_dps,
         summary_initial=summarize(blocks, initial.residual_dps, sigma),
@@ -329,14 +383,23 @@ def _run(
         last_candidates=tuple(tests),
         alpha=alpha,
         notes=traj.notes,
+        noise_nuisance_terms=tuple(nuisance),
+        unexplained=unexplained,
     )
 
 
-def measure_record_noise(traj: Trajectory, blocks: Blocks, model: GyroModel) -> NoiseModel:
+def measure_record_noise(
+    traj: Trajectory,
+    blocks: Blocks,
+    model: GyroModel,
+    alpha: float = DEFAULT_ALPHA,
+    use_library: bool = True,
+) -> tuple[NoiseModel, list[str]]:
     """The record's noise: white level from the Allan deviation of the starting model's
     residual in constant-input windows; slow wander (flat level, rate random walk) by REML
-    from the block residuals of the full model (every catalog effect but the lag), so an
-    effect the current model lacks is not taken for bias wander."""
+    from the block residuals of the full model (every catalog effect but the lag, and the
+    library terms significant on top of it), so structure a candidate explains is not taken
+    for bias wander. Returns the noise model and those library terms."""
     white_only = NoiseModel(1.0, 0.0, np.zeros(0), np.zeros(0))
     first = Fitter(traj, blocks, white_only).fit(model)
     allan = measure_noise(traj.gyro_dps - first.model.predict(traj), traj.time_s, blocks)
@@ -350,16 +413,30 @@ def measure_record_noise(traj: Trajectory, blocks: Blocks, model: GyroModel) -> 
     for e in fx.CATALOG:
         if e not in full.effects and e != "sensor_lag":
             full = full.with_effect(e, zero_params(e))
-    fitter = Fitter(traj, blocks, allan)
-    full_fit = fitter.fit(full)
-    design = fitter.design(full_fit.model)
     accel = blocks.mean(_rate_change_dps2(traj))
+    noise = _reml(traj, blocks, allan, full, accel)
+    nuisance: list[str] = []
+    if use_library:
+        # structure outside the catalog: found against the first estimate, then the wander
+        # is estimated again with it in the fixed effects
+        fitter = Fitter(traj, blocks, noise)
+        nuisance = structure.nuisance_terms(fitter, fitter.fit(full), alpha)
+        if nuisance:
+            noise = _reml(traj, blocks, allan, structure.with_terms(full, nuisance), accel)
+    log.info("slow noise (REML, full model%s): F %.3g deg/s, K %.3g deg/s/sqrt(s)",
+             f" + {', '.join(nuisance)}" if nuisance else "", noise.floor_dps,
+             noise.rrw_dps_per_rt_s)
+    return noise, nuisance
+
+
+def _reml(
+    traj: Trajectory, blocks: Blocks, allan: NoiseModel, full: GyroModel, accel: FloatArray
+) -> NoiseModel:
+    fitter = Fitter(traj, blocks, allan)
+    design = fitter.design(fitter.fit(full).model)
     if np.any(accel != 0):
         design = np.column_stack([design, -accel])
-    noise = estimate_slow_noise(allan, blocks, design, fitter.y_block)
-    log.info("slow noise (REML, full model): F %.3g deg/s, K %.3g deg/s/sqrt(s)",
-             noise.floor_dps, noise.rrw_dps_per_rt_s)
-    return noise
+    return estimate_slow_noise(allan, blocks, design, fitter.y_block)
 
 
 def _rate_change_dps2(traj: Trajectory) -> FloatArray:

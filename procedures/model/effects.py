@@ -35,6 +35,14 @@ class EffectSpec:
     nonlinear: tuple[str, ...] = ()  # parameters profiled, not solved linearly
     n_columns: int = 1
     first_order: bool = False
+    # base variables the term depends on (vocabulary REGRESSOR_VOCABULARY)
+    regressors: tuple[str, ...] = ()
+    # readable formula, str.format()-ed with the parameters
+    formula: str = ""
+
+
+# Pinned vocabulary of the base variables a term may depend on (JSON `regressors`).
+REGRESSOR_VOCABULARY = ("rate", "temperature", "temperature_rate", "supply", "angle", "time")
 
 
 CATALOG: dict[str, EffectSpec] = {
@@ -46,6 +54,9 @@ CATALOG: dict[str, EffectSpec] = {
             "bias changes linearly with die temperature",
             "temperature",
             first_order=True,
+            regressors=("temperature",),
+            formula=("bias proportional to die temperature - 25 C: "
+                     "{bias_temp_coeff_dps_per_c:.4g} deg/s per C"),
         ),
         EffectSpec(
             "scale_temperature",
@@ -53,6 +64,9 @@ CATALOG: dict[str, EffectSpec] = {
             "scale factor changes linearly with die temperature",
             "temperature x rate",
             first_order=True,
+            regressors=("rate", "temperature"),
+            formula=("scale factor proportional to die temperature - 25 C: "
+                     "{scale_temp_coeff_per_c:.4g} per C"),
         ),
         EffectSpec(
             "bias_supply",
@@ -60,6 +74,9 @@ CATALOG: dict[str, EffectSpec] = {
             "bias changes linearly with supply voltage",
             "supply",
             first_order=True,
+            regressors=("supply",),
+            formula=("bias proportional to supply - 5.0 V: "
+                     "{bias_supply_coeff_dps_per_v:.4g} deg/s per V"),
         ),
         EffectSpec(
             "scale_supply",
@@ -67,24 +84,33 @@ CATALOG: dict[str, EffectSpec] = {
             "scale factor changes linearly with supply voltage",
             "supply x rate",
             first_order=True,
+            regressors=("rate", "supply"),
+            formula=("scale factor proportional to supply - 5.0 V: "
+                     "{scale_supply_coeff_per_v:.4g} per V"),
         ),
         EffectSpec(
             "k2_quadratic",
             {"k2_per_dps": "1/(deg/s)"},
             "second-order nonlinearity: adds k2 w^2",
             "rate",
+            regressors=("rate",),
+            formula="adds k2 w^2: k2 = {k2_per_dps:.4g} per deg/s",
         ),
         EffectSpec(
             "k3_cubic",
             {"k3_per_dps2": "1/(deg/s)^2"},
             "third-order nonlinearity: adds k3 w^3",
             "rate",
+            regressors=("rate",),
+            formula="adds k3 w^3: k3 = {k3_per_dps2:.4g} per (deg/s)^2",
         ),
         EffectSpec(
             "scale_asymmetry",
             {"asymmetry": "1"},
             "scale differs between positive and negative rates: scale*(1 + a/2 sign(w))",
             "sign of rate",
+            regressors=("rate",),
+            formula="scale differs by sign of rate: asymmetry {asymmetry:.4g}",
         ),
         EffectSpec(
             "g_sensitivity_tilt",
@@ -92,6 +118,10 @@ CATALOG: dict[str, EffectSpec] = {
             "gravity sensitivity with the rate axis tilted: g_sens sin(tilt) cos(angle - phase)",
             "table angle",
             n_columns=2,
+            regressors=("angle",),
+            formula=("bias once per table turn: "
+                     "g_sens {g_sens_dps_per_g:.4g} deg/s/g at tilt {tilt_deg:.3g} deg, "
+                     "phase {phase_deg:.3g} deg"),
         ),
         EffectSpec(
             "sensor_lag",
@@ -100,6 +130,8 @@ CATALOG: dict[str, EffectSpec] = {
             "transitions",
             nonlinear=("tau_s",),
             n_columns=0,
+            regressors=("rate",),
+            formula="output lags the rate by a first-order low-pass: tau {tau_s:.4g} s",
         ),
         EffectSpec(
             "warmup_drift",
@@ -107,6 +139,9 @@ CATALOG: dict[str, EffectSpec] = {
             "bias decays as amplitude exp(-t/tau) after power-on",
             "time since power-on",
             nonlinear=("tau_s",),
+            regressors=("time",),
+            formula=("bias decays after power-on: "
+                     "{amplitude_dps:.4g} deg/s x exp(-t / {tau_s:.4g} s)"),
         ),
     )
 }
@@ -125,16 +160,35 @@ DEFAULT_TILT_DEG = 90.0
 
 
 def check_effect_id(effect_id: str) -> EffectSpec:
+    """The spec of a catalog effect or of a library term (library.py, ids `lib_...`)."""
+    from procedures.model import library
+
+    if library.is_library_id(effect_id):
+        return library.spec(effect_id)
     try:
         return CATALOG[effect_id]
     except KeyError:
         raise ValueError(
-            f"unknown effect {effect_id!r}; the catalog holds: {', '.join(CATALOG)}"
+            f"unknown effect {effect_id!r}; the catalog holds: {', '.join(CATALOG)}; "
+            "library terms start with 'lib_'"
         ) from None
+
+
+def formula_of(effect_id: str, params: Mapping[str, float]) -> str:
+    """The effect's readable formula with its parameter values."""
+    spec = check_effect_id(effect_id)
+    try:
+        return spec.formula.format(**params)
+    except (KeyError, ValueError):
+        return spec.description
 
 
 def columns(effect_id: str, traj: Trajectory, nonlinear: Mapping[str, float]) -> FloatArray:
     """Regressors (n, k) of an effect for fixed nonlinear parameters."""
+    from procedures.model import library
+
+    if library.is_library_id(effect_id):
+        return library.columns(effect_id, traj)
     w = traj.ref_rate_dps
     if effect_id == "bias_temperature":
         cols = [traj.dtemp_c]
@@ -172,6 +226,10 @@ def to_params(
     tilt_deg: float = DEFAULT_TILT_DEG,
 ) -> tuple[dict[str, float], dict[str, float]]:
     """Physical parameters and their 1-sigma uncertainties from fitted coefficients."""
+    from procedures.model import library
+
+    if library.is_library_id(effect_id):
+        return library.to_params(effect_id, coefs, cov)
     c = [float(v) for v in coefs]
     s = [math.sqrt(max(float(cov[i, i]), 0.0)) for i in range(len(c))]
     if effect_id in ("scale_temperature", "scale_supply"):
@@ -208,6 +266,10 @@ def to_params(
 
 def to_coefficients(effect_id: str, params: Mapping[str, float], scale: float) -> FloatArray:
     """Inverse of to_params: the linear coefficients that reproduce the parameters."""
+    from procedures.model import library
+
+    if library.is_library_id(effect_id):
+        return library.to_coefficients(effect_id, params)
     spec = check_effect_id(effect_id)
     missing = [p for p in spec.params if p not in params]
     if effect_id == "g_sensitivity_tilt":

@@ -24,6 +24,7 @@ from procedures.model.noise import NoiseModel
 from procedures.model.trajectory import FloatArray, Trajectory
 
 PROFILE_GRID_POINTS = 12
+LAG_CACHE_ENTRIES = 600  # lagged block columns kept (term, time constants, lag tau)
 
 
 @dataclass(frozen=True)
@@ -76,10 +77,15 @@ class Fitter:
         self.y_block = blocks.mean(traj.gyro_dps)
         self.y_white = self._whiten(self.y_block)
         self._cache: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
-        self._sample_cache: dict[tuple[object, ...], FloatArray] = {}
+        self._lag_cache: dict[tuple[object, ...], FloatArray] = {}
+        self._basis: tuple[tuple[object, ...], FloatArray] | None = None  # last base's Q
 
     def _whiten(self, x: FloatArray) -> FloatArray:
         return self._white @ x
+
+    def whiten(self, x: FloatArray) -> FloatArray:
+        """Block-mean values in units of the noise (the Cholesky factor's inverse applied)."""
+        return self._whiten(x)
 
     def _sample_columns(self, effect_id: str, nl: Mapping[str, float]) -> FloatArray:
         if effect_id == "bias":
@@ -94,6 +100,28 @@ class Fitter:
             self._cache[key] = self.blocks.mean(self._sample_columns(effect_id, nl))
         return self._cache[key]
 
+    def _lagged_block_columns(
+        self, terms: list[str], structure: Mapping[str, Mapping[str, float]], tau_s: float
+    ) -> list[FloatArray]:
+        """Block means of each term's columns passed through the lag. The lag is linear and
+        acts column by column, so each term's filtered columns are kept (per time constant)
+        and a candidate added to a lagged model filters only its own; the terms not yet
+        kept are filtered together in one pass."""
+        keys = [(e, tuple(sorted(structure.get(e, {}).values())), tau_s) for e in terms]
+        todo = [(e, k) for e, k in zip(terms, keys, strict=True) if k not in self._lag_cache]
+        if todo:
+            if len(self._lag_cache) > LAG_CACHE_ENTRIES:
+                self._lag_cache.clear()
+            cols = [self._sample_columns(e, structure.get(e, {})) for e, _ in todo]
+            filtered = self.blocks.mean(
+                lag_filter(np.concatenate(cols, axis=1), self.traj.time_s, tau_s)
+            )
+            first = 0
+            for (_, key), c in zip(todo, cols, strict=True):
+                self._lag_cache[key] = filtered[:, first : first + c.shape[1]]
+                first += c.shape[1]
+        return [self._lag_cache[k] for k in keys]
+
     def solve(self, structure: Mapping[str, Mapping[str, float]]) -> _Solution:
         """Fit with fixed time constants; `structure` maps effect id -> nonlinear params."""
         terms = ["bias", "scale", *[e for e in structure if e != "sensor_lag"]]
@@ -103,21 +131,7 @@ class Fitter:
         if lag is None:
             blocks_cols = [self._block_columns(e, structure.get(e, {})) for e in terms]
         else:
-            key = tuple((e, tuple(sorted(structure.get(e, {}).values()))) for e in terms)
-            if key not in self._sample_cache:
-                if len(self._sample_cache) > 16:
-                    self._sample_cache.clear()
-                self._sample_cache[key] = np.concatenate(
-                    [self._sample_columns(e, structure.get(e, {})) for e in terms], axis=1
-                )
-            sample_cols = self._sample_cache[key]
-            filtered = lag_filter(sample_cols, self.traj.time_s, float(lag["tau_s"]))
-            allb = self.blocks.mean(filtered)
-            blocks_cols, col = [], 0
-            for e in terms:
-                k = self._block_columns(e, structure.get(e, {})).shape[1]
-                blocks_cols.append(allb[:, col : col + k])
-                col += k
+            blocks_cols = self._lagged_block_columns(terms, structure, float(lag["tau_s"]))
         for e, c in zip(terms, blocks_cols, strict=True):
             layout.append((e, first, c.shape[1]))
             first += c.shape[1]
@@ -149,11 +163,14 @@ class Fitter:
             return 1.0 if self.blocks.has_motion_changes else 0.0
         nl = fx.nonlinear_of(effect_id, zero_params(effect_id))
         terms = [e for e in ["bias", "scale", *base] if e != "sensor_lag"]
-        xb = self._whiten(
-            np.concatenate([self._block_columns(e, base.get(e, {})) for e in terms], axis=1)
-        )
+        key = tuple((e, tuple(sorted(base.get(e, {}).items()))) for e in terms)
+        if self._basis is None or self._basis[0] != key:
+            xb = self._whiten(
+                np.concatenate([self._block_columns(e, base.get(e, {})) for e in terms], axis=1)
+            )
+            self._basis = (key, np.linalg.qr(xb)[0])
+        q = self._basis[1]
         xc = self._whiten(self._block_columns(effect_id, nl))
-        q, _ = np.linalg.qr(xb)
         resid = xc - q @ (q.T @ xc)
         norms = np.maximum(np.linalg.norm(xc, axis=0), 1e-300)
         return float(np.min(np.linalg.norm(resid, axis=0) / norms))
@@ -168,13 +185,13 @@ class Fitter:
         structure: dict[str, dict[str, float]] = {
             e: fx.nonlinear_of(e, p) for e, p in model.effects.items()
         }
-        profiled = [e for e in structure if fx.CATALOG[e].nonlinear]
+        profiled = [e for e in structure if fx.check_effect_id(e).nonlinear]
         to_profile = profiled if profile is None else [e for e in profiled if e in profile]
         tau_sigma: dict[str, float] = {}
         for _round in range(2 if len(to_profile) > 1 else 1):
             for e in to_profile:
                 structure[e]["tau_s"] = self._profile(structure, e, local)
-        for e in profiled:
+        for e in profiled if profile is None else to_profile:  # candidates: their own only
             tau_sigma[e] = self._tau_sigma(structure, e)
         sol = self.solve(structure)
         n_params = sol.theta.size + len(profiled)

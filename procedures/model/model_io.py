@@ -50,7 +50,7 @@ PARAM_LIMITS: dict[tuple[str, str], tuple[float, float, bool]] = {
 def param_problem(effect_id: str, name: str, value: float) -> str | None:
     """Why `value` is not allowed for parameter `name` of a catalog effect (with the allowed
     range and units), or None if it is allowed."""
-    units = CATALOG[effect_id].params[name]
+    units = fx.check_effect_id(effect_id).params[name]
     if not math.isfinite(value):
         return f"{value} is not allowed; give a finite number ({units})"
     limits = PARAM_LIMITS.get((effect_id, name))
@@ -161,16 +161,18 @@ def _value_problems(data: dict[str, Any], loaded: LoadedYaml) -> list[str]:
     if isinstance(effects, dict):
         for effect_id, params in effects.items():
             e = str(effect_id)
-            if e not in CATALOG:
-                bad(("effects", e), f"unknown effect {e!r}; known effects: {', '.join(CATALOG)}")
+            spec = _spec_or_none(e)
+            if spec is None:
+                bad(("effects", e), f"unknown effect {e!r}; known effects: {', '.join(CATALOG)}"
+                    " or a library term lib_... (docs/discrepancy.md)")
                 continue
             if not isinstance(params, dict):
                 continue
             for name, value in params.items():
                 p = str(name)
-                if p not in CATALOG[e].params:
+                if p not in spec.params:
                     bad(("effects", e, p), f"unknown parameter {p!r}; effect {e} takes "
-                        f"{', '.join(CATALOG[e].params)}")
+                        f"{', '.join(spec.params)}")
                 elif (v := number(value)) is not None and (
                     problem := param_problem(e, p, v)
                 ):
@@ -179,10 +181,20 @@ def _value_problems(data: dict[str, Any], loaded: LoadedYaml) -> list[str]:
     if isinstance(uncertainties, dict):
         known = {"bias_dps", "scale"} | {f"{e}.{p}" for e, s in CATALOG.items() for p in s.params}
         for key in uncertainties:
-            if str(key) not in known:
+            e, _, p = str(key).partition(".")
+            lib = _spec_or_none(e) if e.startswith("lib_") else None
+            if str(key) not in known and not (lib is not None and p in lib.params):
                 bad(("uncertainties", str(key)), "unknown parameter path; give bias_dps, "
                     "scale or EFFECT.PARAMETER of a catalog effect (e.g. k2_quadratic.k2_per_dps)")
     return out
+
+
+def _spec_or_none(effect_id: str) -> fx.EffectSpec | None:
+    """A catalog effect's or library term's spec (library ids spell their definition)."""
+    try:
+        return fx.check_effect_id(effect_id)
+    except ValueError:
+        return None
 
 
 def model_from_loaded(loaded: LoadedYaml) -> GyroModel:

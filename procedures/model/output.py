@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from procedures.model import effects as fx
 from procedures.model.discrepancy import CandidateTest, DiscrepancyResult
 from procedures.model.model_io import model_to_dict
 from procedures.model.residuals import BinSummary
@@ -48,6 +49,7 @@ def _bins(summary: dict[str, list[BinSummary]]) -> dict[str, list[dict[str, Any]
 def _candidate(c: CandidateTest) -> dict[str, Any]:
     return {
         "effect": c.effect,
+        "regressors": list(fx.check_effect_id(c.effect).regressors),
         "delta_chi2": c.delta_chi2,
         "f_statistic": c.f_statistic,
         "p_value": c.p_value,
@@ -71,6 +73,8 @@ def result_to_json(res: DiscrepancyResult) -> dict[str, Any]:
                 "gap_after_dps": it.gap_after_dps,
                 "parameters": it.parameters,
                 "evidence": it.evidence,
+                "regressors": list(it.regressors),
+                "formula": it.formula,
                 "candidates": [_candidate(c) for c in it.candidates],
             }
             for it in res.iterations
@@ -100,5 +104,19 @@ def result_to_json(res: DiscrepancyResult) -> dict[str, Any]:
         "residuals_initial": _bins(res.summary_initial),
         "residuals_final": _bins(res.summary_final),
         "notes": list(res.notes),
+        "unexplained_structure_remains": res.unexplained_remains,
+        "unexplained_structure_message": res.unexplained_message or None,
+        "unexplained_structure": [
+            {
+                "variable": t.variable,
+                "f_statistic": t.f_statistic,
+                "p_value": t.p_value,
+                "delta_chi2": t.delta_chi2,
+                "q": t.q,
+                "terms": list(t.terms),
+            }
+            for t in res.unexplained
+        ],
+        "noise_nuisance_terms": list(res.noise_nuisance_terms),
     }
     return _clean(out)

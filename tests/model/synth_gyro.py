@@ -33,6 +33,25 @@ FIRST_ORDER_REALISTIC = {
     "bias_supply_coeff_dps_per_v": 0.05,
     "scale_supply_coeff_per_v": 1.0e-3,
 }
+# Effects outside the catalog (generator-side names; the workflow knows none of them) with
+# the base variables each depends on, in the workflow's pinned vocabulary, and a magnitude
+# well above the noise of the SHORT profile with a thermal ramp.
+BEYOND_CATALOG: dict[str, tuple[frozenset[str], dict[str, float]]] = {
+    # bias = c dT^2
+    "bias_temperature_quadratic": (frozenset({"temperature"}), {"c_dps_per_c2": 2.0e-4}),
+    # bias = c d(die temperature)/dt
+    "bias_temperature_rate": (frozenset({"temperature_rate"}), {"c_dps_per_c_per_s": 0.5}),
+    # bias = a cos(2 angle - phase): twice per table turn
+    "bias_angle_2nd": (frozenset({"angle"}), {"amplitude_dps": 0.02, "phase_deg": 40.0}),
+    # scale (1 + c dT dV)
+    "scale_temperature_supply": (frozenset({"rate", "temperature", "supply"}),
+                                 {"c_per_c_per_v": 2.0e-4}),
+    # bias = c sign(w): a bias that depends on the direction of rotation
+    "bias_rate_sign": (frozenset({"rate"}), {"c_dps": 0.04}),
+    # scale (1 + c dT^2)
+    "scale_temperature_quadratic": (frozenset({"rate", "temperature"}), {"c_per_c2": 2.0e-6}),
+}
+
 FIRST_ORDER_EFFECTS = {
     "bias_temperature": "bias_temp_coeff_dps_per_c",
     "scale_temperature": "scale_temp_coeff_per_c",
@@ -61,6 +80,8 @@ class Part:
             name = FIRST_ORDER_EFFECTS[effect_id]
             value = params.get(name, FIRST_ORDER_REALISTIC[name])
             setattr(new, name, value)
+        elif effect_id in BEYOND_CATALOG:
+            new.effects[effect_id] = {**BEYOND_CATALOG[effect_id][1], **params}
         else:
             new.effects[effect_id] = {**REALISTIC_EFFECTS[effect_id], **params}
         return new
@@ -82,6 +103,9 @@ class Profile:
     supplies_v: tuple[float, ...] = (4.75, 5.25)
     stop_wait_s: float = 5.0
     stop_move_s: float = 3.0
+    # chamber ramp between temperatures (C/s; 0: a step), taken with the table at rest
+    # before the stabilisation window
+    thermal_ramp_c_per_s: float = 0.0
 
 
 SHORT = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0, stabilise_s=40.0,
@@ -92,7 +116,11 @@ def _rate_program(p: Profile) -> list[tuple[str, float, float, float]]:
     """(kind, duration, start rate, end rate) pieces; stop moves marked for a cosine profile."""
     prog: list[tuple[str, float, float, float]] = []
     first = True
-    for temp in p.temperatures_c:
+    for i, temp in enumerate(p.temperatures_c):
+        if i > 0 and p.thermal_ramp_c_per_s > 0:
+            step = temp - p.temperatures_c[i - 1]
+            prog.append(("ramp", abs(step) / p.thermal_ramp_c_per_s, p.temperatures_c[i - 1],
+                         temp))
         for supply in p.supplies_v:
             prog.append(("stabilise", p.stabilise_s if not first else p.stabilise_s * 1.5,
                          temp, supply))
@@ -134,16 +162,22 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
     for kind, dur, a, b in _rate_program(p):
         n = max(int(round(dur / dtf)), 1)
         x = (np.arange(n) + 0.5) / n
+        ramp = None
         if kind == "stabilise":
             temp_set, supply_set = a, b
             w = np.zeros(n)
+        elif kind == "ramp":
+            ramp = a + (b - a) * x
+            temp_set = b
+            w = np.zeros(n)
+            kind = "transition"
         elif kind == "stop_move":
             # smooth move of `a` degrees: rate = a/dur * (1 - cos(2 pi x))
             w = a / dur * (1 - np.cos(2 * np.pi * x))
         else:
             w = a + (b - a) * x
         rates.append(w)
-        chamber.append(np.full(n, temp_set))
+        chamber.append(np.full(n, temp_set) if ramp is None else ramp)
         supply.append(np.full(n, supply_set))
         segments.append((kind, t_now, t_now + n * dtf))
         t_now += n * dtf
@@ -165,6 +199,10 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
     k_scale = part.scale * (
         1 + part.scale_temp_coeff_per_c * d_t + part.scale_supply_coeff_per_v * d_v
     )
+    if "scale_temperature_supply" in e:
+        k_scale = k_scale * (1 + e["scale_temperature_supply"]["c_per_c_per_v"] * d_t * d_v)
+    if "scale_temperature_quadratic" in e:
+        k_scale = k_scale * (1 + e["scale_temperature_quadratic"]["c_per_c2"] * d_t**2)
     if "scale_asymmetry" in e:
         k_scale = k_scale * (1 + e["scale_asymmetry"]["asymmetry"] / 2 * np.sign(w))
     y = k_scale * w + part.bias_dps + part.bias_temp_coeff_dps_per_c * d_t
@@ -178,6 +216,15 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
         y = y + g["g_sens_dps_per_g"] * math.sin(math.radians(g["tilt_deg"])) * np.cos(
             np.radians(angle - g["phase_deg"])
         )
+    if "bias_temperature_quadratic" in e:
+        y = y + e["bias_temperature_quadratic"]["c_dps_per_c2"] * d_t**2
+    if "bias_temperature_rate" in e:
+        y = y + e["bias_temperature_rate"]["c_dps_per_c_per_s"] * np.gradient(die, t)
+    if "bias_angle_2nd" in e:
+        h = e["bias_angle_2nd"]
+        y = y + h["amplitude_dps"] * np.cos(np.radians(2 * angle - h["phase_deg"]))
+    if "bias_rate_sign" in e:
+        y = y + e["bias_rate_sign"]["c_dps"] * np.sign(w)
     if "warmup_drift" in e:
         y = y + e["warmup_drift"]["amplitude_dps"] * np.exp(-t / e["warmup_drift"]["tau_s"])
     if "sensor_lag" in e:
@@ -208,3 +255,9 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
         "supply_v": supply_v[idx],
         "segments": segments,
     }
+
+
+# SHORT with the chamber ramping between the temperatures at 0.2 C/s (the die follows 40 s
+# behind), so temperature-rate effects and intermediate temperatures are seen.
+RAMPED = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0, stabilise_s=40.0,
+                 rate_hz=50.0, thermal_ramp_c_per_s=0.2)

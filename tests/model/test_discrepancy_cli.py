@@ -218,6 +218,10 @@ def test_console_says_not_identifiable_not_separable_and_the_notes(
         gap_initial_dps=0.5, noise_floor_dps=0.01, gap_final_dps=0.5, iterations=[],
         not_separable=({"effects": ["k2_quadratic", "scale_asymmetry"], "reason": reason},),
         not_identifiable=("g_sensitivity_tilt", "warmup_drift"),
+        unexplained_remains=True,
+        unexplained_message="unexplained structure remains: the gap is 50.00 x the noise "
+                            "floor after the named effects; the residual pattern is strongest "
+                            "against temperature_rate (F 300, p 1e-30)",
     )
     cli_discrepancy._print_summary(result, Path("o"), Path("o/d.json"),  # type: ignore[arg-type]
                                    Path("o/model.yaml"), None, sys.stdout)
@@ -229,6 +233,8 @@ def test_console_says_not_identifiable_not_separable_and_the_notes(
     assert len(ni) == 1 and "g_sensitivity_tilt, warmup_drift" in ni[0]
     assert "no independent signature" in ni[0]
     assert "out: o" in lines
+    warn = [ln for ln in lines if ln.startswith("WARNING: unexplained structure remains")]
+    assert len(warn) == 1 and "against temperature_rate" in warn[0]
 
 
 def test_help_names_every_input_and_the_defaults(capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,0 +1,294 @@
+"""Library of generic candidate terms built from a run's own variables, beyond the catalog.
+
+A library term adds `coeff * f(x)` to the output, f a product of factors of the base
+variables (at most three, total degree at most three), or a pair of table-angle harmonics:
+
+| token | factor | base variable |
+| --- | --- | --- |
+| `w` | rate (deg/s) | rate |
+| `dT` | die temperature - 25 C | temperature |
+| `dTdt` | d(die temperature)/dt (C/s), smoothed over `DTDT_SMOOTH_S` | temperature_rate |
+| `dV` | supply - 5.0 V | supply |
+| `sgnw` | sign(rate) | rate |
+| `absw` | abs(rate) | rate |
+| `exp<tau>s` | exp(-t / tau), t since power-on | time |
+| `angleh<k>` | cos(k angle), sin(k angle) as one term (amplitude, phase) | angle |
+
+A term's id spells its definition, `lib_` + factors joined by `_`, a power as a digit after
+the token (`lib_w_dT2` = w * dT^2, `lib_dTdt`, `lib_w_exp300s`, `lib_angleh2`), so a model
+file holding it needs nothing else to be read back (`spec()` parses the id). Terms equal to a
+catalog effect (dT, dV, w dT, w dV, w^2, w^3, |w|, exp(-t/tau), the first angle harmonic)
+are not in the library: the catalog effect keeps its id.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from procedures.model.effects import EffectSpec
+from procedures.model.lag import contiguous_runs
+from procedures.model.trajectory import FloatArray, Trajectory
+
+PREFIX = "lib_"
+DTDT_SMOOTH_S = 10.0  # moving-average window of the die temperature before differencing
+EXP_TAUS_S = (30.0, 100.0, 300.0, 1000.0)  # time constants of the exponential terms
+MAX_HARMONIC = 4
+
+
+@dataclass(frozen=True)
+class _Factor:
+    variable: str  # pinned regressor vocabulary (effects.REGRESSOR_VOCABULARY)
+    label: str
+    unit: str
+
+
+FACTORS: dict[str, _Factor] = {
+    "w": _Factor("rate", "rate", "deg/s"),
+    "dTdt": _Factor("temperature_rate", "d(die temperature)/dt", "C/s"),
+    "dT": _Factor("temperature", "(die temperature - 25 C)", "C"),
+    "dV": _Factor("supply", "(supply - 5.0 V)", "V"),
+    "sgnw": _Factor("rate", "sign(rate)", ""),
+    "absw": _Factor("rate", "|rate|", "deg/s"),
+}
+_TOKEN = re.compile(r"^(?:(?P<f>dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
+_HARMONIC = re.compile(r"^angleh(?P<k>[1-9])$")
+# exponent tuples (w, dT, dTdt, dV) of the catalog's polynomial effects and the base scale
+_CATALOG_MONOMIALS = {(1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 0, 1), (1, 1, 0, 0), (1, 0, 0, 1),
+                      (2, 0, 0, 0), (3, 0, 0, 0)}
+
+
+def is_library_id(effect_id: str) -> bool:
+    return effect_id.startswith(PREFIX)
+
+
+def _parse(effect_id: str) -> list[tuple[str, int]] | int:
+    """Factors [(token, power)] of a product term, or the harmonic number of an angle term."""
+    if not is_library_id(effect_id):
+        raise ValueError(f"{effect_id!r} is not a library term (ids start with {PREFIX!r})")
+    body = effect_id[len(PREFIX):]
+    if m := _HARMONIC.match(body):
+        k = int(m["k"])
+        if k > MAX_HARMONIC:
+            raise ValueError(f"library term {effect_id!r}: harmonics 1 to {MAX_HARMONIC} only")
+        return k
+    factors: list[tuple[str, int]] = []
+    for tok in body.split("_"):
+        m = _TOKEN.match(tok)
+        if m is None:
+            raise ValueError(
+                f"library term {effect_id!r}: unknown factor {tok!r}; factors are "
+                f"{', '.join(FACTORS)} with an optional power 2 or 3, exp<tau>s, or a term "
+                "angleh<k>"
+            )
+        if m["tau"] is not None:
+            tau = int(m["tau"])
+            if not 1 <= tau <= 100000:
+                raise ValueError(f"library term {effect_id!r}: exp time constant 1 to 1e5 s")
+            factors.append((tok, 1))
+        else:
+            factors.append((m["f"], int(m["p"] or 1)))
+    if sum(p for _, p in factors) > 3 or len({t for t, _ in factors}) != len(factors):
+        raise ValueError(
+            f"library term {effect_id!r}: at most third order, each factor once"
+        )
+    return factors
+
+
+def _factor_info(tok: str) -> _Factor:
+    if tok.startswith("exp"):
+        return _Factor("time", f"exp(-t / {tok[3:-1]} s)", "")
+    return FACTORS[tok]
+
+
+@lru_cache(maxsize=512)
+def spec(effect_id: str) -> EffectSpec:
+    """The effect spec of a library term (parameters, regressors, formula), from its id."""
+    parsed = _parse(effect_id)
+    if isinstance(parsed, int):
+        k = parsed
+        what = "the table angle" if k == 1 else f"{k} x the table angle"
+        return EffectSpec(
+            effect_id,
+            {"amplitude_dps": "deg/s", "phase_deg": "deg"},
+            f"bias varies with {what} (harmonic {k} of the table turn)",
+            "table angle",
+            n_columns=2,
+            regressors=("angle",),
+            formula=(f"bias varying with {what}: amplitude {{amplitude_dps:.4g}} deg/s, "
+                     "phase {phase_deg:.3g} deg"),
+        )
+    labels, units, variables = [], [], []
+    for tok, p in parsed:
+        f = _factor_info(tok)
+        labels.append(f.label + (f"^{p}" if p > 1 else ""))
+        if f.unit:
+            units.append(f.unit + (f"^{p}" if p > 1 else ""))
+        variables.append(f.variable)
+    regressors = tuple(dict.fromkeys(sorted(variables)))
+    rate_only_once = [t for t, p in parsed if t == "w" and p == 1] and len(parsed) > 1
+    if rate_only_once:  # w * g(x): a scale factor that depends on g
+        rest = [lb for (t, _), lb in zip(parsed, labels, strict=True) if t != "w"]
+        rest_units = [u for u in units if u != "deg/s"]
+        unit = f"per ({' '.join(rest_units)})" if rest_units else ""
+        text = f"scale factor proportional to {' x '.join(rest)}"
+    else:
+        unit = f"deg/s per ({' '.join(units)})" if units else "deg/s"
+        text = f"bias proportional to {' x '.join(labels)}"
+    return EffectSpec(
+        effect_id,
+        {"coeff": unit or "1"},
+        text,
+        " x ".join(labels),
+        regressors=regressors,
+        formula=f"{text}: {{coeff:.4g}} {unit}".rstrip(),
+    )
+
+
+def candidate_ids() -> tuple[str, ...]:
+    """The library searched by the workflow: products of w, dT, dTdt, dV up to third order
+    (the catalog's own left out), sign(w), |w| dT, rate x warm-up exponentials, angle
+    harmonics 2 to 4."""
+    toks = ("w", "dT", "dTdt", "dV")
+    out: list[str] = []
+    for powers in itertools.product(range(4), repeat=4):
+        if not 1 <= sum(powers) <= 3 or powers in _CATALOG_MONOMIALS:
+            continue
+        parts = [t + (str(p) if p > 1 else "") for t, p in zip(toks, powers, strict=True) if p]
+        out.append(PREFIX + "_".join(parts))
+    out += [PREFIX + "sgnw", PREFIX + "absw_dT", PREFIX + "absw_dV"]
+    out += [f"{PREFIX}w_exp{int(t)}s" for t in EXP_TAUS_S]
+    out += [f"{PREFIX}angleh{k}" for k in range(2, MAX_HARMONIC + 1)]
+    return tuple(out)
+
+
+SPAN_FRACTION = 0.01  # a factor's power varying less than this apart from its lower powers
+
+
+def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    """The library terms whose every factor the data span: factor^p is not (to
+    SPAN_FRACTION of its size) a combination of 1, factor, ..., factor^(p-1) over the
+    record. Two supply levels, for example, do not span dV^2 (constant) nor dV^3 (~ dV); a
+    constant supply does not span dV."""
+    ids = candidate_ids() if ids is None else ids
+    if _last_spanned and _last_spanned[0][0] is traj and _last_spanned[0][1] == ids:
+        return _last_spanned[0][2]
+    verdict: dict[tuple[str, int], bool] = {}
+    out = []
+    for e in ids:
+        parsed = _parse(e)
+        if isinstance(parsed, int):
+            out.append(e)
+            continue
+        ok = True
+        for tok, p in parsed:
+            if (tok, p) not in verdict:
+                verdict[(tok, p)] = _spans(_factor_values(tok, traj), p)
+            ok = ok and verdict[(tok, p)]
+        if ok:
+            out.append(e)
+    _last_spanned[:] = [(traj, ids, tuple(out))]
+    return tuple(out)
+
+
+_last_spanned: list[tuple[Trajectory, tuple[str, ...], tuple[str, ...]]] = []
+
+
+def _spans(x: FloatArray, power: int) -> bool:
+    scale = float(np.max(np.abs(x)))
+    if scale == 0:
+        return False
+    u = x / scale
+    target = u**power
+    lower = np.stack([u**k for k in range(power)], axis=1)
+    coef = np.linalg.lstsq(lower, target, rcond=None)[0]
+    resid = target - lower @ coef
+    return bool(np.linalg.norm(resid) > SPAN_FRACTION * np.linalg.norm(target))
+
+
+_last_rate: list[tuple[Trajectory, FloatArray]] = []  # the last record's, reused by its terms
+
+
+def temperature_rate_c_per_s(traj: Trajectory) -> FloatArray:
+    """d(die temperature)/dt: the temperature smoothed over DTDT_SMOOTH_S (centred moving
+    average within each contiguous stretch of samples), then differenced."""
+    if _last_rate and _last_rate[0][0] is traj:
+        return _last_rate[0][1]
+    out = _temperature_rate(traj)
+    _last_rate[:] = [(traj, out)]
+    return out
+
+
+def _temperature_rate(traj: Trajectory) -> FloatArray:
+    from scipy.ndimage import uniform_filter1d
+
+    out = np.zeros(traj.n)
+    for a, b in contiguous_runs(traj.time_s):
+        if b - a < 3:
+            continue
+        t = traj.time_s[a:b]
+        dt = float(np.median(np.diff(t)))
+        width = max(int(round(DTDT_SMOOTH_S / dt)), 1)
+        smooth = uniform_filter1d(traj.temp_c[a:b], size=min(width, b - a), mode="nearest")
+        out[a:b] = np.gradient(smooth, t)
+    return out
+
+
+def _factor_values(tok: str, traj: Trajectory) -> FloatArray:
+    w = traj.ref_rate_dps
+    if tok.startswith("exp"):
+        return np.exp(-traj.time_since_power_on_s / float(tok[3:-1]))
+    values: dict[str, FloatArray | None] = {
+        "w": w, "dT": traj.dtemp_c, "dV": traj.dsupply_v, "sgnw": np.sign(w),
+        "absw": np.abs(w), "dTdt": None,
+    }
+    v = values[tok]
+    return temperature_rate_c_per_s(traj) if v is None else v
+
+
+def columns(effect_id: str, traj: Trajectory) -> FloatArray:
+    """Regressors (n, 1) of a product term, (n, 2) of an angle harmonic."""
+    parsed = _parse(effect_id)
+    if isinstance(parsed, int):
+        a = parsed * np.deg2rad(traj.ref_angle_deg)
+        return np.stack([np.cos(a), np.sin(a)], axis=1)
+    col = np.ones(traj.n)
+    for tok, p in parsed:
+        col = col * _factor_values(tok, traj) ** p
+    return col[:, None]
+
+
+def to_params(
+    effect_id: str, coefs: FloatArray, cov: FloatArray
+) -> tuple[dict[str, float], dict[str, float]]:
+    c = [float(v) for v in coefs]
+    if len(c) == 1:
+        return {"coeff": c[0]}, {"coeff": math.sqrt(max(float(cov[0, 0]), 0.0))}
+    amp = math.hypot(c[0], c[1])
+    phase = math.degrees(math.atan2(c[1], c[0]))
+    if amp > 0:
+        j_amp = np.array(c) / amp
+        j_ph = np.array([-c[1], c[0]]) / amp**2
+        s_amp = math.sqrt(max(float(j_amp @ cov @ j_amp), 0.0))
+        s_ph = math.degrees(math.sqrt(max(float(j_ph @ cov @ j_ph), 0.0)))
+    else:
+        s_amp, s_ph = math.sqrt(max(float(cov[0, 0]), 0.0)), 180.0
+    return {"amplitude_dps": amp, "phase_deg": phase}, {"amplitude_dps": s_amp, "phase_deg": s_ph}
+
+
+def to_coefficients(effect_id: str, params: Mapping[str, float]) -> FloatArray:
+    s = spec(effect_id)
+    missing = [p for p in s.params if p not in params]
+    if missing:
+        raise ValueError(f"term {effect_id}: parameters {missing} are missing")
+    if s.n_columns == 2:
+        ph = math.radians(params["phase_deg"])
+        return np.array([params["amplitude_dps"] * math.cos(ph),
+                         params["amplitude_dps"] * math.sin(ph)])
+    return np.array([params["coeff"]])
