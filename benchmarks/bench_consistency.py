@@ -2,7 +2,7 @@
 
 At each condition of each part: the stop-method scale and the rate-table scale, each against
 the true scale at the die temperature of its own windows and the measured supply
-(DESIGN.md: scale * (1 + sT dT + sV dV)), in units of its own standard (k=1) uncertainty,
+(docs/interfaces.md: scale * (1 + sT dT + sV dV)), in units of its own standard (k=1) uncertainty,
 and the station's normalised difference (measurement `stop_table_consistency`). With honest
 standard uncertainties each z has mean ~0 and SD ~1, and about 4.6 % / 0.3 % lie beyond 2 / 3.
 

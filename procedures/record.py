@@ -1,7 +1,7 @@
 """The run record: what `record.json` in every run folder holds.
 
 Written by the station's engine, read by reports (certificate, lot report), the results
-database and the discrepancy workflow. Keys marked pinned in DESIGN.md (`verdict`,
+database and the discrepancy workflow. Keys pinned in docs/interfaces.md (`verdict`,
 `dut.serial`, `procedure.sha256`, `measurements[*].{name,value,units,low,high,outcome}`,
 `calibration.*`) are never renamed or removed; add fields, never take them away.
 """

@@ -1,7 +1,7 @@
 """`station analyze stop-method|allan CSV`: run the calibration analysis on a recorded CSV.
 
 CSV columns `time_s, rate_dps` (header row required; extra columns ignored, an optional
-`status` column carries the fixture's status bits). JSON keys are pinned in DESIGN.md; keys
+`status` column carries the fixture's status bits). JSON keys are pinned in docs/interfaces.md; keys
 beyond them are additions.
 """
 

@@ -1,6 +1,6 @@
 """The simulated bench process: the world, its twins on loopback and ptys, the control channel.
 
-`run_bench` runs until SIGINT/SIGTERM, writes the JSON state file of DESIGN.md once every
+`run_bench` runs until SIGINT/SIGTERM, writes the JSON state file of docs/interfaces.md once every
 endpoint listens, and on exit shuts each Modbus server down, closes every pty and the
 control channel, and leaves the state file (the user gave its path) in place.
 """

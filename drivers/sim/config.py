@@ -1,6 +1,6 @@
 """The simulated bench's configuration (config/sim/*.yaml), validated at the edge.
 
-The pinned part keys of DESIGN.md (`socket`, `serial`, `bias_dps`, `scale`, the four
+The pinned part keys of docs/interfaces.md (`socket`, `serial`, `bias_dps`, `scale`, the four
 first-order coefficients, `arw_deg_per_sqrt_h`, `bias_instability_deg_per_h`, `effects`) are
 accepted as they are; a part parameter left out is drawn from the population
 (`drivers.sim.population`), deterministically per serial number. Everything else (table,
@@ -26,7 +26,7 @@ from drivers.bounded import (
 from drivers.rate_table_map import COUNTS_PER_REV
 from drivers.yaml_input import ConfigError, format_validation_error, read_yaml
 
-# effect id -> parameter names it accepts (DESIGN.md's catalog)
+# effect id -> parameter names it accepts (docs/interfaces.md's catalog)
 EFFECT_PARAMS: dict[str, frozenset[str]] = {
     "k2_quadratic": frozenset({"k2_per_dps"}),
     "k3_cubic": frozenset({"k3_per_dps2"}),

@@ -1,6 +1,6 @@
 """The effect catalog: each physical effect a gyro may show, its parameters and units.
 
-Output model (DESIGN.md, reference 25 C and 5.0 V), w the true rate in deg/s:
+Output model (docs/interfaces.md, reference 25 C and 5.0 V), w the true rate in deg/s:
 
     y = scale * (1 + sT dT + sV dV) * w + bias + bT dT + bV dV + effects + noise
 

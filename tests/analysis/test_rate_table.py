@@ -50,7 +50,7 @@ def _noise_free_nonlinearity(k: float, b: float, k2: float) -> float:
 def test_quadratic_term_gives_nonlinearity_within_its_uncertainty() -> None:
     """Nonlinearity is a largest-residual statistic, so it sits a little high; its k=2
     interval still holds the noise-free value in >= 90 % of records, and k2 in 93-97 %."""
-    k2 = 5e-6  # per deg/s, the DESIGN.md example effect: 0.08 % FS on this rate set
+    k2 = 5e-6  # per deg/s, the docs/interfaces.md example effect: 0.08 % FS on this rate set
     truth = _noise_free_nonlinearity(1.0567, 8.6, k2)
     assert truth > 0.05
     rng = np.random.default_rng(2)
