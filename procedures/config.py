@@ -178,6 +178,11 @@ class ProductConfig(_Strict):
     current_limit_a: float = Field(
         0.05, gt=0, le=20, description="supply current limit per part, A"
     )
+    supply_range_v: tuple[Volts, Volts] | None = Field(
+        None,
+        description="supply levels [low, high] V the part may be run at (its datasheet's "
+        "operating range); default: reference_supply_v +/- 10 %",
+    )
     bias_instability_deg_per_h: float = Field(
         15.0,
         ge=0,
@@ -197,6 +202,13 @@ class ProductConfig(_Strict):
         description="chamber temperatures [low, high] C at which the part and fixture may be "
         "handled; a procedure's chamber.safe_temp_c must lie within",
     )
+
+    @property
+    def supply_limits_v(self) -> tuple[float, float]:
+        """The supply levels the part may be run at, V."""
+        if self.supply_range_v is not None:
+            return self.supply_range_v
+        return 0.9 * self.reference_supply_v, 1.1 * self.reference_supply_v
 
     @field_validator("serial_pattern")
     @classmethod
@@ -515,20 +527,58 @@ def check_procedure_for_product(
     product_file: LoadedYaml,
 ) -> None:
     """Cross-checks of a procedure against the product it calibrates: every rate of the rate
-    set and of the verification within the part's rated range. ConfigError naming the
-    procedure's file and line and the product's range otherwise."""
+    set and of the verification within the part's rated range, every supply level within the
+    part's supply range. ConfigError with one line per problem, naming the procedure's file
+    and line and the product's limit."""
+    problems = [*_rate_problems(procedure, procedure_file, product, product_file),
+                *_supply_problems(procedure, procedure_file, product, product_file)]
+    if problems:
+        raise ConfigError("\n".join(problems))
+
+
+def _where(loaded: LoadedYaml, *path: str | int) -> str:
+    for n in range(len(path), 0, -1):
+        line = loaded.lines.get(path[:n])
+        if line is not None:
+            return f"{loaded.path}:{line}"
+    return str(loaded.path)
+
+
+def _rate_problems(
+    procedure: ProcedureConfig, procedure_file: LoadedYaml, product: ProductConfig,
+    product_file: LoadedYaml,
+) -> list[str]:
+    out = []
     for section, rates in (
         ("rate_table", procedure.rate_table.rates_dps if procedure.rate_table else []),
         ("verify", procedure.verify.rates_dps if procedure.verify else []),
     ):
         for i, rate in enumerate(rates):
             if abs(rate) > product.range_dps:
-                line = procedure_file.lines.get((section, "rates_dps", i)) or (
-                    procedure_file.lines.get((section, "rates_dps"))
+                out.append(
+                    f"{_where(procedure_file, section, 'rates_dps', i)}: field "
+                    f"{section}.rates_dps.{i}: {rate:g} deg/s is beyond the range of "
+                    f"{product.product} (+/-{product.range_dps:g} deg/s, {product_file.path}); "
+                    "give rates within the part's range"
                 )
-                where = f"{procedure_file.path}:{line}" if line else str(procedure_file.path)
-                raise ConfigError(
-                    f"{where}: field {section}.rates_dps.{i}: {rate:g} deg/s is beyond the "
-                    f"range of {product.product} (+/-{product.range_dps:g} deg/s, "
-                    f"{product_file.path}); give rates within the part's range"
-                )
+    return out
+
+
+def _supply_problems(
+    procedure: ProcedureConfig, procedure_file: LoadedYaml, product: ProductConfig,
+    product_file: LoadedYaml,
+) -> list[str]:
+    low, high = product.supply_limits_v
+    levels: list[tuple[tuple[str | int, ...], float]] = [
+        (("conditions", "supplies_v", i), v) for i, v in enumerate(procedure.conditions.supplies_v)
+    ]
+    if procedure.verify is not None and procedure.verify.supply_v is not None:
+        levels.append((("verify", "supply_v"), procedure.verify.supply_v))
+    return [
+        f"{_where(procedure_file, *path)}: field {'.'.join(map(str, path))}: {v:g} V is "
+        f"outside the supply range [{low:g}, {high:g}] V of {product.product} "
+        f"({product_file.path}, supply_range_v): the part could be damaged; give supply "
+        "levels within the part's range"
+        for path, v in levels
+        if not low <= v <= high
+    ]

@@ -2,11 +2,13 @@
 before any run folder exists. One line per problem, each naming the procedure file and line,
 the value, the limit and who reports it; the caller refuses the run (exit 2) if any.
 
-A setting the product refuses (a rate beyond the part's range) is found from the files alone;
-a setting an instrument refuses (a setpoint beyond the chamber's limits, a rate or an
-acceleration beyond the table's, a voltage or current beyond the supply's) needs the opened
-instrument and the capability (`SetpointLimited`, `RateLimited`, `OutputLimited`); a driver
-without it is not checked (and says so in the log).
+A setting the product refuses (a rate beyond the part's range, a supply level outside its
+supply range) is found from the files alone, when they are loaded
+(`procedures.config.check_procedure_for_product`); a setting an instrument refuses (a
+setpoint beyond the chamber's limits, a rate or an acceleration beyond the table's, a voltage
+or current beyond the supply's) needs the opened instrument and the capability
+(`SetpointLimited`, `RateLimited`, `OutputLimited`); a driver without it is not checked (and
+says so in the log).
 """
 
 from __future__ import annotations
@@ -64,21 +66,6 @@ def _accelerations(procedure: ProcedureConfig) -> list[_Setting]:
             _Setting(("positions", "accel_dps2"), procedure.positions.accel_dps2,
                      "positions.accel_dps2")
         )
-    return out
-
-
-def product_problems(
-    procedure: ProcedureConfig, loaded: LoadedYaml, product: ProductConfig, product_file: str
-) -> list[str]:
-    """Settings the product refuses: a table rate beyond the part's rated range."""
-    out = []
-    for s in _rates(procedure):
-        if abs(s.value) > product.range_dps:
-            out.append(
-                f"{_where(loaded, s.path)}: {s.text} {s.value:g} deg/s is beyond the part's "
-                f"range of +/-{product.range_dps:g} deg/s ({product.product}, {product_file}): "
-                "the part would saturate; lower the rate or choose the right product"
-            )
     return out
 
 

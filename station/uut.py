@@ -310,7 +310,6 @@ class UutRunner:
         instrument is touched; UserError says what to fix."""
         self.check_link_speed()
         self.check_safe_settings()
-        self.check_product()
         if not duts:
             raise UserError("no part given: scan at least one serial (--dut SERIAL)")
         n_sockets = self.settings.settings.instruments.fixture.sockets
@@ -348,14 +347,6 @@ class UutRunner:
             )
         except SafeSettingsError as exc:
             raise UserError(f"procedure {self.procedure_path.name}: {exc}") from None
-
-    def check_product(self) -> None:
-        """Settings the product refuses (a rate beyond the part's range): one line each."""
-        problems = preflight.product_problems(
-            self.procedure, self.procedure_file, self.product, self.product_path.name
-        )
-        if problems:
-            raise UserError("\n".join(problems))
 
     @property
     def needs_table(self) -> bool:

@@ -199,3 +199,21 @@ def test_bad_driver_or_setting_is_one_line_with_station_yaml_line(
     (line,) = _refused(r, out)
     assert line.startswith(f"{yaml}:{_line_of(yaml, entry.strip())}: "), line
     assert words in line
+
+
+def test_every_product_problem_is_its_own_line(tmp_path: Path) -> None:
+    # two rates beyond the part's range and a supply level beyond its supply range: three lines
+    proc = _procedure(
+        tmp_path, "rates_dps: [50, -50, 200, -200]", "rates_dps: [50, -50, 2000, -2000]"
+    )
+    text = proc.read_text()
+    assert text.count("supplies_v: [4.75, 5.25]") == 1
+    proc.write_text(text.replace("supplies_v: [4.75, 5.25]", "supplies_v: [4.75, 25]"))
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
+    lines = _refused(r, out, n_lines=3)
+    assert sum("2000 deg/s is beyond the range" in line for line in lines) == 2, lines
+    (supply,) = [line for line in lines if "supplies_v" in line]
+    assert supply.startswith(f"{proc}:{_line_of(proc, 'supplies_v:')}: "), supply
+    assert "25 V is outside the supply range [4.75, 5.25] V" in supply, supply
+    assert "simulated bench running" not in r.stdout  # refused from the files alone
