@@ -16,11 +16,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers.chamber import ModbusChamber
-from drivers.errors import InstrumentError
+from drivers.errors import InstrumentError, InstrumentTimeout
 from drivers.modbus_link import ModbusLink
 from drivers.rate_table import ModbusRateTable
 from drivers.supply import ScpiSupply
-from tests.drivers._fakes import Exchange, ExpectedModbus, ExpectedSerial, ManualClock
+from tests.drivers._fakes import Exchange, ExpectedModbus, ManualClock
 
 TIMEOUT_S = 0.25
 SETTINGS = settings(
@@ -107,14 +107,35 @@ scpi_replies = st.one_of(
 )
 
 
+class _ReplyTransport:
+    """A line transport answering every query with the next scripted bytes, read as
+    drivers.visa reads them (latin-1, up to the LF; no LF is a timeout, as VISA's read)."""
+
+    instrument = "DC supply"
+
+    def __init__(self, replies: list[bytes]) -> None:
+        self._buffer = b"".join(replies)
+
+    def write(self, command: str) -> None:
+        pass
+
+    def query(self, command: str) -> str:
+        line, sep, self._buffer = self._buffer.partition(b"\n")
+        if not sep:
+            raise InstrumentTimeout(f"no reply to {command!r}", instrument=self.instrument)
+        return line.decode("latin-1")
+
+    def close(self) -> None:
+        pass
+
+
 @pytest.mark.parametrize("name", sorted(SUPPLY_CALLS))
 @SETTINGS
 @given(replies=st.lists(scpi_replies, min_size=1, max_size=4))
 def test_any_supply_reply_decodes_or_raises_a_typed_error(
     name: str, replies: list[bytes]
 ) -> None:
-    port = ExpectedSerial([(b"", r) for r in replies], timeout=0.002)  # any write: next reply
-    supply = ScpiSupply(port, timeout_s=0.05)
+    supply = ScpiSupply(_ReplyTransport(replies))
     t0 = time.monotonic()
     try:
         out = SUPPLY_CALLS[name](supply)
