@@ -63,7 +63,8 @@ def _frames_through_stream(codes: CodeFormat, rate_code, temp_code, run_codes) -
     product = SimpleNamespace(codes=run_codes)
     part = PartRun(socket=1, serial="X", folder=Path("."), record=None,  # type: ignore[arg-type]
                    stream=stream)
-    RunContext(SimpleNamespace(clock=ScaledClock(1.0)), None, product, [part])  # type: ignore[arg-type]
+    bench = SimpleNamespace(clock=ScaledClock(1.0), table=None, chamber=None)
+    RunContext(bench, None, product, [part])  # type: ignore[arg-type]
     stream.start()
     assert stream.poll() == n
     return stream
