@@ -97,8 +97,8 @@ def _resolve(loaded: LoadedSettings, role: str, driver: str | None) -> tuple[str
 def _sim_driver(
     role: str, configured: str | None, endpoints: Endpoints | None
 ) -> tuple[str | None, bool]:
-    """The driver to use and whether station.yaml's settings go with it (else only the twin's
-    address and timeout_s do: the bench serves another family than station.yaml's)."""
+    """The driver to use and whether station.yaml's settings go with it (else only those the
+    bench's family also takes do: the bench serves another family than station.yaml's)."""
     if endpoints is None or configured is not None:
         return configured, True
     family = endpoints.families.get(role)
@@ -106,6 +106,25 @@ def _sim_driver(
     if family is None or f"{role}.{family}" == default:
         return None, True
     return f"{role}.{family}", False
+
+
+def _carried_over(
+    given: dict[str, Any], factory: Any, role: str, name: str
+) -> dict[str, Any]:
+    """station.yaml's settings for another family, as far as the bench's family `name` takes
+    them (a supply's max_voltage_v, a timeout); the others are left out, with a warning, so a
+    limit written for the real instrument is never dropped without a word."""
+    model = registry.settings_model(factory)
+    accepted = set(model.model_fields) if model is not None else {"address", "timeout_s"}
+    kept = {k: v for k, v in given.items() if k in accepted}
+    dropped = sorted(set(given) - set(kept))
+    if dropped:
+        log.warning(
+            "instruments.%s: the simulated bench serves %s, which has no setting %s; "
+            "those station.yaml settings are not used on the bench",
+            ROLE_KEYS.get(role, role), name, ", ".join(dropped),
+        )
+    return kept
 
 
 def plan_role(
@@ -119,9 +138,7 @@ def plan_role(
     driver, own_settings = _sim_driver(role, entry.driver, endpoints)
     name, factory = _resolve(loaded, role, driver)
     given = entry.driver_settings()
-    settings = given if own_settings else {
-        k: v for k, v in given.items() if k == "timeout_s"
-    }
+    settings = given if own_settings else _carried_over(given, factory, role, name)
     if endpoints is not None and endpoints.address(role):
         settings["address"] = endpoints.address(role)
     return RoleDriver(
@@ -139,7 +156,7 @@ def plan_part(
     name, factory = _resolve(loaded, "part", driver)
     settings = fixture.driver_settings(socket, port)
     if not own_settings:
-        settings = {k: v for k, v in settings.items() if k in ("address", "socket", "timeout_s")}
+        settings = _carried_over(settings, factory, "part", name)
     return RoleDriver(
         "part", name, factory, settings, ("instruments", _yaml_key(loaded, "part")),
         fixture.calibration_due, socket=socket,

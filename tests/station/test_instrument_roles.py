@@ -113,3 +113,21 @@ def test_on_the_bench_a_named_driver_is_kept_and_given_the_twins_address(
     plan = roles.plan_role(settings, "chamber", _bench(chamber="espec-p300"))  # type: ignore[arg-type]
     assert plan is not None and plan.name == "drivers.chamber:factory"
     assert plan.settings == {"address": "127.0.0.1:4002", "poll_s": 2}
+
+
+def test_on_the_bench_another_family_keeps_the_settings_it_also_takes(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # station.yaml's scpi supply with a voltage rating, the bench serving a Keysight: the
+    # rating still reaches the pre-flight; the serial baud, which a LAN supply has not, is
+    # left out with a warning instead of silently
+    settings = _settings(
+        tmp_path, "  supply: {address: /dev/ttyUSB0, baud: 9600, max_voltage_v: 6}\n"
+    )
+    bench = _bench(supply="keysight-e36300")
+    bench.supply = "TCPIP::127.0.0.1::4003::SOCKET"
+    with caplog.at_level("WARNING", logger="station.instruments"):
+        plan = roles.plan_role(settings, "supply", bench)  # type: ignore[arg-type]
+    assert plan is not None and plan.name == "supply.keysight-e36300"
+    assert plan.settings == {"address": "TCPIP::127.0.0.1::4003::SOCKET", "max_voltage_v": 6}
+    assert "baud" in caplog.text and "keysight-e36300" in caplog.text
