@@ -26,7 +26,7 @@ from procedures.model.discrepancy import run_discrepancy
 from procedures.model.gyro_model import base_model, first_order_model
 from procedures.model.run_folder import load_data
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 
 ROOT = Path(__file__).resolve().parents[2]
 PROCEDURE = Path(__file__).resolve().parent / "data" / "eol-discrepancy.yaml"

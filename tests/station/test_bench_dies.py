@@ -21,7 +21,7 @@ from procedures.record import Verdict, read_record
 from station.settings import load_settings
 from station.uut import Endpoints, UutRunner
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"
 INSTRUMENTS = ("rate table", "thermal chamber", "DC supply", "supply", "fixture")
