@@ -3,6 +3,7 @@ the optional inclinometer, and on the simulated bench the family each twin serve
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -124,8 +125,9 @@ def test_on_the_bench_another_family_keeps_the_settings_it_also_takes(
     settings = _settings(
         tmp_path, "  supply: {address: /dev/ttyUSB0, baud: 9600, max_voltage_v: 6}\n"
     )
-    bench = _bench(supply="keysight-e36300")
-    bench.supply = "TCPIP::127.0.0.1::4003::SOCKET"
+    bench = dataclasses.replace(
+        _bench(supply="keysight-e36300"), supply="TCPIP::127.0.0.1::4003::SOCKET"
+    )
     with caplog.at_level("WARNING", logger="station.instruments"):
         plan = roles.plan_role(settings, "supply", bench)  # type: ignore[arg-type]
     assert plan is not None and plan.name == "supply.keysight-e36300"
