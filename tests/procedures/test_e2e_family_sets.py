@@ -29,8 +29,8 @@ SETS = {
 def _assert_pass(verdicts: dict[int, Verdict], reasons: dict[int, str]) -> None:
     """Both parts PASS; at most one of the eight stop-vs-table consistency judgements (2 parts
     x 4 conditions, |z| <= 3) may be out, and nothing else. Seen about once in four runs of
-    this file on a loaded machine (not seen in this session.s runs of the default set): the combined uncertainty
-    of the two methods is too small there, which is open work, not hidden here."""
+    this file on a loaded machine (not in this session's runs of the default set): the
+    combined uncertainty of the two methods is too small there; open work, not hidden here."""
     failed = {s: r for s, r in reasons.items() if verdicts[s] is not Verdict.PASS}
     if not failed:
         return
