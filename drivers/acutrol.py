@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -34,7 +33,6 @@ from drivers.acutrol_codes import Err, StatusBit, fault_text
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     InstrumentError,
-    InstrumentTimeout,
     InterlockOpen,
     ProtocolError,
     SetpointOutOfRange,
@@ -42,14 +40,12 @@ from drivers.errors import (
 )
 from drivers.protocols import InstrumentIdentity, TableStatus
 from drivers.rate_table import split_host_port
+from drivers.table_waits import TableWaits
 from drivers.tcp_lines import LineLink
 
 log = logging.getLogger(__name__)
 
 NAME = "rate table"
-_RATE_MATCH_DPS = 0.5  # as the Modbus driver: a stale AT_RATE must not end a new wait
-_RATE_MATCH_REL = 0.005
-_POSITION_MATCH_DEG = 0.05
 _SAFETY_ERRORS = (Err.SAFETY_OPEN, Err.FAULT_LATCHED, Err.ESTOP)
 
 
@@ -98,7 +94,7 @@ def _num(value: float) -> str:
     return f"{value:.6f}"
 
 
-class AcutrolTable:
+class AcutrolTable(TableWaits):
     """`drivers.protocols.RateTable` over the ACUTROL command language (see module doc)."""
 
     def __init__(
@@ -316,43 +312,6 @@ class AcutrolTable:
         self.check()
 
     # ------------------------------------------------------------ waits
-
-    def _wait(
-        self, done: Callable[[TableStatus], bool], timeout_s: float, what: str
-    ) -> TableStatus:
-        deadline = self._clock.now_s() + timeout_s
-        while True:
-            status = self.check()
-            if done(status):
-                return status
-            if self._clock.now_s() >= deadline:
-                raise InstrumentTimeout(
-                    f"the rate table did not {what} within {timeout_s:g} s (rate "
-                    f"{status.rate_dps:.3f} deg/s, position {status.position_deg:.3f} deg, "
-                    f"status {status}): check the load and the acceleration limit, or "
-                    "lengthen the timeout",
-                    instrument=NAME,
-                )
-            self._clock.sleep_s(self._poll_s)
-
-    def wait_at_rate(self, timeout_s: float) -> TableStatus:
-        cmd = self._rate_cmd_dps
-
-        def done(s: TableStatus) -> bool:
-            tolerance_dps = _RATE_MATCH_DPS + _RATE_MATCH_REL * abs(cmd or 0.0)
-            near = cmd is None or abs(s.rate_dps - cmd) <= tolerance_dps
-            return s.at_rate and near
-
-        return self._wait(done, timeout_s, f"reach {cmd} deg/s")
-
-    def wait_in_position(self, timeout_s: float) -> TableStatus:
-        cmd = self._pos_cmd_deg
-
-        def done(s: TableStatus) -> bool:
-            near = cmd is None or abs(s.position_deg - cmd) <= _POSITION_MATCH_DEG
-            return s.in_position and near
-
-        return self._wait(done, timeout_s, f"come to rest at {cmd} deg")
 
     # ------------------------------------------------------------ shutdown
 

@@ -14,7 +14,6 @@ Station configuration (`instruments.rate_table`, driver `modbus-servo`): see `Se
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -23,7 +22,6 @@ from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ControllerHung,
     InstrumentError,
-    InstrumentTimeout,
     InterlockOpen,
     TableFault,
 )
@@ -39,15 +37,13 @@ from drivers.servo_profile import (
     ServoProfile,
     load_profile,
 )
+from drivers.table_waits import TableWaits
 from drivers.yaml_input import ConfigError
 
 log = logging.getLogger(__name__)
 
 NAME = "rate table"
 # a stale AT_RATE / IN_POSITION from the previous command must not end a wait for a new one
-_RATE_MATCH_DPS = 0.5
-_RATE_MATCH_REL = 0.005
-_POSITION_MATCH_DEG = 0.05
 SAFE_REST_DPS = 0.01  # |rate| below this, not moving: the table is at rest
 # the heartbeat register must advance within this much station time (and readings further
 # apart than the window are not compared: the 16-bit counter may have wrapped)
@@ -110,7 +106,7 @@ def fault_message(code: int, profile: ServoProfile | None = None) -> str:
     return (profile or load_profile()).fault_text(code)
 
 
-class ModbusRateTable:
+class ModbusRateTable(TableWaits):
     """`drivers.protocols.RateTable` over Modbus TCP.
 
     Args:
@@ -339,43 +335,6 @@ class ModbusRateTable:
         )
 
     # ------------------------------------------------------------ waits
-
-    def _wait(
-        self, done: Callable[[TableStatus], bool], timeout_s: float, what: str
-    ) -> TableStatus:
-        deadline = self._clock.now_s() + timeout_s
-        while True:
-            status = self.check()
-            if done(status):
-                return status
-            if self._clock.now_s() >= deadline:
-                raise InstrumentTimeout(
-                    f"the rate table did not {what} within {timeout_s:g} s (rate "
-                    f"{status.rate_dps:.3f} deg/s, position {status.position_deg:.3f} deg, "
-                    f"status {status}): check the load and the acceleration limit, or "
-                    "lengthen the timeout",
-                    instrument=NAME,
-                )
-            self._clock.sleep_s(self._poll_s)
-
-    def wait_at_rate(self, timeout_s: float) -> TableStatus:
-        cmd = self._rate_cmd_dps
-
-        def done(s: TableStatus) -> bool:
-            tolerance_dps = _RATE_MATCH_DPS + _RATE_MATCH_REL * abs(cmd or 0.0)
-            near = cmd is None or abs(s.rate_dps - cmd) <= tolerance_dps
-            return s.at_rate and near
-
-        return self._wait(done, timeout_s, f"reach {cmd} deg/s")
-
-    def wait_in_position(self, timeout_s: float) -> TableStatus:
-        cmd = self._pos_cmd_deg
-
-        def done(s: TableStatus) -> bool:
-            near = cmd is None or abs(s.position_deg - cmd) <= _POSITION_MATCH_DEG
-            return s.in_position and near
-
-        return self._wait(done, timeout_s, f"come to rest at {cmd} deg")
 
     # ------------------------------------------------------------ shutdown
 
