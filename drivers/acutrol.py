@@ -33,7 +33,6 @@ from drivers.acutrol_codes import Err, StatusBit, fault_text
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     InstrumentError,
-    InterlockOpen,
     ProtocolError,
     SetpointOutOfRange,
     TableFault,
@@ -225,24 +224,8 @@ class AcutrolTable(TableWaits):
             encoder_counts_unwrapped=counts,
         )
 
-    def check(self, status: TableStatus | None = None) -> TableStatus:
-        """Raise InterlockOpen or TableFault if the table reports either; else the status."""
-        status = status or self.read_status()
-        if status.interlock_open:
-            raise InterlockOpen(
-                "the rate table's safety interlock is open (door or guard): close it, then "
-                "reset the fault and enable the table again",
-                fault_code=status.fault_code,
-                instrument=NAME,
-            )
-        if status.fault:
-            raise TableFault(
-                f"rate table fault {status.fault_code}: {fault_text(status.fault_code)}; "
-                "the table stopped and is disabled",
-                fault_code=status.fault_code,
-                instrument=NAME,
-            )
-        return status
+    def fault_text(self, code: int) -> str:
+        return fault_text(code)
 
     # ------------------------------------------------------------ control
 

@@ -22,7 +22,6 @@ from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ControllerHung,
     InstrumentError,
-    InterlockOpen,
     TableFault,
 )
 from drivers.modbus_link import ModbusLink, ModbusRefused, Unwrapper, regs_to_str, reopen_link
@@ -218,25 +217,8 @@ class ModbusRateTable(TableWaits):
             encoder_counts_unwrapped=self._counts(counts),
         )
 
-    def check(self, status: TableStatus | None = None) -> TableStatus:
-        """Raise InterlockOpen or TableFault if the table reports either; else the status."""
-        status = status or self.read_status()
-        if status.interlock_open:
-            raise InterlockOpen(
-                "the rate table's safety interlock is open (door or guard): close it, then "
-                "reset the fault and enable the table again",
-                fault_code=status.fault_code,
-                instrument=NAME,
-            )
-        if status.fault:
-            raise TableFault(
-                f"rate table fault {status.fault_code}: "
-                f"{self.profile.fault_text(status.fault_code)}; "
-                "the table stopped and is disabled",
-                fault_code=status.fault_code,
-                instrument=NAME,
-            )
-        return status
+    def fault_text(self, code: int) -> str:
+        return self.profile.fault_text(code)
 
     # ------------------------------------------------------------ control
 

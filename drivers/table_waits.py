@@ -1,8 +1,9 @@
-"""Waiting for a rate table to reach its commanded rate or come to rest, on the station clock.
+"""Judging a rate table's status and waiting for it to reach its commanded rate or come to
+rest, on the station clock.
 
-The same for every table family: a driver polls its own status (`check()`, which raises on a
-fault or an open interlock) until the status says done and the feedback matches the command,
-so a stale AT_RATE or IN_POSITION bit left from the previous motion never ends a new wait.
+The same for every table family: a fault or an open interlock is an exception; a driver polls
+its own status until the status says done and the feedback matches the command, so a stale
+AT_RATE or IN_POSITION bit left from the previous motion never ends a new wait.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from drivers.clock import Clock
-from drivers.errors import InstrumentTimeout
+from drivers.errors import InstrumentTimeout, InterlockOpen, TableFault
 from drivers.protocols import TableStatus
 
 RATE_MATCH_DPS = 0.5  # feedback within this + RATE_MATCH_REL x |command| counts as at rate
@@ -19,18 +20,41 @@ POSITION_MATCH_DEG = 0.05
 
 
 class TableWaits:
-    """Mixin of the table drivers: `wait_at_rate` and `wait_in_position`.
+    """Mixin of the table drivers: `check`, `wait_at_rate` and `wait_in_position`.
 
-    The driver provides `check()`, `_clock`, `_poll_s` and the last commands
-    `_rate_cmd_dps` / `_pos_cmd_deg` (None: no command to match)."""
+    The driver provides `read_status()`, `fault_text(code)`, `_clock`, `_poll_s` and the last
+    commands `_rate_cmd_dps` / `_pos_cmd_deg` (None: no command to match)."""
 
     _clock: Clock
     _poll_s: float
     _rate_cmd_dps: float | None
     _pos_cmd_deg: float | None
 
-    def check(self, status: TableStatus | None = None) -> TableStatus:
+    def read_status(self) -> TableStatus:
         raise NotImplementedError
+
+    def fault_text(self, code: int) -> str:
+        """What the controller's fault `code` means, in words an operator can act on."""
+        raise NotImplementedError
+
+    def check(self, status: TableStatus | None = None) -> TableStatus:
+        """Raise InterlockOpen or TableFault if the table reports either; else the status."""
+        status = status or self.read_status()
+        if status.interlock_open:
+            raise InterlockOpen(
+                "the rate table's safety interlock is open (door or guard): close it, then "
+                "reset the fault and enable the table again",
+                fault_code=status.fault_code,
+                instrument="rate table",
+            )
+        if status.fault:
+            raise TableFault(
+                f"rate table fault {status.fault_code}: {self.fault_text(status.fault_code)}; "
+                "the table stopped and is disabled",
+                fault_code=status.fault_code,
+                instrument="rate table",
+            )
+        return status
 
     def _wait(
         self, done: Callable[[TableStatus], bool], timeout_s: float, what: str
