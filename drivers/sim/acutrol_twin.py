@@ -12,13 +12,13 @@ table's `slew_rate_dps` (a `:limit:rate pos` lower than that is stored, not appl
 
 from __future__ import annotations
 
-import asyncio
 import logging
 from collections.abc import Callable
 
 from drivers.acutrol_codes import MANUFACTURER, Err, Fault, StatusBit
 from drivers.rate_table_map import MAX_RATE_DPS, Control, Mode, Reg, Status
 from drivers.rate_table_map import Fault as NativeFault
+from drivers.sim.line_twin import LineTwin
 from drivers.sim.table import CommandRefusedError
 from drivers.sim.world import World
 
@@ -57,16 +57,14 @@ def _keyword(word: str) -> str:
     raise CommandError(Err.UNDEFINED_HEADER, f"Undefined header {word!r}")
 
 
-class AcutrolTwin:
+class AcutrolTwin(LineTwin):
     """The ACUTROL command interface of the simulated table on `host:port` (0: any free)."""
 
+    name = "ACUTROL twin"
+    max_line_bytes = 65536
+
     def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
-        self.world = world
-        self.host = host
-        self.port = port
-        self.delay_s = 0.0
-        self.dropped = False
-        self.requests = 0
+        super().__init__(world, host, port)
         self.before_write: Callable[[float], None] | None = None
         cfg = world.table.cfg
         self.mode = "off"
@@ -74,61 +72,11 @@ class AcutrolTwin:
         self.position_demand_deg = 0.0
         self.accel_dps2 = {"rate": cfg.accel_limit_dps2, "position": cfg.accel_limit_dps2}
         self.rate_limit_dps = {"rate": MAX_RATE_DPS, "position": cfg.slew_rate_dps}
-        self._server: asyncio.Server | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
-
-    # ------------------------------------------------------------ serving
-
-    async def start(self) -> None:
-        self._server = await asyncio.start_server(
-            self._serve, self.host, self.port, reuse_address=True
-        )
-        self.port = self._server.sockets[0].getsockname()[1]
-
-    def endpoint(self) -> str:
-        return f"{self.host}:{self.port}"
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            while not self.dropped:
-                raw = await reader.readline()
-                if not raw:
-                    break
-                self.requests += 1
-                if self.delay_s > 0:
-                    await asyncio.sleep(self.delay_s)
-                if self.dropped:
-                    break
-                reply = self.handle_line(raw.decode("ascii", "replace").strip())
-                writer.write(reply.encode("ascii") + b"\r\n")
-                await writer.drain()
-        except (ConnectionError, asyncio.IncompleteReadError, ValueError):
-            pass
-        finally:
-            self._writers.discard(writer)
-            writer.close()
-
-    async def drop(self) -> None:
-        """Stop listening and close every open connection (a pulled cable, a crashed unit)."""
-        if self._server is None or self.dropped:
-            return
-        self.dropped = True
-        self._server.close()
-        for writer in list(self._writers):
-            writer.close()
-        await self._server.wait_closed()
-
-    async def restore(self) -> None:
-        if self.dropped:
-            self.dropped = False
-            await self.start()
-
-    async def shutdown(self) -> None:
-        await self.drop()
-        self._server = None
 
     # ------------------------------------------------------------ one line
+
+    def reply(self, line: str) -> str:
+        return self.handle_line(line)
 
     def handle_line(self, line: str) -> str:
         """The reply to one request line, all of it at one world time."""

@@ -12,11 +12,10 @@ Modes: `POWER,OFF` -> OFF (control off, only `POWER,ON` and queries are taken), 
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import logging
 import math
 
+from drivers.sim.line_twin import LineTwin
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -26,76 +25,15 @@ CONTROLLER = "P300"
 MAX_LINE = 256
 
 
-class EspecP300Twin:
-    """ESPEC P-300 twin on loopback (the brief's twin contract)."""
+class EspecP300Twin(LineTwin):
+    """ESPEC P-300 twin on loopback (the bench's twin contract)."""
+
+    name = "ESPEC P-300 twin"
+    max_line_bytes = MAX_LINE
 
     def __init__(self, world: World, host: str = "127.0.0.1", port: int = 0) -> None:
-        self.world = world
-        self.host = host
-        self.port = port
-        self.delay_s = 0.0
-        self.dropped = False
-        self.requests = 0
+        super().__init__(world, host, port)
         self.powered = True
-        self._server: asyncio.Server | None = None
-        self._writers: set[asyncio.StreamWriter] = set()
-
-    async def start(self) -> None:
-        self._server = await asyncio.start_server(
-            self._serve, self.host, self.port, reuse_address=True
-        )
-        self.port = self._server.sockets[0].getsockname()[1]
-
-    def endpoint(self) -> str:
-        return f"{self.host}:{self.port}"
-
-    async def drop(self) -> None:
-        """Stop listening and close every connection (a pulled cable, a crashed unit)."""
-        if self._server is not None and not self.dropped:
-            self.dropped = True
-            self._server.close()
-            self._close_connections()
-            await self._server.wait_closed()
-
-    async def restore(self) -> None:
-        if self.dropped:
-            self.dropped = False
-            await self.start()
-
-    async def shutdown(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            self._close_connections()
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(self._server.wait_closed(), 2.0)
-            self._server = None
-
-    def _close_connections(self) -> None:
-        for writer in list(self._writers):
-            writer.close()
-        self._writers.clear()
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._writers.add(writer)
-        try:
-            while True:
-                try:
-                    line = await reader.readuntil(b"\n")
-                except asyncio.LimitOverrunError:
-                    return
-                if len(line) > MAX_LINE:
-                    return
-                self.requests += 1
-                if self.delay_s > 0:
-                    await asyncio.sleep(self.delay_s)
-                text = line.decode("ascii", "replace").strip()
-                writer.write(self.answer(text).encode("ascii") + b"\r\n")
-                await writer.drain()
-        except (asyncio.IncompleteReadError, ConnectionError):
-            pass
-        finally:
-            self._writers.discard(writer)
-            writer.close()
 
     # ------------------------------------------------------------ the command set
 
@@ -103,6 +41,9 @@ class EspecP300Twin:
         if not self.powered:
             return "OFF"
         return "CONSTANT" if self.world.chamber.running else "STANDBY"
+
+    def reply(self, line: str) -> str:
+        return self.answer(line)
 
     def answer(self, command: str) -> str:
         """The reply to one command line (without its terminator)."""

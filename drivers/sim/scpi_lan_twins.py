@@ -11,14 +11,13 @@ every connection and refuses new ones until `restore()`; `delay_s` answers every
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import logging
 import re
 from collections.abc import Callable
 
 import numpy as np
 
+from drivers.sim.line_twin import LineTwin
 from drivers.sim.supply import SupplyModel
 from drivers.sim.world import World
 
@@ -64,104 +63,31 @@ class SupplyOutputs:
         self.main.errors.append((-113, "Undefined header"))
 
 
-class ScpiLanTwin:
+class ScpiLanTwin(LineTwin):
     """A raw SCPI socket server for one supply family; subclasses translate their syntax."""
 
     name = "SCPI supply"
+    terminator = b"\n"
+    max_line_bytes = MAX_LINE_BYTES
+    overlong_closes = False  # an over-long message is discarded; the connection stays
 
     def __init__(
         self, world: World, host: str = "127.0.0.1", port: int = 0, channel: int = 1
     ) -> None:
-        self.world = world
-        self.host = host
-        self.port = port
+        super().__init__(world, host, port)
         self.outputs = SupplyOutputs(world, channel)
-        self.delay_s = 0.0
-        self.dropped = False
-        self.messages = 0
-        self._server: asyncio.Server | None = None
-        self._clients: set[asyncio.StreamWriter] = set()
-
-    # ------------------------------------------------------------ the twin contract
-
-    async def start(self) -> None:
-        await self._listen()
 
     def endpoint(self) -> str:
         return f"TCPIP::{self.host}::{self.port}::SOCKET"
 
-    async def drop(self) -> None:
-        """Close every connection and stop listening (a pulled cable, a crashed unit)."""
-        if self.dropped:
-            return
-        self.dropped = True
-        await self._close_all()
-
-    async def restore(self) -> None:
-        if self.dropped:
-            self.dropped = False
-            await self._listen()
-
-    async def shutdown(self) -> None:
-        await self._close_all()
-
-    # ------------------------------------------------------------ serving
-
-    async def _listen(self) -> None:
-        self._server = await asyncio.start_server(
-            self._serve, self.host, self.port, reuse_address=True, limit=MAX_LINE_BYTES
-        )
-        self.port = self._server.sockets[0].getsockname()[1]
-
-    async def _close_all(self) -> None:
-        server, self._server = self._server, None
-        if server is not None:
-            server.close()
-        for writer in list(self._clients):
-            writer.close()
-        for writer in list(self._clients):
-            with contextlib.suppress(ConnectionError, OSError):
-                await writer.wait_closed()
-        self._clients.clear()
-        if server is not None:
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(server.wait_closed(), 1.0)
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._clients.add(writer)
-        try:
-            while True:
-                try:
-                    raw = await reader.readline()
-                except ValueError:  # a line beyond MAX_LINE_BYTES: drop what was buffered
-                    log.info("%s: over-long message discarded", self.name)
-                    continue
-                if not raw:
-                    return
-                reply = await self._answer(raw.decode("ascii", "replace").strip())
-                if reply is not None and not writer.is_closing():
-                    writer.write(reply.encode("ascii") + b"\n")
-                    await writer.drain()
-        except (ConnectionError, OSError):
-            return
-        finally:
-            self._clients.discard(writer)
-            writer.close()
-
-    async def _answer(self, line: str) -> str | None:
+    def reply(self, line: str) -> str | None:
+        """Empty lines are no message; the world advances to the message and past it."""
         if not line:
             return None
-        self.messages += 1
-        if self.delay_s > 0:
-            await asyncio.sleep(self.delay_s)
         self.world.advance()
-        try:
-            reply = self.handle(line)
-        except Exception:  # a twin bug must not kill the bench's event loop
-            log.exception("%s failed on %r", self.name, line)
-            return None
+        answer = self.handle(line)
         self.world.advance()
-        return reply
+        return answer
 
     def handle(self, line: str) -> str | None:
         """One message line -> the reply line, or None for a setting."""
