@@ -137,6 +137,8 @@ class RunRecord(_Model):
     station_local_tz: str = ""
     station: dict[str, Any] = Field(default_factory=dict)  # id, name, location, host
     operator: str = ""
+    work_order: str = ""  # entered by the operator (or --work-order); empty when none
+    lot: str = ""  # the production lot the part belongs to (or --lot); empty when none
     software_version: str = ""
     dut: Dut
     product: FileRef

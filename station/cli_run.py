@@ -195,12 +195,18 @@ def run_cycle(
     operator = getattr(args, "operator", "") or ""
     if len(operator) > 200 or not operator.isprintable():
         raise UserError("--operator must be at most 200 printable characters (a name or badge)")
+    for flag in ("work_order", "lot"):
+        value = getattr(args, flag, "") or ""
+        if len(value) > 100 or not value.isprintable():
+            raise UserError(f"--{flag.replace('_', '-')} must be at most 100 printable characters")
     try:
         settings = load_settings(Path(args.station) if args.station else None)
         runner_kwargs = dict(
             procedure_path=Path(args.procedure) if args.procedure else None,
             product_path=Path(args.product) if getattr(args, "product", None) else None,
             operator=getattr(args, "operator", "") or "",
+            work_order=getattr(args, "work_order", "") or "",
+            lot=getattr(args, "lot", "") or "",
             out=Path(args.out) if args.out else None,
         )
         probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
@@ -296,6 +302,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--product", help="product file (default: the procedure's product)")
     r.add_argument("--station", help="station file (default: config/station.yaml)")
     r.add_argument("--operator", default="", help="operator name or badge")
+    r.add_argument("--work-order", default="", help="work order the parts are built under")
+    r.add_argument("--lot", default="", help="production lot of the parts")
     r.add_argument("--sim", action="store_true", help="start the simulated bench for this run")
     r.add_argument(
         "--sim-config",

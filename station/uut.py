@@ -263,6 +263,8 @@ class UutRunner:
         procedure_path: Path | None = None,
         product_path: Path | None = None,
         operator: str = "",
+        work_order: str = "",
+        lot: str = "",
         out: Path | None = None,
         endpoints: Endpoints | None = None,
         certificate: bool = True,
@@ -283,6 +285,8 @@ class UutRunner:
             self.procedure, self.procedure_file, self.product, self.product_file
         )
         self.operator = operator
+        self.work_order = work_order
+        self.lot = lot
         # resolved, so that --out naming station.yaml's output folder keeps its results_db
         self.out = Path(out).expanduser().resolve() if out else settings.output_folder
         self.endpoints = endpoints
@@ -660,6 +664,8 @@ class UutRunner:
                 "host": socketlib.gethostname(),
             },
             operator=self.operator,
+            work_order=self.work_order,
+            lot=self.lot,
             software_version=__version__,
             dut=Dut(serial=serial, socket=sock, product=self.product.product),
             product=FileRef(

@@ -50,6 +50,8 @@ class StartRequest:
     procedure_path: str
     product_path: str
     operator: str = ""
+    work_order: str = ""
+    lot: str = ""
 
 
 @dataclass(frozen=True)
@@ -339,6 +341,8 @@ class EngineRunner:
         # (nothing written) while an instrument is unreachable or a setting is out of its limits
         serials = uut.preflight(dict(request.serials))
         uut.operator = request.operator
+        uut.work_order = request.work_order
+        uut.lot = request.lot
         self._uut = uut
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
         self._thread = threading.Thread(
