@@ -738,6 +738,9 @@ class UutRunner:
             db = self._results_db()
             if db is not None:
                 db.add_run(part.folder, part.record)
+                from station.db.sync import wake_station_sync
+
+                wake_station_sync(self.settings, db.url)  # store-and-forward to the line's db
         except Exception as exc:  # the run folder is the master copy; the index can be rebuilt
             log.error("results database: could not add %s: %s", part.folder, exc)
 
