@@ -736,11 +736,10 @@ class UutRunner:
     def _store(self, part: PartRun) -> None:
         try:
             db = self._results_db()
-            if db is not None:
-                db.add_run(part.folder, part.record)
-                from station.db.sync import wake_station_sync
+            if db is not None:  # locally first, then forwarded to the line's central db
+                from station.db.sync import store_finished_run
 
-                wake_station_sync(self.settings, db.url)  # store-and-forward to the line's db
+                store_finished_run(db, self.settings, part.folder, part.record)
         except Exception as exc:  # the run folder is the master copy; the index can be rebuilt
             log.error("results database: could not add %s: %s", part.folder, exc)
 

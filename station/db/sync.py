@@ -228,3 +228,10 @@ def wake_station_sync(settings: Any, local: str) -> None:
         local, central, station_id=settings.settings.station.id, software_version=__version__,
         interval_s=settings.settings.sync_interval_s,
     ).wake()
+
+
+def store_finished_run(db: Any, settings: Any, folder: Any, record: Any) -> None:
+    """What the station does when a run ends (UutRunner): index it in the local results
+    database (db: station.results_db.ResultsDB), then wake the sync to the central one."""
+    db.add_run(folder, record)
+    wake_station_sync(settings, db.url)
