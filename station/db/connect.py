@@ -67,7 +67,10 @@ def sqlite_path(url: str) -> Path | None:
 
 def shown(url: str) -> str:
     """The URL without its password, for messages and logs."""
-    return make_url(url).render_as_string(hide_password=True)
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except ArgumentError:  # a bare path
+        return url
 
 
 def _sqlite_pragmas(dbapi_con: Any, _record: Any) -> None:
