@@ -38,7 +38,8 @@ class Capability:
 
 def cpk(mean: float, sd: float, low: float | None, high: float | None) -> float | None:
     """min((high - mean), (mean - low)) / (3 sd) over the limits there are."""
-    if sd <= 0 or not math.isfinite(sd) or (low is None and high is None):
+    no_spread = sd <= 1e-12 * max(1.0, abs(mean))  # rounding noise of equal values
+    if no_spread or not math.isfinite(sd) or (low is None and high is None):
         return None
     sides = []
     if high is not None:
