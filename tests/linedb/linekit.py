@@ -76,3 +76,19 @@ def station_yaml(folder: Path, station_id: str, central: str | None, results_db:
     path = folder / "station.yaml"
     path.write_text(yaml.safe_dump(data), encoding="utf-8")
     return path
+
+
+def direct_yields(records: list, key: object) -> dict[str, tuple[int, int, int, int]]:
+    """group -> (units, tests, first passes, final passes), straight from the records."""
+    tests: dict[tuple[str, str], list] = {}
+    for r in sorted(records, key=lambda r: (r.started_utc, r.run_id)):
+        tests.setdefault((r.dut.product, r.dut.serial), []).append(r)
+    out: dict[str, list[int]] = {}
+    for unit_tests in tests.values():
+        g = key(unit_tests[0])  # type: ignore[operator]
+        row = out.setdefault(g, [0, 0, 0, 0])
+        row[0] += 1
+        row[1] += len(unit_tests)
+        row[2] += unit_tests[0].verdict.value == "PASS"
+        row[3] += unit_tests[-1].verdict.value == "PASS"
+    return {g: (a, b, c, d) for g, (a, b, c, d) in out.items()}

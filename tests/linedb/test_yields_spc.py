@@ -16,7 +16,7 @@ from station.line import queries
 from station.line.queries import Filters
 from station.line.spc import bissell_interval, capability, cpk, western_electric
 from station.results_db import ResultsDB
-from tests.linedb.linekit import line_runs
+from tests.linedb.linekit import direct_yields, line_runs
 
 
 @pytest.fixture(scope="module")
@@ -27,22 +27,6 @@ def line_db(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ResultsD
     db.add_records([(r.folder, r.record) for r in runs])
     yield db, [r.record for r in runs]
     dispose_all()
-
-
-def direct_yields(records: list, key: object) -> dict[str, tuple[int, int, int, int]]:
-    """group -> (units, tests, first passes, final passes), straight from the records."""
-    tests: dict[tuple[str, str], list] = {}
-    for r in sorted(records, key=lambda r: (r.started_utc, r.run_id)):
-        tests.setdefault((r.dut.product, r.dut.serial), []).append(r)
-    out: dict[str, list[int]] = {}
-    for unit_tests in tests.values():
-        g = key(unit_tests[0])  # type: ignore[operator]
-        row = out.setdefault(g, [0, 0, 0, 0])
-        row[0] += 1
-        row[1] += len(unit_tests)
-        row[2] += unit_tests[0].verdict.value == "PASS"
-        row[3] += unit_tests[-1].verdict.value == "PASS"
-    return {g: (a, b, c, d) for g, (a, b, c, d) in out.items()}
 
 
 def _shift(r: object) -> str:
