@@ -51,6 +51,7 @@ runs = sa.Table(
     sa.Column("attempt", sa.Integer, nullable=False, server_default="1"),
     sa.Column("first_run_id", sa.Text, nullable=False, server_default=""),
     sa.Column("unit_verdict", sa.Text, nullable=False, server_default=""),
+    sa.Column("unit_tests", sa.Integer, nullable=False, server_default="1"),
 )
 
 measurements = sa.Table(

@@ -78,7 +78,7 @@ def measurement_rows(rec: RunRecord) -> list[dict[str, Any]]:
     ]
 
 
-_LINK_COLUMNS = ("attempt", "first_run_id", "unit_verdict")
+_LINK_COLUMNS = ("attempt", "first_run_id", "unit_verdict", "unit_tests")
 
 
 def replace_runs(
@@ -127,7 +127,8 @@ def _queue(con: sa.Connection, ids: list[str]) -> None:
 
 def relink_units(con: sa.Connection, units: Iterable[tuple[str, str]]) -> None:
     """Each run of these (product, serial) units: its attempt number (1 = first test), the
-    run_id of the unit's first test, and the unit's final verdict (its latest test's)."""
+    run_id of the unit's first test, the unit's final verdict (its latest test's) and its
+    number of tests."""
     updates: list[dict[str, Any]] = []
     for product, serial in units:
         tests = con.execute(
@@ -139,14 +140,15 @@ def relink_units(con: sa.Connection, units: Iterable[tuple[str, str]]) -> None:
             continue
         first, final = tests[0].run_id, tests[-1].verdict
         updates += [
-            {"rid": t.run_id, "a": i + 1, "f": first, "v": final} for i, t in enumerate(tests)
+            {"rid": t.run_id, "a": i + 1, "f": first, "v": final, "n": len(tests)}
+            for i, t in enumerate(tests)
         ]
     if updates:
         con.execute(
             runs.update()
             .where(runs.c.run_id == sa.bindparam("rid"))
             .values(attempt=sa.bindparam("a"), first_run_id=sa.bindparam("f"),
-                    unit_verdict=sa.bindparam("v")),
+                    unit_verdict=sa.bindparam("v"), unit_tests=sa.bindparam("n")),
             updates,
         )
 

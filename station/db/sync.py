@@ -46,8 +46,8 @@ class Sync:
         self.local_url = database_url(local)
         self.central_url = database_url(central)
         if self.local_url == self.central_url:
-            raise SyncError(f"central_db is the station's own results_db ({shown(self.local_url)}); "
-                            "give the line's database")
+            raise SyncError(f"central_db is the station's own results_db "
+                            f"({shown(self.local_url)}); give the line's database")
         self.station_id = station_id
         self.software_version = software_version
         self.batch = batch

@@ -46,29 +46,57 @@ def shift_names(starts_h: Sequence[int]) -> list[str]:
     ]
 
 
-def shift_of(started_utc: sa.ColumnElement[str], starts_h: Sequence[int]) -> sa.ColumnElement[str]:
-    """SQL: the shift a time falls in (hours from the ISO text, portable SQLite/PostgreSQL)."""
+def _shift_by_hour(starts_h: Sequence[int]) -> dict[str, str]:
+    """'00'..'23' -> the name of the shift that hour falls in."""
     hours = sorted(starts_h)
     if not hours or any(not 0 <= h < 24 for h in hours) or len(set(hours)) != len(hours):
         raise ValueError(f"shift start hours {list(starts_h)} must be distinct hours 0-23")
     names = shift_names(hours)
-    hour = sa.cast(sa.func.substr(started_utc, 12, 2), sa.Integer)
-    whens = [
-        (sa.and_(hour >= h, hour < hours[i + 1]), names[i]) for i, h in enumerate(hours[:-1])
-    ]
-    return sa.case(*whens, else_=names[-1]) if whens else sa.literal(names[0])
+    out = {}
+    for h in range(24):
+        i = max((i for i, start in enumerate(hours) if start <= h), default=len(hours) - 1)
+        out[f"{h:02d}"] = names[i]
+    return out
 
 
-def group_column(
-    group: str, starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H
-) -> sa.ColumnElement[str]:
-    if group == "station":
-        return runs.c.station_id
-    if group in ("product", "lot", "work_order"):
-        return runs.c[group]
-    if group == "shift":
-        return shift_of(runs.c.started_utc, starts_h)
-    raise ValueError(f"yield by {group!r}: choose one of {', '.join(GROUPS)}")
+def yield_tables(
+    con: sa.Connection,
+    where: Sequence[sa.ColumnElement[bool]] = (),
+    shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H,
+) -> dict[str, list[YieldRow]]:
+    """Yield rows for all units ("all") and per station, product, lot, work order and shift,
+    largest group first: one indexed pass over the units' first tests, rolled up here.
+
+    where: filters on the runs table; they select the units by their first test."""
+    # grouped by the hour (text), mapped to shifts here: cheaper than a CASE on every row
+    hour = sa.func.substr(runs.c.started_utc, 12, 2).label("hour")
+    keys = [runs.c.station_id.label("station"), runs.c.product, runs.c.lot, runs.c.work_order,
+            hour]
+    shift_at = _shift_by_hour(shift_starts_h)
+    query = (
+        sa.select(
+            *keys,
+            sa.func.count().label("units"),
+            sa.func.sum(runs.c.unit_tests).label("tests"),
+            sa.func.sum(sa.case((runs.c.verdict == "PASS", 1), else_=0)).label("fp"),
+            sa.func.sum(sa.case((runs.c.unit_verdict == "PASS", 1), else_=0)).label("final"),
+        )
+        .where(runs.c.attempt == 1, runs.c.verdict != "RUNNING", *where)
+        .group_by(*keys)
+    )
+    sums: dict[str, dict[str, list[int]]] = {g: {} for g in ("all", *GROUPS)}
+    for row in con.execute(query).mappings():
+        row = {**row, "shift": shift_at.get(row["hour"], "")}
+        counts = [int(row["units"]), int(row["tests"] or 0), int(row["fp"] or 0),
+                  int(row["final"] or 0)]
+        for g in ("all", *GROUPS):
+            acc = sums[g].setdefault("all" if g == "all" else str(row[g]), [0, 0, 0, 0])
+            for i, c in enumerate(counts):
+                acc[i] += c
+    return {
+        g: sorted((YieldRow(k, *v) for k, v in groups.items()), key=lambda y: (-y.units, y.group))
+        for g, groups in sums.items()
+    }
 
 
 def yields_by(
@@ -77,32 +105,7 @@ def yields_by(
     where: Sequence[sa.ColumnElement[bool]] = (),
     shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H,
 ) -> list[YieldRow]:
-    """Yield rows per group (or one row for all when group is None), largest group first.
-
-    where: filters on the runs table; they select the units by their first test."""
-    key = group_column(group, shift_starts_h) if group else sa.literal("all")
-    finished = runs.c.verdict != "RUNNING"
-    first = (
-        sa.select(
-            key.label("g"),
-            sa.func.count().label("units"),
-            sa.func.sum(sa.case((runs.c.verdict == "PASS", 1), else_=0)).label("fp"),
-            sa.func.sum(sa.case((runs.c.unit_verdict == "PASS", 1), else_=0)).label("final"),
-        )
-        .where(runs.c.attempt == 1, finished, *where)
-        .group_by(key)
-    )
-    later = sa.alias(runs, "later")
-    tests = (
-        sa.select(key.label("g"), sa.func.count().label("tests"))
-        .select_from(runs.join(later, later.c.first_run_id == runs.c.run_id))
-        .where(runs.c.attempt == 1, finished, later.c.verdict != "RUNNING", *where)
-        .group_by(key)
-    )
-    counts = {r.g: int(r.tests) for r in con.execute(tests)}
-    found = [
-        YieldRow(group=str(r.g), units=int(r.units), tests=counts.get(r.g, int(r.units)),
-                 first_pass=int(r.fp or 0), final_pass=int(r.final or 0))
-        for r in con.execute(first)
-    ]
-    return sorted(found, key=lambda y: (-y.units, y.group))
+    """Yield rows of one grouping (None: one row for all units); see yield_tables."""
+    if group is not None and group not in GROUPS:
+        raise ValueError(f"yield by {group!r}: choose one of {', '.join(GROUPS)}")
+    return yield_tables(con, where, shift_starts_h)[group or "all"]

@@ -6,20 +6,21 @@ counts come from the database (GROUP BY over indexed columns), not from loading 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
 import sqlalchemy as sa
 
 from station.db.schema import CAL_KEYS, measurements, runs, stations
-from station.db.yields import DEFAULT_SHIFT_STARTS_H, GROUPS, yields_by
-from station.line.spc import capability, western_electric
+from station.db.yields import DEFAULT_SHIFT_STARTS_H
+from station.db.yields import yield_tables as _yield_tables
+from station.line.spc import capability, mean_sd, western_electric
 from station.results_db import parse_since
 
 RECENT_RESULTS = 8
+CPK_WINDOW = 2000  # Cpk over the latest first tests: the process as it runs now
 
 
 @dataclass(frozen=True)
@@ -77,11 +78,8 @@ def station_states(con: sa.Connection, offline_after_s: float, now: datetime | N
 
 def yield_tables(con: sa.Connection, flt: Filters,
                  shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H) -> dict[str, Any]:
-    where = flt.clauses()
-    tables: dict[str, Any] = {"all": _yield_json(yields_by(con, None, where, shift_starts_h))}
-    for group in GROUPS:
-        tables[group] = _yield_json(yields_by(con, group, where, shift_starts_h))
-    return tables
+    tables = _yield_tables(con, flt.clauses(), shift_starts_h)
+    return {group: _yield_json(rows) for group, rows in tables.items()}
 
 
 def _yield_json(rows: Sequence[Any]) -> list[dict[str, Any]]:
@@ -91,44 +89,50 @@ def _yield_json(rows: Sequence[Any]) -> list[dict[str, Any]]:
     ]
 
 
-def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95
-                 ) -> list[dict[str, Any]]:
-    """Cpk of every limited measurement (per name and condition) over the units' first tests,
-    with Bissell's interval. Mean and sd in two passes (no loss of precision)."""
+def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95,
+                 window: int = CPK_WINDOW) -> list[dict[str, Any]]:
+    """Cpk of every limited measurement (per name and condition) over the latest `window`
+    first tests matching the filters, with Bissell's interval. The window's values are
+    fetched (an indexed range) and reduced here: mean, then the sample sd about it."""
     m, r = measurements.c, runs.c
-    base = (
+    latest = (
+        sa.select(r.run_id)
+        .where(r.attempt == 1, r.verdict != "RUNNING", *flt.clauses())
+        .order_by(r.started_utc.desc()).limit(window)
+        .subquery()
+    )
+    rows = con.execute(
         sa.select(m.name, m.condition, m.value, m.low, m.high, m.units)
-        .select_from(measurements.join(runs, r.run_id == m.run_id))
-        .where(r.attempt == 1, r.verdict != "RUNNING", m.value.is_not(None), *flt.clauses())
-        .subquery()
+        .select_from(latest.join(measurements, m.run_id == latest.c.run_id))
+        .where(m.value.is_not(None))
     )
-    cond = sa.func.coalesce(base.c.condition, "")
-    stats = (
-        sa.select(base.c.name, cond.label("cond"), sa.func.count().label("n"),
-                  sa.func.avg(base.c.value).label("mean"),
-                  sa.func.min(base.c.low).label("low"), sa.func.max(base.c.high).label("high"),
-                  sa.func.max(base.c.units).label("units"))
-        .group_by(base.c.name, cond)
-        .having(sa.or_(sa.func.min(base.c.low).is_not(None),
-                       sa.func.max(base.c.high).is_not(None)))
-        .subquery()
-    )
-    dev = base.c.value - stats.c.mean
-    spread = (
-        sa.select(stats, sa.func.sum(dev * dev).label("ss"))
-        .select_from(base.join(stats, sa.and_(
-            base.c.name == stats.c.name,
-            cond == stats.c.cond)))
-        .group_by(*stats.c)
-    )
+    groups: dict[tuple[str, str], _Values] = {}
+    for name, condition, value, low, high, units in rows:
+        g = groups.setdefault((name, condition or ""), _Values(units=units))
+        g.add(float(value), low, high)
     out = []
-    for row in con.execute(spread).mappings():
-        n = int(row["n"])
-        sd = math.sqrt(float(row["ss"]) / (n - 1)) if n > 1 else 0.0
-        cap = capability(n, float(row["mean"]), sd, row["low"], row["high"], confidence)
-        out.append({"name": row["name"], "condition": row["cond"], "units": row["units"],
-                    **asdict(cap)})
-    return sorted(out, key=lambda c: (c["name"], c["condition"]))
+    for (name, condition), g in sorted(groups.items()):
+        if g.low is None and g.high is None:
+            continue  # informational: no limits, no capability
+        mean, sd = mean_sd(g.values)
+        cap = capability(len(g.values), mean, sd, g.low, g.high, confidence)
+        out.append({"name": name, "condition": condition, "units": g.units, **asdict(cap)})
+    return out
+
+
+@dataclass
+class _Values:
+    units: str
+    values: list[float] = field(default_factory=list)
+    low: float | None = None
+    high: float | None = None
+
+    def add(self, value: float, low: float | None, high: float | None) -> None:
+        self.values.append(value)
+        if low is not None:
+            self.low = low if self.low is None else min(self.low, low)
+        if high is not None:
+            self.high = high if self.high is None else max(self.high, high)
 
 
 def control_chart(con: sa.Connection, flt: Filters, coefficient: str, limit: int = 200

@@ -3,6 +3,7 @@ directory, listening on 127.0.0.1 only, trust authentication for one user."""
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import shutil
@@ -80,8 +81,6 @@ class PgServer:
         self._run("pg_ctl", "-D", str(self.data), "-m", "fast", "-w", "-t", "30", "stop")
 
     def destroy(self) -> None:
-        try:
+        with contextlib.suppress(RuntimeError):  # already stopped
             self.stop()
-        except RuntimeError:
-            pass  # already stopped
         shutil.rmtree(self.root, ignore_errors=True)

@@ -6,7 +6,6 @@ certificate that cannot be reached says so."""
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np

@@ -26,6 +26,7 @@ _NEW_RUN_COLUMNS = (
     ("attempt", sa.Integer, "1"),
     ("first_run_id", sa.Text, ""),
     ("unit_verdict", sa.Text, ""),
+    ("unit_tests", sa.Integer, "1"),
 )
 
 
@@ -66,14 +67,15 @@ def _backfill(con: sa.Connection) -> None:
     for run_id, product, serial, verdict in rows:
         units.setdefault((product, serial), []).append((run_id, verdict))
     updates = [
-        {"run_id": run_id, "attempt": i + 1, "first": tests[0][0], "final": tests[-1][1]}
+        {"run_id": run_id, "attempt": i + 1, "first": tests[0][0], "final": tests[-1][1],
+         "n": len(tests)}
         for tests in units.values()
         for i, (run_id, _) in enumerate(tests)
     ]
     if updates:
         con.execute(
             sa.text("UPDATE runs SET attempt = :attempt, first_run_id = :first, "
-                    "unit_verdict = :final WHERE run_id = :run_id"),
+                    "unit_verdict = :final, unit_tests = :n WHERE run_id = :run_id"),
             updates,
         )
         now = datetime.now(UTC).isoformat(timespec="seconds")
