@@ -44,7 +44,7 @@ def database_url(text: str | Path, base: Path | None = None) -> str:
         return f"sqlite:///{path.resolve()}"
     try:
         url = make_url(str(text))
-    except ArgumentError as exc:
+    except (ArgumentError, ValueError) as exc:
         raise DatabaseError(
             f"database URL {text!r} not understood ({exc}); give sqlite:///PATH, "
             "postgresql+psycopg://USER@HOST/DB or a file path"
@@ -69,7 +69,7 @@ def shown(url: str) -> str:
     """The URL without its password, for messages and logs."""
     try:
         return make_url(url).render_as_string(hide_password=True)
-    except ArgumentError:  # a bare path
+    except (ArgumentError, ValueError):  # a bare path
         return url
 
 
