@@ -85,8 +85,8 @@ def yield_tables(
         .group_by(*keys)
     )
     sums: dict[str, dict[str, list[int]]] = {g: {} for g in ("all", *GROUPS)}
-    for row in con.execute(query).mappings():
-        row = {**row, "shift": shift_at.get(row["hour"], "")}
+    for found in con.execute(query).mappings():
+        row = {**found, "shift": shift_at.get(found["hour"], "")}
         counts = [int(row["units"]), int(row["tests"] or 0), int(row["fp"] or 0),
                   int(row["final"] or 0)]
         for g in ("all", *GROUPS):
