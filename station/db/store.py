@@ -129,8 +129,15 @@ def relink_units(con: sa.Connection, units: Iterable[tuple[str, str]]) -> None:
     """Each run of these (product, serial) units: its attempt number (1 = first test), the
     run_id of the unit's first test, the unit's final verdict (its latest test's) and its
     number of tests."""
+    ordered = sorted(set(units))
+    if con.dialect.name == "postgresql":
+        # two stations delivering tests of one serial at once: one relinks after the other
+        # (sorted, so two batches cannot deadlock); SQLite serialises writers anyway
+        for product, serial in ordered:
+            con.execute(sa.text("SELECT pg_advisory_xact_lock(hashtext(:k))"),
+                        {"k": f"{product}\x1f{serial}"})
     updates: list[dict[str, Any]] = []
-    for product, serial in units:
+    for product, serial in ordered:
         tests = con.execute(
             sa.select(runs.c.run_id, runs.c.verdict)
             .where(runs.c.product == product, runs.c.serial == serial)

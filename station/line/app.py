@@ -1,8 +1,9 @@
 """The line's dashboard web app: read-only, over the line's central database.
 
-Pages: `/` the dashboard. JSON under `/api`: `summary` (stations, yields, Cpk), `chart` (a
-coefficient's control chart), `runs` (latest runs). `/certificate/{run_id}` serves the run's
-certificate from the run folder the station recorded, when this computer can reach it.
+Pages: `/` the dashboard. JSON under `/api`: `stations` (with the filter choices), `yields`,
+`capability`, `chart` (a coefficient's control chart), `runs` (latest runs).
+`/certificate/{run_id}` serves the run's certificate from the run folder the station
+recorded, when this computer can reach it.
 Errors come back as {"error": message} (422 bad input, 404 not found, 503 database down).
 """
 
@@ -90,19 +91,25 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
-    @app.get("/api/summary")
-    def summary(request: Request) -> Any:
-        def make(arg: Any) -> dict[str, Any]:
-            con, flt = arg
-            return {
-                "stations": queries.station_states(con, opts.offline_after_s),
-                "yields": queries.yield_tables(con, flt, opts.shift_starts_h),
-                "capability": queries.capabilities(con, flt, opts.confidence),
-                "choices": queries.choices(con),
-                "coefficients": list(CAL_KEYS),
-                "cpk_interval": f"Bissell's approximation, {opts.confidence:.0%} two-sided",
-            }
-        return answer(make, request)
+    # One request per panel: the page asks for them at once and the server answers them in
+    # parallel (each on its own connection), so the page waits for the slowest, not the sum.
+    @app.get("/api/stations")
+    def station_list(request: Request) -> Any:
+        return answer(lambda a: {"stations": queries.station_states(a[0], opts.offline_after_s),
+                                 "choices": queries.choices(a[0]),
+                                 "coefficients": list(CAL_KEYS)}, request)
+
+    @app.get("/api/yields")
+    def yields(request: Request) -> Any:
+        return answer(lambda a: queries.yield_tables(a[0], a[1], opts.shift_starts_h), request)
+
+    @app.get("/api/capability")
+    def capability(request: Request) -> Any:
+        return answer(lambda a: {
+            "capability": queries.capabilities(a[0], a[1], opts.confidence),
+            "cpk_interval": f"Bissell's approximation, {opts.confidence:.0%} two-sided",
+            "window": queries.CPK_WINDOW,
+        }, request)
 
     @app.get("/api/chart")
     def chart(request: Request, coefficient: str = "bias_dps") -> Any:

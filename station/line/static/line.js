@@ -91,7 +91,7 @@ function renderYields() {
 
 function renderCapability() {
   document.getElementById("cpk-note").textContent =
-    "Cpk = min(USL − mean, mean − LSL) / 3 sd; interval: " + state.summary.cpk_interval + ".";
+    `Cpk = min(USL − mean, mean − LSL) / 3 sd over the latest ${state.summary.window} first tests; interval: ${state.summary.cpk_interval}.`;
   const body = document.querySelector("#capability tbody");
   body.replaceChildren();
   for (const c of state.summary.capability) {
@@ -162,19 +162,23 @@ function renderRuns(runs) {
 async function refresh() {
   const status = document.getElementById("status");
   const q = query();
+  const coef = document.getElementById("coefficient");
   try {
     const t0 = performance.now();
-    const [summary, runs] = await Promise.all([getJson("/api/summary?" + q), getJson("/api/runs?" + q)]);
-    state.summary = summary;
-    fillChoices(summary.choices);
-    renderStations(summary.stations);
+    const chartQuery = new URLSearchParams(q);
+    chartQuery.set("coefficient", coef.value || "bias_dps");
+    const [stations, yields, capability, runs, chart] = await Promise.all([
+      getJson("/api/stations?" + q), getJson("/api/yields?" + q),
+      getJson("/api/capability?" + q), getJson("/api/runs?" + q),
+      getJson("/api/chart?" + chartQuery)]);
+    state.summary = { yields, ...capability };
+    fillChoices(stations.choices);
+    renderStations(stations.stations);
     renderYields();
     renderCapability();
     renderRuns(runs.runs);
-    const coef = document.getElementById("coefficient");
-    if (!coef.options.length) for (const c of summary.coefficients) coef.append(el("option", { value: c }, c));
-    q.set("coefficient", coef.value);
-    renderChart(await getJson("/api/chart?" + q));
+    if (!coef.options.length) for (const c of stations.coefficients) coef.append(el("option", { value: c }, c));
+    renderChart(chart);
     status.textContent = `updated ${new Date().toISOString().slice(11, 19)} UTC in ${((performance.now() - t0) / 1000).toFixed(2)} s`;
     document.body.dataset.loaded = "1";
   } catch (err) {
