@@ -140,6 +140,7 @@ class SyncThread:
         self.last_error = ""
         self.failures = 0
         self._wake = threading.Event()
+        self._force = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="results-sync", daemon=True)
 
@@ -147,8 +148,11 @@ class SyncThread:
         self._thread.start()
         return self
 
-    def wake(self) -> None:
-        """A run was just written locally: push it now rather than at the next interval."""
+    def wake(self, force: bool = False) -> None:
+        """A run was just written locally: push it now rather than at the next interval.
+        During an outage the backoff holds (each run ending does not hammer the server)
+        unless force (someone knows the central database is back)."""
+        self._force = self._force or force
         self._wake.set()
 
     def stop(self, flush_timeout_s: float = 5.0) -> None:
@@ -162,9 +166,21 @@ class SyncThread:
             return self.interval_s
         return float(min(self.max_backoff_s, self.interval_s * 2 ** min(self.failures, 16)))
 
+    def _pause(self) -> None:
+        """Wait the interval (or the backoff); a wake ends it early unless backing off."""
+        deadline = time.monotonic() + self.delay_s()
+        while not self._stop.is_set():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not self._wake.wait(remaining):
+                return
+            self._wake.clear()
+            if self.failures == 0 or self._force:
+                return
+
     def _loop(self) -> None:
         while True:
             self._wake.clear()
+            self._force = False
             try:
                 self.sync.push_once()
                 if self.failures:
@@ -177,7 +193,7 @@ class SyncThread:
                 log.warning("sync: %s; retrying in %.0f s", exc, self.delay_s())
             if self._stop.is_set():
                 return
-            self._wake.wait(self.delay_s())
+            self._pause()
 
 
 _threads: dict[tuple[str, str], SyncThread] = {}
@@ -216,9 +232,10 @@ def wait_delivered(sync: Sync, timeout_s: float, poll_s: float = 0.05) -> bool:
     return sync.pending() == 0
 
 
-def wake_station_sync(settings: Any, local: str) -> None:
+def wake_station_sync(settings: Any, local: str, force: bool = False) -> None:
     """After a run is written locally: start (once) and wake the station's sync thread, when
-    station.yaml names a central database (settings: station.settings.LoadedSettings)."""
+    station.yaml names a central database (settings: station.settings.LoadedSettings).
+    force: try now even while backing off from an outage (a station starting)."""
     central = settings.central_db
     if not central:
         return
@@ -227,7 +244,7 @@ def wake_station_sync(settings: Any, local: str) -> None:
     station_sync(
         local, central, station_id=settings.settings.station.id, software_version=__version__,
         interval_s=settings.settings.sync_interval_s,
-    ).wake()
+    ).wake(force)
 
 
 def store_finished_run(db: Any, settings: Any, folder: Any, record: Any) -> None:

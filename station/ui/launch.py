@@ -186,7 +186,7 @@ def ui_station(
             from station.db.connect import database_url
             from station.db.sync import wake_station_sync
 
-            wake_station_sync(settings, database_url(db_path))
+            wake_station_sync(settings, database_url(db_path), force=True)
         app = create_app(controller, history, security=security)
         stop_watch = threading.Event()
         controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)

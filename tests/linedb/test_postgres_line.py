@@ -26,7 +26,8 @@ from tests.linedb.linekit import line_runs, station_yaml
 from tests.linedb.pgserver import PgServer, missing_reason
 
 STATIONS = ("EOL-A", "EOL-B")
-LINK_COLUMNS = {"attempt", "first_run_id", "unit_verdict"}  # the line's view of a serial
+# the line's view of a serial (its tests on every station)
+LINK_COLUMNS = {"attempt", "first_run_id", "unit_verdict", "unit_tests"}
 
 
 @pytest.fixture
@@ -94,7 +95,7 @@ def test_two_stations_through_a_database_outage(pg: PgServer, tmp_path: Path) ->
 
     pg.start()
     for t in syncs:
-        t.wake()
+        t.wake(force=True)  # as `station sync` or a restart would, not waiting for the backoff
         assert sync_mod.wait_delivered(t.sync, timeout_s=60), t.last_error
 
     central_runs = _rows(pg.url, runs, ["run_id"])

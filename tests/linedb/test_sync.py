@@ -4,6 +4,7 @@ exactly once by run_id, re-sent when re-indexed, queued through an outage."""
 from __future__ import annotations
 
 import sqlite3
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -88,10 +89,15 @@ def test_sync_thread_backs_off_during_an_outage_then_delivers(tmp_path: Path) ->
     local.add_records([(r.folder, r.record) for r in runs])
     thread.start()
     try:
-        assert not wait_delivered(sync, timeout_s=0.5)
+        assert not wait_delivered(sync, timeout_s=0.3)
         assert thread.failures >= 1 and "not reachable" in thread.last_error
+        before = thread.failures
+        for _ in range(30):  # runs ending during the outage: the backoff holds
+            thread.wake()
+            time.sleep(0.01)
+        assert thread.failures - before <= 3
         blocked.unlink()
-        thread.wake()
+        thread.wake(force=True)
         assert wait_delivered(sync, timeout_s=10.0)
     finally:
         thread.stop()
