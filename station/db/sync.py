@@ -232,23 +232,29 @@ def wait_delivered(sync: Sync, timeout_s: float, poll_s: float = 0.05) -> bool:
     return sync.pending() == 0
 
 
-def wake_station_sync(settings: Any, local: str, force: bool = False) -> None:
+def wake_station_sync(settings: Any, local: str, force: bool = False,
+                      state: Callable[[], str] | None = None) -> None:
     """After a run is written locally: start (once) and wake the station's sync thread, when
     station.yaml names a central database (settings: station.settings.LoadedSettings).
-    force: try now even while backing off from an outage (a station starting)."""
+    force: try now even while backing off from an outage (a station starting).
+    state: what the station is doing, for the line's dashboard (sent with each sync)."""
     central = settings.central_db
     if not central:
         return
     from station import __version__
 
-    station_sync(
+    thread = station_sync(
         local, central, station_id=settings.settings.station.id, software_version=__version__,
         interval_s=settings.settings.sync_interval_s,
-    ).wake(force)
+    )
+    if state is not None:
+        thread.sync.state = state
+    thread.wake(force)
 
 
-def store_finished_run(db: Any, settings: Any, folder: Any, record: Any) -> None:
+def store_finished_run(db: Any, settings: Any, folder: Any, record: Any,
+                       state: Callable[[], str] | None = None) -> None:
     """What the station does when a run ends (UutRunner): index it in the local results
     database (db: station.results_db.ResultsDB), then wake the sync to the central one."""
     db.add_run(folder, record)
-    wake_station_sync(settings, db.url)
+    wake_station_sync(settings, db.url, state=state)

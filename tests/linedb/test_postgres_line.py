@@ -69,7 +69,8 @@ def test_two_stations_through_a_database_outage(pg: PgServer, tmp_path: Path) ->
             for i, r in enumerate(per_station[sid]):
                 if i == len(per_station[sid]) // 3:
                     outage.wait(30)  # the server goes down here, while this station tests on
-                sync_mod.store_finished_run(db, settings[sid], r.folder, r.record)
+                sync_mod.store_finished_run(db, settings[sid], r.folder, r.record,
+                                            state=lambda: "running")
                 stored[sid] += 1
                 time.sleep(0.01)
         except BaseException as exc:  # reported by the test below
@@ -123,7 +124,8 @@ def test_two_stations_through_a_database_outage(pg: PgServer, tmp_path: Path) ->
         first = next(x for x in central_runs if x["run_id"] == r["first_run_id"])
         assert first["serial"] == r["serial"] and first["attempt"] == 1
     with engine_for(pg.url).connect() as con:
-        beats = {b.station_id: b.pending_runs for b in con.execute(sa.select(stations))}
+        beats = {b.station_id: (b.pending_runs, b.state)
+                 for b in con.execute(sa.select(stations))}
         uut = con.execute(sa.text("SELECT count(*) FROM UUT_RESULT")).scalar()
-    assert beats == {sid: 0 for sid in STATIONS}
+    assert beats == {sid: (0, "running") for sid in STATIONS}  # each station's last word
     assert uut == len(work)
