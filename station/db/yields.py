@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import sqlalchemy as sa
 
@@ -65,38 +66,40 @@ def yield_tables(
     shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H,
 ) -> dict[str, list[YieldRow]]:
     """Yield rows for all units ("all") and per station, product, lot, work order and shift,
-    largest group first: one indexed pass over the units' first tests, rolled up here.
+    largest group first. Two passes over the units' first tests, each reading one index in
+    order (runs_groups): one grouped by station, product, lot and work order, rolled up here
+    into the first five tables; one grouped by the hour of day, rolled up into shifts.
 
     where: filters on the runs table; they select the units by their first test."""
-    # grouped by the hour (text), mapped to shifts here: cheaper than a CASE on every row
-    hour = sa.func.substr(runs.c.started_utc, 12, 2).label("hour")
-    keys = [runs.c.station_id.label("station"), runs.c.product, runs.c.lot, runs.c.work_order,
-            hour]
-    shift_at = _shift_by_hour(shift_starts_h)
-    query = (
-        sa.select(
-            *keys,
-            sa.func.count().label("units"),
-            sa.func.sum(runs.c.unit_tests).label("tests"),
-            sa.func.sum(sa.case((runs.c.verdict == "PASS", 1), else_=0)).label("fp"),
-            sa.func.sum(sa.case((runs.c.unit_verdict == "PASS", 1), else_=0)).label("final"),
-        )
-        .where(runs.c.attempt == 1, runs.c.verdict != "RUNNING", *where)
-        .group_by(*keys)
-    )
+    first = (runs.c.attempt == 1, runs.c.verdict != "RUNNING", *where)
     sums: dict[str, dict[str, list[int]]] = {g: {} for g in ("all", *GROUPS)}
-    for found in con.execute(query).mappings():
-        row = {**found, "shift": shift_at.get(found["hour"], "")}
-        counts = [int(row["units"]), int(row["tests"] or 0), int(row["fp"] or 0),
-                  int(row["final"] or 0)]
-        for g in ("all", *GROUPS):
-            acc = sums[g].setdefault("all" if g == "all" else str(row[g]), [0, 0, 0, 0])
-            for i, c in enumerate(counts):
-                acc[i] += c
+    keys = [runs.c.station_id.label("station"), runs.c.product, runs.c.lot, runs.c.work_order]
+    for row in con.execute(sa.select(*keys, *_COUNTS).where(*first).group_by(*keys)).mappings():
+        for g in ("all", "station", "product", "lot", "work_order"):
+            _add(sums[g], "all" if g == "all" else str(row[g]), row)
+    hour = sa.func.substr(runs.c.started_utc, 12, 2)
+    shift_at = _shift_by_hour(shift_starts_h)
+    for row in con.execute(sa.select(hour.label("hour"), *_COUNTS).where(*first)
+                           .group_by(hour)).mappings():
+        _add(sums["shift"], shift_at.get(row["hour"], ""), row)
     return {
         g: sorted((YieldRow(k, *v) for k, v in groups.items()), key=lambda y: (-y.units, y.group))
         for g, groups in sums.items()
     }
+
+
+_COUNTS = (
+    sa.func.count().label("units"),
+    sa.func.sum(runs.c.unit_tests).label("tests"),
+    sa.func.sum(sa.case((runs.c.verdict == "PASS", 1), else_=0)).label("fp"),
+    sa.func.sum(sa.case((runs.c.unit_verdict == "PASS", 1), else_=0)).label("final"),
+)
+
+
+def _add(groups: dict[str, list[int]], key: str, row: Any) -> None:
+    acc = groups.setdefault(key, [0, 0, 0, 0])
+    for i, name in enumerate(("units", "tests", "fp", "final")):
+        acc[i] += int(row[name] or 0)
 
 
 def yields_by(
