@@ -182,18 +182,13 @@ class ResultsDB:
         """Set a run's verdict to ERROR with the reason (e.g. a crash found on restart)."""
         try:
             with self._begin() as con:
-                row = con.execute(
-                    sa.select(runs.c.run_id, runs.c.product, runs.c.serial).where(
-                        runs.c.run_id == run_id
-                    )
-                ).first()
-                if row is None:
+                found = con.execute(
+                    sa.select(runs).where(runs.c.run_id == run_id)).mappings().first()
+                if found is None:
                     raise ResultsDBError(
                         f"run {run_id!r} is not in {self.path}; index its folder first (add_run)"
                     )
-                full = dict(con.execute(sa.select(runs).where(runs.c.run_id == run_id))
-                            .mappings().one())
-                full.update(verdict="ERROR", reason=reason)
+                full = {**found, "verdict": "ERROR", "reason": reason}
                 meas = [dict(m) for m in con.execute(
                     sa.select(measurements).where(measurements.c.run_id == run_id)
                 ).mappings()]
