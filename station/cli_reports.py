@@ -28,7 +28,7 @@ FALLBACK_DB = Path("runs/results.sqlite")
 VERDICTS = ("PASS", "FAIL", "ERROR", "ABORTED", "RUNNING")
 
 
-def default_db_path() -> Path:
+def default_db_path() -> Path | str:
     """The station file's results database, or runs/results.sqlite without one."""
     try:
         from station.settings import load_settings
@@ -40,8 +40,10 @@ def default_db_path() -> Path:
 
 
 def _open_db(args: argparse.Namespace, must_exist: bool) -> ResultsDB:
-    path = Path(args.db) if args.db else default_db_path()
-    if must_exist and not path.exists():
+    path: Path | str = (
+        (args.db if "://" in args.db else Path(args.db)) if args.db else default_db_path()
+    )
+    if must_exist and isinstance(path, Path) and not path.exists():
         raise UserError(
             f"results database {path} does not exist; give the right one with --db PATH "
             "(runs are indexed there by `station run`)"
@@ -109,7 +111,7 @@ def history_table(runs: list[RunRow]) -> list[str]:
             + ("  " + row[-1]).rstrip() for row in [header, *rows]]
 
 
-def _recover(runs_dir: Path | None, db_path: Path | None) -> None:
+def _recover(runs_dir: Path | None, db_path: Path | str | None) -> None:
     """Runs a dead station left RUNNING become ERROR (naming their last completed step) and
     are indexed before anything is listed (station/run_folder.py)."""
     from station.run_folder import recover_results

@@ -1,11 +1,13 @@
-"""The results database: one SQLite file indexing every run folder and its measurements.
+"""The results database: every run folder and its measurements, indexed (SQLAlchemy).
 
 The run folders stay the record of truth (record.json, raw data, certificate); the database
-is an index for review (`station history`, `station lot-report`) and can be rebuilt from the
-folders with `add_run`. Times are stored as ISO-8601 UTC text (`YYYY-MM-DDTHH:MM:SS+00:00`),
-so text order is time order.
+is an index for review (`station history`, `station lot-report`, the line's dashboard) and can
+be rebuilt from the folders with `add_run`. It is a SQLite file by default and may be any
+database SQLAlchemy reaches by URL (PostgreSQL for a line); the schema is migrated with alembic
+when the database is opened (station/db/migrations). Times are ISO-8601 UTC text
+(`YYYY-MM-DDTHH:MM:SS+00:00`), so text order is time order.
 
-    db = ResultsDB(path)                      # creates the schema if missing
+    db = ResultsDB(path_or_url)               # creates or migrates the schema
     db.add_run(run_folder, record)            # upsert by run_id, with all measurements
     db.runs(since=..., product=..., verdict=..., serial=...)
     db.measurement_values("bias_dps", product=...)
@@ -15,70 +17,25 @@ so text order is time order.
 from __future__ import annotations
 
 import json
-import sqlite3
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, date, datetime
 from pathlib import Path
 from typing import Any
 
+import sqlalchemy as sa
+from sqlalchemy.exc import SQLAlchemyError
+
 from procedures.record import RECORD_FILE, RunRecord, read_record
+from station.db.connect import DatabaseError, database_url, engine_for, shown, sqlite_path
+from station.db.schema import CAL_KEYS, measurements, runs
+from station.db.store import measurement_rows, normalise_utc, replace_runs, run_row
 
-SCHEMA_VERSION = 1
-
-_CAL_KEYS = (
-    "bias_dps",
-    "bias_temp_coeff_dps_per_c",
-    "bias_supply_coeff_dps_per_v",
-    "scale",
-    "scale_temp_coeff_per_c",
-    "scale_supply_coeff_per_v",
-)
-
-_SCHEMA = f"""
-CREATE TABLE IF NOT EXISTS runs (
-    run_id TEXT PRIMARY KEY,
-    serial TEXT NOT NULL,
-    product TEXT NOT NULL,
-    verdict TEXT NOT NULL,
-    reason TEXT NOT NULL DEFAULT '',
-    failed_measurements TEXT NOT NULL DEFAULT '[]',
-    simulated INTEGER NOT NULL DEFAULT 0,
-    started_utc TEXT NOT NULL,
-    finished_utc TEXT,
-    station_id TEXT NOT NULL DEFAULT '',
-    operator TEXT NOT NULL DEFAULT '',
-    software_version TEXT NOT NULL DEFAULT '',
-    procedure_name TEXT NOT NULL DEFAULT '',
-    procedure_sha256 TEXT NOT NULL DEFAULT '',
-    product_sha256 TEXT NOT NULL DEFAULT '',
-    raw_sha256 TEXT NOT NULL DEFAULT '',
-    folder TEXT NOT NULL,
-    {", ".join(f"cal_{k} REAL, cal_{k}_u REAL" for k in _CAL_KEYS)}
-);
-CREATE INDEX IF NOT EXISTS runs_started ON runs(started_utc);
-CREATE INDEX IF NOT EXISTS runs_serial ON runs(serial);
-CREATE TABLE IF NOT EXISTS measurements (
-    run_id TEXT NOT NULL REFERENCES runs(run_id) ON DELETE CASCADE,
-    seq INTEGER NOT NULL,
-    name TEXT NOT NULL,
-    condition TEXT,
-    value REAL,
-    units TEXT NOT NULL DEFAULT '',
-    low REAL,
-    high REAL,
-    marginal_low REAL,
-    marginal_high REAL,
-    outcome TEXT NOT NULL,
-    uncertainty_k2 REAL,
-    PRIMARY KEY (run_id, seq)
-);
-CREATE INDEX IF NOT EXISTS measurements_name ON measurements(name);
-"""
+SCHEMA_VERSION = 3
+__all__ = ["MeasurementRow", "ResultsDB", "ResultsDBError", "RunRow", "normalise_utc",
+           "parse_since"]
 
 
-class ResultsDBError(ValueError):
+class ResultsDBError(DatabaseError):
     """The database cannot be opened or a query is malformed; the message says what to do."""
 
 
@@ -100,6 +57,10 @@ class RunRow:
     procedure_sha256: str
     folder: str
     calibration: dict[str, float | None]  # coefficient key -> value (None when not written)
+    work_order: str = ""
+    lot: str = ""
+    attempt: int = 1  # 1 for a serial's first test, 2 for its first retest, ...
+    first_run_id: str = ""  # the run_id of the serial's first test
 
 
 @dataclass(frozen=True)
@@ -115,19 +76,6 @@ class MeasurementRow:
     low: float | None
     high: float | None
     outcome: str
-
-
-def normalise_utc(text: str | None) -> str | None:
-    """ISO-8601 text as `YYYY-MM-DDTHH:MM:SS+00:00` (naive times are taken as UTC)."""
-    if text is None:
-        return None
-    try:
-        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
-    except ValueError:
-        return text
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=UTC)
-    return t.astimezone(UTC).isoformat(timespec="seconds")
 
 
 def parse_since(value: str | date | datetime) -> str:
@@ -149,78 +97,70 @@ def parse_since(value: str | date | datetime) -> str:
     return t.astimezone(UTC).isoformat(timespec="seconds")
 
 
+When = str | date | datetime | None
+
+
+def run_filters(
+    since: When = None,
+    until: When = None,
+    product: str | None = None,
+    verdict: str | None = None,
+    serial: str | None = None,
+) -> list[sa.ColumnElement[bool]]:
+    """WHERE clauses on the runs table for the usual filters (all optional)."""
+    clauses: list[sa.ColumnElement[bool]] = []
+    if since is not None:
+        clauses.append(runs.c.started_utc >= parse_since(since))
+    if until is not None:
+        clauses.append(runs.c.started_utc < parse_since(until))
+    if product:
+        clauses.append(runs.c.product == product)
+    if verdict:
+        clauses.append(runs.c.verdict == verdict.upper())
+    if serial:
+        clauses.append(runs.c.serial == serial)
+    return clauses
+
+
 class ResultsDB:
-    """Index of run folders in an SQLite file; safe to open from several processes."""
+    """Index of run folders in a database; safe to open from several processes and threads."""
 
-    def __init__(self, path: Path | str) -> None:
-        self.path = Path(path)
+    def __init__(self, path: Path | str, base: Path | None = None) -> None:
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            with self._connect() as con:
-                con.executescript(_SCHEMA)
-                con.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-        except (sqlite3.Error, OSError) as exc:
-            raise ResultsDBError(
-                f"{self.path}: cannot open the results database ({exc}); check the path and "
-                "its permissions, or give another one with --db"
-            ) from exc
+            self.url = database_url(path, base)
+            self.engine = engine_for(self.url)
+        except DatabaseError as exc:
+            raise ResultsDBError(f"{exc}; or give another one with --db") from None
+        file = sqlite_path(self.url)
+        # a SQLite file's path; for a server, its URL without the password
+        self.path: Path | str = file if file is not None else shown(self.url)
 
-    @contextmanager
-    def _connect(self) -> Iterator[sqlite3.Connection]:
-        con = sqlite3.connect(self.path, timeout=15.0)
-        try:
-            con.execute("PRAGMA foreign_keys = ON")
-            with con:  # one transaction, committed or rolled back
-                yield con
-        finally:
-            con.close()
+    def _begin(self) -> Any:
+        return self.engine.begin()
+
+    def _fail(self, exc: Exception) -> ResultsDBError:
+        return ResultsDBError(
+            f"{shown(self.url)}: results database error ({exc.__class__.__name__}: "
+            f"{str(exc).splitlines()[0]}); check that the database is reachable and writable"
+        )
 
     # ---- writing -----------------------------------------------------------------
     def add_run(self, run_folder: Path | str, record: RunRecord | None = None) -> None:
-        """Index (or re-index) one run: replaces the run's row and all its measurements."""
+        """Index (or re-index) one run: replaces the run's row and all its measurements, and
+        queues it for the line's central database."""
         folder = Path(run_folder)
         rec = record if record is not None else read_record(folder)
-        cal = rec.calibration
-        cal_cols: dict[str, float | None] = {}
-        for k in _CAL_KEYS:
-            c = getattr(cal, k) if cal is not None else None
-            cal_cols[f"cal_{k}"] = c.value if c is not None else None
-            cal_cols[f"cal_{k}_u"] = c.uncertainty_k2 if c is not None else None
-        row: dict[str, Any] = {
-            "run_id": rec.run_id,
-            "serial": rec.dut.serial,
-            "product": rec.dut.product or rec.product.name or rec.product.path,
-            "verdict": rec.verdict.value,
-            "reason": rec.reason,
-            "failed_measurements": json.dumps(list(rec.failed_measurements)),
-            "simulated": int(rec.simulated),
-            "started_utc": normalise_utc(rec.started_utc),
-            "finished_utc": normalise_utc(rec.finished_utc),
-            "station_id": str(rec.station.get("id", "")),
-            "operator": rec.operator,
-            "software_version": rec.software_version,
-            "procedure_name": rec.procedure.name or rec.procedure.path,
-            "procedure_sha256": rec.procedure.sha256,
-            "product_sha256": rec.product.sha256,
-            "raw_sha256": rec.raw_data.sha256 if rec.raw_data else "",
-            "folder": str(folder.resolve()),
-            **cal_cols,
-        }
-        cols = ", ".join(row)
-        marks = ", ".join(f":{k}" for k in row)
-        with self._connect() as con:
-            con.execute("DELETE FROM measurements WHERE run_id = ?", (rec.run_id,))
-            con.execute(f"INSERT OR REPLACE INTO runs ({cols}) VALUES ({marks})", row)
-            con.executemany(
-                "INSERT INTO measurements (run_id, seq, name, condition, value, units, low, "
-                "high, marginal_low, marginal_high, outcome, uncertainty_k2) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [
-                    (rec.run_id, i, m.name, m.condition, m.value, m.units, m.low, m.high,
-                     m.marginal_low, m.marginal_high, m.outcome.value, m.uncertainty_k2)
-                    for i, m in enumerate(rec.measurements)
-                ],
-            )
+        self.add_records([(folder, rec)])
+
+    def add_records(self, items: list[tuple[Path, RunRecord]]) -> None:
+        """Index several runs in one transaction (as add_run)."""
+        rows = [run_row(folder, rec) for folder, rec in items]
+        meas = [m for _, rec in items for m in measurement_rows(rec)]
+        try:
+            with self._begin() as con:
+                replace_runs(con, rows, meas, queue=True)
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
 
     def reindex(self, root: Path | str) -> tuple[int, list[str]]:
         """Index every run folder under root (a folder holding record.json, any depth).
@@ -240,95 +180,70 @@ class ResultsDB:
 
     def mark_error(self, run_id: str, reason: str) -> None:
         """Set a run's verdict to ERROR with the reason (e.g. a crash found on restart)."""
-        with self._connect() as con:
-            cur = con.execute(
-                "UPDATE runs SET verdict = 'ERROR', reason = ? WHERE run_id = ?", (reason, run_id)
-            )
-            if cur.rowcount == 0:
-                raise ResultsDBError(
-                    f"run {run_id!r} is not in {self.path}; index its folder first (add_run)"
-                )
+        try:
+            with self._begin() as con:
+                found = con.execute(
+                    sa.select(runs).where(runs.c.run_id == run_id)).mappings().first()
+                if found is None:
+                    raise ResultsDBError(
+                        f"run {run_id!r} is not in {self.path}; index its folder first (add_run)"
+                    )
+                full = {**found, "verdict": "ERROR", "reason": reason}
+                meas = [dict(m) for m in con.execute(
+                    sa.select(measurements).where(measurements.c.run_id == run_id)
+                ).mappings()]
+                replace_runs(con, [full], meas, queue=True)
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
 
     # ---- reading -----------------------------------------------------------------
-    @staticmethod
-    def _where(
-        since: str | date | datetime | None,
-        until: str | date | datetime | None,
-        product: str | None,
-        verdict: str | None,
-        serial: str | None,
-        prefix: str = "",
-    ) -> tuple[str, list[Any]]:
-        clauses, params = [], []
-        if since is not None:
-            clauses.append(f"{prefix}started_utc >= ?")
-            params.append(parse_since(since))
-        if until is not None:
-            clauses.append(f"{prefix}started_utc < ?")
-            params.append(parse_since(until))
-        if product:
-            clauses.append(f"{prefix}product = ?")
-            params.append(product)
-        if verdict:
-            clauses.append(f"{prefix}verdict = ?")
-            params.append(verdict.upper())
-        if serial:
-            clauses.append(f"{prefix}serial = ?")
-            params.append(serial)
-        return (" WHERE " + " AND ".join(clauses)) if clauses else "", params
-
     def runs(
         self,
-        since: str | date | datetime | None = None,
+        since: When = None,
         product: str | None = None,
         verdict: str | None = None,
         serial: str | None = None,
-        until: str | date | datetime | None = None,
+        until: When = None,
     ) -> list[RunRow]:
         """Runs matching every filter given, oldest first."""
-        where, params = self._where(since, until, product, verdict, serial)
-        with self._connect() as con:
-            con.row_factory = sqlite3.Row
-            rows = con.execute(
-                f"SELECT * FROM runs{where} ORDER BY started_utc, run_id", params
-            ).fetchall()
-        return [
-            RunRow(
-                run_id=r["run_id"], serial=r["serial"], product=r["product"],
-                verdict=r["verdict"], reason=r["reason"],
-                failed_measurements=tuple(json.loads(r["failed_measurements"] or "[]")),
-                simulated=bool(r["simulated"]), started_utc=r["started_utc"],
-                finished_utc=r["finished_utc"], station_id=r["station_id"],
-                operator=r["operator"], software_version=r["software_version"],
-                procedure_name=r["procedure_name"], procedure_sha256=r["procedure_sha256"],
-                folder=r["folder"], calibration={k: r[f"cal_{k}"] for k in _CAL_KEYS},
-            )
-            for r in rows
-        ]
+        query = (
+            sa.select(runs)
+            .where(*run_filters(since, until, product, verdict, serial))
+            .order_by(runs.c.started_utc, runs.c.run_id)
+        )
+        try:
+            with self.engine.connect() as con:
+                found = con.execute(query).mappings().all()
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
+        return [_run_row(r) for r in found]
 
     def measurement_values(
         self,
         name: str | None = None,
-        since: str | date | datetime | None = None,
+        since: When = None,
         product: str | None = None,
         verdict: str | None = None,
         serial: str | None = None,
-        until: str | date | datetime | None = None,
+        until: When = None,
     ) -> list[MeasurementRow]:
         """Measurements (of one name, or all) of the runs matching the filters, oldest first."""
-        where, params = self._where(since, until, product, verdict, serial, prefix="r.")
+        m, r = measurements.c, runs.c
+        clauses = run_filters(since, until, product, verdict, serial)
         if name is not None:
-            where += (" AND" if where else " WHERE") + " m.name = ?"
-            params.append(name)
-        with self._connect() as con:
-            rows = con.execute(
-                "SELECT m.run_id, r.serial, r.started_utc, r.verdict, m.name, m.condition, "
-                "m.value, m.units, m.low, m.high, m.outcome FROM measurements m "
-                f"JOIN runs r ON r.run_id = m.run_id{where} "
-                "ORDER BY r.started_utc, m.run_id, m.seq",
-                params,
-            ).fetchall()
-        return [MeasurementRow(*r) for r in rows]
+            clauses.append(m.name == name)
+        query = (
+            sa.select(m.run_id, r.serial, r.started_utc, r.verdict, m.name, m.condition,
+                      m.value, m.units, m.low, m.high, m.outcome)
+            .select_from(measurements.join(runs, r.run_id == m.run_id))
+            .where(*clauses)
+            .order_by(r.started_utc, m.run_id, m.seq)
+        )
+        try:
+            with self.engine.connect() as con:
+                return [MeasurementRow(*row) for row in con.execute(query)]
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
 
     def measurement_names(self, **filters: Any) -> list[str]:
         """Distinct measurement names, in the order they first appear in the oldest run."""
@@ -336,3 +251,18 @@ class ResultsDB:
         for m in self.measurement_values(**filters):
             seen.setdefault(m.name, None)
         return list(seen)
+
+
+def _run_row(r: Any) -> RunRow:
+    return RunRow(
+        run_id=r["run_id"], serial=r["serial"], product=r["product"],
+        verdict=r["verdict"], reason=r["reason"],
+        failed_measurements=tuple(json.loads(r["failed_measurements"] or "[]")),
+        simulated=bool(r["simulated"]), started_utc=r["started_utc"],
+        finished_utc=r["finished_utc"], station_id=r["station_id"],
+        operator=r["operator"], software_version=r["software_version"],
+        procedure_name=r["procedure_name"], procedure_sha256=r["procedure_sha256"],
+        folder=r["folder"], calibration={k: r[f"cal_{k}"] for k in CAL_KEYS},
+        work_order=r["work_order"], lot=r["lot"], attempt=r["attempt"],
+        first_run_id=r["first_run_id"],
+    )

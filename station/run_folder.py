@@ -178,7 +178,9 @@ def recover_crashed_runs(out: Path, *, locks_only: bool = False) -> list[Path]:
     return recovered
 
 
-def recover_results(out: Path, db_path: Path | None, *, locks_only: bool = False) -> list[Path]:
+def recover_results(
+    out: Path, db_path: Path | str | None, *, locks_only: bool = False
+) -> list[Path]:
     """Recovery for an entry point that opens the results: crashed runs marked ERROR and
     indexed in the results database (when there is one), so that history and review list them."""
     folders = recover_crashed_runs(out, locks_only=locks_only)

@@ -220,7 +220,9 @@ class StationSettings(_Strict):
         "runs", description="run folders go here (relative to this file)"
     )
     results_db: PathText = Field(
-        "runs/results.sqlite", description="SQLite results database (relative to this file)"
+        "runs/results.sqlite",
+        description="results database: a SQLite file path (relative to this file) or a URL "
+        "(sqlite:///PATH, postgresql+psycopg://USER@HOST/DB)",
     )
     procedure: PathText = Field(
         "procedures/eol-rate-table.yaml", description="default procedure (relative to this file)"
@@ -232,6 +234,14 @@ class StationSettings(_Strict):
         False, description="refuse to run when an instrument's calibration is overdue"
     )
     ui: UiSettings = Field(default_factory=UiSettings, description="browser UI settings")
+    central_db: PathText | None = Field(
+        None,
+        description="the line's central database URL: each run is written to results_db "
+        "first and pushed there by the sync (store-and-forward); none: no central database",
+    )
+    sync_interval_s: float = Field(
+        5.0, ge=0.5, le=3600.0, description="seconds between sync attempts (backoff on outage)"
+    )
 
 
 @dataclass(frozen=True)
@@ -252,8 +262,20 @@ class LoadedSettings:
         return self.resolve(self.settings.output_folder)
 
     @property
-    def results_db(self) -> Path:
-        return self.resolve(self.settings.results_db)
+    def results_db(self) -> Path | str:
+        """The results database: a Path for a SQLite file, else its URL."""
+        from station.db.connect import database_url, sqlite_path
+
+        url = database_url(self.settings.results_db, self.folder)
+        return sqlite_path(url) or url
+
+    @property
+    def central_db(self) -> str | None:
+        """The line's central database URL (relative SQLite paths resolved), or None."""
+        from station.db.connect import database_url
+
+        text = self.settings.central_db
+        return database_url(text, self.folder) if text else None
 
     @property
     def procedure(self) -> Path:

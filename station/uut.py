@@ -736,8 +736,11 @@ class UutRunner:
     def _store(self, part: PartRun) -> None:
         try:
             db = self._results_db()
-            if db is not None:
-                db.add_run(part.folder, part.record)
+            if db is not None:  # locally first, then forwarded to the line's central db
+                from station.db.sync import store_finished_run
+
+                store_finished_run(db, self.settings, part.folder, part.record,
+                                   state=lambda: self._state)
         except Exception as exc:  # the run folder is the master copy; the index can be rebuilt
             log.error("results database: could not add %s: %s", part.folder, exc)
 

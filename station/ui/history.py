@@ -78,7 +78,7 @@ class History:
 
     RECOVER_EVERY_S = 2.0  # a crashed station's run is looked for at most this often
 
-    def __init__(self, out_dir: Path, db_path: Path | None = None) -> None:
+    def __init__(self, out_dir: Path, db_path: Path | str | None = None) -> None:
         self.out_dir = out_dir
         self.db_path = db_path
         self._lock = threading.Lock()
@@ -117,6 +117,8 @@ class History:
         return rows
 
     def _use_db(self) -> bool:
+        if isinstance(self.db_path, str):  # a database server's URL
+            return True
         return self.db_path is not None and self.db_path.is_file()
 
     def _db_rows(self, flt: RunFilter) -> list[dict[str, Any]]:

@@ -182,6 +182,11 @@ def ui_station(
         recovered = history.recover()
         for folder in recovered:
             log.warning("marked as ERROR (the station stopped during that run): %s", folder)
+        if settings.central_db:  # runs queued before a restart go to the line's db now
+            from station.db.connect import database_url
+            from station.db.sync import wake_station_sync
+
+            wake_station_sync(settings, database_url(db_path), force=True)
         app = create_app(controller, history, security=security)
         stop_watch = threading.Event()
         controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)

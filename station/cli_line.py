@@ -1,0 +1,141 @@
+"""`station line`, `station sync`, `station export`: a line of stations and its database.
+
+    station line --db URL [--host H] [--port P] [--shift-starts 6,14,22] [--offline-after S]
+    station sync [--db URL] [--central URL] [--wait S]
+    station export --format cfx [--db URL] [--since D] [--until D] [--product P] [--out FILE]
+
+`--db` defaults to station.yaml's results_db (line: its central_db), `--central` to its
+central_db. URLs: sqlite:///PATH, postgresql+psycopg://USER@HOST/DB, or a SQLite file path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from station.errors import UserError
+
+EXPORT_FORMATS = ("cfx",)  # IPC-CFX UnitsTested, one JSON message per line
+
+
+def _settings() -> Any:
+    try:
+        from station.settings import load_settings
+
+        return load_settings()
+    except Exception as exc:  # no station.yaml here
+        raise UserError(f"no station settings ({exc}); give the database with --db") from None
+
+
+def _open(url: str | None, fallback: str) -> Any:
+    from station.results_db import ResultsDB, ResultsDBError
+
+    text = url
+    if not text:
+        s = _settings()
+        text = str(s.central_db if fallback == "central_db" else s.results_db or "")
+        if not text or text == "None":
+            raise UserError(f"station.yaml has no {fallback}; give the database with --db URL")
+    try:
+        return ResultsDB(text)
+    except ResultsDBError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _shift_starts(text: str) -> tuple[int, ...]:
+    try:
+        hours = tuple(int(h) for h in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give hours such as 6,14,22") from None
+    if not hours or any(not 0 <= h < 24 for h in hours) or len(set(hours)) != len(hours):
+        raise argparse.ArgumentTypeError(f"{text!r}: distinct whole hours 0-23, e.g. 6,14,22")
+    return hours
+
+
+def cmd_line(args: argparse.Namespace) -> int:
+    from station.line.app import LineOptions, create_line_app
+    from station.ui.server import serve_forever
+
+    db = _open(args.db, "central_db")
+    options = LineOptions(offline_after_s=args.offline_after, shift_starts_h=args.shift_starts)
+    app = create_line_app(db.engine, options)
+    print(f"line dashboard over {db.path}: http://{args.host}:{args.port}/", file=sys.stderr)
+    serve_forever(app, host=args.host, port=args.port)
+    return 0
+
+
+def cmd_sync(args: argparse.Namespace) -> int:
+    from station import __version__
+    from station.db.connect import DatabaseError, shown
+    from station.db.sync import Sync, SyncError
+
+    local = _open(args.db, "results_db")
+    central_text = args.central or _settings().central_db
+    if not central_text:
+        raise UserError("no central database: set central_db in station.yaml or give --central")
+    station_id = ""
+    try:
+        station_id = _settings().settings.station.id
+    except UserError:
+        station_id = ""
+    try:
+        sync = Sync(local.url, central_text, station_id=station_id, software_version=__version__)
+        report = sync.push_once()
+    except (SyncError, DatabaseError) as exc:
+        raise UserError(str(exc)) from None
+    print(f"sent {report.sent} runs to {shown(sync.central_url)}; "
+          f"{report.pending} still queued", file=sys.stderr)
+    return 0 if report.pending == 0 else 1
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from station.db.cfx_export import export_lines
+    from station.results_db import ResultsDBError, run_filters
+
+    db = _open(args.db, "results_db")
+    try:
+        where = run_filters(args.since, args.until, args.product, None, args.serial)
+        out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout  # noqa: SIM115
+    except (ResultsDBError, OSError) as exc:
+        raise UserError(str(exc)) from None
+    n = 0
+    try:
+        with db.engine.connect() as con:
+            for line in export_lines(con, where, source=args.source):
+                out.write(line + "\n")
+                n += 1
+    finally:
+        if out is not sys.stdout:
+            out.close()
+    print(f"exported {n} runs as IPC-CFX UnitsTested" + (f" to {args.out}" if args.out else ""),
+          file=sys.stderr)
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser("line", help="the line's dashboard in the browser")
+    p.add_argument("--db", metavar="URL", help="the line's database (default: central_db)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default local)")
+    p.add_argument("--port", type=int, default=8090)
+    p.add_argument("--shift-starts", type=_shift_starts, default=(6, 14, 22), metavar="H,H,H",
+                   help="hours (UTC) at which shifts start (default 6,14,22)")
+    p.add_argument("--offline-after", type=float, default=60.0, metavar="S",
+                   help="a station silent this long is shown offline (default 60 s)")
+    p.set_defaults(handler=cmd_line)
+
+    p = subparsers.add_parser("sync", help="push queued runs to the line's central database")
+    p.add_argument("--db", metavar="URL", help="local results database (default: results_db)")
+    p.add_argument("--central", metavar="URL", help="central database (default: central_db)")
+    p.set_defaults(handler=cmd_sync)
+
+    p = subparsers.add_parser("export", help="runs as a standard test-result export for an MES")
+    p.add_argument("--format", choices=EXPORT_FORMATS, required=True,
+                   help="cfx: IPC-CFX UnitsTested messages, one JSON per line")
+    p.add_argument("--db", metavar="URL", help="results database (default: results_db)")
+    for name in ("since", "until", "product", "serial"):
+        p.add_argument(f"--{name}")
+    p.add_argument("--source", default="", help="CFX Source handle (default: station id)")
+    p.add_argument("--out", type=Path, help="file to write (default: standard output)")
+    p.set_defaults(handler=cmd_export)

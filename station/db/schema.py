@@ -1,0 +1,100 @@
+"""The results database's tables at the newest migration (SQLAlchemy Core).
+
+The migrations under station/db/migrations create these; this module is what the queries use.
+Times are ISO-8601 UTC text (`YYYY-MM-DDTHH:MM:SS+00:00`) so that text order is time order in
+SQLite and PostgreSQL alike.
+"""
+
+from __future__ import annotations
+
+import sqlalchemy as sa
+
+CAL_KEYS = (
+    "bias_dps",
+    "bias_temp_coeff_dps_per_c",
+    "bias_supply_coeff_dps_per_v",
+    "scale",
+    "scale_temp_coeff_per_c",
+    "scale_supply_coeff_per_v",
+)
+
+metadata = sa.MetaData()
+
+runs = sa.Table(
+    "runs",
+    metadata,
+    sa.Column("run_id", sa.Text, primary_key=True),
+    sa.Column("serial", sa.Text, nullable=False),
+    sa.Column("product", sa.Text, nullable=False),
+    sa.Column("verdict", sa.Text, nullable=False),
+    sa.Column("reason", sa.Text, nullable=False, server_default=""),
+    sa.Column("failed_measurements", sa.Text, nullable=False, server_default="[]"),
+    sa.Column("simulated", sa.Integer, nullable=False, server_default="0"),
+    sa.Column("started_utc", sa.Text, nullable=False),
+    sa.Column("finished_utc", sa.Text),
+    sa.Column("station_id", sa.Text, nullable=False, server_default=""),
+    sa.Column("operator", sa.Text, nullable=False, server_default=""),
+    sa.Column("software_version", sa.Text, nullable=False, server_default=""),
+    sa.Column("procedure_name", sa.Text, nullable=False, server_default=""),
+    sa.Column("procedure_sha256", sa.Text, nullable=False, server_default=""),
+    sa.Column("product_sha256", sa.Text, nullable=False, server_default=""),
+    sa.Column("raw_sha256", sa.Text, nullable=False, server_default=""),
+    sa.Column("folder", sa.Text, nullable=False),
+    *[
+        c
+        for k in CAL_KEYS
+        for c in (sa.Column(f"cal_{k}", sa.Double), sa.Column(f"cal_{k}_u", sa.Double))
+    ],
+    # schema 2 (migration 0002): the line
+    sa.Column("work_order", sa.Text, nullable=False, server_default=""),
+    sa.Column("lot", sa.Text, nullable=False, server_default=""),
+    sa.Column("attempt", sa.Integer, nullable=False, server_default="1"),
+    sa.Column("first_run_id", sa.Text, nullable=False, server_default=""),
+    sa.Column("unit_verdict", sa.Text, nullable=False, server_default=""),
+    sa.Column("unit_tests", sa.Integer, nullable=False, server_default="1"),
+)
+
+measurements = sa.Table(
+    "measurements",
+    metadata,
+    sa.Column(
+        "run_id", sa.Text, sa.ForeignKey("runs.run_id", ondelete="CASCADE"), primary_key=True
+    ),
+    sa.Column("seq", sa.Integer, primary_key=True),
+    sa.Column("name", sa.Text, nullable=False),
+    sa.Column("condition", sa.Text),
+    sa.Column("value", sa.Double),
+    sa.Column("units", sa.Text, nullable=False, server_default=""),
+    sa.Column("low", sa.Double),
+    sa.Column("high", sa.Double),
+    sa.Column("marginal_low", sa.Double),
+    sa.Column("marginal_high", sa.Double),
+    sa.Column("outcome", sa.Text, nullable=False),
+    sa.Column("uncertainty_k2", sa.Double),
+)
+
+# Store-and-forward: a run's row is queued here (version bumped) each time it is written
+# locally; the sync marks the version it delivered to the central database.
+outbox = sa.Table(
+    "outbox",
+    metadata,
+    sa.Column("run_id", sa.Text, primary_key=True),
+    sa.Column("version", sa.Integer, nullable=False),
+    sa.Column("sent_version", sa.Integer, nullable=False, server_default="0"),
+    sa.Column("queued_utc", sa.Text, nullable=False),
+    sa.Column("sent_utc", sa.Text),
+)
+
+# The central database's view of each station: written by that station's sync.
+stations = sa.Table(
+    "stations",
+    metadata,
+    sa.Column("station_id", sa.Text, primary_key=True),
+    sa.Column("last_seen_utc", sa.Text, nullable=False),
+    sa.Column("state", sa.Text, nullable=False, server_default=""),
+    sa.Column("pending_runs", sa.Integer, nullable=False, server_default="0"),
+    sa.Column("software_version", sa.Text, nullable=False, server_default=""),
+)
+
+RUN_COLUMNS = tuple(c.name for c in runs.columns)
+MEASUREMENT_COLUMNS = tuple(c.name for c in measurements.columns)

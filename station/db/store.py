@@ -1,0 +1,165 @@
+"""Writing runs: one run's row and measurements replaced in one transaction, retests linked.
+
+The same code writes a station's local database (from a record) and the central database
+(rows copied by the sync), so a run looks the same in both.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import sqlalchemy as sa
+
+from procedures.record import RunRecord
+from station.db.schema import CAL_KEYS, measurements, outbox, runs
+
+
+def utc_now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def normalise_utc(text: str | None) -> str | None:
+    """ISO-8601 text as `YYYY-MM-DDTHH:MM:SS+00:00` (naive times are taken as UTC)."""
+    if text is None:
+        return None
+    try:
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        return text
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=UTC)
+    return t.astimezone(UTC).isoformat(timespec="seconds")
+
+
+def run_row(folder: Path, rec: RunRecord) -> dict[str, Any]:
+    """The runs-table row of a record (attempt and first test are set by relink_units)."""
+    cal = rec.calibration
+    row: dict[str, Any] = {
+        "run_id": rec.run_id,
+        "serial": rec.dut.serial,
+        "product": rec.dut.product or rec.product.name or rec.product.path,
+        "verdict": rec.verdict.value,
+        "reason": rec.reason,
+        "failed_measurements": json.dumps(list(rec.failed_measurements)),
+        "simulated": int(rec.simulated),
+        "started_utc": normalise_utc(rec.started_utc),
+        "finished_utc": normalise_utc(rec.finished_utc),
+        "station_id": str(rec.station.get("id", "")),
+        "operator": rec.operator,
+        "software_version": rec.software_version,
+        "procedure_name": rec.procedure.name or rec.procedure.path,
+        "procedure_sha256": rec.procedure.sha256,
+        "product_sha256": rec.product.sha256,
+        "raw_sha256": rec.raw_data.sha256 if rec.raw_data else "",
+        "folder": str(folder.resolve()),
+        "work_order": getattr(rec, "work_order", "") or "",
+        "lot": getattr(rec, "lot", "") or "",
+    }
+    for k in CAL_KEYS:
+        c = getattr(cal, k) if cal is not None else None
+        row[f"cal_{k}"] = c.value if c is not None else None
+        row[f"cal_{k}_u"] = c.uncertainty_k2 if c is not None else None
+    return row
+
+
+def measurement_rows(rec: RunRecord) -> list[dict[str, Any]]:
+    return [
+        {
+            "run_id": rec.run_id, "seq": i, "name": m.name, "condition": m.condition,
+            "value": m.value, "units": m.units, "low": m.low, "high": m.high,
+            "marginal_low": m.marginal_low, "marginal_high": m.marginal_high,
+            "outcome": m.outcome.value, "uncertainty_k2": m.uncertainty_k2,
+        }
+        for i, m in enumerate(rec.measurements)
+    ]
+
+
+_LINK_COLUMNS = ("attempt", "first_run_id", "unit_verdict", "unit_tests")
+
+
+def replace_runs(
+    con: sa.Connection,
+    rows: Sequence[dict[str, Any]],
+    meas: Sequence[dict[str, Any]],
+    *,
+    queue: bool,
+) -> None:
+    """Upsert runs by run_id (delete and insert, portable), then relink their units.
+
+    queue: also put each run in the outbox for the central database (a station's local copy).
+    """
+    if not rows:
+        return
+    ids = [r["run_id"] for r in rows]
+    for chunk in _chunks(ids, 500):
+        con.execute(measurements.delete().where(measurements.c.run_id.in_(chunk)))
+        con.execute(runs.delete().where(runs.c.run_id.in_(chunk)))
+    clean = [{k: v for k, v in r.items() if k not in _LINK_COLUMNS} for r in rows]
+    con.execute(runs.insert(), clean)
+    if meas:
+        con.execute(measurements.insert(), list(meas))
+    relink_units(con, {(r["product"], r["serial"]) for r in rows})
+    if queue:
+        _queue(con, ids)
+
+
+def _queue(con: sa.Connection, ids: list[str]) -> None:
+    now = utc_now()
+    known = set()
+    for chunk in _chunks(ids, 500):
+        known |= set(con.scalars(sa.select(outbox.c.run_id).where(outbox.c.run_id.in_(chunk))))
+    if known:
+        con.execute(
+            outbox.update()
+            .where(outbox.c.run_id == sa.bindparam("rid"))
+            .values(version=outbox.c.version + 1, queued_utc=now),
+            [{"rid": i} for i in known],
+        )
+    new = [{"run_id": i, "version": 1, "sent_version": 0, "queued_utc": now}
+           for i in ids if i not in known]
+    if new:
+        con.execute(outbox.insert(), new)
+
+
+def relink_units(con: sa.Connection, units: Iterable[tuple[str, str]]) -> None:
+    """Each run of these (product, serial) units: its attempt number (1 = first test), the
+    run_id of the unit's first test, the unit's final verdict (its latest test's) and its
+    number of tests."""
+    ordered = sorted(set(units))
+    if con.dialect.name == "postgresql":
+        # two stations delivering tests of one serial at once: one relinks after the other
+        # (sorted, so two batches cannot deadlock); SQLite serialises writers anyway
+        for product, serial in ordered:
+            con.execute(sa.text("SELECT pg_advisory_xact_lock(hashtext(:k))"),
+                        {"k": f"{product}\x1f{serial}"})
+    updates: list[dict[str, Any]] = []
+    for product, serial in ordered:
+        tests = con.execute(
+            sa.select(runs.c.run_id, runs.c.verdict)
+            .where(runs.c.product == product, runs.c.serial == serial)
+            .order_by(runs.c.started_utc, runs.c.run_id)
+        ).all()
+        if not tests:
+            continue
+        first, final = tests[0].run_id, tests[-1].verdict
+        updates += [
+            {"rid": t.run_id, "a": i + 1, "f": first, "v": final, "n": len(tests)}
+            for i, t in enumerate(tests)
+        ]
+    if updates:
+        con.execute(
+            runs.update()
+            .where(runs.c.run_id == sa.bindparam("rid"))
+            .values(attempt=sa.bindparam("a"), first_run_id=sa.bindparam("f"),
+                    unit_verdict=sa.bindparam("v"), unit_tests=sa.bindparam("n")),
+            updates,
+        )
+
+
+def _chunks(items: list[str], size: int) -> Iterable[list[str]]:
+    for i in range(0, len(items), size):
+        yield items[i : i + size]

@@ -1,0 +1,142 @@
+"""The line's dashboard web app: read-only, over the line's central database.
+
+Pages: `/` the dashboard. JSON under `/api`: `stations` (with the filter choices), `yields`,
+`capability`, `chart` (a coefficient's control chart), `runs` (latest runs).
+`/certificate/{run_id}` serves the run's certificate from the run folder the station
+recorded, when this computer can reach it.
+Errors come back as {"error": message} (422 bad input, 404 not found, 503 database down).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
+from sqlalchemy.engine import Engine
+from sqlalchemy.exc import SQLAlchemyError
+
+from procedures.record import CERTIFICATE_FILE
+from station.db.schema import CAL_KEYS
+from station.db.yields import DEFAULT_SHIFT_STARTS_H
+from station.line import queries
+from station.line.queries import Filters
+from station.results_db import ResultsDBError, parse_since
+
+log = logging.getLogger(__name__)
+
+STATIC_DIR = Path(__file__).parent / "static"
+PAGE_HEADERS = {
+    "Cache-Control": "no-cache",
+    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'",
+}
+_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.:+\-]{0,160}$")
+_TEXT = re.compile(r"^[^\x00-\x1f]{0,200}$")
+
+
+@dataclass(frozen=True)
+class LineOptions:
+    offline_after_s: float = 60.0
+    shift_starts_h: tuple[int, ...] = DEFAULT_SHIFT_STARTS_H
+    confidence: float = 0.95
+    chart_points: int = 200
+
+
+def _error(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status)
+
+
+def _filters(request: Request) -> Filters:
+    q = request.query_params
+    values = {k: (q.get(k) or "").strip() or None
+              for k in ("since", "until", "product", "station", "lot")}
+    for k, v in values.items():
+        if v is not None and not _TEXT.match(v):
+            raise ValueError(f"{k}: at most 200 printable characters")
+    for k in ("since", "until"):
+        given = values[k]
+        if given:
+            parse_since(given)  # says what it wants when not a date
+    return Filters(**values)
+
+
+def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastAPI:
+    opts = options or LineOptions()
+    app = FastAPI(title="gyrocal line", docs_url=None, redoc_url=None, openapi_url=None)
+
+    def answer(make: Callable[[Any], Any], request: Request) -> Any:
+        try:
+            flt = _filters(request)
+            t0 = time.perf_counter()
+            with engine.connect() as con:
+                body = make((con, flt))
+            log.debug("%s in %.3f s", request.url.path, time.perf_counter() - t0)
+            return body
+        except (ValueError, ResultsDBError) as exc:
+            return _error(422, str(exc))
+        except SQLAlchemyError as exc:
+            return _error(503, f"the line database is not reachable ({exc.__class__.__name__}); "
+                               "check the database server")
+
+    @app.get("/", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(STATIC_DIR / "line.html", headers=PAGE_HEADERS)
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+    # One request per panel: the page asks for them at once and the server answers them in
+    # parallel (each on its own connection), so the page waits for the slowest, not the sum.
+    @app.get("/api/stations")
+    def station_list(request: Request) -> Any:
+        return answer(lambda a: {"stations": queries.station_states(a[0], opts.offline_after_s),
+                                 "choices": queries.choices(a[0]),
+                                 "coefficients": list(CAL_KEYS)}, request)
+
+    @app.get("/api/yields")
+    def yields(request: Request) -> Any:
+        return answer(lambda a: queries.yield_tables(a[0], a[1], opts.shift_starts_h), request)
+
+    @app.get("/api/capability")
+    def capability(request: Request) -> Any:
+        return answer(lambda a: {
+            "capability": queries.capabilities(a[0], a[1], opts.confidence),
+            "cpk_interval": f"Bissell's approximation, {opts.confidence:.0%} two-sided",
+            "window": queries.CPK_WINDOW,
+        }, request)
+
+    @app.get("/api/chart")
+    def chart(request: Request, coefficient: str = "bias_dps") -> Any:
+        return answer(lambda a: queries.control_chart(a[0], a[1], coefficient,
+                                                      opts.chart_points), request)
+
+    @app.get("/api/runs")
+    def latest(request: Request) -> Any:
+        return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1])}, request)
+
+    @app.get("/certificate/{run_id}", response_model=None)
+    def certificate(run_id: str) -> FileResponse | JSONResponse:
+        if not _RUN_ID.match(run_id):
+            return _error(422, "not a run id")
+        try:
+            with engine.connect() as con:
+                folder = queries.run_folder(con, run_id)
+        except SQLAlchemyError:
+            return _error(503, "the line database is not reachable; check the database server")
+        if folder is None:
+            return _error(404, f"run {run_id} is not in the line database")
+        pdf = Path(folder) / CERTIFICATE_FILE
+        if not pdf.is_file():
+            return _error(404, f"the certificate of run {run_id} is not reachable from here: "
+                               f"{pdf} (share the station's run folders with this computer "
+                               "at the same path)")
+        return FileResponse(pdf, media_type="application/pdf",
+                            filename=f"{run_id}-{CERTIFICATE_FILE}")
+
+    return app

@@ -1,0 +1,185 @@
+"""What the line's dashboard shows, aggregated in SQL over the central database.
+
+Everything is filtered by time (the first test's start), product, station and lot; the
+counts come from the database (GROUP BY over indexed columns), not from loading runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from typing import Any
+
+import sqlalchemy as sa
+
+from station.db.schema import CAL_KEYS, measurements, runs, stations
+from station.db.yields import DEFAULT_SHIFT_STARTS_H
+from station.db.yields import yield_tables as _yield_tables
+from station.line.spc import capability, mean_sd, western_electric
+from station.results_db import parse_since
+
+RECENT_RESULTS = 8
+CPK_WINDOW = 2000  # Cpk over the latest first tests: the process as it runs now
+
+
+@dataclass(frozen=True)
+class Filters:
+    since: str | None = None
+    until: str | None = None
+    product: str | None = None
+    station: str | None = None
+    lot: str | None = None
+
+    def clauses(self) -> list[sa.ColumnElement[bool]]:
+        c: list[sa.ColumnElement[bool]] = []
+        if self.since:
+            c.append(runs.c.started_utc >= parse_since(self.since))
+        if self.until:
+            c.append(runs.c.started_utc < parse_since(self.until))
+        if self.product:
+            c.append(runs.c.product == self.product)
+        if self.station:
+            c.append(runs.c.station_id == self.station)
+        if self.lot:
+            c.append(runs.c.lot == self.lot)
+        return c
+
+
+def station_states(con: sa.Connection, offline_after_s: float, now: datetime | None = None
+                   ) -> list[dict[str, Any]]:
+    """Each station: its sync's last word (state, queued runs, when) and its latest results."""
+    now = now or datetime.now(UTC)
+    beats = {r.station_id: r for r in con.execute(sa.select(stations))}
+    ids = set(beats) | set(con.scalars(sa.select(runs.c.station_id).group_by(runs.c.station_id)))
+    out = []
+    for sid in sorted(ids):
+        recent = con.execute(
+            sa.select(runs.c.run_id, runs.c.serial, runs.c.product, runs.c.verdict,
+                      runs.c.started_utc, runs.c.attempt)
+            .where(runs.c.station_id == sid)
+            .order_by(runs.c.started_utc.desc()).limit(RECENT_RESULTS)
+        ).mappings().all()
+        beat = beats.get(sid)
+        state, seen = "no sync", None
+        if beat is not None:
+            seen = beat.last_seen_utc
+            age_s = (now - datetime.fromisoformat(seen)).total_seconds()
+            state = beat.state if age_s <= offline_after_s else "offline"
+        if recent and recent[0]["verdict"] == "RUNNING" and state in ("no sync", "idle"):
+            state = "testing"
+        out.append({
+            "station_id": sid, "state": state, "last_seen_utc": seen,
+            "pending_runs": beat.pending_runs if beat is not None else None,
+            "recent": [dict(r) for r in recent],
+        })
+    return out
+
+
+def yield_tables(con: sa.Connection, flt: Filters,
+                 shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H) -> dict[str, Any]:
+    tables = _yield_tables(con, flt.clauses(), shift_starts_h)
+    return {group: _yield_json(rows) for group, rows in tables.items()}
+
+
+def _yield_json(rows: Sequence[Any]) -> list[dict[str, Any]]:
+    return [
+        {**asdict(r), "first_pass_yield": r.first_pass_yield, "final_yield": r.final_yield}
+        for r in rows
+    ]
+
+
+def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95,
+                 window: int = CPK_WINDOW) -> list[dict[str, Any]]:
+    """Cpk of every limited measurement (per name and condition) over the latest `window`
+    first tests matching the filters, with Bissell's interval. The window's values are
+    fetched (an indexed range) and reduced here: mean, then the sample sd about it."""
+    m, r = measurements.c, runs.c
+    latest = (
+        sa.select(r.run_id)
+        .where(r.attempt == 1, r.verdict != "RUNNING", *flt.clauses())
+        .order_by(r.started_utc.desc()).limit(window)
+        .subquery()
+    )
+    rows = con.execute(
+        sa.select(m.name, m.condition, m.value, m.low, m.high, m.units)
+        .select_from(latest.join(measurements, m.run_id == latest.c.run_id))
+        .where(m.value.is_not(None))
+    )
+    groups: dict[tuple[str, str], _Values] = {}
+    for name, condition, value, low, high, units in rows:
+        g = groups.setdefault((name, condition or ""), _Values(units=units))
+        g.add(float(value), low, high)
+    out = []
+    for (name, condition), g in sorted(groups.items()):
+        if g.low is None and g.high is None:
+            continue  # informational: no limits, no capability
+        mean, sd = mean_sd(g.values)
+        cap = capability(len(g.values), mean, sd, g.low, g.high, confidence)
+        out.append({"name": name, "condition": condition, "units": g.units, **asdict(cap)})
+    return out
+
+
+@dataclass
+class _Values:
+    units: str
+    values: list[float] = field(default_factory=list)
+    low: float | None = None
+    high: float | None = None
+
+    def add(self, value: float, low: float | None, high: float | None) -> None:
+        self.values.append(value)
+        if low is not None:
+            self.low = low if self.low is None else min(self.low, low)
+        if high is not None:
+            self.high = high if self.high is None else max(self.high, high)
+
+
+def control_chart(con: sa.Connection, flt: Filters, coefficient: str, limit: int = 200
+                  ) -> dict[str, Any]:
+    """An individuals chart of one calibration coefficient over the latest first tests:
+    centre = mean, sigma = mean moving range / 1.128, Western Electric rules flagged."""
+    if coefficient not in CAL_KEYS:
+        raise ValueError(f"coefficient {coefficient!r}: choose one of {', '.join(CAL_KEYS)}")
+    col = runs.c[f"cal_{coefficient}"]
+    rows = con.execute(
+        sa.select(runs.c.run_id, runs.c.serial, runs.c.started_utc, col.label("v"))
+        .where(runs.c.attempt == 1, col.is_not(None), *flt.clauses())
+        .order_by(runs.c.started_utc.desc()).limit(limit)
+    ).all()[::-1]
+    values = [float(r.v) for r in rows]
+    centre = sum(values) / len(values) if values else 0.0
+    ranges = [abs(b - a) for a, b in zip(values, values[1:], strict=False)]
+    sigma = (sum(ranges) / len(ranges)) / 1.128 if ranges else 0.0
+    flags = western_electric(values, centre, sigma)
+    return {
+        "coefficient": coefficient, "centre": centre, "sigma": sigma,
+        "points": [
+            {"run_id": r.run_id, "serial": r.serial, "started_utc": r.started_utc,
+             "value": v, "rules": f}
+            for r, v, f in zip(rows, values, flags, strict=True)
+        ],
+    }
+
+
+def recent_runs(con: sa.Connection, flt: Filters, limit: int = 50) -> list[dict[str, Any]]:
+    r = runs.c
+    found = con.execute(
+        sa.select(r.run_id, r.serial, r.product, r.station_id, r.lot, r.work_order, r.verdict,
+                  r.attempt, r.started_utc)
+        .where(*flt.clauses()).order_by(r.started_utc.desc()).limit(limit)
+    ).mappings()
+    return [dict(x) for x in found]
+
+
+def choices(con: sa.Connection) -> dict[str, list[str]]:
+    """Products, stations and lots to filter by (distinct values, index scans)."""
+    return {
+        name: [v for v in con.scalars(sa.select(col).group_by(col).order_by(col)) if v]
+        for name, col in (("product", runs.c.product), ("station", runs.c.station_id),
+                          ("lot", runs.c.lot))
+    }
+
+
+def run_folder(con: sa.Connection, run_id: str) -> str | None:
+    return con.scalar(sa.select(runs.c.folder).where(runs.c.run_id == run_id))

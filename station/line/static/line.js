@@ -1,0 +1,195 @@
+// The line's dashboard: reads /api/summary, /api/chart and /api/runs; renders with the DOM
+// (textContent only: nothing from the database is parsed as HTML).
+"use strict";
+
+const state = { summary: null, group: "station" };
+
+function el(tag, attrs = {}, text = "") {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== "") e.textContent = text;
+  return e;
+}
+
+function pct(x) { return x === null || x === undefined ? "–" : (100 * x).toFixed(1) + " %"; }
+function num(x, d = 4) {
+  if (x === null || x === undefined) return "–";
+  const a = Math.abs(x);
+  return a !== 0 && (a < 1e-3 || a >= 1e5) ? x.toExponential(d - 1) : x.toPrecision(d);
+}
+
+function query() {
+  const data = new FormData(document.getElementById("filters"));
+  const q = new URLSearchParams();
+  for (const [k, v] of data.entries()) if (v) q.set(k, v);
+  return q;
+}
+
+async function getJson(path) {
+  const r = await fetch(path);
+  const body = await r.json();
+  if (!r.ok) throw new Error(body.error || r.statusText);
+  return body;
+}
+
+function fillChoices(choices) {
+  const form = document.getElementById("filters");
+  for (const name of ["product", "station", "lot"]) {
+    const sel = form.elements[name];
+    const keep = sel.value;
+    sel.replaceChildren(el("option", { value: "" }, "all"));
+    for (const v of choices[name]) sel.append(el("option", { value: v }, v));
+    sel.value = keep;
+  }
+}
+
+function renderStations(list) {
+  const box = document.getElementById("stations");
+  box.replaceChildren();
+  for (const s of list) {
+    const card = el("div", { class: "card", "data-station": s.station_id });
+    card.append(el("div", { class: "id" }, s.station_id || "(no id)"));
+    card.append(el("div", { class: "state " + s.state.replace(/\s/g, "-") }, s.state));
+    if (s.last_seen_utc) card.append(el("div", { class: "note" }, "last sync " + s.last_seen_utc));
+    if (s.pending_runs) card.append(el("div", { class: "note" }, s.pending_runs + " runs queued"));
+    const dots = el("div", { class: "recent" });
+    for (const r of s.recent) {
+      dots.append(el("span", { class: "dot " + r.verdict, title: `${r.serial} ${r.verdict} ${r.started_utc}` }));
+    }
+    card.append(dots);
+    if (s.recent.length) {
+      const r = s.recent[0];
+      card.append(el("div", { class: "note" }, `last: ${r.serial} ${r.verdict} (${r.started_utc})`));
+    }
+    box.append(card);
+  }
+}
+
+function renderYields() {
+  const y = state.summary.yields;
+  const all = y.all[0];
+  document.getElementById("yield-all").textContent = all
+    ? `${all.units} units, ${all.tests} tests: first-pass yield ${pct(all.first_pass_yield)}, final yield ${pct(all.final_yield)}`
+    : "no units";
+  if (all) {
+    document.getElementById("yield-all").dataset.fpy = pct(all.first_pass_yield);
+    document.getElementById("yield-all").dataset.final = pct(all.final_yield);
+  }
+  const body = document.querySelector("#yields tbody");
+  body.replaceChildren();
+  for (const r of y[state.group]) {
+    const tr = el("tr", { "data-group": r.group });
+    tr.append(el("td", {}, r.group || "(none)"), el("td", {}, String(r.units)),
+      el("td", {}, String(r.tests)), el("td", { class: "fpy" }, pct(r.first_pass_yield)),
+      el("td", { class: "final" }, pct(r.final_yield)));
+    body.append(tr);
+  }
+  for (const b of document.querySelectorAll("#yield-tabs button")) {
+    b.classList.toggle("on", b.dataset.group === state.group);
+  }
+}
+
+function renderCapability() {
+  document.getElementById("cpk-note").textContent =
+    `Cpk = min(USL − mean, mean − LSL) / 3 sd over the latest ${state.summary.window} first tests; interval: ${state.summary.cpk_interval}.`;
+  const body = document.querySelector("#capability tbody");
+  body.replaceChildren();
+  for (const c of state.summary.capability) {
+    const tr = el("tr", { "data-name": c.name, "data-condition": c.condition });
+    const limits = `${c.low === null ? "" : num(c.low)} … ${c.high === null ? "" : num(c.high)} ${c.units}`;
+    const ci = c.cpk === null ? "–" : `${c.ci_low.toFixed(2)} – ${c.ci_high.toFixed(2)}`;
+    tr.append(el("td", {}, c.name), el("td", {}, c.condition || ""), el("td", {}, String(c.n)),
+      el("td", {}, num(c.mean)), el("td", {}, num(c.sd)), el("td", {}, limits),
+      el("td", { class: "cpk" }, c.cpk === null ? "–" : c.cpk.toFixed(2)), el("td", { class: "ci" }, ci));
+    body.append(tr);
+  }
+}
+
+function renderChart(data) {
+  const svg = document.getElementById("chart");
+  const ns = "http://www.w3.org/2000/svg";
+  svg.replaceChildren();
+  const pts = data.points;
+  const list = document.getElementById("violations");
+  list.replaceChildren();
+  if (!pts.length) return;
+  const W = 900, H = 260, pad = 30;
+  const lo = Math.min(data.centre - 3.5 * data.sigma, ...pts.map((p) => p.value));
+  const hi = Math.max(data.centre + 3.5 * data.sigma, ...pts.map((p) => p.value));
+  const span = hi - lo || 1;
+  const x = (i) => pad + (i * (W - 2 * pad)) / Math.max(1, pts.length - 1);
+  const y = (v) => H - pad - ((v - lo) * (H - 2 * pad)) / span;
+  const line = (v, cls) => {
+    const l = document.createElementNS(ns, "line");
+    Object.entries({ x1: pad, x2: W - pad, y1: y(v), y2: y(v), stroke: cls, "stroke-dasharray": "4 3" })
+      .forEach(([k, val]) => l.setAttribute(k, val));
+    svg.append(l);
+  };
+  line(data.centre, "#555");
+  for (const k of [1, 2, 3]) { line(data.centre + k * data.sigma, "#bbb"); line(data.centre - k * data.sigma, "#bbb"); }
+  const path = document.createElementNS(ns, "polyline");
+  path.setAttribute("points", pts.map((p, i) => `${x(i)},${y(p.value)}`).join(" "));
+  path.setAttribute("fill", "none");
+  path.setAttribute("stroke", "#0b6bcb");
+  svg.append(path);
+  pts.forEach((p, i) => {
+    const c = document.createElementNS(ns, "circle");
+    c.setAttribute("cx", x(i)); c.setAttribute("cy", y(p.value)); c.setAttribute("r", p.rules.length ? 4 : 2.5);
+    c.setAttribute("fill", p.rules.length ? "#c62828" : "#0b6bcb");
+    const t = document.createElementNS(ns, "title");
+    t.textContent = `${p.serial} ${num(p.value)}${p.rules.length ? " rules " + p.rules.join(",") : ""}`;
+    c.append(t);
+    svg.append(c);
+    if (p.rules.length) list.append(el("li", {}, `${p.started_utc} ${p.serial}: rule ${p.rules.join(", ")}`));
+  });
+}
+
+function renderRuns(runs) {
+  const body = document.querySelector("#runs tbody");
+  body.replaceChildren();
+  for (const r of runs) {
+    const tr = el("tr", { "data-run": r.run_id });
+    const link = el("a", { href: "/certificate/" + encodeURIComponent(r.run_id), target: "_blank" }, "PDF");
+    const cell = el("td");
+    cell.append(link);
+    tr.append(el("td", {}, r.started_utc), el("td", {}, r.station_id), el("td", {}, r.serial),
+      el("td", {}, r.product), el("td", {}, r.lot), el("td", {}, r.attempt === 1 ? "first" : "retest " + (r.attempt - 1)),
+      el("td", { class: "verdict-" + r.verdict }, r.verdict), cell);
+    body.append(tr);
+  }
+}
+
+async function refresh() {
+  const status = document.getElementById("status");
+  const q = query();
+  const coef = document.getElementById("coefficient");
+  try {
+    const t0 = performance.now();
+    const chartQuery = new URLSearchParams(q);
+    chartQuery.set("coefficient", coef.value || "bias_dps");
+    const [stations, yields, capability, runs, chart] = await Promise.all([
+      getJson("/api/stations?" + q), getJson("/api/yields?" + q),
+      getJson("/api/capability?" + q), getJson("/api/runs?" + q),
+      getJson("/api/chart?" + chartQuery)]);
+    state.summary = { yields, ...capability };
+    fillChoices(stations.choices);
+    renderStations(stations.stations);
+    renderYields();
+    renderCapability();
+    renderRuns(runs.runs);
+    if (!coef.options.length) for (const c of stations.coefficients) coef.append(el("option", { value: c }, c));
+    renderChart(chart);
+    status.textContent = `updated ${new Date().toISOString().slice(11, 19)} UTC in ${((performance.now() - t0) / 1000).toFixed(2)} s`;
+    document.body.dataset.loaded = "1";
+  } catch (err) {
+    status.textContent = "could not load: " + err.message;
+  }
+}
+
+document.getElementById("filters").addEventListener("submit", (e) => { e.preventDefault(); refresh(); });
+document.getElementById("yield-tabs").addEventListener("click", (e) => {
+  if (e.target.dataset.group && state.summary) { state.group = e.target.dataset.group; renderYields(); }
+});
+document.getElementById("coefficient").addEventListener("change", refresh);
+refresh();
+setInterval(refresh, 30000);

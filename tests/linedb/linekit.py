@@ -1,0 +1,94 @@
+"""Runs of a line of stations as records (no bench): several stations, lots, retests."""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from procedures.record import RunRecord, Verdict
+from tests.reports.synth_run import Part, make_record
+
+REPO = Path(__file__).resolve().parents[2]
+START = datetime(2026, 11, 2, 5, 0, tzinfo=UTC)
+
+
+@dataclass(frozen=True)
+class LineRun:
+    folder: Path
+    record: RunRecord
+
+
+def line_record(serial: str, station: str, started: datetime, *, lot: str = "",
+                work_order: str = "", product: str = "ADIS16130-EOL", bias_dps: float = 0.0,
+                scale: float = 1.0, verdict: str = "AUTO", seed: int = 1) -> RunRecord:
+    part = Part(serial=serial, bias_dps=bias_dps, scale=scale, started=started,
+                product=product, verdict=verdict, seed=seed)
+    rec = make_record(part)
+    return rec.model_copy(update={
+        "run_id": f"{started:%Y%m%dT%H%M%S}Z_{station}_{serial}",
+        "station": {"id": station, "name": station},
+        "lot": lot, "work_order": work_order,
+    })
+
+
+def line_runs(n_units: int, stations: list[str], seed: int = 5, root: Path = Path("/nowhere"),
+              retest_share: float = 0.15) -> list[LineRun]:
+    """n_units parts across stations, lots of 50, some failing first and retested later."""
+    rng = np.random.default_rng(seed)
+    out: list[LineRun] = []
+    t = START
+    retests: list[tuple[str, str, str]] = []
+    for i in range(n_units):
+        serial = f"U{i:05d}"
+        station = stations[i % len(stations)]
+        lot = f"LOT-{i // 50:03d}"
+        bias = float(rng.normal(0.0, 5.5))
+        t += timedelta(minutes=float(rng.uniform(4, 9)))
+        rec = line_record(serial, station, t, lot=lot, work_order=f"WO-{i // 100}",
+                          bias_dps=bias, scale=float(1 + rng.normal(0, 0.015)), seed=i)
+        out.append(LineRun(root / rec.run_id, rec))
+        if rec.verdict != Verdict.PASS or rng.uniform() < retest_share / 3:
+            retests.append((serial, lot, stations[(i + 1) % len(stations)]))
+        if retests and rng.uniform() < 0.3:
+            s, lt, st = retests.pop(0)
+            t += timedelta(minutes=2)
+            rec2 = line_record(s, st, t, lot=lt, bias_dps=float(rng.normal(0.0, 3.0)), seed=i + 7)
+            out.append(LineRun(root / rec2.run_id, rec2))
+    return out
+
+
+def station_yaml(folder: Path, station_id: str, central: str | None, results_db: str,
+                 sync_interval_s: float = 0.5) -> Path:
+    """A station file as config/station.yaml, with this id, results and central database."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for sub in ("procedures", "products"):
+        shutil.copytree(REPO / "config" / sub, folder / sub, dirs_exist_ok=True)
+    data = yaml.safe_load((REPO / "config" / "station.yaml").read_text(encoding="utf-8"))
+    data["station"]["id"] = station_id
+    data.update(output_folder="runs", results_db=results_db, sync_interval_s=sync_interval_s)
+    if central:
+        data["central_db"] = central
+    path = folder / "station.yaml"
+    path.write_text(yaml.safe_dump(data), encoding="utf-8")
+    return path
+
+
+def direct_yields(records: list, key: object) -> dict[str, tuple[int, int, int, int]]:
+    """group -> (units, tests, first passes, final passes), straight from the records."""
+    tests: dict[tuple[str, str], list] = {}
+    for r in sorted(records, key=lambda r: (r.started_utc, r.run_id)):
+        tests.setdefault((r.dut.product, r.dut.serial), []).append(r)
+    out: dict[str, list[int]] = {}
+    for unit_tests in tests.values():
+        g = key(unit_tests[0])  # type: ignore[operator]
+        row = out.setdefault(g, [0, 0, 0, 0])
+        row[0] += 1
+        row[1] += len(unit_tests)
+        row[2] += unit_tests[0].verdict.value == "PASS"
+        row[3] += unit_tests[-1].verdict.value == "PASS"
+    return {g: (a, b, c, d) for g, (a, b, c, d) in out.items()}
