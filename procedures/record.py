@@ -153,6 +153,7 @@ class RunRecord(_Model):
     timings: dict[str, float] = Field(default_factory=dict)  # step name -> station seconds
     events: list[Event] = Field(default_factory=list)
     analysis: dict[str, Any] = Field(default_factory=dict)  # per-step analysis summaries
+    certificate_number: str = ""  # station id + sequence, given when the certificate is issued
 
 
 def new_file_mode() -> int:

@@ -175,6 +175,7 @@ def _identity_rows(inputs: CertificateInputs, serial: str) -> list[tuple[str, st
     reg = rec.dut.part_serial_register
     part = serial if reg in (None, serial) else f"{serial} (part register reads {reg}: MISMATCH)"
     return [
+        ("Certificate number", rec.certificate_number or "not issued (no number recorded)"),
         ("Product", rec.dut.product or rec.product.name or rec.product.path),
         ("Part serial", part + (f", socket {rec.dut.socket}" if rec.dut.socket else "")),
         ("Run id", rec.run_id),
@@ -424,4 +425,4 @@ def generated_note(inputs: CertificateInputs, when: datetime) -> Paragraph:
     return Paragraph(
         f"Rendered from {escape(inputs.folder.name)}/record.json and {escape(inputs.raw_path.name)}"
         f"; document date = run finish time {when:%Y-%m-%d %H:%M:%S} UTC. Re-render with "
-        "<font face='Courier'>station report RUN_FOLDER</font>.", NOTE)
+        "<font face='DejaVuSansMono'>station report RUN_FOLDER</font>.", NOTE)

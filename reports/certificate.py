@@ -58,8 +58,9 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     return story
 
 
-def certificate_bytes(run_folder: Path) -> bytes:
-    """The certificate of a run folder as PDF bytes (nothing written)."""
+def certificate_bytes(run_folder: Path, *, unverified: str = "") -> bytes:
+    """The certificate of a run folder as PDF bytes (nothing written). `unverified`: why
+    the folder failed verification; marks every page UNVERIFIED with that reason."""
     inputs = load_inputs(run_folder)
     rec = inputs.record
     serial = bounded(rec.dut.serial if rec else "unknown serial", 64)
@@ -71,6 +72,7 @@ def certificate_bytes(run_folder: Path) -> bytes:
         document_time=document_time(inputs),
         author=bounded(rec.operator, 120) if rec else "",
         subject=f"{inputs.verdict} {serial}",
+        unverified=bounded(unverified, 120),
     )
     return build_pdf(build_story(inputs), furniture)
 

@@ -211,6 +211,17 @@ class UiSettings(_Strict):
         return self
 
 
+class SigningSettings(_Strict):
+    """The station's signing identity and certificate numbering (docs/records.md)."""
+
+    key: PathText = Field("signing/station-key.pem", description="PEM private key (RSA); "
+                          "made on first use with mode 0600 (relative to this file)")
+    certificate: PathText = Field("signing/station-cert.pem", description="PEM X.509 "
+                                  "certificate of the key; self-signed one made on first use")
+    counter: PathText = Field("signing/certificate-counter.json", description="persistent "
+                              "certificate number sequence of this station")
+
+
 class StationSettings(_Strict):
     """Everything specific to one physical station."""
 
@@ -232,6 +243,8 @@ class StationSettings(_Strict):
         False, description="refuse to run when an instrument's calibration is overdue"
     )
     ui: UiSettings = Field(default_factory=UiSettings, description="browser UI settings")
+    signing: SigningSettings = Field(default_factory=SigningSettings,
+                                     description="run folder manifests and PDF signatures")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,65 @@
+"""PAdES signatures on certificates (pyHanko), each an incremental update of the PDF.
+
+The station signs every certificate it issues (field "Station"); a quality engineer's
+approval adds a second signature (field "Approval-N") after the first, so the first stays
+valid and a reader (`pdfsig certificate.pdf`) lists both. The signing certificate is the
+station's own (station/signing_keys.py): a self-signed one makes pdfsig say the
+certificate is not trusted while the signature itself is valid.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from pyhanko.pdf_utils.incremental_writer import IncrementalPdfFileWriter
+from pyhanko.pdf_utils.misc import PdfError
+from pyhanko.sign import fields, signers
+from pyhanko.sign.general import SigningError
+
+from station.signing_keys import SigningKeyError, StationIdentity
+
+STATION_FIELD = "Station"
+
+
+def _signer(identity: StationIdentity) -> signers.SimpleSigner:
+    signer = signers.SimpleSigner.load(str(identity.key_path), str(identity.certificate_path))
+    if signer is None:
+        raise SigningKeyError(f"pyHanko cannot load the station key {identity.key_path} with "
+                              f"{identity.certificate_path}; check both are PEM")
+    return signer
+
+
+def signature_fields(pdf: bytes) -> list[str]:
+    """Names of the signature fields already in the PDF (filled or not)."""
+    from pyhanko.pdf_utils.reader import PdfFileReader
+
+    reader = PdfFileReader(io.BytesIO(pdf), strict=False)
+    return [name for name, _value, _ref in fields.enumerate_sig_fields(reader)]
+
+
+def sign_pdf_bytes(pdf: bytes, identity: StationIdentity, *, field_name: str, reason: str,
+                   signer_name: str, location: str = "") -> bytes:
+    """`pdf` with one more PAdES (B-B) signature appended as an incremental update."""
+    try:
+        writer = IncrementalPdfFileWriter(io.BytesIO(pdf), strict=False)
+        meta = signers.PdfSignatureMetadata(
+            field_name=field_name,
+            reason=reason,
+            name=signer_name or None,
+            location=location or None,
+            md_algorithm="sha256",
+            subfilter=fields.SigSeedSubFilter.PADES,
+        )
+        out = signers.sign_pdf(writer, meta, signer=_signer(identity))
+    except (PdfError, SigningError, ValueError) as exc:
+        raise SigningKeyError(f"could not sign the certificate PDF ({exc}); render it again "
+                              "with `station report RUN_FOLDER`") from exc
+    return out.getvalue()
+
+
+def sign_pdf_file(path: Path, identity: StationIdentity, *, field_name: str, reason: str,
+                  signer_name: str, location: str = "") -> bytes:
+    """Sign the PDF at `path` (returns the new bytes; the caller writes them atomically)."""
+    return sign_pdf_bytes(Path(path).read_bytes(), identity, field_name=field_name,
+                          reason=reason, signer_name=signer_name, location=location)
