@@ -34,6 +34,7 @@ from reports.styles import (
     NOTE,
     VERDICT_COLOURS,
     WARNING,
+    bounded,
     escape,
     fmt,
     grid_style,
@@ -199,7 +200,9 @@ def traceability(inputs: CertificateInputs) -> list[Flowable]:
         if rec.station_config is not None:
             refs.append(("Station config", rec.station_config))
         for label, ref in refs:
-            rows.append([_p(label), _p(ref.name or ref.path), _p(ref.version or "-"),
+            # the version column is narrow: a long version would outgrow a page
+            rows.append([_p(label), _p(ref.name or ref.path),
+                         _p(bounded(ref.version or "-", 120)),
                          _p(ref.sha256, CELL_MONO)])
     raw_note = inputs.raw_sha256 or "file missing"
     rows.append([_p("Raw data"), _p(inputs.raw_path.name), _p("-"), _p(raw_note, CELL_MONO)])

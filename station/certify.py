@@ -86,6 +86,15 @@ def ensure_certificate_number(folder: Path, settings: LoadedSettings) -> str:
     return record.certificate_number
 
 
+def _recorded_number(folder: Path) -> str:
+    """The number given at the end of the run; a re-render never gives one (a record from
+    before numbering keeps saying so, and renders as it did)."""
+    try:
+        return read_record(folder).certificate_number
+    except (OSError, ValueError):
+        return ""
+
+
 def _approvals(folder: Path) -> list[dict[str, str]]:
     path = folder / APPROVALS_FILE
     if not path.is_file():
@@ -122,7 +131,8 @@ def issue_certificate(folder: Path, settings: LoadedSettings, *, origin: str) ->
     from reports.pdfdoc import write_atomic
 
     identity = station_identity(settings)
-    number = ensure_certificate_number(folder, settings)
+    number = (ensure_certificate_number(folder, settings) if origin == "run"
+              else _recorded_number(folder))
     pdf = signed_certificate(certificate_bytes(folder), identity, settings.settings.station.id,
                              number, _approvals(folder))
     path = write_atomic(folder / CERTIFICATE_FILE, pdf)
@@ -136,6 +146,7 @@ def finish_run_folder(folder: Path, settings: LoadedSettings, *, certificate: bo
     try:
         if certificate:
             return issue_certificate(folder, settings, origin="run")
+        ensure_certificate_number(folder, settings)
         seal(folder, station_identity(settings), "run")
     except Exception as exc:
         log.error("certificate or manifest for %s failed: %s", folder, exc)

@@ -63,3 +63,16 @@ def sign_pdf_file(path: Path, identity: StationIdentity, *, field_name: str, rea
     """Sign the PDF at `path` (returns the new bytes; the caller writes them atomically)."""
     return sign_pdf_bytes(Path(path).read_bytes(), identity, field_name=field_name,
                           reason=reason, signer_name=signer_name, location=location)
+
+
+def unsigned_revision(pdf: bytes) -> bytes:
+    """The PDF as rendered, before any signature: its first revision (up to and including
+    the first %%EOF line). Signing only appends, so this part is byte-identical for the
+    same record however often it is signed."""
+    end = pdf.find(b"%%EOF")
+    if end < 0:
+        return pdf
+    end += len(b"%%EOF")
+    while end < len(pdf) and pdf[end:end + 1] in (b"\r", b"\n"):
+        end += 1
+    return pdf[:end]
