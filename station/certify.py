@@ -19,7 +19,14 @@ import logging
 import os
 from pathlib import Path
 
-from procedures.record import CERTIFICATE_FILE, Verdict, read_record, write_record
+from procedures.record import (
+    CERTIFICATE_FILE,
+    CertificateContext,
+    ReferenceStandard,
+    Verdict,
+    read_record,
+    write_record,
+)
 from station.manifest import APPROVALS_FILE, seal
 from station.pdf_signing import STATION_FIELD, sign_pdf_bytes
 from station.settings import LoadedSettings
@@ -70,9 +77,33 @@ def next_certificate_number(counter_path: Path, station_id: str) -> str:
     return f"{station_id}-{number:0{NUMBER_DIGITS}d}"
 
 
-def ensure_certificate_number(folder: Path, settings: LoadedSettings) -> str:
-    """The run's certificate number, given (and written into record.json) if it has none.
-    '' when the record cannot be read or the run has not finished."""
+def certificate_context(settings: LoadedSettings, decision_rule: str) -> CertificateContext:
+    """Decision rule, reference standards and ambient as the station file gives them now."""
+    s = settings.settings
+    roles = {"rate_table": s.instruments.rate_table, "chamber": s.instruments.chamber,
+             "supply": s.instruments.supply, "fixture": s.instruments.fixture}
+    standards = [
+        ReferenceStandard(role=role, calibration_certificate=inst.calibration_certificate,
+                          reference_uncertainty=inst.reference_uncertainty,
+                          calibration_due=str(inst.calibration_due)
+                          if inst.calibration_due else None)
+        for role, inst in roles.items()
+    ]
+    ambient = s.ambient
+    return CertificateContext(
+        decision_rule=decision_rule,
+        reference_standards=standards,
+        ambient_temperature_c=ambient.temperature_c if ambient else None,
+        ambient_humidity_pct=ambient.humidity_pct if ambient else None,
+        ambient_source="station file (ambient:)" if ambient else "",
+    )
+
+
+def ensure_certificate_number(folder: Path, settings: LoadedSettings,
+                              decision_rule: str = "") -> str:
+    """The run's certificate number, given (and written into record.json with the
+    certificate context) if it has none. '' when the record cannot be read or the run has
+    not finished."""
     try:
         record = read_record(folder)
     except (OSError, ValueError):
@@ -82,6 +113,8 @@ def ensure_certificate_number(folder: Path, settings: LoadedSettings) -> str:
     s = settings.settings
     record.certificate_number = next_certificate_number(
         settings.resolve(s.signing.counter), s.station.id)
+    if record.certificate_context is None:
+        record.certificate_context = certificate_context(settings, decision_rule)
     write_record(folder, record)
     return record.certificate_number
 
@@ -124,14 +157,15 @@ def approval_reason(entry: dict[str, str]) -> str:
             f"{entry.get('time_utc', '?')}")
 
 
-def issue_certificate(folder: Path, settings: LoadedSettings, *, origin: str) -> Path:
+def issue_certificate(folder: Path, settings: LoadedSettings, *, origin: str,
+                      decision_rule: str = "") -> Path:
     """Number, render, sign and seal; returns the certificate's path. Raises on I/O or key
     problems (SigningKeyError, OSError)."""
     from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
 
     identity = station_identity(settings)
-    number = (ensure_certificate_number(folder, settings) if origin == "run"
+    number = (ensure_certificate_number(folder, settings, decision_rule) if origin == "run"
               else _recorded_number(folder))
     pdf = signed_certificate(certificate_bytes(folder), identity, settings.settings.station.id,
                              number, _approvals(folder))
@@ -140,13 +174,15 @@ def issue_certificate(folder: Path, settings: LoadedSettings, *, origin: str) ->
     return path
 
 
-def finish_run_folder(folder: Path, settings: LoadedSettings, *, certificate: bool) -> Path | None:
+def finish_run_folder(folder: Path, settings: LoadedSettings, *, certificate: bool,
+                      decision_rule: str = "") -> Path | None:
     """At the end of a run: the signed certificate (when wanted) and the manifest. Never
-    raises: the record stands without them, and the failure is logged."""
+    raises: the record stands without them, and the failure is logged. `decision_rule`: the
+    product's, stated on the certificate."""
     try:
         if certificate:
-            return issue_certificate(folder, settings, origin="run")
-        ensure_certificate_number(folder, settings)
+            return issue_certificate(folder, settings, origin="run", decision_rule=decision_rule)
+        ensure_certificate_number(folder, settings, decision_rule)
         seal(folder, station_identity(settings), "run")
     except Exception as exc:
         log.error("certificate or manifest for %s failed: %s", folder, exc)

@@ -100,10 +100,10 @@ def _render_checked(folder: Path, args: argparse.Namespace) -> Path:
     record or raw file is refused, or with --unverified rendered as UNVERIFIED_FILE, marked
     on every page and neither signed nor sealed. A certificate.pdf altered alone is simply
     rendered again from the intact record."""
+    from procedures.record import CERTIFICATE_FILE
     from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
     from station.certify import issue_certificate, trusted_fingerprints
-    from procedures.record import CERTIFICATE_FILE
     from station.manifest import MANIFEST_FILE, verify_folder
     from station.settings import load_settings
 

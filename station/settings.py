@@ -41,6 +41,9 @@ _DRIVER_HELP = (
 )
 
 
+REFERENCE_KEYS = ("calibration_certificate", "reference_uncertainty")  # station's, not drivers'
+
+
 class InstrumentSettings(BaseModel):
     """One instrument role. Besides the station's own keys (driver, calibration_due,
     expected_model) every key is the driver's setting, checked by the driver's own model when
@@ -58,6 +61,12 @@ class InstrumentSettings(BaseModel):
     calibration_due: dt.date | None = Field(
         None, description="ISO date (YYYY-MM-DD) the instrument's own calibration expires"
     )
+    calibration_certificate: Name = Field(
+        "", description="number of the instrument's calibration certificate (on certificates)"
+    )
+    reference_uncertainty: Name = Field(
+        "", description="its uncertainty as a reference, e.g. '0.005 % of rate (k = 2)'"
+    )
 
     def driver_settings(self) -> dict[str, Any]:
         """The keys for the driver: those given in station.yaml, the station's own left out."""
@@ -65,7 +74,7 @@ class InstrumentSettings(BaseModel):
         given.update(self.model_extra or {})
         return {
             k: v for k, v in given.items()
-            if k not in ("driver", "calibration_due", "expected_model")
+            if k not in ("driver", "calibration_due", "expected_model", *REFERENCE_KEYS)
         }
 
 
@@ -90,6 +99,10 @@ class FixtureSettings(BaseModel):
         "(25-byte frames, 10 bits a byte: 200 Hz needs 50,000, 500 Hz needs 230,400)",
     )
     calibration_due: dt.date | None = Field(None, description="stop-angle calibration expiry")
+    calibration_certificate: Name = Field(
+        "", description="number of the stop angle's (inclinometer's) calibration certificate"
+    )
+    reference_uncertainty: Name = Field("", description="uncertainty of the stop angle")
 
     def driver_settings(self, socket: int, address: str) -> dict[str, Any]:
         """One socket's settings for the part driver: the given keys (the station's own and
@@ -98,7 +111,7 @@ class FixtureSettings(BaseModel):
         given.update(self.model_extra or {})
         out = {
             k: v for k, v in given.items()
-            if k not in ("driver", "calibration_due", "sockets", "ports")
+            if k not in ("driver", "calibration_due", "sockets", "ports", *REFERENCE_KEYS)
         }
         out.update(address=address, socket=socket)
         return out
@@ -222,6 +235,13 @@ class SigningSettings(_Strict):
                               "certificate number sequence of this station")
 
 
+class AmbientSettings(_Strict):
+    """The room's conditions as stated on certificates (a measured, typical value)."""
+
+    temperature_c: float = Field(ge=-20, le=60, description="ambient temperature, C")
+    humidity_pct: float | None = Field(None, ge=0, le=100, description="relative humidity, %")
+
+
 class StationSettings(_Strict):
     """Everything specific to one physical station."""
 
@@ -245,6 +265,9 @@ class StationSettings(_Strict):
     ui: UiSettings = Field(default_factory=UiSettings, description="browser UI settings")
     signing: SigningSettings = Field(default_factory=SigningSettings,
                                      description="run folder manifests and PDF signatures")
+    ambient: AmbientSettings | None = Field(
+        None, description="ambient conditions for certificates (else 'not recorded')"
+    )
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ manifest (station/manifest.py) and PDF signature (station/pdf_signing.py).
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import logging
 import os
@@ -72,10 +73,8 @@ def _write_private(path: Path, data: bytes, mode: int) -> None:
         with os.fdopen(fd, "wb") as fh:
             os.fchmod(fh.fileno(), mode)
             fh.write(data)
-        try:
+        with contextlib.suppress(FileExistsError):
             os.link(tmp, path)
-        except FileExistsError:
-            pass
     finally:
         Path(tmp).unlink(missing_ok=True)
 

@@ -713,7 +713,8 @@ class UutRunner:
         """The signed certificate (when wanted) and the folder's signed manifest."""
         from station.certify import finish_run_folder
 
-        return finish_run_folder(folder, self.settings, certificate=self.certificate)
+        return finish_run_folder(folder, self.settings, certificate=self.certificate,
+                                 decision_rule=self.product.decision_rule)
 
     def _results_db(self) -> Any:
         try:
