@@ -29,7 +29,7 @@ from procedures.record import (
 )
 from station.manifest import APPROVALS_FILE, seal
 from station.pdf_signing import STATION_FIELD, sign_pdf_bytes
-from station.settings import LoadedSettings
+from station.settings import FixtureSettings, InstrumentSettings, LoadedSettings
 from station.signing_keys import (
     StationIdentity,
     certificate_fingerprint,
@@ -80,8 +80,9 @@ def next_certificate_number(counter_path: Path, station_id: str) -> str:
 def certificate_context(settings: LoadedSettings, decision_rule: str) -> CertificateContext:
     """Decision rule, reference standards and ambient as the station file gives them now."""
     s = settings.settings
-    roles = {"rate_table": s.instruments.rate_table, "chamber": s.instruments.chamber,
-             "supply": s.instruments.supply, "fixture": s.instruments.fixture}
+    roles: dict[str, InstrumentSettings | FixtureSettings] = {
+        "rate_table": s.instruments.rate_table, "chamber": s.instruments.chamber,
+        "supply": s.instruments.supply, "fixture": s.instruments.fixture}
     standards = [
         ReferenceStandard(role=role, calibration_certificate=inst.calibration_certificate,
                           reference_uncertainty=inst.reference_uncertainty,

@@ -11,7 +11,7 @@ import datetime as dt
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -164,6 +164,9 @@ class OperatorEntry(_Strict):
         max_length=256,
         description="salted hash of the operator's badge code; make it with "
         "`station ui --hash-badge`",
+    )
+    role: Literal["operator", "quality"] = Field(
+        "operator", description="quality: may also approve runs in the review screen"
     )
 
 
