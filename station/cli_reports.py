@@ -107,7 +107,11 @@ def _render_checked(folder: Path, args: argparse.Namespace) -> Path:
     from station.manifest import MANIFEST_FILE, verify_folder
     from station.settings import load_settings
 
-    settings = load_settings(Path(args.station) if args.station else None)
+    try:
+        settings = load_settings(Path(args.station) if args.station else None)
+    except Exception as exc:  # ConfigError, missing file: the key is named there
+        raise UserError(f"station file not loaded ({exc}); its signing: section names the key "
+                        "that signs certificates; give --station FILE") from None
     result = verify_folder(folder, trusted_fingerprints(settings))
     unsealed = result.altered_files == [MANIFEST_FILE] and not (folder / MANIFEST_FILE).exists()
     if unsealed:

@@ -18,6 +18,9 @@ from station.manifest import Status, verify_folder
 
 log = logging.getLogger(__name__)
 
+ORIGINS = {"run": "at the end of the run", "report": "by `station report` (not at the run)",
+           "approval": "after a quality approval"}
+
 
 def _settings(path: str | None) -> object | None:
     from station.settings import load_settings
@@ -58,8 +61,9 @@ def cmd_verify(args: argparse.Namespace) -> int:
             print(p, file=sys.stderr)
         return int(Status.NOT_A_RUN_FOLDER)
     if result.intact:
-        print(f"{folder}: intact (signed by {result.signer_fingerprint}, sealed at "
-              f"{result.origin}; {basis})")
+        when = ORIGINS.get(result.origin, result.origin or "unknown")
+        print(f"{folder}: intact (signed by {result.signer_fingerprint}, sealed {when}; "
+              f"{basis})")
         return int(Status.INTACT)
     print(f"{folder}: ALTERED: " + ", ".join(result.altered_files))
     for p in result.problems:
