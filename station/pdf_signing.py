@@ -9,7 +9,9 @@ certificate is not trusted while the signature itself is valid.
 
 from __future__ import annotations
 
+import asyncio
 import io
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from pyhanko.pdf_utils.incremental_writer import IncrementalPdfFileWriter
@@ -30,17 +32,29 @@ def _signer(identity: StationIdentity) -> signers.SimpleSigner:
     return signer
 
 
-def signature_fields(pdf: bytes) -> list[str]:
-    """Names of the signature fields already in the PDF (filled or not)."""
-    from pyhanko.pdf_utils.reader import PdfFileReader
-
-    reader = PdfFileReader(io.BytesIO(pdf), strict=False)
-    return [name for name, _value, _ref in fields.enumerate_sig_fields(reader)]
+def _in_event_loop() -> bool:
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return False
+    return True
 
 
 def sign_pdf_bytes(pdf: bytes, identity: StationIdentity, *, field_name: str, reason: str,
                    signer_name: str, location: str = "") -> bytes:
-    """`pdf` with one more PAdES (B-B) signature appended as an incremental update."""
+    """`pdf` with one more PAdES (B-B) signature appended as an incremental update.
+
+    pyHanko's synchronous API runs its own asyncio loop; called from a thread that already
+    runs one (an async web handler, a test's browser driver) it signs on a worker thread."""
+    if _in_event_loop():
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            return pool.submit(_sign, pdf, identity, field_name, reason, signer_name,
+                               location).result()
+    return _sign(pdf, identity, field_name, reason, signer_name, location)
+
+
+def _sign(pdf: bytes, identity: StationIdentity, field_name: str, reason: str,
+          signer_name: str, location: str) -> bytes:
     try:
         writer = IncrementalPdfFileWriter(io.BytesIO(pdf), strict=False)
         meta = signers.PdfSignatureMetadata(

@@ -78,3 +78,38 @@ def test_altered_folder_shows_altered_and_cannot_be_approved(
     sign_in(client, "Quinn", "8642")
     r = client.post(f"/api/runs/{folder.name}/approve", json={})
     assert r.status_code >= 400 and "cannot be approved" in r.json()["error"]
+
+
+def test_review_screen_approve_button_in_a_browser(tmp_path: Path, page: object) -> None:
+    """The review screen in chromium: the run shows intact; a quality engineer's Approve
+    click records the approval, which the row then shows."""
+    from playwright.sync_api import Page, expect
+
+    from station.ui.server import serve_in_thread
+
+    assert isinstance(page, Page)
+    settings = load_settings(station_file(tmp_path / "station"))
+    folder, _ = make_run(tmp_path / "runs", Part(serial="SIM-APP-2", seed=6))
+    finish_run_folder(folder, settings, certificate=True)
+    runner = FakeRunner(tmp_path / "runs", step_s=0.02)
+    controller = Controller(runner, Hub())
+    app = create_app(controller, History(tmp_path / "runs"),
+                     security=Security(operators=OPERATORS, settings=settings))
+    server = serve_in_thread(app, before_stop=controller.hub.close)
+    try:
+        page.goto(server.url + "/review")
+        expect(page.locator(".record-cell .integrity-intact")).to_have_text("intact")
+        expect(page.locator("button.approve")).to_have_count(0)  # nobody signed in
+        page.evaluate("""async () => {
+            const s = await (await fetch('/api/session')).json();
+            await fetch('/api/signin', {method: 'POST', headers: {'Content-Type':
+              'application/json', 'X-CSRF-Token': s.csrf}, body: JSON.stringify(
+              {name: 'Quinn', pin: '8642'})});
+        }""")
+        page.reload()
+        page.click("button.approve")
+        expect(page.locator(".record-cell .approval")).to_contain_text("approved by Quinn")
+        assert (folder / "approvals.json").is_file()
+    finally:
+        server.stop()
+        runner.close()
