@@ -195,3 +195,15 @@ def test_approval_adds_a_second_signature_and_is_sealed(
     code, _, err = station("approve", str(issued), "--by", "Someone",
                            "--station", str(settings.source.path))
     assert code == 2 and "cannot be approved" in err
+
+
+def test_certificate_numbers_never_repeat_across_threads(tmp_path: Path) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    from station.certify import next_certificate_number
+
+    counter = tmp_path / "counter.json"
+    with ThreadPoolExecutor(max_workers=8) as pool:
+        numbers = list(pool.map(lambda _: next_certificate_number(counter, "ST-1"), range(40)))
+    assert len(set(numbers)) == 40
+    assert sorted(int(n.rsplit("-", 1)[1]) for n in numbers) == list(range(1, 41))
