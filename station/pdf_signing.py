@@ -22,6 +22,9 @@ from pyhanko.sign.general import SigningError
 from station.signing_keys import SigningKeyError, StationIdentity
 
 STATION_FIELD = "Station"
+# room for the CMS signature (RSA-2048 and a one-certificate chain need about 2 KiB); given,
+# so pyHanko does not make a trial signature first to size it (half the signing time)
+SIGNATURE_BYTES = 16384
 
 
 def _signer(identity: StationIdentity) -> signers.SimpleSigner:
@@ -65,7 +68,8 @@ def _sign(pdf: bytes, identity: StationIdentity, field_name: str, reason: str,
             md_algorithm="sha256",
             subfilter=fields.SigSeedSubFilter.PADES,
         )
-        out = signers.sign_pdf(writer, meta, signer=_signer(identity))
+        out = signers.sign_pdf(writer, meta, signer=_signer(identity),
+                               bytes_reserved=SIGNATURE_BYTES)
     except (PdfError, SigningError, ValueError) as exc:
         raise SigningKeyError(f"could not sign the certificate PDF ({exc}); render it again "
                               "with `station report RUN_FOLDER`") from exc
