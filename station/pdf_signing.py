@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import io
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 from pyhanko.pdf_utils.incremental_writer import IncrementalPdfFileWriter
 from pyhanko.pdf_utils.misc import PdfError
@@ -74,13 +73,6 @@ def _sign(pdf: bytes, identity: StationIdentity, field_name: str, reason: str,
         raise SigningKeyError(f"could not sign the certificate PDF ({exc}); render it again "
                               "with `station report RUN_FOLDER`") from exc
     return out.getvalue()
-
-
-def sign_pdf_file(path: Path, identity: StationIdentity, *, field_name: str, reason: str,
-                  signer_name: str, location: str = "") -> bytes:
-    """Sign the PDF at `path` (returns the new bytes; the caller writes them atomically)."""
-    return sign_pdf_bytes(Path(path).read_bytes(), identity, field_name=field_name,
-                          reason=reason, signer_name=signer_name, location=location)
 
 
 def unsigned_revision(pdf: bytes) -> bytes:
