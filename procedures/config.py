@@ -202,6 +202,12 @@ class ProductConfig(_Strict):
         description="chamber temperatures [low, high] C at which the part and fixture may be "
         "handled; a procedure's chamber.safe_temp_c must lie within",
     )
+    decision_rule: Literal["simple", "guard_banded"] = Field(
+        "simple",
+        description="how a measurement is judged against its limits (stated on the "
+        "certificate): simple acceptance (inside the limits passes), or guard_banded (the "
+        "acceptance zone is the limits narrowed by the measurement's expanded uncertainty)",
+    )
 
     @property
     def supply_limits_v(self) -> tuple[float, float]:

@@ -480,6 +480,7 @@ class RunContext:
             uncertainty_k2=uncertainty_k2,
             condition=condition,
             description=description,
+            decision_rule=self.product.decision_rule,
         )
         part.record.measurements.append(m)
         return m

@@ -123,6 +123,25 @@ class Event(_Model):
     message: str
 
 
+class ReferenceStandard(_Model):
+    """An instrument used as a reference, as station.yaml gave it when the run ended."""
+
+    role: str  # rate_table, chamber, supply, fixture
+    calibration_certificate: str = ""  # the instrument's own calibration certificate number
+    reference_uncertainty: str = ""  # e.g. "0.005 % of rate (k = 2)"
+    calibration_due: str | None = None
+
+
+class CertificateContext(_Model):
+    """What a certificate states besides the results: decision rule, standards, ambient."""
+
+    decision_rule: str = ""  # simple | guard_banded ('' when not recorded)
+    reference_standards: list[ReferenceStandard] = Field(default_factory=list)
+    ambient_temperature_c: float | None = None
+    ambient_humidity_pct: float | None = None
+    ambient_source: str = ""  # where the ambient figures came from
+
+
 class RunRecord(_Model):
     """Everything the station knows about one part's run."""
 
@@ -153,6 +172,8 @@ class RunRecord(_Model):
     timings: dict[str, float] = Field(default_factory=dict)  # step name -> station seconds
     events: list[Event] = Field(default_factory=list)
     analysis: dict[str, Any] = Field(default_factory=dict)  # per-step analysis summaries
+    certificate_number: str = ""  # station id + sequence, given when the certificate is issued
+    certificate_context: CertificateContext | None = None  # filled when the run ends
 
 
 def new_file_mode() -> int:

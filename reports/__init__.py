@@ -4,11 +4,17 @@
     cert_inputs.py    loading record.json and raw.h5, every defect becomes a stated problem
     cert_sections.py  header, traceability, conditions, results, calibration tables
     cert_plots.py     stop method, rate table, Allan deviation, stabilisation plots
+    cert_standards.py decision rule, reference standards and ambient conditions
     record_keys.py    the record.analysis keys the certificate reads (the engine's contract)
     lot_report.py     render_lot_report(db, out, issued=None, **filters): yield, pareto, Cpk,
                       trends
     lot_stats.py      yield, pareto and capability arithmetic (sigma estimator stated there)
     charts.py         general vector charts (line, scatter, shaded windows, log axes, bars)
-    pdfdoc.py         reproducible A4 documents: page N of M, SIMULATED BENCH mark, dates
-    styles.py         fonts, colours, table styles, number formatting
+    pdfdoc.py         reproducible A4 documents: page N of M, SIMULATED BENCH and UNVERIFIED
+                      marks, dates
+    styles.py         fonts (DejaVu, shipped in fonts/ and embedded), colours, table styles,
+                      number formatting
+
+Signing and sealing are the station's (station/certify.py, manifest.py, pdf_signing.py):
+this package renders only.
 """

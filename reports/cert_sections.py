@@ -34,6 +34,7 @@ from reports.styles import (
     NOTE,
     VERDICT_COLOURS,
     WARNING,
+    bounded,
     escape,
     fmt,
     grid_style,
@@ -175,6 +176,7 @@ def _identity_rows(inputs: CertificateInputs, serial: str) -> list[tuple[str, st
     reg = rec.dut.part_serial_register
     part = serial if reg in (None, serial) else f"{serial} (part register reads {reg}: MISMATCH)"
     return [
+        ("Certificate number", rec.certificate_number or "not issued (no number recorded)"),
         ("Product", rec.dut.product or rec.product.name or rec.product.path),
         ("Part serial", part + (f", socket {rec.dut.socket}" if rec.dut.socket else "")),
         ("Run id", rec.run_id),
@@ -198,7 +200,9 @@ def traceability(inputs: CertificateInputs) -> list[Flowable]:
         if rec.station_config is not None:
             refs.append(("Station config", rec.station_config))
         for label, ref in refs:
-            rows.append([_p(label), _p(ref.name or ref.path), _p(ref.version or "-"),
+            # the version column is narrow: a long version would outgrow a page
+            rows.append([_p(label), _p(ref.name or ref.path),
+                         _p(bounded(ref.version or "-", 120)),
                          _p(ref.sha256, CELL_MONO)])
     raw_note = inputs.raw_sha256 or "file missing"
     rows.append([_p("Raw data"), _p(inputs.raw_path.name), _p("-"), _p(raw_note, CELL_MONO)])
@@ -424,4 +428,4 @@ def generated_note(inputs: CertificateInputs, when: datetime) -> Paragraph:
     return Paragraph(
         f"Rendered from {escape(inputs.folder.name)}/record.json and {escape(inputs.raw_path.name)}"
         f"; document date = run finish time {when:%Y-%m-%d %H:%M:%S} UTC. Re-render with "
-        "<font face='Courier'>station report RUN_FOLDER</font>.", NOTE)
+        "<font face='DejaVuSansMono'>station report RUN_FOLDER</font>.", NOTE)

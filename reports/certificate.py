@@ -7,9 +7,14 @@ finish time). A folder with a missing or broken record or data file still gets a
 certificate, with verdict ERROR and the problem stated on page one.
 
 Page one: verdict banner, failing measurements or the reason, overdue-instrument warning,
-identity (product, serial, times UTC and station local, station, operator, software). Then
-traceability, conditions, results, calibration with uncertainties and verification, and the
-plots (see reports/cert_plots.py, and reports/record_keys.py for the analysis keys read).
+identity (certificate number, product, serial, times UTC and station local, station,
+operator, software). Then traceability, decision rule / reference standards / ambient
+(reports/cert_standards.py), conditions, results, calibration with uncertainties and
+verification, and the plots (see reports/cert_plots.py, and reports/record_keys.py for the
+analysis keys read).
+
+This module renders only; station/certify.py numbers, signs (PAdES) and seals the folder.
+With `unverified` set every page is marked UNVERIFIED (a folder that failed verification).
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ from pathlib import Path
 from reportlab.platypus import Flowable, KeepTogether, Spacer
 
 from procedures.record import CERTIFICATE_FILE
-from reports import cert_plots, cert_sections
+from reports import cert_plots, cert_sections, cert_standards
 from reports.cert_inputs import CertificateInputs, load_inputs
 from reports.pdfdoc import PageFurniture, build_pdf, parse_utc, write_atomic
 from reports.styles import bounded
@@ -48,6 +53,7 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story: list[Flowable] = []
     story += cert_sections.header(inputs)
     story += cert_sections.traceability(inputs)
+    story += cert_standards.standards(inputs)
     story += cert_sections.conditions(inputs)
     story += cert_sections.results(inputs)
     story += cert_sections.calibration(inputs)
@@ -58,8 +64,9 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     return story
 
 
-def certificate_bytes(run_folder: Path) -> bytes:
-    """The certificate of a run folder as PDF bytes (nothing written)."""
+def certificate_bytes(run_folder: Path, *, unverified: str = "") -> bytes:
+    """The certificate of a run folder as PDF bytes (nothing written). `unverified`: why
+    the folder failed verification; marks every page UNVERIFIED with that reason."""
     inputs = load_inputs(run_folder)
     rec = inputs.record
     serial = bounded(rec.dut.serial if rec else "unknown serial", 64)
@@ -71,6 +78,7 @@ def certificate_bytes(run_folder: Path) -> bytes:
         document_time=document_time(inputs),
         author=bounded(rec.operator, 120) if rec else "",
         subject=f"{inputs.verdict} {serial}",
+        unverified=bounded(unverified, 120),
     )
     return build_pdf(build_story(inputs), furniture)
 

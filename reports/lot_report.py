@@ -25,6 +25,7 @@ from reports.styles import (
     BODY,
     CELL,
     FAIL_ROW,
+    FONT_BOLD,
     H1,
     H2,
     MARGINAL_AMBER,
@@ -68,7 +69,7 @@ def _summary_table(y: lot_stats.YieldSummary) -> Table:
     ]
     t = Table(rows, colWidths=[26 * mm] * 7)
     style = grid_style()
-    style.add("FONT", (0, 1), (-1, 1), "Helvetica-Bold", 11)
+    style.add("FONT", (0, 1), (-1, 1), FONT_BOLD, 11)
     style.add("ALIGN", (0, 0), (-1, -1), "CENTER")
     t.setStyle(style)
     return t

@@ -25,7 +25,7 @@ from reportlab.pdfgen.canvas import Canvas
 from reportlab.platypus import Flowable, SimpleDocTemplate
 
 from procedures.record import new_file_mode
-from reports.styles import FONT, FONT_BOLD, RULE_GREY, SIM_MAGENTA
+from reports.styles import FONT, FONT_BOLD, RULE_GREY, SIM_MAGENTA, UNVERIFIED_RED
 
 PAGE_SIZE = A4
 MARGIN = 14 * mm
@@ -41,6 +41,7 @@ class PageFurniture:
     document_time: datetime  # written as the PDF's creation date
     author: str = ""
     subject: str = ""
+    unverified: str = ""  # when set: UNVERIFIED and this reason on every page
 
 
 def parse_utc(text: str | None) -> datetime | None:
@@ -107,6 +108,23 @@ def _draw_furniture(c: Canvas, f: PageFurniture, number: int, total: int) -> Non
     c.drawRightString(width - MARGIN, 7.5 * mm, f"page {number} of {total}")
     if f.simulated:
         _draw_simulated_mark(c)
+    if f.unverified:
+        _draw_unverified_mark(c, f.unverified)
+    c.restoreState()
+
+
+def _draw_unverified_mark(c: Canvas, reason: str) -> None:
+    """A red diagonal UNVERIFIED across the page and the reason along its foot."""
+    width, height = PAGE_SIZE
+    c.saveState()
+    c.setFillColor(UNVERIFIED_RED)
+    c.setFont(FONT_BOLD, 9)
+    c.drawCentredString(width / 2, 3.2 * mm, f"UNVERIFIED: {reason}"[:140])
+    c.translate(width / 2, height / 2)
+    c.rotate(52)
+    c.setFillAlpha(0.25)
+    c.setFont(FONT_BOLD, 92)
+    c.drawCentredString(0, -30, "UNVERIFIED")
     c.restoreState()
 
 
@@ -136,6 +154,7 @@ def build_pdf(story: Sequence[Flowable], furniture: PageFurniture) -> bytes:
         topMargin=TOP_MARGIN,
         bottomMargin=BOTTOM_MARGIN,
         invariant=1,
+        initialFontName=FONT,  # else the page starts in Helvetica, referenced but not embedded
         title=f"{furniture.title} {furniture.identity}",
         author=furniture.author,
         subject=furniture.subject,

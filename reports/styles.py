@@ -1,20 +1,44 @@
 """House look of every PDF the station writes: fonts, colours, paragraph and table styles.
 
-Only the 14 standard PDF fonts are used, so nothing depends on the machine's font files.
+The fonts are DejaVu Sans (regular, bold) and DejaVu Sans Mono, TrueType files shipped in
+reports/fonts/ with their licence and embedded (subset) in every PDF: nothing depends on
+the machine's font files or on a viewer's substitute for Helvetica.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
+from reportlab.graphics import shapes
 from reportlab.lib import colors
 from reportlab.lib.enums import TA_CENTER, TA_LEFT
 from reportlab.lib.styles import ParagraphStyle
-from reportlab.platypus import TableStyle
+from reportlab.pdfbase import pdfmetrics
+from reportlab.pdfbase.ttfonts import TTFont
+from reportlab.platypus import TableStyle, tables
 
-FONT = "Helvetica"
-FONT_BOLD = "Helvetica-Bold"
-FONT_MONO = "Courier"
+FONT_DIR = Path(__file__).resolve().parent / "fonts"
+FONT = "DejaVuSans"
+FONT_BOLD = "DejaVuSans-Bold"
+FONT_MONO = "DejaVuSansMono"
+
+
+def register_fonts() -> None:
+    """Register the shipped TrueType fonts with reportlab (once; embedded when used)."""
+    registered = set(pdfmetrics.getRegisteredFontNames())
+    for name in (FONT, FONT_BOLD, FONT_MONO):
+        if name not in registered:
+            pdfmetrics.registerFont(TTFont(name, str(FONT_DIR / f"{name}.ttf")))
+    pdfmetrics.registerFontFamily(FONT, normal=FONT, bold=FONT_BOLD, italic=FONT,
+                                  boldItalic=FONT_BOLD)
+    # reportlab's graphics start every drawing in Times-Roman: make it ours, so that no
+    # unembedded standard font is ever referenced
+    shapes.STATE_DEFAULTS["fontName"] = FONT
+    tables.CellStyle.fontname = FONT  # likewise every table cell (Helvetica)
+
+
+register_fonts()
 
 PASS_GREEN = colors.HexColor("#1b7a2f")
 FAIL_RED = colors.HexColor("#b3141b")
@@ -24,6 +48,7 @@ FAIL_ROW = colors.HexColor("#fbd5d5")
 HEADER_GREY = colors.HexColor("#e6e8eb")
 RULE_GREY = colors.HexColor("#9aa1a9")
 SIM_MAGENTA = colors.HexColor("#a0007a")
+UNVERIFIED_RED = colors.HexColor("#d0000f")
 
 VERDICT_COLOURS = {
     "PASS": PASS_GREEN,

@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "station.cli_discrepancy",  # discrepancy
     "station.cli_ui",  # ui
     "station.cli_line",  # line, sync, export
+    "station.cli_signing",  # verify, approve
 )
 
 

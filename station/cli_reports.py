@@ -1,6 +1,6 @@
 """`station report`, `station history`, `station lot-report`: the quality engineer's review.
 
-    station report RUN_FOLDER [--index] [--db PATH]
+    station report RUN_FOLDER [--index] [--db PATH] [--unverified] [--station FILE]
     station history [--since DATE] [--until DATE] [--product P] [--verdict V] [--serial S]
                     [--db PATH] [--json] [--reindex RUNS_DIR]
     station lot-report [same filters] --out FILE.pdf [--issued TIME] [--db PATH]
@@ -25,6 +25,7 @@ from station.results_db import ResultsDB, ResultsDBError, RunRow
 log = logging.getLogger(__name__)
 
 FALLBACK_DB = Path("runs/results.sqlite")
+UNVERIFIED_FILE = "certificate-UNVERIFIED.pdf"
 VERDICTS = ("PASS", "FAIL", "ERROR", "ABORTED", "RUNNING")
 
 
@@ -75,8 +76,6 @@ def _add_filters(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from reports.certificate import render_certificate
-
     folder = Path(args.run_folder)
     if not folder.is_dir():
         raise UserError(f"{folder} is not a run folder (no such directory); give the folder "
@@ -87,7 +86,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         # still gets its ERROR certificate below.
         raise UserError(f"{folder} is not a run folder (neither {RECORD_FILE} nor "
                         f"{RAW_DATA_FILE} in it); give the folder of one run")
-    path = render_certificate(folder)
+    path = _render_checked(folder, args)
     if args.index:
         try:
             record = read_record(folder)
@@ -96,6 +95,38 @@ def cmd_report(args: argparse.Namespace) -> int:
         _open_db(args, must_exist=False).add_run(folder, record)
     print(path)
     return 0
+
+
+def _render_checked(folder: Path, args: argparse.Namespace) -> Path:
+    """Verify the folder, then issue its signed certificate (station/certify.py). An altered
+    record or raw file is refused, or with --unverified rendered as UNVERIFIED_FILE, marked
+    on every page and neither signed nor sealed. A certificate.pdf altered alone is simply
+    rendered again from the intact record."""
+    from procedures.record import CERTIFICATE_FILE
+    from reports.certificate import certificate_bytes
+    from reports.pdfdoc import write_atomic
+    from station.certify import issue_certificate, trusted_fingerprints
+    from station.manifest import MANIFEST_FILE, verify_folder
+    from station.settings import load_settings
+
+    try:
+        settings = load_settings(Path(args.station) if args.station else None)
+    except Exception as exc:  # ConfigError, missing file: the key is named there
+        raise UserError(f"station file not loaded ({exc}); its signing: section names the key "
+                        "that signs certificates; give --station FILE") from None
+    result = verify_folder(folder, trusted_fingerprints(settings))
+    unsealed = result.altered_files == [MANIFEST_FILE] and not (folder / MANIFEST_FILE).exists()
+    if unsealed:
+        print(f"warning: {folder} had no manifest (a run from before signing); it is sealed "
+              "now, from the files as they are", file=sys.stderr)
+    elif not result.intact and result.altered_files != [CERTIFICATE_FILE]:
+        reason = "; ".join(result.problems)
+        if not args.unverified:
+            raise UserError(f"{folder} failed verification ({reason}); not rendered. "
+                            "Give --unverified to render it marked UNVERIFIED")
+        return write_atomic(folder / UNVERIFIED_FILE, certificate_bytes(folder,
+                                                                           unverified=reason))
+    return issue_certificate(folder, settings, origin="report")
 
 
 def history_table(runs: list[RunRow]) -> list[str]:
@@ -199,6 +230,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("run_folder", metavar="RUN_FOLDER")
     p.add_argument("--index", action="store_true", help="also (re)index it in the database")
     p.add_argument("--db", metavar="PATH", help="results database for --index")
+    p.add_argument("--unverified", action="store_true",
+                   help=f"render a folder that fails verification anyway, as {UNVERIFIED_FILE} "
+                        "marked UNVERIFIED on every page")
+    p.add_argument("--station", metavar="FILE", help="station file (default: config/station.yaml)")
     p.set_defaults(handler=cmd_report)
 
     p = subparsers.add_parser("history", help="list runs from the results database")

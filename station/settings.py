@@ -11,7 +11,7 @@ import datetime as dt
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -41,6 +41,9 @@ _DRIVER_HELP = (
 )
 
 
+REFERENCE_KEYS = ("calibration_certificate", "reference_uncertainty")  # station's, not drivers'
+
+
 class InstrumentSettings(BaseModel):
     """One instrument role. Besides the station's own keys (driver, calibration_due,
     expected_model) every key is the driver's setting, checked by the driver's own model when
@@ -58,6 +61,12 @@ class InstrumentSettings(BaseModel):
     calibration_due: dt.date | None = Field(
         None, description="ISO date (YYYY-MM-DD) the instrument's own calibration expires"
     )
+    calibration_certificate: Name = Field(
+        "", description="number of the instrument's calibration certificate (on certificates)"
+    )
+    reference_uncertainty: Name = Field(
+        "", description="its uncertainty as a reference, e.g. '0.005 % of rate (k = 2)'"
+    )
 
     def driver_settings(self) -> dict[str, Any]:
         """The keys for the driver: those given in station.yaml, the station's own left out."""
@@ -65,7 +74,7 @@ class InstrumentSettings(BaseModel):
         given.update(self.model_extra or {})
         return {
             k: v for k, v in given.items()
-            if k not in ("driver", "calibration_due", "expected_model")
+            if k not in ("driver", "calibration_due", "expected_model", *REFERENCE_KEYS)
         }
 
 
@@ -90,6 +99,10 @@ class FixtureSettings(BaseModel):
         "(25-byte frames, 10 bits a byte: 200 Hz needs 50,000, 500 Hz needs 230,400)",
     )
     calibration_due: dt.date | None = Field(None, description="stop-angle calibration expiry")
+    calibration_certificate: Name = Field(
+        "", description="number of the stop angle's (inclinometer's) calibration certificate"
+    )
+    reference_uncertainty: Name = Field("", description="uncertainty of the stop angle")
 
     def driver_settings(self, socket: int, address: str) -> dict[str, Any]:
         """One socket's settings for the part driver: the given keys (the station's own and
@@ -98,7 +111,7 @@ class FixtureSettings(BaseModel):
         given.update(self.model_extra or {})
         out = {
             k: v for k, v in given.items()
-            if k not in ("driver", "calibration_due", "sockets", "ports")
+            if k not in ("driver", "calibration_due", "sockets", "ports", *REFERENCE_KEYS)
         }
         out.update(address=address, socket=socket)
         return out
@@ -151,6 +164,9 @@ class OperatorEntry(_Strict):
         max_length=256,
         description="salted hash of the operator's badge code; make it with "
         "`station ui --hash-badge`",
+    )
+    role: Literal["operator", "quality"] = Field(
+        "operator", description="quality: may also approve runs in the review screen"
     )
 
 
@@ -211,6 +227,24 @@ class UiSettings(_Strict):
         return self
 
 
+class SigningSettings(_Strict):
+    """The station's signing identity and certificate numbering (docs/records.md)."""
+
+    key: PathText = Field("signing/station-key.pem", description="PEM private key (RSA); "
+                          "made on first use with mode 0600 (relative to this file)")
+    certificate: PathText = Field("signing/station-cert.pem", description="PEM X.509 "
+                                  "certificate of the key; self-signed one made on first use")
+    counter: PathText = Field("signing/certificate-counter.json", description="persistent "
+                              "certificate number sequence of this station")
+
+
+class AmbientSettings(_Strict):
+    """The room's conditions as stated on certificates (a measured, typical value)."""
+
+    temperature_c: float = Field(ge=-20, le=60, description="ambient temperature, C")
+    humidity_pct: float | None = Field(None, ge=0, le=100, description="relative humidity, %")
+
+
 class StationSettings(_Strict):
     """Everything specific to one physical station."""
 
@@ -241,6 +275,11 @@ class StationSettings(_Strict):
     )
     sync_interval_s: float = Field(
         5.0, ge=0.5, le=3600.0, description="seconds between sync attempts (backoff on outage)"
+    )
+    signing: SigningSettings = Field(default_factory=SigningSettings,
+                                     description="run folder manifests and PDF signatures")
+    ambient: AmbientSettings | None = Field(
+        None, description="ambient conditions for certificates (else 'not recorded')"
     )
 
 

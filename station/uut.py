@@ -710,17 +710,11 @@ class UutRunner:
     # ------------------------------------------------------------ after the run
 
     def _certificate(self, folder: Path) -> Path | None:
-        if not self.certificate:
-            return None
-        try:
-            from reports.certificate import render_certificate
-        except ModuleNotFoundError:
-            return None
-        try:
-            return render_certificate(folder)
-        except Exception as exc:  # the record stands without its PDF; say so
-            log.error("certificate for %s failed: %s", folder, exc)
-            return None
+        """The signed certificate (when wanted) and the folder's signed manifest."""
+        from station.certify import finish_run_folder
+
+        return finish_run_folder(folder, self.settings, certificate=self.certificate,
+                                 decision_rule=self.product.decision_rule)
 
     def _results_db(self) -> Any:
         try:

@@ -24,6 +24,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from station.errors import UserError
+from station.ui.approval_routes import add_approval_routes
 from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
 from station.ui.guard import Guard
 from station.ui.history import History, RunFilter
@@ -69,6 +70,7 @@ def create_app(
     throttle = LoginThrottle()
     app.state.sessions, app.state.throttle = sessions, throttle
     add_sign_in_routes(app, sec)
+    add_approval_routes(app, controller, history, sec)
 
     def is_engineer(request: Request) -> bool:
         session = current(request)

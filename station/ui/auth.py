@@ -104,6 +104,7 @@ class Operator:
     name: str
     pin_hash: str | None = None
     badge_hash: str | None = None
+    role: str = "operator"  # or "quality": may approve runs (station/ui/approval_routes.py)
 
 
 _DUMMY_PIN_HASH = "scrypt$16384$8$1$" + "00" * 16 + "$" + "00" * 32

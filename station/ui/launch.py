@@ -63,7 +63,7 @@ def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
             settings.source.path,
         )
     book = OperatorBook(
-        tuple(Operator(o.name, o.pin_hash, o.badge_hash) for o in ui.operators)
+        tuple(Operator(o.name, o.pin_hash, o.badge_hash, o.role) for o in ui.operators)
     )
     try:
         book.check()
@@ -100,6 +100,7 @@ def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
         require_operator=ui.require_operator,
         hosts=allowed_hosts(host, ui.allowed_hosts),
         https=tls is not None,
+        settings=settings,
     )
     return security, tls
 

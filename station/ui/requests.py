@@ -81,6 +81,7 @@ class Security:
     require_operator: bool = False
     hosts: frozenset[str] = frozenset(allowed_hosts("127.0.0.1"))
     https: bool = False
+    settings: Any = None  # station.settings.LoadedSettings: its key signs approvals
 
 
 def error(

@@ -37,6 +37,7 @@ class Session:
     expires_s: float
     operator: str = ""
     engineer: bool = False
+    quality: bool = False  # the signed-in operator has the quality role
 
 
 @dataclass
@@ -96,6 +97,7 @@ class Sessions:
         token seen before the sign-in is worth nothing after it)."""
         fresh = self.open(session.address, renewal=True)
         fresh.operator, fresh.engineer = session.operator, session.engineer
+        fresh.quality = session.quality
         self.close(session.token)
         return fresh
 

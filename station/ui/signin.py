@@ -43,6 +43,7 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
             "csrf": session.csrf,
             "operators_open": sec.operators.open,
             "operator_required": sec.require_operator,
+            "quality": session.quality,
         }
 
     def with_cookie(response: Response, session: Session) -> Response:
@@ -98,27 +99,27 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
             found = book.by_badge(body.badge)
             if found is None:
                 return failed(session, "badge not known at this station")
-            name = found.name
+            name, quality = found.name, found.role == "quality"
         elif body.name is not None and book.open:
-            name = body.name.strip()
+            name, quality = body.name.strip(), False
             if not name or not name.isprintable():
                 return error(422, "operator name must be printable text; type your name")
         elif body.name is not None and body.pin is not None:
             found = book.by_pin(body.name, body.pin)
             if found is None:
                 return failed(session, "unknown operator or wrong PIN")
-            name = found.name
+            name, quality = found.name, found.role == "quality"
         else:
             return error(422, "sign in with a badge scan, or your name and PIN")
         throttle.reset(session.token)
-        session.operator = name
+        session.operator, session.quality = name, quality
         fresh = sessions.renew(session)
         log.info("operator %s signed in", name)
         return with_cookie(JSONResponse(session_view(fresh)), fresh)
 
     @app.post("/api/signout")
     def sign_out(session: Guarded) -> Response:
-        session.operator, session.engineer = "", False
+        session.operator, session.engineer, session.quality = "", False, False
         fresh = sessions.renew(session)
         return with_cookie(JSONResponse(session_view(fresh)), fresh)
 

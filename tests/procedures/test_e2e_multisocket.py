@@ -136,3 +136,18 @@ def test_raw_data_is_self_describing(four: SimRun) -> None:
     assert {"stabilise", "static", "plateau", "stop_static", "stop_move", "verify"} <= kinds
     assert raw["table"]["station_time_s"].size > 20 and raw["chamber"]["temp_c"].size > 20
     _ = Path
+
+
+def test_each_run_folder_is_sealed_numbered_and_signed(four: SimRun) -> None:
+    """At the end of the run (station/certify.py): a certificate number per part, a signed
+    certificate and a manifest that verifies."""
+    from station.manifest import verify_folder
+
+    numbers = set()
+    for folder in four.result.folders.values():
+        result = verify_folder(folder)
+        assert result.intact, result.problems
+        assert result.origin == "run"
+        numbers.add(read_record(folder).certificate_number)
+        assert b"/ByteRange" in (folder / "certificate.pdf").read_bytes()  # signed
+    assert len(numbers) == 4 and "" not in numbers

@@ -1,6 +1,52 @@
-// Review screen: run history with filters, yield, and each run's certificate.
+// Review screen: run history with filters, yield, each run's certificate, whether its
+// folder is intact (signed manifest), its approvals, and for the quality role an Approve button.
 "use strict";
 const $ = (id) => document.getElementById(id);
+const session = { csrf: "", quality: false };
+const MAX_CHECKED = 100;  // rows whose folder is verified on load (the newest first)
+
+async function openSession() {
+  const r = await fetch("/api/session");
+  if (r.ok) { const d = await r.json(); session.csrf = d.csrf; session.quality = !!d.quality; }
+}
+
+function runKey(run) {
+  const m = /^\/runs\/([^/]+)\/certificate\.pdf$/.exec(run.certificate_url || "");
+  return m ? m[1] : "";
+}
+
+async function approveRun(key, cell) {
+  const r = await fetch("/api/runs/" + encodeURIComponent(key) + "/approve", {
+    method: "POST", headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf }, body: "{}" });
+  const d = await r.json();
+  if (!r.ok) { $("review-msg").textContent = d.error; return; }
+  $("review-msg").textContent = "";
+  await showIntegrity(key, cell);
+}
+
+async function showIntegrity(key, cell) {
+  const r = await fetch("/api/runs/" + encodeURIComponent(key) + "/integrity");
+  if (!r.ok) return;
+  const d = await r.json();
+  cell.textContent = "";
+  const status = document.createElement("span");
+  status.className = "integrity-" + d.status;
+  status.textContent = d.status === "intact" ? "intact" : "ALTERED: " + d.altered_files.join(", ");
+  status.title = d.problems.join("\n");
+  cell.appendChild(status);
+  for (const a of d.approvals) {
+    const s = document.createElement("div");
+    s.className = "approval";
+    s.textContent = "approved by " + a.by + " " + a.time_utc.replace("T", " ").slice(0, 16);
+    cell.appendChild(s);
+  }
+  if (session.quality && d.status === "intact") {
+    const b = document.createElement("button");
+    b.type = "button"; b.className = "approve"; b.textContent = "Approve";
+    b.addEventListener("click", () => approveRun(key, cell));
+    cell.appendChild(b);
+  }
+}
 
 async function load() {
   const params = new URLSearchParams();
@@ -31,6 +77,11 @@ async function load() {
     const td = document.createElement("td");
     if (run.certificate_url) { const a = document.createElement("a"); a.href = run.certificate_url; a.target = "_blank"; a.textContent = "PDF"; td.appendChild(a); }
     tr.appendChild(td);
+    const rec = document.createElement("td");
+    rec.className = "record-cell";
+    tr.appendChild(rec);
+    const key = runKey(run);
+    if (key && body.children.length < MAX_CHECKED) showIntegrity(key, rec);  // each hashes a folder
     body.appendChild(tr);
   }
 }
@@ -39,4 +90,4 @@ $("filters").addEventListener("submit", (e) => { e.preventDefault(); load(); });
 $("filters").addEventListener("reset", () => setTimeout(load, 0));
 // A finished run appears without a reload.
 new EventSource("/api/events").onmessage = (m) => { if (JSON.parse(m.data).type === "finished") load(); };
-load();
+openSession().then(load);

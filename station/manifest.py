@@ -1,0 +1,195 @@
+"""Tamper evidence for a run folder: `manifest.json`, the signed hashes of its files.
+
+    {"format": "gyrocal-manifest/1",
+     "body": {"run_id": ..., "sealed_utc": ..., "origin": "run" | "report" | "approval",
+              "files": {"record.json": {"sha256": ..., "bytes": ...}, "raw.h5": ...,
+                        "certificate.pdf": ..., "approvals.json": ... or null when absent},
+              "signer": {"fingerprint_sha256": ..., "subject": ..., "certificate_pem": ...}},
+     "signature": {"algorithm": "rsa-pkcs1v15-sha256", "value": base64}}
+
+The signature covers the body serialised canonically (keys sorted, no spaces, UTF-8).
+`verify_folder` recomputes every hash, checks the signature with the certificate in the
+body and, when given the station's trusted certificate fingerprints, that the signer is one
+of them (a manifest re-signed with another key is as good as none).
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as dt
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from enum import IntEnum
+from pathlib import Path
+from typing import Any
+
+from cryptography import x509
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import hashes
+from cryptography.hazmat.primitives.asymmetric import padding, rsa
+
+from procedures.record import CERTIFICATE_FILE, RAW_DATA_FILE, RECORD_FILE, new_file_mode
+from station.signing_keys import StationIdentity, certificate_fingerprint
+
+MANIFEST_FILE = "manifest.json"
+APPROVALS_FILE = "approvals.json"
+FORMAT = "gyrocal-manifest/1"
+ALGORITHM = "rsa-pkcs1v15-sha256"
+SEALED_FILES = (RECORD_FILE, RAW_DATA_FILE, CERTIFICATE_FILE, APPROVALS_FILE)
+_CHUNK = 1 << 20
+
+
+class Status(IntEnum):
+    """`station verify`'s exit codes (pinned)."""
+
+    INTACT = 0
+    ALTERED = 1
+    NOT_A_RUN_FOLDER = 2
+
+
+@dataclass
+class Verification:
+    status: Status
+    problems: list[str] = field(default_factory=list)
+    altered_files: list[str] = field(default_factory=list)
+    signer_fingerprint: str = ""
+    origin: str = ""
+
+    @property
+    def intact(self) -> bool:
+        return self.status is Status.INTACT
+
+
+def file_digest(path: Path) -> dict[str, Any]:
+    h = hashlib.sha256()
+    size = 0
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_CHUNK):
+            h.update(chunk)
+            size += len(chunk)
+    return {"sha256": h.hexdigest(), "bytes": size}
+
+
+def canonical(body: dict[str, Any]) -> bytes:
+    return json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False).encode()
+
+
+def is_run_folder(folder: Path) -> bool:
+    return folder.is_dir() and any((folder / n).is_file() for n in (RECORD_FILE, RAW_DATA_FILE))
+
+
+def build_body(folder: Path, identity: StationIdentity, origin: str) -> dict[str, Any]:
+    files = {name: (file_digest(folder / name) if (folder / name).is_file() else None)
+             for name in SEALED_FILES}
+    return {
+        "run_id": folder.name,
+        "sealed_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "origin": origin,
+        "files": files,
+        "signer": {"fingerprint_sha256": identity.fingerprint, "subject": identity.subject,
+                   "certificate_pem": identity.certificate_pem()},
+    }
+
+
+def seal(folder: Path, identity: StationIdentity, origin: str) -> Path:
+    """Write (or replace) the folder's signed manifest; returns its path."""
+    body = build_body(folder, identity, origin)
+    doc = {"format": FORMAT, "body": body,
+           "signature": {"algorithm": ALGORITHM,
+                         "value": base64.b64encode(identity.sign(canonical(body))).decode()}}
+    target = folder / MANIFEST_FILE
+    fd, tmp = tempfile.mkstemp(prefix=".manifest-", suffix=".json", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            os.fchmod(fh.fileno(), new_file_mode())
+            json.dump(doc, fh, indent=2, sort_keys=True)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _read_manifest(folder: Path) -> tuple[dict[str, Any] | None, str]:
+    path = folder / MANIFEST_FILE
+    if not path.is_file():
+        return None, (f"{MANIFEST_FILE} is missing: the folder was never sealed (a run from "
+                      "before signing) or its manifest was removed")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        if doc.get("format") != FORMAT or not isinstance(doc.get("body"), dict):
+            return None, f"{MANIFEST_FILE} is not a {FORMAT} manifest"
+        return doc, ""
+    except (OSError, ValueError, AttributeError) as exc:
+        return None, f"{MANIFEST_FILE} cannot be read ({exc})"
+
+
+def _check_signature(doc: dict[str, Any], trusted: set[str] | None) -> tuple[str, str]:
+    """(signer fingerprint, problem or '')."""
+    body = doc["body"]
+    try:
+        cert = x509.load_pem_x509_certificate(body["signer"]["certificate_pem"].encode())
+        value = base64.b64decode(doc["signature"]["value"], validate=True)
+        if doc["signature"]["algorithm"] != ALGORITHM:
+            return "", f"{MANIFEST_FILE}: unknown signature algorithm"
+    except (KeyError, TypeError, ValueError) as exc:
+        return "", f"{MANIFEST_FILE}: signer or signature unreadable ({exc})"
+    fingerprint = certificate_fingerprint(cert)
+    public = cert.public_key()
+    if not isinstance(public, rsa.RSAPublicKey):
+        return fingerprint, f"{MANIFEST_FILE}: signer certificate is not RSA"
+    try:
+        public.verify(value, canonical(body), padding.PKCS1v15(), hashes.SHA256())
+    except InvalidSignature:
+        return fingerprint, f"{MANIFEST_FILE}: signature does not match its content (altered)"
+    if trusted is not None and fingerprint not in trusted:
+        return fingerprint, (f"{MANIFEST_FILE}: signed by certificate {fingerprint[:16]}..., "
+                             "which is not this station's (re-signed elsewhere)")
+    return fingerprint, ""
+
+
+def _check_files(folder: Path, files: dict[str, Any]) -> list[str]:
+    """Names of files whose bytes differ from the manifest (changed, removed or added)."""
+    altered = []
+    for name in SEALED_FILES:
+        expected = files.get(name)
+        path = folder / name
+        if expected is None:
+            if path.exists():
+                altered.append(name)
+        elif not path.is_file() or file_digest(path) != expected:
+            altered.append(name)
+    return altered
+
+
+def verify_folder(folder: Path, trusted: set[str] | None = None) -> Verification:
+    """Check a run folder against its manifest. `trusted`: the signer fingerprints to accept
+    (None: any signer whose signature is valid)."""
+    folder = Path(folder)
+    if not is_run_folder(folder):
+        return Verification(Status.NOT_A_RUN_FOLDER, [
+            f"{folder} is not a run folder (neither {RECORD_FILE} nor {RAW_DATA_FILE} in it)"])
+    doc, problem = _read_manifest(folder)
+    if doc is None:
+        return Verification(Status.ALTERED, [problem], [MANIFEST_FILE])
+    fingerprint, problem = _check_signature(doc, trusted)
+    result = Verification(Status.INTACT, signer_fingerprint=fingerprint,
+                          origin=str(doc["body"].get("origin", "")))
+    if problem:
+        result.status = Status.ALTERED
+        result.problems.append(problem)
+        result.altered_files.append(MANIFEST_FILE)
+        return result
+    files = doc["body"].get("files")
+    if not isinstance(files, dict):
+        return Verification(Status.ALTERED, [f"{MANIFEST_FILE}: no file list"], [MANIFEST_FILE])
+    for name in _check_files(folder, files):
+        result.status = Status.ALTERED
+        result.altered_files.append(name)
+        state = "removed" if files.get(name) and not (folder / name).exists() else (
+            "added after sealing" if files.get(name) is None else "changed")
+        result.problems.append(f"{name} was {state} since the folder was sealed")
+    return result
