@@ -143,6 +143,7 @@ class FakeRunner:
                     "condition": condition,
                     "fraction": i / len(STEPS),
                     "remaining_s": remaining,
+                    "sockets": {str(k): "RUNNING" for k in request.serials},
                 }
             )
             for socket in request.serials:
@@ -172,7 +173,7 @@ class FakeRunner:
             {
                 "type": "finished",
                 "results": results,
-                "safe_state": {"rate_table": True, "chamber": True, "supply": True},
+                "safe_state": {"all": True, "rate_table": True, "chamber": True, "supply": True},
             }
         )
 

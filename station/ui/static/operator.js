@@ -86,6 +86,7 @@ function buildSockets() {
     const s = {
       root, input: root.querySelector(".serial"), msg: root.querySelector(".serial-msg"),
       step: root.querySelector(".socket-step"), state: root.querySelector(".socket-state"),
+      fixture: root.querySelector(".fixture-light"),
       box: root.querySelector(".verdict-box"), verdict: root.querySelector(".verdict"),
       vserial: root.querySelector(".verdict-serial"), disposition: root.querySelector(".disposition"),
       reasons: root.querySelector(".reasons"), cert: root.querySelector(".certificate"),
@@ -112,7 +113,15 @@ function buildSockets() {
 function renderInstruments() {
   const box = $("instruments");
   box.textContent = "";
+  for (const n in sockets) sockets[n].fixture.hidden = true;
   for (const i of S.instruments) {
+    const own = i.socket !== null && i.socket !== undefined ? sockets[i.socket] : null;
+    if (own) {  // a socket's fixture board: its light sits on that socket
+      own.fixture.hidden = false;
+      own.fixture.className = "light fixture-light " + (!i.connected || i.faulted ? "bad" : "on");
+      own.fixture.title = i.name + (i.detail ? ": " + i.detail : "");
+      continue;
+    }
     const d = document.createElement("div");
     d.className = "inst" + (!i.connected || i.faulted ? " down" : "");
     d.dataset.name = i.name;
@@ -122,7 +131,8 @@ function renderInstruments() {
       `<span class="light ${i.connected ? "on" : "bad"}" data-light="connected"></span><span class="lt"></span>` +
       `<span class="light ${cal}" data-light="calibration"></span><span class="lt"></span>` +
       `<span class="light ${i.faulted ? "bad" : ""}" data-light="fault"></span><span class="lt"></span>`;
-    d.querySelector("b").textContent = i.name + (i.calibration_due && i.in_calibration === false ? " (" + t("inst.due", { date: i.calibration_due }) + ")" : "");
+    d.querySelector("b").textContent = i.name;
+    if (i.calibration_due) d.title = t("inst.due", { date: i.calibration_due }) + (i.detail ? "; " + i.detail : "");
     const labels = d.querySelectorAll(".lt");
     labels[0].textContent = t("inst.connected"); labels[1].textContent = t("inst.calibration"); labels[2].textContent = t("inst.fault");
     box.appendChild(d);
@@ -159,6 +169,8 @@ function renderOperator() {
 function startBlockers() {
   const why = [];
   for (const i of S.instruments) {
+    // a socket's fixture matters only when a part is scanned into that socket
+    if (i.socket !== null && i.socket !== undefined && !(sockets[i.socket] && sockets[i.socket].input.value.trim())) continue;
     if (!i.connected) why.push(t("block.instrument_down", { name: i.name }));
     else if (i.faulted) why.push(t("block.instrument_fault", { name: i.name }));
   }
