@@ -34,10 +34,13 @@ def test_steps_and_conditions_in_plain_words() -> None:
     assert words(step_phrases("thermal", "T45_V5.25")) == "Heating to 45 C, supply 5.25 V"
     assert words(step_phrases("thermal", "T-10_V4.75")) == "Cooling to -10 C, supply 4.75 V"
     assert words(step_phrases("thermal", "T25_V5")) == "Settling at 25 C, supply 5 V"
-    assert words(step_phrases("bias", "T45_V5.25")) == "Measuring bias at rest, at 45 C, supply 5.25 V"
+    assert (
+        words(step_phrases("bias", "T45_V5.25")) == "Measuring bias at rest, at 45 C, supply 5.25 V"
+    )
     assert words(step_phrases("fit", "")) == "Computing the corrections"
     assert words(step_phrases("new_step", "odd")) == "Step: new step, condition odd"
-    assert words(step_phrases("thermal", "T45_V5.25"), "de") == "Heizen auf 45 °C, Versorgung 5.25 V"
+    german = words(step_phrases("thermal", "T45_V5.25"), "de")
+    assert german == "Heizen auf 45 °C, Versorgung 5.25 V"
 
 
 def test_failure_reasons_in_plain_words() -> None:
@@ -46,7 +49,9 @@ def test_failure_reasons_in_plain_words() -> None:
     low = {**bias, "value": -12.26}
     assert render(failure_phrase(low)) == "Bias too low: -12.3 deg/s, limit +/-10 deg/s"
     current = {"name": "supply_current_a", "value": 0.05, "units": "A", "low": 0.002, "high": 0.04}
-    assert render(failure_phrase(current)) == "Supply current too high: 0.0500 A, limit 0.002 to 0.04 A"
+    assert render(failure_phrase(current)) == (
+        "Supply current too high: 0.0500 A, limit 0.002 to 0.04 A"
+    )
     noise = {"name": "noise_arw_deg_per_sqrt_h", "value": None, "units": "deg/sqrt(h)",
              "low": None, "high": 2.5}
     assert render(failure_phrase(noise)) == (
