@@ -127,7 +127,7 @@ def test_eight_running_sockets_start_abort_and_progress_on_one_screen(
     )
     assert serial_px >= 24 and step_px >= 18
     light_px = screen.evaluate(
-        "Math.min(...[...document.querySelectorAll('.inst b, .light')]"
+        "Math.min(...[...document.querySelectorAll('.inst b, .inst .light')]"
         ".map(e => Math.min(parseFloat(getComputedStyle(e).fontSize) || 99, e.offsetHeight)))"
     )
     assert light_px >= 16, "instrument lights must be readable"
@@ -164,7 +164,7 @@ def test_dense_grid_for_16_and_32_sockets(line: Line, screen: Page) -> None:
 def test_plain_words_for_steps_conditions_failures_and_dispositions(
     line: Line, screen: Page
 ) -> None:
-    line.runner.step_s = 0.6
+    line.runner.step_s = 1.0
     screen.goto(line.url)
     _scan(screen, 1, "SIM-0001")
     _scan(screen, 2, "BAD-0002")
@@ -294,6 +294,7 @@ def test_engineer_button_only_where_a_password_exists(
 
 
 def test_the_screen_in_german(line: Line, browser: Browser) -> None:
+    line.runner.step_s = 1.0  # each step long enough to be seen under load
     page = _screen(browser, locale="de-DE")
     try:
         page.goto(line.url)

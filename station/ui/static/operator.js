@@ -90,6 +90,7 @@ function buildSockets() {
       box: root.querySelector(".verdict-box"), verdict: root.querySelector(".verdict"),
       vserial: root.querySelector(".verdict-serial"), disposition: root.querySelector(".disposition"),
       reasons: root.querySelector(".reasons"), cert: root.querySelector(".certificate"),
+      canvas: root.querySelector(".mini-chart"),
     };
     s.input.id = "serial-" + n;
     s.input.placeholder = t("socket.scan");
@@ -105,6 +106,7 @@ function buildSockets() {
   const count = S.station.sockets.length, g = gridFor(count);
   box.style.gridTemplateColumns = `repeat(${g.cols}, minmax(0, 1fr))`;
   box.style.gridTemplateRows = `repeat(${g.rows}, minmax(0, 1fr))`;
+  box.classList.toggle("roomy", count <= 4);  // room for each socket's live chart
   box.classList.toggle("dense", count > 8);
   box.classList.toggle("denser", count > 16);
 }
@@ -284,13 +286,27 @@ function renderLast() {
     s.vserial.textContent = r.serial;
     s.disposition.textContent = r.disposition || "";
     s.reasons.textContent = "";
-    const lines = (r.failed || []).map((f) => (f.words ? say(f.words) : f.name));
+    const lines = failureLines(r.failed || []);
     if (r.reason && !lines.length) lines.push(r.reason);  // the failing measurements say it all
     for (const line of lines) { const li = document.createElement("li"); li.textContent = line; s.reasons.appendChild(li); }
     s.cert.hidden = !r.certificate_url;
     if (r.certificate_url) s.cert.href = r.certificate_url;
   }
   if (detailSocket !== null) renderDetail();
+}
+
+// One line per failed measurement (its worst condition), with how many conditions failed.
+function failureLines(failed) {
+  const worst = {}, count = {};
+  for (const f of failed) {
+    count[f.name] = (count[f.name] || 0) + 1;
+    const w = worst[f.name];
+    if (!w || Math.abs(f.value || 0) > Math.abs(w.value || 0)) worst[f.name] = f;
+  }
+  return Object.values(worst).map((f) => {
+    const text = f.words ? say(f.words) : f.name;
+    return count[f.name] > 1 ? t("fail.conditions", { text, n: count[f.name] }) : text;
+  });
 }
 
 function num(v) { return v === null || v === undefined ? "-" : Math.abs(v) >= 1e4 || (Math.abs(v) < 1e-3 && v !== 0) ? v.toExponential(3) : +v.toPrecision(5); }
@@ -324,6 +340,7 @@ function renderDetail() {
 }
 
 function renderCharts() {
+  if ($("sockets").classList.contains("roomy")) for (const n in sockets) drawChart(sockets[n].canvas, S.chart[n]);
   if (detailSocket !== null && $("detail-dialog").open) drawChart($("detail-chart"), S.chart[detailSocket]);
 }
 
