@@ -105,3 +105,121 @@ def test_a_fixture_down_matters_only_for_its_socket(held: tuple[Controller, Held
     with pytest.raises(RunRefusedError, match="fixture 2 is not reachable"):
         controller.start({1: "SIM-0001", 2: "SIM-0002"})
     assert controller.start({1: "SIM-0001", 2: ""}) == "held-1"
+
+
+# ---------------------------------------------------------------- over the API
+
+
+def _client(tmp_path: Path, **security: Any) -> Any:
+    from starlette.testclient import TestClient
+
+    from station.ui.app import create_app
+    from station.ui.history import History
+    from station.ui.requests import Security
+
+    runner = FakeRunner(tmp_path / "runs", step_s=0.02)
+    app = create_app(Controller(runner, Hub()), History(tmp_path / "runs"),
+                     security=Security(**security))
+    client = TestClient(app, base_url="http://127.0.0.1:8080")
+    return client, runner
+
+
+def test_messages_in_the_browsers_language_unless_the_station_sets_one(tmp_path: Path) -> None:
+    client, _ = _client(tmp_path)
+    r = client.get("/api/messages", headers={"Accept-Language": "de-DE,de;q=0.9,en;q=0.8"})
+    assert r.json()["language"] == "de" and r.json()["messages"]["btn.abort"] == "ABBRUCH"
+    assert client.get("/api/messages?lang=fr-FR,en").json()["language"] == "en"
+    fixed, _ = _client(tmp_path / "fixed", language="en")
+    r = fixed.get("/api/messages?lang=de-DE")
+    assert r.json()["language"] == "en" and r.json()["messages"]["btn.abort"] == "ABORT"
+
+
+def test_engineer_login_offered_only_with_a_password(tmp_path: Path) -> None:
+    from tests.ui.conftest import _HASH
+
+    bare, _ = _client(tmp_path)
+    assert bare.get("/api/session").json()["engineer_login"] is False
+    with_password, _ = _client(tmp_path / "pw", engineer_password_hash=_HASH)
+    assert with_password.get("/api/session").json()["engineer_login"] is True
+
+
+def test_work_order_and_lot_bounded_and_carried(tmp_path: Path) -> None:
+    client, runner = _client(tmp_path)
+    client.headers["X-CSRF-Token"] = client.get("/api/session").json()["csrf"]
+    long = client.post("/api/start", json={"serials": {"1": "SIM-0001"}, "lot": "L" * 65})
+    assert long.status_code == 422 and "lot" in long.json()["error"]
+    r = client.post(
+        "/api/start",
+        json={"serials": {"1": "SIM-0001"}, "work_order": " WO-9 ", "lot": "L-1"},
+    )
+    assert r.status_code == 200, r.text
+    runner.wait()
+    assert (runner.started[0].work_order, runner.started[0].lot) == ("WO-9", "L-1")
+
+
+def test_station_yaml_language_must_have_a_catalog(tmp_path: Path) -> None:
+    from pydantic import ValidationError
+
+    from station.errors import UserError
+    from station.settings import UiSettings, load_settings
+    from station.ui.launch import security_of
+    from tests.ui.test_ui_security import _station_yaml
+
+    with pytest.raises(ValidationError):
+        UiSettings(language="German")
+    sec, _ = security_of(load_settings(_station_yaml(tmp_path, {"language": "de"})), "127.0.0.1")
+    assert sec.language == "de"
+    french = load_settings(_station_yaml(tmp_path, {"language": "fr"}))
+    with pytest.raises(UserError, match="ui.language 'fr' has no message catalog"):
+        security_of(french, "127.0.0.1")
+
+
+def test_product_dispositions_from_the_product_file() -> None:
+    from pydantic import ValidationError
+
+    from procedures.config import Dispositions, load_product
+
+    repo = Path(__file__).resolve().parents[2]
+    product, _ = load_product(repo / "config" / "products" / "gyr130.yaml")
+    assert product.dispositions is not None
+    assert product.dispositions.FAIL == "Red bin: do not ship"
+    with pytest.raises(ValidationError):
+        Dispositions.model_validate({"SCRAP": "no such verdict"})
+
+
+def test_engine_runner_forwards_prompts_and_step_types() -> None:
+    """EngineRunner turns the engine's ProgressEvents into the UI's events: the step type
+    with each progress event and planned step, and a prompt with its sockets, then its end."""
+    from types import SimpleNamespace
+
+    from procedures.config import load_procedure
+    from procedures.progress import ProgressBus, ProgressEvent
+    from station.ui.runner_adapter import EngineRunner
+
+    repo = Path(__file__).resolve().parents[2]
+    procedure, _ = load_procedure(repo / "config" / "procedures" / "eol-stop-method.yaml")
+    bus = ProgressBus()
+
+    def run(serials: dict[int, str]) -> Any:
+        bus.publish(ProgressEvent("step", step="thermal", condition="T45_V5.25"))
+        bus.publish(ProgressEvent("prompt", message="Turn socket 2's fixture by hand",
+                                  sockets={2: "RUNNING"}))
+        bus.publish(ProgressEvent("prompt_done"))
+        return SimpleNamespace(folders={})
+
+    uut = SimpleNamespace(procedure=procedure, progress=bus, run=run, context=None,
+                          state=lambda: {})
+    runner = EngineRunner.__new__(EngineRunner)
+    runner.endpoints, runner.control, runner.sample_interval_s = None, None, 0.05
+    events: list[dict[str, Any]] = []
+    runner._run(uut, {2: "SIM-0002"}, events.append)
+    steps = next(e for e in events if e["type"] == "steps")
+    assert steps["items"][0] == {"step": "connect", "condition": ""}
+    assert {"step": "thermal", "condition": "T45_V5.25"} in steps["items"]
+    thermal = next(e for e in events if e["type"] == "progress" and e["step_type"] == "thermal")
+    assert thermal["condition"] == "T45_V5.25"
+    kinds = [e["type"] for e in events]
+    assert kinds.index("prompt") < kinds.index("prompt_done") < kinds.index("finished")
+    prompt = next(e for e in events if e["type"] == "prompt")
+    assert prompt == {"type": "prompt", "message": "Turn socket 2's fixture by hand",
+                      "sockets": [2]}
