@@ -302,14 +302,15 @@ def test_the_screen_in_german(line: Line, browser: Browser) -> None:
         expect(page.locator("#abort-btn")).to_have_text("ABBRUCH")
         expect(page.locator("#socket-1 .socket-label")).to_have_text("Sockel 1")
         expect(page.locator("#serial-1")).to_have_attribute("placeholder", "Seriennummer scannen")
+        expect(page.locator(".inst[data-name='rate table'] b")).to_have_text("Drehtisch")
         _scan(page, 1, "BAD-0001")
         page.click("#start-btn")
         expect(page.locator("#step-name")).to_have_text(
-            "Heizen auf 45 °C, Versorgung 5.25 V", timeout=15_000
+            "Heizen auf 45 °C, Versorgung 5,25 V", timeout=15_000
         )
         expect(page.locator("#socket-1 .verdict")).to_have_text("n.i.O.", timeout=15_000)
         expect(page.locator("#socket-1 .reasons")).to_have_text(
-            "Nullpunkt zu hoch: 14.2 deg/s, Grenze +/-10 deg/s"
+            "Nullpunkt zu hoch: 14,2 deg/s, Grenze +/-10 deg/s"
         )
         _assert_one_screen(page, 8, running=False)
     finally:

@@ -21,7 +21,12 @@ def render(phrase: Any, language: str = "en") -> str:
 
     def fill(m: re.Match[str]) -> str:
         value = phrase["params"].get(m.group(1))
-        return render(value, language) if isinstance(value, dict) else str(value or "")
+        if isinstance(value, dict):
+            return render(value, language)
+        text = str(value or "")
+        if re.fullmatch(r"[-+]?\d+\.\d+", text):  # as the page writes a decimal number
+            return text.replace(".", messages["number.decimal"])
+        return text
 
     return re.sub(r" +", " ", re.sub(r"\{(\w+)\}", fill, text)).strip()
 
@@ -40,7 +45,7 @@ def test_steps_and_conditions_in_plain_words() -> None:
     assert words(step_phrases("fit", "")) == "Computing the corrections"
     assert words(step_phrases("new_step", "odd")) == "Step: new step, condition odd"
     german = words(step_phrases("thermal", "T45_V5.25"), "de")
-    assert german == "Heizen auf 45 °C, Versorgung 5.25 V"
+    assert german == "Heizen auf 45 °C, Versorgung 5,25 V"
 
 
 def test_failure_reasons_in_plain_words() -> None:
@@ -59,7 +64,7 @@ def test_failure_reasons_in_plain_words() -> None:
     )
     unknown = {"name": "my_new_thing", "value": 3.0, "units": "1", "low": None, "high": 1}
     assert render(failure_phrase(unknown)) == "my new thing too high: 3.00, limit at most 1"
-    assert render(failure_phrase(bias), "de") == "Nullpunkt zu hoch: 14.0 deg/s, Grenze +/-10 deg/s"
+    assert render(failure_phrase(bias), "de") == "Nullpunkt zu hoch: 14,0 deg/s, Grenze +/-10 deg/s"
 
 
 def test_conditions_parsed() -> None:
@@ -76,6 +81,7 @@ def _keys_used_by_the_page() -> set[str]:
     keys |= set(re.findall(r'\bt\("([\w.]*\w)"', js))
     keys |= {k for pair in re.findall(r't\(\w+ \? "([\w.]+)" : "([\w.]+)"\)', js) for k in pair}
     keys |= {f"{prefix}.{v}" for prefix in ("verdict", "state") for v in plain_words.VERDICTS}
+    keys |= {"inst.name.rate table", "inst.name.chamber", "inst.name.supply", "number.decimal"}
     return keys
 
 

@@ -18,7 +18,9 @@ function t(key, params) {
   return text.replace(/\{(\w+)\}/g, (all, name) => {
     const v = params ? params[name] : undefined;
     if (v === undefined || v === null) return "";
-    return typeof v === "object" ? say(v) : String(v);
+    if (typeof v === "object") return say(v);
+    // a decimal number as the language writes it (5.25 -> 5,25 in German)
+    return /^[-+]?\d+\.\d+$/.test(String(v)) ? String(v).replace(".", M["number.decimal"] || ".") : String(v);
   }).replace(/ +/g, " ").trim();
 }
 function say(phrase) { return phrase && phrase.key ? t(phrase.key, phrase.params) : ""; }
@@ -133,12 +135,18 @@ function renderInstruments() {
       `<span class="light ${i.connected ? "on" : "bad"}" data-light="connected"></span><span class="lt"></span>` +
       `<span class="light ${cal}" data-light="calibration"></span><span class="lt"></span>` +
       `<span class="light ${i.faulted ? "bad" : ""}" data-light="fault"></span><span class="lt"></span>`;
-    d.querySelector("b").textContent = i.name;
+    d.querySelector("b").textContent = instrumentName(i.name);
     if (i.calibration_due) d.title = t("inst.due", { date: i.calibration_due }) + (i.detail ? "; " + i.detail : "");
     const labels = d.querySelectorAll(".lt");
     labels[0].textContent = t("inst.connected"); labels[1].textContent = t("inst.calibration"); labels[2].textContent = t("inst.fault");
     box.appendChild(d);
   }
+}
+
+// The station's instrument names in the page's language ("rate table" -> "Drehtisch").
+function instrumentName(name) {
+  const key = "inst.name." + name;
+  return Object.prototype.hasOwnProperty.call(M, key) ? M[key] : name;
 }
 
 function renderSelection() {
@@ -173,8 +181,8 @@ function startBlockers() {
   for (const i of S.instruments) {
     // a socket's fixture matters only when a part is scanned into that socket
     if (i.socket !== null && i.socket !== undefined && !(sockets[i.socket] && sockets[i.socket].input.value.trim())) continue;
-    if (!i.connected) why.push(t("block.instrument_down", { name: i.name }));
-    else if (i.faulted) why.push(t("block.instrument_fault", { name: i.name }));
+    if (!i.connected) why.push(t("block.instrument_down", { name: instrumentName(i.name) }));
+    else if (i.faulted) why.push(t("block.instrument_fault", { name: instrumentName(i.name) }));
   }
   if (S.operatorRequired && !S.operator) why.push(t("block.no_operator"));
   for (const [serial, where] of Object.entries(duplicates())) {
