@@ -109,7 +109,7 @@ def _assert_one_screen(page: Page, n: int, *, running: bool = True) -> None:
 def test_eight_running_sockets_start_abort_and_progress_on_one_screen(
     line: Line, screen: Page
 ) -> None:
-    line.runner.step_s = 1.0
+    line.runner.prompt = ("Turn socket 8's fixture by hand to the other stop", [8])  # holds
     screen.goto(line.url)
     for k in range(1, 9):
         _scan(screen, k, f"SIM-{k:04d}")
@@ -117,6 +117,7 @@ def test_eight_running_sockets_start_abort_and_progress_on_one_screen(
     expect(screen.locator("#progress")).to_be_visible()
     expect(screen.locator("#socket-8 .socket-state")).to_have_text("RUNNING")
     expect(screen.locator("#step-list li.done").first).to_be_visible()
+    expect(screen.locator("#prompt")).to_be_visible(timeout=15_000)  # the tallest state
     _assert_one_screen(screen, 8)
     # readable from a metre away: serial, step and verdict in large type
     serial_px = screen.evaluate(
@@ -137,8 +138,9 @@ def test_eight_running_sockets_start_abort_and_progress_on_one_screen(
     expect(screen.locator("#detail-serial")).to_have_text("SIM-0003")
     assert screen.evaluate("S.chart[3].t_s[0]") == 0.0
     screen.click("#detail-close")
-    screen.click("#abort-btn")
+    screen.click("#abort-btn")  # while the run waits for the operator
     screen.click("#abort-confirm")
+    expect(screen.locator("#prompt")).to_be_hidden()
     expect(screen.locator("#socket-8 .verdict")).to_have_text("ABORTED")
     _assert_one_screen(screen, 8, running=False)
 
@@ -146,13 +148,15 @@ def test_eight_running_sockets_start_abort_and_progress_on_one_screen(
 @pytest.mark.parametrize("line", [16, 32], indirect=True)
 def test_dense_grid_for_16_and_32_sockets(line: Line, screen: Page) -> None:
     n = len(line.runner.info.sockets)
+    line.runner.prompt = ("Turn socket 1's fixture by hand to the other stop", [1])  # holds
     screen.goto(line.url)
     expect(screen.locator(f"#socket-{n}")).to_be_visible()
     for k in range(1, n + 1, 2):  # every other socket loaded
         _scan(screen, k, f"SIM-{k:04d}")
     screen.click("#start-btn")
-    expect(screen.locator(f"#socket-{n - 1} .socket-state")).to_have_text("RUNNING")
+    expect(screen.locator("#prompt")).to_be_visible(timeout=15_000)
     _assert_one_screen(screen, n)
+    line.runner.answer()
     serial_px = screen.evaluate(
         f"parseFloat(getComputedStyle(document.getElementById('serial-{n}')).fontSize)"
     )
@@ -164,23 +168,25 @@ def test_dense_grid_for_16_and_32_sockets(line: Line, screen: Page) -> None:
 def test_plain_words_for_steps_conditions_failures_and_dispositions(
     line: Line, screen: Page
 ) -> None:
-    line.runner.step_s = 1.0
+    line.runner.prompt = ("Turn both fixtures by hand", [1, 2])  # holds the run there
     screen.goto(line.url)
     _scan(screen, 1, "SIM-0001")
     _scan(screen, 2, "BAD-0002")
     screen.click("#start-btn")
-    expect(screen.locator("#step-name")).to_have_text(
-        "Heating to 45 C, supply 5.25 V", timeout=15_000
-    )
+    expect(screen.locator("#prompt")).to_be_visible(timeout=15_000)
+    held = "Turning the fixture by hand, at 45 C, supply 5.25 V"
+    expect(screen.locator("#step-name")).to_have_text(held)
     expect(screen.locator("#remaining")).to_have_text(re.compile(r"^\d+ s left$"))
-    expect(screen.locator("#socket-1 .socket-step")).to_have_text("Heating to 45 C, supply 5.25 V")
+    expect(screen.locator("#socket-1 .socket-step")).to_have_text(held)
     steps = screen.locator("#step-list li").all_inner_texts()
+    assert "Heating to 45 C, supply 5.25 V" in steps
     assert "Turning the rate table, at 45 C, supply 5.25 V" in steps
     assert not any("T45_V5.25" in s or "_" in s for s in steps), steps
     # the engineering name stays in the detail view
     screen.click("#socket-1 .socket-head")
     expect(screen.locator("#detail-step")).to_have_text(re.compile(r"T45_V5\.25"))
     screen.click("#detail-close")
+    line.runner.answer()
     expect(screen.locator("#socket-2 .verdict")).to_have_text("FAIL", timeout=15_000)
     expect(screen.locator("#socket-2 .reasons")).to_have_text(
         "Bias too high: 14.2 deg/s, limit +/-10 deg/s"
@@ -267,13 +273,14 @@ def test_work_order_and_lot_go_with_the_run(line: Line, screen: Page) -> None:
 
 
 def test_stale_refusal_cleared_when_the_run_ends(line: Line, screen: Page) -> None:
-    line.runner.step_s = 0.4
+    line.runner.prompt = ("Turn the fixture by hand", [1])  # holds the run there
     screen.goto(line.url)
     _scan(screen, 1, "SIM-0001")
     screen.click("#start-btn")
-    expect(screen.locator("#abort-btn")).to_be_enabled()
+    expect(screen.locator("#prompt")).to_be_visible(timeout=15_000)
     screen.evaluate("start()")  # a second Start (e.g. a double tap) is refused with a message
     expect(screen.locator("#message")).to_contain_text("already in progress")
+    line.runner.answer()
     expect(screen.locator("#socket-1 .verdict")).to_have_text("PASS", timeout=15_000)
     expect(screen.locator("#message")).to_have_text("")
 
@@ -294,7 +301,7 @@ def test_engineer_button_only_where_a_password_exists(
 
 
 def test_the_screen_in_german(line: Line, browser: Browser) -> None:
-    line.runner.step_s = 1.0  # each step long enough to be seen under load
+    line.runner.prompt = ("Vorrichtung von Hand drehen", [1])  # holds the run there
     page = _screen(browser, locale="de-DE")
     try:
         page.goto(line.url)
@@ -305,9 +312,14 @@ def test_the_screen_in_german(line: Line, browser: Browser) -> None:
         expect(page.locator(".inst[data-name='rate table'] b")).to_have_text("Drehtisch")
         _scan(page, 1, "BAD-0001")
         page.click("#start-btn")
+        expect(page.locator("#prompt-sockets")).to_have_text("Sockel 1", timeout=15_000)
         expect(page.locator("#step-name")).to_have_text(
-            "Heizen auf 45 °C, Versorgung 5,25 V", timeout=15_000
+            "Vorrichtung von Hand drehen, bei 45 °C, Versorgung 5,25 V"
         )
+        expect(page.locator("#step-list li").nth(2)).to_have_text(
+            "Heizen auf 45 °C, Versorgung 5,25 V"
+        )
+        line.runner.answer()
         expect(page.locator("#socket-1 .verdict")).to_have_text("n.i.O.", timeout=15_000)
         expect(page.locator("#socket-1 .reasons")).to_have_text(
             "Nullpunkt zu hoch: 14,2 deg/s, Grenze +/-10 deg/s"
