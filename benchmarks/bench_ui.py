@@ -4,7 +4,7 @@ Starts `station ui --sim` as its own process (default station.yaml and procedure
 a temp folder), opens the operator screen in Debian's chromium, and for each trial scans a
 serial, presses Start and measures on the page (performance.now()):
   - ack: Start pressed -> the pushed "run" event (the page shows the run as started)
-  - first progress: Start pressed -> the first pushed progress event ("connect instruments")
+  - first progress: Start pressed -> the first pushed progress event (step "connect")
   - first engine step: Start pressed -> the engine's first step event (instruments connected)
 then aborts the run and waits for ABORTED. Page weight is every byte the operator screen
 loads (navigation + resources, decoded, the open event stream excluded). Targets: first

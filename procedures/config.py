@@ -158,6 +158,15 @@ class Limits(_Strict):
     frames_lost_fraction: Limit | None = Field(None, description="lost frames / expected frames")
 
 
+class Dispositions(_Strict):
+    """What the operator does with a part of each verdict, shown with the verdict."""
+
+    PASS: str = Field("", max_length=200, description="e.g. 'Place in tray A'")
+    FAIL: str = Field("", max_length=200, description="e.g. 'Red bin: do not ship'")
+    ERROR: str = Field("", max_length=200, description="e.g. 'Retest once, then call the engineer'")
+    ABORTED: str = Field("", max_length=200, description="e.g. 'Retest the part'")
+
+
 class ProductConfig(_Strict):
     """One product (part number): its range, nominal values, serial format and limits."""
 
@@ -207,6 +216,11 @@ class ProductConfig(_Strict):
         description="how a measurement is judged against its limits (stated on the "
         "certificate): simple acceptance (inside the limits passes), or guard_banded (the "
         "acceptance zone is the limits narrowed by the measurement's expanded uncertainty)",
+    )
+    dispositions: Dispositions | None = Field(
+        None,
+        description="what the operator does with a part of each verdict (PASS, FAIL, ERROR, "
+        "ABORTED), shown with the verdict on the operator screen",
     )
 
     @property

@@ -1,8 +1,10 @@
 """Screenshots of each screen for the README: docs/screenshots/*.png.
 
 Runs the real station (`station ui --sim`, short test procedure, one good part and one made
-to fail) and Debian's chromium, walks through the operator's and the engineer's screens and
-the review screen, and saves one PNG per screen.
+to fail) and Debian's chromium at the line's 1280 x 800 touch screen, walks through the
+operator's and the engineer's screens and the review screen, and saves one PNG per screen.
+Then the screens a two-socket bench cannot show (8 and 32 sockets, an operator prompt, START
+blocked by an instrument, the German catalog) against the UI tests' fake runner.
 
     python3 scripts/screenshots.py [--out docs/screenshots]
 """
@@ -12,6 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,12 +31,84 @@ from tests.ui.stationkit import (  # noqa: E402
 )
 
 RUN_TIMEOUT_MS = 120_000
+SCREEN = {"width": 1280, "height": 800}
 
 
 def shoot(page, out: Path, name: str) -> None:  # noqa: ANN001
     path = out / f"{name}.png"
     page.screenshot(path=str(path), full_page=True)
     print(path)
+
+
+def fake_line(tmp: Path, n: int, step_s: float):  # noqa: ANN201
+    """The UI around the tests' fake runner with n sockets: (runner, controller, server)."""
+    from station.ui.app import create_app
+    from station.ui.controller import Controller
+    from station.ui.history import History
+    from station.ui.hub import Hub
+    from station.ui.server import serve_in_thread
+    from tests.ui.conftest import _HASH
+    from tests.ui.fake_runner import FakeRunner
+
+    runner = FakeRunner(tmp / f"runs-{n}", sockets=list(range(1, n + 1)), step_s=step_s)
+    controller = Controller(runner, Hub())
+    app = create_app(controller, History(tmp / f"runs-{n}"), engineer_password_hash=_HASH)
+    return runner, controller, serve_in_thread(app, before_stop=controller.hub.close)
+
+
+def scan_all(page, n: int) -> None:  # noqa: ANN001
+    for k in range(1, n + 1):
+        serial = f"{'BAD' if k % 5 == 3 else 'SIM'}-{k:04d}"
+        page.fill(f"#serial-{k}", serial)
+        page.press(f"#serial-{k}", "Enter")
+        page.wait_for_selector(f"#serial-{k}.ok")
+
+
+def fake_shots(browser, tmp: Path, out: Path) -> None:  # noqa: ANN001
+    from station.ui.runner_adapter import InstrumentLight
+
+    shots = (
+        (8, "en-US", "operator-eight-running", "operator-eight-verdicts"),
+        (32, "en-US", "operator-32-running", "operator-32-verdicts"),
+        (8, "de-DE", "operator-german-running", "operator-german-verdicts"),
+    )
+    for n, locale, running, verdicts in shots:
+        runner, _, server = fake_line(tmp, n, step_s=1.5)
+        try:
+            page = browser.new_context(viewport=SCREEN, locale=locale).new_page()
+            page.goto(server.url)
+            scan_all(page, n)
+            page.click("#start-btn")
+            page.wait_for_selector("#step-list li.current")
+            time.sleep(3.5)
+            shoot(page, out, running)
+            page.wait_for_selector(f"#socket-{n} .verdict-box:not([hidden])", timeout=60_000)
+            shoot(page, out, verdicts)
+            page.context.close()
+        finally:
+            runner.close()
+            server.stop()
+    runner, controller, server = fake_line(tmp, 8, step_s=0.5)
+    try:
+        runner.prompt = ("Turn socket 1's fixture by hand to the other stop", [1])
+        page = browser.new_context(viewport=SCREEN).new_page()
+        page.goto(server.url)
+        scan_all(page, 2)
+        page.click("#start-btn")
+        page.wait_for_selector("#prompt:not([hidden])", timeout=30_000)
+        shoot(page, out, "operator-prompt")
+        runner.answer()
+        page.wait_for_selector("#socket-1 .verdict-box:not([hidden])", timeout=30_000)
+        runner.lights[0] = InstrumentLight("rate table", False, True, False, "", "no answer")
+        controller.refresh_instruments()
+        page.fill("#serial-1", "SIM-0101")
+        page.press("#serial-1", "Enter")
+        page.wait_for_selector("#start-btn:disabled")
+        shoot(page, out, "operator-start-blocked")
+        page.context.close()
+    finally:
+        runner.close()
+        server.stop()
 
 
 def main() -> int:
@@ -52,7 +127,7 @@ def main() -> int:
         station = start_ui_process(config, Path(tmp) / "ui.log")
         try:
             with chromium() as browser:
-                page = browser.new_page(viewport={"width": 1280, "height": 860})
+                page = browser.new_page(viewport=SCREEN)
                 page.set_default_timeout(RUN_TIMEOUT_MS)
                 page.goto(station.url)
                 page.click("#signin-btn")  # an open station: the operator's name
@@ -89,10 +164,18 @@ def main() -> int:
                 page.wait_for_selector("#engineer-panel:not([hidden])")
                 page.wait_for_selector("#procedure-select option", state="attached")
                 shoot(page, out, "engineer-selection")
+                page.click("#engineer-btn")  # log out again
+                page.wait_for_selector("#engineer-panel", state="hidden")
+                # A tap on the failed socket: its chart and the engineering names.
+                page.click("#socket-2 .socket-head")
+                page.wait_for_selector("#detail-dialog[open]")
+                shoot(page, out, "operator-detail")
+                page.click("#detail-close")
                 # Review: history, filters, yield, certificates.
                 page.goto(station.url + "/review")
                 page.wait_for_selector("#runs tr")
                 shoot(page, out, "review")
+                fake_shots(browser, Path(tmp), out)
         finally:
             stop_ui_process(station.process)
     return 0

@@ -203,6 +203,12 @@ class UiSettings(_Strict):
     tls_key: str | None = Field(
         None, max_length=4096, description="PEM private key of tls_certificate (relative)"
     )
+    language: str | None = Field(
+        None,
+        pattern=r"^[a-z]{2,3}$",
+        description="language of the operator screen (a catalog under station/ui/messages, "
+        "e.g. en, de); unset: the browser's language when the station has it, else English",
+    )
 
     @field_validator("allowed_hosts")
     @classmethod

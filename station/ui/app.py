@@ -24,6 +24,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from station.errors import UserError
+from station.ui import catalog
 from station.ui.approval_routes import add_approval_routes
 from station.ui.controller import Controller, RunRefusedError, SerialRejectedError
 from station.ui.guard import Guard
@@ -120,6 +121,17 @@ def create_app(
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
+    # ------------------------------------------------------------------ words
+
+    @app.get("/api/messages")
+    def messages(request: Request, lang: str = "") -> dict[str, Any]:
+        """The page's message catalog: station.yaml's language, else the browser's."""
+        requested = [t for t in lang[:200].split(",") if t] or catalog.accept_language(
+            request.headers.get("accept-language", "")[:500]
+        )
+        language = catalog.choose(sec.language, requested)
+        return {"language": language, "messages": catalog.load(language)}
+
     # ------------------------------------------------------------------ live state
 
     @app.get("/api/state")
@@ -149,7 +161,10 @@ def create_app(
         if sec.require_operator and not session.operator:
             return error(401, "no operator signed in: scan your badge or sign in to start")
         operator = session.operator or ("engineer" if session.engineer else "")
-        run_id = controller.start(body.serials, operator=operator)
+        run_id = controller.start(
+            body.serials, operator=operator, work_order=body.work_order.strip(),
+            lot=body.lot.strip(),
+        )
         return JSONResponse({"run_id": run_id, "operator": operator})
 
     @app.post("/api/abort")

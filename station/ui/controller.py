@@ -2,8 +2,13 @@
 
 One run at a time per fixture: a second Start while a run is in progress is refused with a
 message naming the run. Serials are validated here against the product's pattern (never
-trust the page). Every change is published to the hub; `snapshot()` is what a page that
-(re)connects receives first, so a reload mid-run shows the run in progress.
+trust the page), and Start is refused while an instrument the run needs is unreachable or
+faulted. Every change is published to the hub; `snapshot()` is what a page that (re)connects
+receives first, so a reload mid-run shows the run in progress (with any operator prompt).
+
+The engine's names become plain-word phrases here (station/ui/plain_words.py): each progress
+event gets "words", the step list "step_words", each failed measurement "words", each result
+the product's disposition for its verdict. Chart time is counted from the run's first sample.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from station.errors import UserError
+from station.ui import plain_words
 from station.ui.hub import Hub
 from station.ui.runner_adapter import ProductChoice, Runner, StartRequest
 
@@ -58,6 +64,8 @@ class Controller:
         self._chart: dict[int, dict[str, list[float]]] = {}
         self._pending: dict[int, dict[str, list[float]]] = {}
         self._last_push_s = 0.0
+        self._t0_s: float | None = None  # the run's first sample time (the chart's zero)
+        self._dispositions: dict[str, str] = {}  # the running product's, by verdict
         self.run_folders: dict[str, Path] = {}  # certificate key -> run folder
 
     # ------------------------------------------------------------------ reading
@@ -125,6 +133,7 @@ class Controller:
             "product_name": product.name if product else "",
             "serial_pattern": product.serial_pattern if product else "",
             "serial_example": product.serial_example if product else "",
+            "dispositions": dict(product.dispositions) if product else {},
         }
 
     def _run_view(self) -> dict[str, Any] | None:
@@ -155,8 +164,31 @@ class Controller:
             )
         return text
 
-    def start(self, serials: dict[int, str], operator: str = "") -> str:
+    def instrument_problems(self, sockets: set[int] | None = None) -> list[str]:
+        """Why the last lights forbid a run: each unreachable or faulted instrument (a
+        socket's fixture only when that socket is loaded)."""
+        problems = []
+        with self._lock:
+            lights = list(self._instruments)
+        for light in lights:
+            socket = light.get("socket")
+            if socket is not None and sockets is not None and socket not in sockets:
+                continue
+            name = light.get("name", "an instrument")
+            if not light.get("connected"):
+                problems.append(f"{name} is not reachable; check its cable and power")
+            elif light.get("faulted"):
+                detail = light.get("detail") or "a fault"
+                problems.append(f"{name} reports {detail}; clear it first")
+        return problems
+
+    def start(
+        self, serials: dict[int, str], operator: str = "", work_order: str = "", lot: str = ""
+    ) -> str:
         """Validate and start a run; RunRefusedError or SerialRejectedError says why not."""
+        loaded_sockets = {s for s, v in serials.items() if v.strip()}
+        if not self.busy() and self.instrument_problems(loaded_sockets):
+            self.refresh_instruments()  # the lights may be stale: look once more
         with self._lock:
             if self._run is not None:
                 serial_list = ", ".join(self._run["serials"].values())
@@ -172,6 +204,13 @@ class Controller:
             clean = {s: self.validate_serial(s, v) for s, v in sorted(loaded.items())}
             if len(set(clean.values())) != len(clean):
                 raise RunRefusedError("the same serial is scanned in two sockets; rescan each part")
+            problems = self.instrument_problems(set(clean))
+            if problems:
+                raise RunRefusedError("START refused: " + "; ".join(problems))
+            try:
+                self._dispositions = dict(self.product().dispositions)
+            except UserError:
+                self._dispositions = {}
             self._generation += 1
             generation = self._generation
             previous_last, self._last = self._last, None  # shown until the next Start
@@ -181,11 +220,16 @@ class Controller:
                 "procedure": self._selection["procedure"],
                 "product": self._selection["product"],
                 "operator": operator,
+                "work_order": work_order,
+                "lot": lot,
                 "started_utc": _now_utc(),
                 "steps": [],
+                "step_words": [],
                 "progress": None,
+                "prompt": None,
                 "aborting": False,
             }
+            self._t0_s = None
             self._chart = {s: {"t_s": [], "rate_dps": [], "temp_c": []} for s in clean}
             self._pending = {s: {"t_s": [], "rate_dps": [], "temp_c": []} for s in clean}
             request = StartRequest(
@@ -193,6 +237,8 @@ class Controller:
                 procedure_path=self._selection["procedure"],
                 product_path=self._selection["product"],
                 operator=operator,
+                work_order=work_order,
+                lot=lot,
             )
             self.hub.publish({"type": "run", "run": self._run_view()})
 
@@ -257,11 +303,28 @@ class Controller:
             if kind == "instruments":
                 self._instruments = list(event.get("instruments", []))
             elif kind == "steps" and self._run is not None:
+                event = {**event, "step_words": _step_words(event)}
                 self._run["steps"] = list(event.get("steps", []))
+                self._run["step_words"] = event["step_words"]
             elif kind == "progress" and self._run is not None:
                 progress = {k: v for k, v in event.items() if k != "type"}
+                step_type = str(event.get("step_type") or plain_words.step_type_of(
+                    str(event.get("step", ""))))
+                progress["words"] = plain_words.step_phrases(
+                    step_type, str(event.get("condition") or ""))
                 progress["received_utc"] = _now_utc()
                 self._run["progress"] = progress
+                event = {"type": "progress", **progress}
+            elif kind == "prompt" and self._run is not None:
+                prompt = {
+                    "message": str(event.get("message", ""))[:500],
+                    "sockets": [int(s) for s in event.get("sockets", [])],
+                }
+                self._run["prompt"] = prompt
+                event = {"type": "prompt", **prompt}
+            elif kind == "prompt_done" and self._run is not None:
+                self._run["prompt"] = None
+                event = {"type": "prompt_done"}
             elif kind == "finished":
                 self._flush_samples(force=True)
                 self._finish(event)
@@ -273,7 +336,12 @@ class Controller:
         pending = self._pending.get(socket)
         if pending is None:
             return
-        for key in ("t_s", "rate_dps", "temp_c"):
+        times = [float(v) for v in event.get("t_s", [])]
+        if times and self._t0_s is None:
+            self._t0_s = times[0]
+        t0 = self._t0_s or 0.0
+        pending["t_s"].extend(v - t0 for v in times)
+        for key in ("rate_dps", "temp_c"):
             pending[key].extend(float(v) for v in event.get(key, []))
         self._flush_samples(force=False)
 
@@ -302,6 +370,10 @@ class Controller:
         results = []
         for result in event.get("results", []):
             view = dict(result)
+            view["failed"] = [
+                {**f, "words": plain_words.failure_phrase(f)} for f in view.get("failed") or []
+            ]
+            view["disposition"] = self._dispositions.get(str(view.get("verdict", "")), "")
             folder = view.pop("run_folder", None)
             view["certificate_url"] = None
             if folder:
@@ -330,3 +402,19 @@ class Controller:
             self.refresh_instruments()
         except Exception:
             log.exception("instrument probe after the run failed")
+
+
+def _step_words(event: dict[str, Any]) -> list[list[plain_words.Phrase]]:
+    """Plain words for each planned step: from its "items" ({step, condition}) when the
+    runner sends them, else from the labels ("thermal T45_V5.25")."""
+    items = event.get("items")
+    if not isinstance(items, list):
+        items = []
+        for label in event.get("steps", []):
+            step, _, condition = str(label).partition(" ")
+            items.append({"step": step, "condition": condition})
+    return [
+        plain_words.step_phrases(str(i.get("step", "")), str(i.get("condition") or ""))
+        for i in items
+        if isinstance(i, dict)
+    ]

@@ -26,6 +26,7 @@ class InstrumentAddress:
     calibration_due: dt.date | None
     plan: Any = None  # station.instruments.RoleDriver: how to open it (None: cannot be)
     error: str = ""  # why it has no plan (a bad driver name in station.yaml)
+    socket: int | None = None  # a socket's fixture
 
 
 def _in_calibration(due: dt.date | None, today: dt.date) -> bool | None:
@@ -46,9 +47,13 @@ def probe(
         detail = "" if cal is not False else f"calibration overdue since {due}"
         if inst.plan is None or not inst.address:
             why = inst.error or "no address configured"
-            lights.append(InstrumentLight(inst.name, False, cal, False, due, why))
+            lights.append(InstrumentLight(inst.name, False, cal, False, due, why, inst.socket))
             continue
         connected, report = probe_role(inst.plan)
         faulted = connected and bool(report)
-        lights.append(InstrumentLight(inst.name, connected, cal, faulted, due, report or detail))
+        lights.append(
+            InstrumentLight(
+                inst.name, connected, cal, faulted, due, report or detail, inst.socket
+            )
+        )
     return lights

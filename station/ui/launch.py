@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from station.errors import UserError
+from station.ui import catalog
 from station.ui.app import Security, create_app
 from station.ui.auth import Operator, OperatorBook, check_hash_format
 from station.ui.controller import Controller
@@ -94,10 +95,16 @@ def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
             "read the operators' PINs and the engineer password; set ui.tls_certificate and "
             f"ui.tls_key (PEM files) in {settings.source.path}, or listen on 127.0.0.1"
         )
+    if ui.language and ui.language not in catalog.available():
+        raise UserError(
+            f"{settings.source.path}: ui.language {ui.language!r} has no message catalog; "
+            f"use one of {', '.join(catalog.available())} or leave it out"
+        )
     security = Security(
         engineer_password_hash=ui.engineer_password_hash,
         operators=book,
         require_operator=ui.require_operator,
+        language=ui.language,
         hosts=allowed_hosts(host, ui.allowed_hosts),
         https=tls is not None,
         settings=settings,

@@ -31,6 +31,8 @@ class _Body(BaseModel):
 
 class StartBody(_Body):
     serials: dict[int, str] = Field(description="socket -> scanned serial", max_length=MAX_SOCKETS)
+    work_order: str = Field("", max_length=64, description="work order the parts belong to")
+    lot: str = Field("", max_length=64, description="lot the parts belong to")
 
     @field_validator("serials")
     @classmethod
@@ -82,6 +84,7 @@ class Security:
     hosts: frozenset[str] = frozenset(allowed_hosts("127.0.0.1"))
     https: bool = False
     settings: Any = None  # station.settings.LoadedSettings: its key signs approvals
+    language: str | None = None  # the screen's language (station.yaml ui.language); None: browser's
 
 
 def error(

@@ -42,6 +42,8 @@ class ProductChoice:
     path: str
     serial_pattern: str
     serial_example: str = ""
+    # what the operator does with a part of each verdict (the product file's dispositions:)
+    dispositions: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,7 @@ class InstrumentLight:
     faulted: bool
     calibration_due: str = ""  # ISO date
     detail: str = ""
+    socket: int | None = None  # a socket's fixture: needed only when that socket is loaded
 
 
 @dataclass
@@ -95,9 +98,13 @@ class Runner(Protocol):
         """Start the run in the background and return its id at once.
 
         Events sent to `sink` (from any thread), each a dict with a "type":
-          {"type": "steps", "steps": [name, ...]}
-          {"type": "progress", "step": str, "step_index": int, "step_count": int,
-           "condition": str, "fraction": 0..1, "remaining_s": wall seconds | None}
+          {"type": "steps", "steps": [label, ...],
+           "items": [{"step": step type name, "condition": str}, ...] (optional)}
+          {"type": "progress", "step": label, "step_type": step type name (optional),
+           "step_index": int, "step_count": int, "condition": str, "fraction": 0..1,
+           "remaining_s": wall seconds | None, "sockets": {socket: state} (optional)}
+          {"type": "prompt", "message": plain-words instruction, "sockets": [int, ...]}
+          {"type": "prompt_done"}  (the prompt is answered: clear it)
           {"type": "samples", "socket": int, "t_s": [..], "rate_dps": [..], "temp_c": [..]}
           {"type": "instruments", "instruments": [InstrumentLight as a dict, ...]}
           {"type": "log", "level": str, "message": str}
@@ -129,7 +136,7 @@ def engine_available() -> bool:
 # ---------------------------------------------------------------- the real engine
 
 
-CONNECT_STEP = "connect instruments"
+CONNECT_STEP = "connect"  # the step type of the connecting phase (plain words: its catalog)
 
 
 def _label(name: str, condition: str) -> str:
@@ -249,6 +256,7 @@ class EngineRunner:
                     str(path),
                     prod.serial_pattern,
                     _example_serial(prod.serial_pattern),
+                    _dispositions(prod),
                 )
             )
         return choices
@@ -308,11 +316,13 @@ class EngineRunner:
             except UserError as exc:
                 addresses.append(
                     InstrumentAddress(f"fixture {sock}", "", cfg.fixture.calibration_due,
-                                      None, str(exc))
+                                      None, str(exc), socket=sock)
                 )
                 continue
             addresses.append(
-                InstrumentAddress(f"fixture {sock}", port, cfg.fixture.calibration_due, part)
+                InstrumentAddress(
+                    f"fixture {sock}", port, cfg.fixture.calibration_due, part, socket=sock
+                )
             )
         return probe(addresses)
 
@@ -376,15 +386,20 @@ class EngineRunner:
         from procedures.steps.plan import build_plan
 
         speed = self.endpoints.speed if self.endpoints is not None else 1.0
-        labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in build_plan(uut.procedure)]
+        plan = build_plan(uut.procedure)
+        labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in plan]
+        items = [{"step": CONNECT_STEP, "condition": ""}] + [
+            {"step": s.name, "condition": s.condition} for s in plan
+        ]
         state = {"index": 0}
-        sink({"type": "steps", "steps": list(labels)})
+        sink({"type": "steps", "steps": list(labels), "items": list(items)})
         # Connecting the instruments takes the engine a moment before its first step event:
         # the operator sees that phase at once instead of a silent screen.
         sink(
             {
                 "type": "progress",
                 "step": CONNECT_STEP,
+                "step_type": CONNECT_STEP,
                 "step_index": 0,
                 "step_count": len(labels),
                 "condition": "",
@@ -401,8 +416,15 @@ class EngineRunner:
                     state["index"] = labels.index(label, max(state["index"], 0))
                 except ValueError:
                     labels.insert(state["index"] + 1, label)
+                    items.insert(state["index"] + 1, {"step": ev.step, "condition": ev.condition})
                     state["index"] += 1
-                    sink({"type": "steps", "steps": list(labels)})
+                    sink({"type": "steps", "steps": list(labels), "items": list(items)})
+            elif ev.kind == "prompt":
+                sink({"type": "prompt", "message": ev.message, "sockets": sorted(ev.sockets)})
+                return
+            elif ev.kind == "prompt_done":
+                sink({"type": "prompt_done"})
+                return
             elif ev.kind not in ("progress", "part"):
                 if ev.kind == "log" and ev.message:
                     sink({"type": "log", "level": "INFO", "message": ev.message})
@@ -411,6 +433,7 @@ class EngineRunner:
                 {
                     "type": "progress",
                     "step": _label(ev.step, ev.condition) or "starting",
+                    "step_type": ev.step,
                     "step_index": state["index"],
                     "step_count": len(labels),
                     "condition": ev.condition,
@@ -506,6 +529,14 @@ class EngineRunner:
                         "temp_c": win["temp_c"][::step].tolist(),
                     }
                 )
+
+
+def _dispositions(product: Any) -> dict[str, str]:
+    """The product file's dispositions by verdict ({} when it has none)."""
+    found = getattr(product, "dispositions", None)
+    if found is None:
+        return {}
+    return {verdict: text for verdict, text in found.model_dump().items() if text}
 
 
 def _example_serial(pattern: str) -> str:

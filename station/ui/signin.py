@@ -44,6 +44,7 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
             "operators_open": sec.operators.open,
             "operator_required": sec.require_operator,
             "quality": session.quality,
+            "engineer_login": bool(sec.engineer_password_hash),
         }
 
     def with_cookie(response: Response, session: Session) -> Response:

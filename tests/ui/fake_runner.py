@@ -2,7 +2,9 @@
 
 It walks through named steps on a timer, streams samples, writes a real record.json (the
 pinned format) and a small PDF per part, fails parts whose serial contains "BAD", and honours
-abort by ending ABORTED after its cleanup. The real engine is exercised by test_station_sim.py.
+abort by ending ABORTED after its cleanup. With `prompt` set it asks the operator (a
+kind="prompt" event) at the manual step and clears it (prompt_done) when `answer()` is called.
+The real engine is exercised by test_station_sim.py.
 """
 
 from __future__ import annotations
@@ -32,7 +34,21 @@ from station.ui.runner_adapter import (
     StationInfo,
 )
 
-STEPS = ["connect", "power", "stabilise", "rate table", "stop method", "fit", "verify"]
+# (step type name, condition), as the engine names them
+STEPS = [
+    ("connect", ""),
+    ("power_identify", ""),
+    ("thermal", "T45_V5.25"),
+    ("rate_table", "T45_V5.25"),
+    ("manual_stop", "T45_V5.25"),
+    ("fit", ""),
+    ("verify", ""),
+]
+DISPOSITIONS = {
+    "PASS": "Place in tray A",
+    "FAIL": "Red bin: do not ship",
+    "ERROR": "Retest once, then call the engineer",
+}
 PDF = (
     b"%PDF-1.4\n1 0 obj<</Type/Catalog/Pages 2 0 R>>endobj\n"
     b"2 0 obj<</Type/Pages/Kids[]/Count 0>>endobj\ntrailer<</Root 1 0 R>>\n%%EOF\n"
@@ -47,6 +63,8 @@ class FakeRunner:
         self.out_dir = out_dir
         self.step_s = step_s
         self.started: list[StartRequest] = []
+        self.prompt: tuple[str, list[int]] | None = None  # asked at the manual_stop step
+        self._answered = threading.Event()
         self.safe_state_calls = 0
         self._abort = threading.Event()
         self._thread: threading.Thread | None = None
@@ -61,7 +79,13 @@ class FakeRunner:
 
     def products(self) -> list[ProductChoice]:
         return [
-            ProductChoice("GYR-130", "/cfg/gyr130.yaml", r"^[A-Z]{2,4}-[0-9]{4,8}$", "SIM-0001"),
+            ProductChoice(
+                "GYR-130",
+                "/cfg/gyr130.yaml",
+                r"^[A-Z]{2,4}-[0-9]{4,8}$",
+                "SIM-0001",
+                dict(DISPOSITIONS),
+            ),
             ProductChoice("GYR-200", "/cfg/gyr200.yaml", r"^G2-[0-9]{6}$", "G2-000001"),
         ]
 
@@ -90,15 +114,21 @@ class FakeRunner:
         if self._thread is not None:
             self._thread.join(5)
 
+    def answer(self) -> None:
+        """The operator did what the prompt asked."""
+        self._answered.set()
+
     def wait(self, timeout_s: float = 10.0) -> None:
         if self._thread is not None:
             self._thread.join(timeout_s)
 
     def _run(self, request: StartRequest, sink: EventSink) -> None:
-        sink({"type": "steps", "steps": STEPS})
+        labels = [f"{step} {cond}".strip() for step, cond in STEPS]
+        items = [{"step": step, "condition": cond} for step, cond in STEPS]
+        sink({"type": "steps", "steps": labels, "items": items})
         aborted = False
-        t = 0.0
-        for i, step in enumerate(STEPS):
+        t = 1000.0  # the bench's clock: the screen counts from the run's start
+        for i, (step, condition) in enumerate(STEPS):
             if self._abort.is_set():
                 aborted = True
                 break
@@ -106,12 +136,14 @@ class FakeRunner:
             sink(
                 {
                     "type": "progress",
-                    "step": step,
+                    "step": labels[i],
+                    "step_type": step,
                     "step_index": i,
                     "step_count": len(STEPS),
-                    "condition": "T25_V5.00" if i >= 2 else "",
+                    "condition": condition,
                     "fraction": i / len(STEPS),
                     "remaining_s": remaining,
+                    "sockets": {str(k): "RUNNING" for k in request.serials},
                 }
             )
             for socket in request.serials:
@@ -126,6 +158,12 @@ class FakeRunner:
                     }
                 )
             t += 1.0
+            if step == "manual_stop" and self.prompt is not None:
+                message, sockets = self.prompt
+                sink({"type": "prompt", "message": message, "sockets": sockets})
+                while not self._answered.wait(0.05) and not self._abort.is_set():
+                    pass
+                sink({"type": "prompt_done"})
             self._abort.wait(self.step_s)
         self.safe_state_calls += 1
         results = [
@@ -135,7 +173,7 @@ class FakeRunner:
             {
                 "type": "finished",
                 "results": results,
-                "safe_state": {"rate_table": True, "chamber": True, "supply": True},
+                "safe_state": {"all": True, "rate_table": True, "chamber": True, "supply": True},
             }
         )
 

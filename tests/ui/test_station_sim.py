@@ -62,7 +62,7 @@ def test_pass_and_fail_parts_with_progress_and_certificates(
     expect(page.locator("#progress")).to_be_visible()
     # Progress advances: steps completed, bar moving, time remaining shown.
     expect(page.locator("#step-list li.done")).not_to_have_count(0, timeout=RUN_TIMEOUT_MS)
-    expect(page.locator("#remaining")).to_contain_text("s left")
+    expect(page.locator("#remaining")).to_contain_text(re.compile(r"\d+ (s|min) left"))
     expect(page.locator("#socket-2 .socket-state")).to_have_text("RUNNING")
     fraction = page.evaluate("parseFloat(document.getElementById('bar-fill').style.width)")
     assert fraction > 0
@@ -76,10 +76,17 @@ def test_pass_and_fail_parts_with_progress_and_certificates(
     verdict, reasons = _verdict(page, 2)
     assert verdict == "FAIL", reasons
     expect(fail_box).to_have_class(re.compile(r"\bFAIL\b"))
-    expect(fail_box.locator(".reasons")).to_contain_text("raw_bias_dps")
+    # in plain words on the socket, with the disposition from the product file
     expect(fail_box.locator(".reasons")).to_contain_text(
-        re.compile(r"14\.\d+ deg/s \(limits -10 .. 10\)")
+        re.compile(r"Bias too high: 14\.\d deg/s, limit \+/-10 deg/s")
     )
+    expect(fail_box.locator(".disposition")).to_have_text("Red bin: do not ship")
+    # the engineering names in the socket's detail view
+    page.click("#socket-2 .socket-head")
+    expect(page.locator("#detail-failed")).to_contain_text(
+        re.compile(r"raw_bias_dps @ \S+: 14\.\d+ deg/s \(limits -10 .. 10\)")
+    )
+    page.click("#detail-close")
     # Certificates one touch away, and they are real PDFs of those parts.
     for socket, serial in ((1, PASS_SERIAL), (2, FAIL_SERIAL)):
         link = page.locator(f"#socket-{socket} a.certificate")
@@ -107,7 +114,9 @@ def test_abort_mid_run_reload_and_second_start(sim_station: SimStation, page: Pa
     page.goto(sim_station.url)
     _scan(page, 1, "SIM-0002")
     page.click("#start-btn")
-    expect(page.locator("#step-name")).to_contain_text("thermal", timeout=RUN_TIMEOUT_MS)
+    expect(page.locator("#step-name")).to_contain_text(
+        re.compile(r"(Heating to|Cooling to|Settling at) -?\d+ C"), timeout=RUN_TIMEOUT_MS
+    )
     # A second Start while running is refused with a message.
     with sim_station.client() as client:
         r = client.post("/api/start", json={"serials": {"2": "SIM-0003"}})

@@ -129,7 +129,7 @@ def test_abort_ends_aborted_after_cleanup(fake_station: FakeStation) -> None:
     _wait_idle(fake_station)
     last = httpx.get(url + "/api/state").json()["last"]
     assert last["results"][0]["verdict"] == "ABORTED"
-    assert last["safe_state"] == {"rate_table": True, "chamber": True, "supply": True}
+    assert last["safe_state"] == {"all": True, "rate_table": True, "chamber": True, "supply": True}
     assert fake_station.runner.safe_state_calls == 1
 
 

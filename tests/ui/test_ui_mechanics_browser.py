@@ -53,8 +53,13 @@ def test_failing_part_shows_fail_and_the_measurement(fake_station: FakeStation, 
     page.click("#start-btn")
     box = page.locator("#socket-2 .verdict-box")
     expect(box.locator(".verdict")).to_have_text("FAIL")
-    expect(box.locator(".reasons")).to_contain_text("raw_bias_dps")
-    expect(box.locator(".reasons")).to_contain_text("14.2")
+    # plain words for the operator, with what to do with the part
+    expect(box.locator(".reasons")).to_have_text("Bias too high: 14.2 deg/s, limit +/-10 deg/s")
+    expect(box.locator(".disposition")).to_have_text("Red bin: do not ship")
+    # the engineering names in the detail view (a tap on the socket)
+    page.click("#socket-2 .socket-head")
+    expect(page.locator("#detail-dialog")).to_be_visible()
+    expect(page.locator("#detail-failed")).to_contain_text("raw_bias_dps: 14.2 deg/s")
 
 
 def test_bad_serial_refused_on_the_page(fake_station: FakeStation, page: Page) -> None:

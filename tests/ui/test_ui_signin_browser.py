@@ -78,11 +78,13 @@ def test_badge_sign_in_then_start_records_the_operator(signed: Signed, page: Pag
     page.click("#start-btn")
     expect(page.locator("#socket-1 .verdict")).to_have_text("PASS")
     assert signed.runner.started[-1].operator == "Ana Silva"
-    # Sign out: Start is refused with the reason on the page.
+    # Sign out: START is disabled with the reason on the page, and the server refuses too.
     page.click("#signin-btn")
     expect(page.locator("#operator-name")).to_have_text("not signed in")
     _scan(page, 1, "SIM-0002")
-    page.click("#start-btn")
+    expect(page.locator("#start-btn")).to_be_disabled()
+    expect(page.locator("#start-reason")).to_contain_text("No operator signed in")
+    page.evaluate("start()")  # as a page that ignored the disabled button would
     expect(page.locator("#message")).to_contain_text("no operator signed in")
     assert len(signed.runner.started) == 1
 

@@ -1,20 +1,21 @@
-// Tiny two-axis line chart on a canvas: rate (left axis) and part temperature (right axis).
+// Tiny two-axis line chart on a canvas: rate (left axis) and part temperature (right axis);
+// time (x) is counted from the run's start (the station sends it so) and shown as min:s.
 "use strict";
 function drawChart(canvas, data) {
   const dpr = window.devicePixelRatio || 1;
   const w = canvas.clientWidth || canvas.width, h = canvas.clientHeight || canvas.height;
-  if (canvas.width !== Math.round(w * dpr)) { canvas.width = Math.round(w * dpr); canvas.height = Math.round(h * dpr); }
+  if (canvas.width !== Math.round(w * dpr) || canvas.height !== Math.round(h * dpr)) { canvas.width = Math.round(w * dpr); canvas.height = Math.round(h * dpr); }
   const g = canvas.getContext("2d");
   g.setTransform(dpr, 0, 0, dpr, 0, 0);
   g.clearRect(0, 0, w, h);
   const t = (data && data.t_s) || [];
-  const pad = { l: 52, r: 46, t: 8, b: 20 };
-  g.font = "11px system-ui,sans-serif";
+  const pad = { l: 64, r: 56, t: 10, b: 26 };
+  g.font = "16px system-ui,sans-serif";
   g.strokeStyle = "#d1d5db";
   g.strokeRect(pad.l, pad.t, w - pad.l - pad.r, h - pad.t - pad.b);
   if (t.length < 2) {
     g.fillStyle = "#6b7280";
-    g.fillText("waiting for samples", pad.l + 8, pad.t + 18);
+    g.fillText(typeof window.t === "function" ? window.t("chart.waiting") : "waiting for samples", pad.l + 8, pad.t + 22);
     return;
   }
   const t0 = t[0], t1 = t[t.length - 1] > t0 ? t[t.length - 1] : t0 + 1;
@@ -40,11 +41,12 @@ function drawChart(canvas, data) {
     g.stroke();
     g.fillStyle = s.color;
     const tx = s.side === "l" ? 2 : w - pad.r + 4;
-    g.fillText(fmt(hi - m), tx, pad.t + 10);
+    g.fillText(fmt(hi - m), tx, pad.t + 14);
     g.fillText(fmt(lo + m), tx, h - pad.b);
   }
   g.fillStyle = "#6b7280";
-  g.fillText(fmt(t0) + " s", pad.l, h - 5);
-  g.fillText(fmt(t1) + " s", w - pad.r - 40, h - 5);
+  g.fillText(clock(t0), pad.l, h - 6);
+  g.fillText(clock(t1), w - pad.r - 48, h - 6);
 }
 function fmt(v) { const a = Math.abs(v); return a >= 1000 ? v.toFixed(0) : a >= 10 ? v.toFixed(1) : v.toFixed(2); }
+function clock(s) { const v = Math.max(0, Math.round(s)); return Math.floor(v / 60) + ":" + String(v % 60).padStart(2, "0"); }
