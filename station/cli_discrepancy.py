@@ -245,8 +245,9 @@ def _check_simulate_args(args: argparse.Namespace, inp: _Input) -> None:
             f"{args.data}: --simulate needs a station run folder (the procedure it ran is "
             "simulated); a CSV names no procedure"
         )
-    if procedure is not None and not procedure.is_file():
-        raise UserError(f"--procedure {procedure}: no such file; give the procedure YAML")
+    from station.discrepancy_simulate import record_procedure
+
+    record_procedure(inp.run_folder, procedure)  # found before the data are analysed
     if speed is not None:
         from drivers.sim.config import speed_problem
 
