@@ -244,11 +244,12 @@ def run_folder_timing(folder: Path, simulate: bool, speed: float) -> None:
     from procedures.model.run_folder import load_data
 
     traj = load_data(folder)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = run_discrepancy(traj, first_order_model())
     print(f"workflow time, run folder {folder.name} ({traj.n} samples, "
-          f"{traj.time_s[-1] - traj.time_s[0]:.0f} s of station time): "
-          f"{time.perf_counter() - t0:.2f} s, named {res.effects_added}, gap "
+          f"{traj.time_s[-1] - traj.time_s[0]:.0f} s of station time, {res.blocks.count} "
+          f"blocks): {time.perf_counter() - t0:.2f} s wall, "
+          f"{time.process_time() - c0:.2f} s CPU, named {res.effects_added}, gap "
           f"{res.gap_final_dps / res.noise_floor_dps:.2f} x floor at the end", flush=True)
     if not simulate:
         return
