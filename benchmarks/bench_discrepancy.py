@@ -291,7 +291,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             folder = station_run_folder(Path(tmp), args.sim_speed)
             run_folder_timing(folder, args.simulate, args.sim_speed)
-    elif args.run_folder and not args.skip_timing:
+    elif args.run_folder:
         run_folder_timing(args.run_folder, args.simulate, args.sim_speed)
     if args.timing_only:
         return
