@@ -74,6 +74,19 @@ def supply_current_a(run_folder: Path) -> float | None:
     return sum(currents) / len(currents) if currents else None
 
 
+def _check_entry(entry: dict[str, Any], model_name: str) -> None:
+    """UserError before any bench starts if the bench cannot hold the model as a part."""
+    from drivers.sim.config import SimConfigError, parse_sim_config
+
+    try:
+        parse_sim_config({"parts": [entry]}, source=f"twin of model {model_name}")
+    except SimConfigError as exc:
+        raise UserError(
+            f"the model {model_name} cannot be a simulated part ({exc}); --simulate needs "
+            "values the bench accepts"
+        ) from exc
+
+
 def run_twin(
     entry: dict[str, Any], procedure: Path, out: Path, speed: float
 ) -> tuple[Path, str]:
@@ -122,6 +135,7 @@ def simulate(
         entry = part_entry(models[label], serial,
                            measured_arw_deg_per_sqrt_h=result.noise.arw_deg_per_sqrt_h,
                            supply_current_a=current)
+        _check_entry(entry, models[label].name)
         config = out / f"twin_{label}.yaml"
         config.write_text(yaml.safe_dump({"parts": [entry]}, sort_keys=False), encoding="utf-8")
         runs = out / f"twin_{label}_runs"

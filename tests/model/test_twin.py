@@ -143,3 +143,12 @@ def test_window_floor_of_white_noise_matches_its_formula() -> None:
     var = n_white**2 / t * (1 - 2 * w) + np.sum(w**2 * n_white**2 / t)
     expected = math.sqrt(float(np.sum(t * var) / t.sum()))
     assert window_floor_dps(_white(n_white), centre, t) == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_model_the_bench_cannot_hold_is_refused_before_any_bench_starts() -> None:
+    from station.discrepancy_simulate import _check_entry
+    from station.errors import UserError
+
+    entry = part_entry(GyroModel(name="odd", bias_dps=0.0, scale=3.0), "SIM-9")
+    with pytest.raises(UserError, match="cannot be a simulated part.*scale"):
+        _check_entry(entry, "odd")
