@@ -9,6 +9,7 @@ chi^2 = 25). And the time the workflow takes on a full-length run.
     python3 benchmarks/bench_discrepancy.py [--trials 20] [--effects k2_quadratic,...]
                                             [--timing-only] [--run-folder DIR]
                                             [--library-kinds KIND,...] [--null-trials N]
+                                            [--station-run] [--simulate] [--sim-speed X]
 
 Library term kinds (effects outside the catalog, synth_gyro.BEYOND_CATALOG, RAMPED profile:
 SHORT with a 0.2 C/s chamber ramp, `first_order` on a realistic part): "named" is a library
@@ -16,6 +17,11 @@ term named first with the kind's base variables; its 5-sigma magnitude comes fro
 generator's own signature (the same seed with and without the effect). `--null-trials`: the
 false-alarm rate with the library on (anything named or not separable on a part with no
 hidden effect, RAMPED profile).
+
+Time per run on a full run folder: `--run-folder DIR`, or `--station-run` (a full run of the
+default procedure made on the simulated bench first); with `--simulate`, also the time of
+`station discrepancy --simulate` (two twin station runs and the comparison) and its two
+simulation gaps against their noise floor.
 
 Data: the independent test-side generator (tests/model/synth_gyro.py), short records
 (SHORT profile: 4 rates, 2 temperatures x 2 supplies, 50 Hz) for the detection figures and
@@ -28,6 +34,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -212,6 +219,53 @@ def null_rate(trials: int) -> None:
           f"{len(alarms)} of {trials} ({100 * len(alarms) / trials:.1f} %) {alarms}")
 
 
+DEFAULT_PROCEDURE = ROOT / "config" / "procedures" / "eol-rate-table.yaml"
+HIDDEN_ANGLE_2ND = {"lib_angleh2": {"amplitude_dps": 0.03, "phase_deg": 30.0}}
+
+
+def station_run_folder(workdir: Path, speed: float) -> Path:
+    """One full station run of the default procedure on the simulated bench: a population
+    part with a bias at twice the table angle (a generic term the bench carries)."""
+    from station.uut import run_simulated
+
+    part = {"socket": 1, "serial": "SIM-6201", "effects": HIDDEN_ANGLE_2ND}
+    t0 = time.perf_counter()
+    result, _ = run_simulated([part], procedure_path=DEFAULT_PROCEDURE, out=workdir / "runs",
+                              speed=speed)
+    print(f"station run ({DEFAULT_PROCEDURE.name}, bench speed {speed:g}): "
+          f"{result.station_time_s:.0f} s of station time in {time.perf_counter() - t0:.0f} s "
+          f"wall, {result.verdicts[1]}")
+    return result.folders[1]
+
+
+def run_folder_timing(folder: Path, simulate: bool, speed: float) -> None:
+    """The workflow's time on a run folder (from first_order); with `simulate`, also the
+    time of --simulate (two twin station runs on the bench and the comparison)."""
+    from procedures.model.run_folder import load_data
+
+    traj = load_data(folder)
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = run_discrepancy(traj, first_order_model())
+    print(f"workflow time, run folder {folder.name} ({traj.n} samples, "
+          f"{traj.time_s[-1] - traj.time_s[0]:.0f} s of station time, {res.blocks.count} "
+          f"blocks): {time.perf_counter() - t0:.2f} s wall, "
+          f"{time.process_time() - c0:.2f} s CPU, named {res.effects_added}, gap "
+          f"{res.gap_final_dps / res.noise_floor_dps:.2f} x floor at the end", flush=True)
+    if not simulate:
+        return
+    from station.discrepancy_simulate import simulate as run_twins
+
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        cmp, _ = run_twins(folder, traj, res, Path(out), speed=speed)
+        f = cmp.noise_floor_dps
+        print(f"--simulate (two twin station runs at bench speed {speed:g} and the "
+              f"comparison): {time.perf_counter() - t0:.0f} s; simulation gap "
+              f"{cmp.gap_before_dps:.4g} deg/s before ({cmp.gap_before_dps / f:.2f} x floor), "
+              f"{cmp.gap_after_dps:.4g} deg/s after ({cmp.gap_after_dps / f:.2f} x), "
+              f"{len(cmp.keys)} of {cmp.windows_measured} windows compared")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=20)
@@ -222,17 +276,23 @@ def main() -> None:
     ap.add_argument("--library-kinds", default="",
                     help=f"comma-separated, or 'all': {','.join(BEYOND_CATALOG)}")
     ap.add_argument("--null-trials", type=int, default=0)
+    ap.add_argument("--station-run", action="store_true",
+                    help="make a full run folder on the simulated bench (default procedure, "
+                    "a population part with a bias at twice the table angle) and time the "
+                    "workflow on it")
+    ap.add_argument("--simulate", action="store_true",
+                    help="with --run-folder or --station-run: also time --simulate (two twin "
+                    "station runs and the comparison) and print both simulation gaps")
+    ap.add_argument("--sim-speed", type=float, default=100.0, help="bench speed factor")
     args = ap.parse_args()
     if not args.skip_timing:
         timing(Profile())
-    if args.run_folder and not args.skip_timing:
-        from procedures.model.run_folder import load_data
-
-        traj = load_data(args.run_folder)
-        t0 = time.perf_counter()
-        res = run_discrepancy(traj, first_order_model())
-        print(f"workflow time, run folder {args.run_folder} ({traj.n} samples): "
-              f"{time.perf_counter() - t0:.2f} s, named {res.effects_added}")
+    if args.station_run:
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = station_run_folder(Path(tmp), args.sim_speed)
+            run_folder_timing(folder, args.simulate, args.sim_speed)
+    elif args.run_folder:
+        run_folder_timing(args.run_folder, args.simulate, args.sim_speed)
     if args.timing_only:
         return
     if args.null_trials:

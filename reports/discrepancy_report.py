@@ -16,6 +16,7 @@ from reportlab.platypus import Paragraph, SimpleDocTemplate, Spacer, Table, Tabl
 
 from procedures.model.discrepancy import DiscrepancyResult, Iteration
 from procedures.model.residuals import BinSummary
+from procedures.model.twin import SimulationComparison
 from reports.charts import PALETTE, Chart, nice_ticks
 from reports.styles import BODY, CELL, HEADER_GREY, NOTE
 
@@ -176,7 +177,46 @@ def _iteration_story(res: DiscrepancyResult, k: int, it: Iteration) -> list[Any]
     return story
 
 
-def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
+def _simulation_chart(sim: SimulationComparison, residual: np.ndarray, title: str,
+                      y_range: tuple[float, float]) -> Any:
+    ch = Chart(WIDTH / 2 - 2 * mm, 170, title=title, x_label="time of the window (s)",
+               y_label="measured - simulated (deg/s)", y_range=y_range)
+    f = sim.noise_floor_dps
+    ch.band_y(-f, f, label="+/- noise floor")
+    ch.scatter(sim.center_s, residual, color=PALETTE[0], size=1.8, label="window")
+    return ch.drawing()
+
+
+def simulation_story(sim: SimulationComparison) -> list[Any]:
+    """The comparison measurement-vs-simulation: gaps, and the residuals side by side."""
+    f = sim.noise_floor_dps
+    story: list[Any] = [
+        Paragraph("The twin learns the part: measurement against simulation", H2),
+        Paragraph(
+            f"The run's procedure was run on the simulated bench with the starting model and "
+            f"with the extended model as the part. Simulation gap (duration-weighted RMS over "
+            f"{len(sim.keys)} windows of measured minus simulated window mean): "
+            f"<b>{sim.gap_before_dps:.4g} deg/s</b> with the starting model "
+            f"({sim.gap_before_dps / f:.2f} x the noise floor), <b>{sim.gap_after_dps:.4g} "
+            f"deg/s</b> with the extended model ({sim.gap_after_dps / f:.2f} x); noise floor "
+            f"over the same windows {f:.4g} deg/s.", BODY),
+    ]
+    for note in sim.notes:
+        story.append(Paragraph(f"Note: {escape(note)}", NOTE))
+    both = np.concatenate([sim.residual_before_dps, sim.residual_after_dps, [-f, f]])
+    lo, hi = float(np.min(both)), float(np.max(both))
+    pad = 0.05 * (hi - lo) or f
+    y_range = (lo - pad, hi + pad)  # one scale for both: the shrinking is seen at a glance
+    row = [_simulation_chart(sim, sim.residual_before_dps, "Starting model as the twin",
+                             y_range),
+           _simulation_chart(sim, sim.residual_after_dps, "Extended model as the twin",
+                             y_range)]
+    story.append(Table([row], colWidths=[WIDTH / 2, WIDTH / 2]))
+    return story
+
+
+def build_story(res: DiscrepancyResult, title_data: str = "",
+                simulation: SimulationComparison | None = None) -> list[Any]:
     n = res.noise
     story: list[Any] = [
         Paragraph("Model-discrepancy report", H1),
@@ -218,6 +258,8 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
     story.append(_residual_chart(res, res.blocks.center_s, "time (s)",
                                  "Residuals over the record: starting model vs final model",
                                  res.residual_initial_dps, res.residual_final_dps))
+    if simulation is not None:
+        story += simulation_story(simulation)
     for k, it in enumerate(res.iterations, start=1):
         story += _iteration_story(res, k, it)
     if not res.iterations:
@@ -229,10 +271,11 @@ def build_story(res: DiscrepancyResult, title_data: str = "") -> list[Any]:
     return story
 
 
-def write_report(res: DiscrepancyResult, path: Path, title_data: str = "") -> Path:
+def write_report(res: DiscrepancyResult, path: Path, title_data: str = "",
+                 simulation: SimulationComparison | None = None) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     doc = SimpleDocTemplate(str(path), pagesize=A4, leftMargin=15 * mm, rightMargin=15 * mm,
                             topMargin=15 * mm, bottomMargin=15 * mm,
                             title="Model-discrepancy report", author="gyrocal station")
-    doc.build(build_story(res, title_data))
+    doc.build(build_story(res, title_data, simulation))
     return path

@@ -22,6 +22,8 @@ from station.errors import UserError
 
 if TYPE_CHECKING:
     from procedures.model.discrepancy import DiscrepancyResult
+    from procedures.model.trajectory import Trajectory
+    from procedures.model.twin import SimulationComparison
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +86,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         help="family-wise false-alarm rate per iteration (default 0.01)",
+    )
+    p.add_argument(
+        "--simulate",
+        action="store_true",
+        help="(a run folder only) run the run's procedure on the simulated bench with the "
+        "starting model and with the extended model as the part, and report the simulation "
+        "gap of each against the measurement (JSON simulation_gap_before_dps, "
+        "simulation_gap_after_dps)",
+    )
+    p.add_argument(
+        "--procedure",
+        type=Path,
+        metavar="PATH",
+        help="with --simulate: the procedure to simulate (default: the one the record names)",
+    )
+    p.add_argument(
+        "--sim-speed",
+        type=float,
+        default=None,
+        metavar="X",
+        help="with --simulate: simulated bench speed, station seconds per wall second "
+        "(default 100)",
     )
     p.set_defaults(handler=handler)
 
@@ -189,6 +213,7 @@ def handler(args: argparse.Namespace) -> int:
     if not 0 < alpha < 0.5:
         raise UserError(f"--alpha {alpha} is out of range; give a rate between 0 and 0.5")
     inp = _resolve_input(args.data, args.dut)
+    _check_simulate_args(args, inp)
     json_stdout = args.json is not None and str(args.json) == STDOUT
     if args.export_csv is not None and str(args.export_csv) == STDOUT:
         raise UserError("--export-csv needs a file path (not '-')")
@@ -205,6 +230,30 @@ def handler(args: argparse.Namespace) -> int:
         if not written:
             _remove_empty(created)
     return 0
+
+
+def _check_simulate_args(args: argparse.Namespace, inp: _Input) -> None:
+    simulate = getattr(args, "simulate", False)
+    procedure = getattr(args, "procedure", None)
+    speed = getattr(args, "sim_speed", None)
+    if not simulate:
+        if procedure is not None or speed is not None:
+            raise UserError("--procedure and --sim-speed go with --simulate; add --simulate")
+        return
+    if inp.run_folder is None:
+        raise UserError(
+            f"{args.data}: --simulate needs a station run folder (the procedure it ran is "
+            "simulated); a CSV names no procedure"
+        )
+    from station.discrepancy_simulate import record_procedure
+
+    record_procedure(inp.run_folder, procedure)  # found before the data are analysed
+    if speed is not None:
+        from drivers.sim.config import speed_problem
+
+        problem = speed_problem(speed)
+        if problem:
+            raise UserError(problem.replace("--speed", "--sim-speed"))
 
 
 def _run(
@@ -249,6 +298,11 @@ def _run(
     )
     if args.export_csv is not None:
         payload["exported_csv"] = str(args.export_csv)
+    simulation = None
+    if getattr(args, "simulate", False) and inp.run_folder is not None:
+        simulation, detail = _simulate(args, inp.run_folder, traj, result, out, console)
+        payload.update(simulation.to_json())
+        payload.update(detail)
     try:
         model_path = save_model(result.final_model, out / "model.yaml")
     except OSError as exc:
@@ -259,7 +313,8 @@ def _run(
     try:
         from reports.discrepancy_report import write_report
 
-        write_report(result, report_path, title_data=data_line(source, traj.serial))
+        write_report(result, report_path, title_data=data_line(source, traj.serial),
+                     simulation=simulation)
         payload["report_path"] = str(report_path)
     except OSError as exc:  # disk full, no permission: the JSON is still written
         payload["report_error"] = str(exc)
@@ -276,10 +331,33 @@ def _run(
             json_path.write_text(text, encoding="utf-8")
         except OSError as exc:
             raise UserError(f"cannot write the JSON to {json_path} ({exc})") from None
-    _print_summary(result, out, json_path, model_path, payload.get("report_path"), console)
+    _print_summary(result, out, json_path, model_path, payload.get("report_path"), console,
+                   simulation)
     if report_failure:
         raise UserError(f"{report_failure}; the JSON and model were written")
     return True
+
+
+def _simulate(
+    args: argparse.Namespace,
+    run_folder: Path,
+    traj: Trajectory,
+    result: DiscrepancyResult,
+    out: Path,
+    console: Any,
+) -> tuple[SimulationComparison, dict[str, Any]]:
+    """Both twins run on the bench and compared with the measurement (JSON keys added)."""
+    from station.discrepancy_simulate import DEFAULT_SPEED, simulate
+
+    return simulate(
+        run_folder,
+        traj,
+        result,
+        out,
+        procedure=args.procedure,
+        speed=DEFAULT_SPEED if args.sim_speed is None else args.sim_speed,
+        say=lambda line: print(line, file=console),
+    )
 
 
 def data_line(source: Path, serial: str) -> str:
@@ -294,6 +372,7 @@ def _print_summary(
     model_path: Path,
     report: str | None,
     console: Any,
+    simulation: SimulationComparison | None = None,
 ) -> None:
     def say(line: str) -> None:
         print(line, file=console)
@@ -323,6 +402,17 @@ def _print_summary(
     say(f"gap {result.gap_final_dps:.4g} deg/s at end ({ratio:.2f} x floor)")
     if result.unexplained_remains:
         say(f"WARNING: {result.unexplained_message}")
+    if simulation is not None:
+        for note in simulation.notes:
+            say(f"note: {note}")
+        f = simulation.noise_floor_dps
+        say(
+            f"simulation gap {simulation.gap_before_dps:.4g} deg/s with the starting model as "
+            f"the twin ({simulation.gap_before_dps / f:.2f} x floor), "
+            f"{simulation.gap_after_dps:.4g} deg/s with the extended model "
+            f"({simulation.gap_after_dps / f:.2f} x floor); noise floor {f:.4g} deg/s over "
+            f"{len(simulation.keys)} windows"
+        )
     say(f"out: {out}")
     say(f"json: {json_path if json_path is not None else 'stdout'}")
     say(f"model: {model_path}")

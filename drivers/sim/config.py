@@ -24,6 +24,8 @@ from drivers.bounded import (
     ShortName,
 )
 from drivers.rate_table_map import COUNTS_PER_REV
+from drivers.sim.generic_terms import MAX_TERMS as MAX_GENERIC_TERMS
+from drivers.sim.generic_terms import check_term, is_generic
 from drivers.yaml_input import ConfigError, format_validation_error, read_yaml
 
 # effect id -> parameter names it accepts (docs/interfaces.md's catalog)
@@ -83,16 +85,22 @@ class PartSpec(_Model):
     rrw_deg_per_h_per_sqrt_h: float | None = Field(default=None, ge=0.0, le=1e6)
     supply_current_a: float | None = Field(default=None, gt=0.0, le=0.5)
     effects: dict[str, dict[str, Annotated[float, Field(ge=-1e6, le=1e6)]]] = Field(
-        default_factory=dict, max_length=len(EFFECT_PARAMS)
+        default_factory=dict, max_length=len(EFFECT_PARAMS) + MAX_GENERIC_TERMS
     )
 
     @field_validator("effects")
     @classmethod
     def _known_effects(cls, effects: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
         for effect_id, params in effects.items():
+            if is_generic(effect_id):  # a generic term of an extended model (generic_terms.py)
+                check_term(effect_id, params)
+                continue
             if effect_id not in EFFECT_PARAMS:
                 known = ", ".join(sorted(EFFECT_PARAMS))
-                raise ValueError(f"unknown effect id {effect_id!r}; use one of: {known}")
+                raise ValueError(
+                    f"unknown effect id {effect_id!r}; use one of: {known}, or a generic "
+                    "term lib_... (drivers/sim/generic_terms.py)"
+                )
             unknown = set(params) - EFFECT_PARAMS[effect_id]
             if unknown:
                 allowed = ", ".join(sorted(EFFECT_PARAMS[effect_id]))

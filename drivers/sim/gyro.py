@@ -24,6 +24,7 @@ from scipy.signal import lfilter
 
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
+from drivers.sim.generic_terms import PartInputs, build_terms, total_dps
 from drivers.sim.population import PartParams, serial_seed
 
 FloatArray = NDArray[np.float64]
@@ -109,6 +110,7 @@ class PartModel:
         self._lag_tau = fx.get("sensor_lag", {}).get("tau_s")
         w = fx.get("warmup_drift")
         self._warmup = (w["amplitude_dps"], w["tau_s"]) if w else None
+        self._generic = build_terms(fx)  # generic terms of an extended model (lib_...)
 
     # ------------------------------------------------------------ electrical, thermal
 
@@ -198,6 +200,8 @@ class PartModel:
         if self._warmup is not None and self.power_on_s is not None:
             amp, tau = self._warmup
             y = y + amp * np.exp(-np.maximum(t_s - self.power_on_s, 0.0) / tau)
+        if self._generic:
+            y = y + self._generic_dps(t_s, w, angle_deg, die, d_v)
         if self._lag_tau is not None:
             y = self._lag(y, t_s, dt_s, self._lag_tau)
         return y + self._noise(len(t_s), dt_s), die
@@ -239,3 +243,19 @@ class PartModel:
             "compensation": self.compensation,
             "calibration": asdict(self.cal),
         }
+
+    def _generic_dps(
+        self, t_s: FloatArray, w: FloatArray, angle_deg: FloatArray, die: FloatArray, d_v: float
+    ) -> FloatArray:
+        """The part's generic terms (drivers/sim/generic_terms.py) at these samples."""
+        (t0, t1), (d0, d1) = self._hist_t, self._hist_die
+        since = t_s - self.power_on_s if self.power_on_s is not None else np.zeros_like(t_s)
+        inputs = PartInputs(
+            rate_dps=np.asarray(w, dtype=float) * np.ones_like(t_s),
+            angle_deg=np.asarray(angle_deg, dtype=float) * np.ones_like(t_s),
+            dtemp_c=die - T_REF_C,
+            temp_rate_c_per_s=(d1 - d0) / (t1 - t0) if t1 > t0 else 0.0,
+            dsupply_v=d_v,
+            since_power_on_s=since,
+        )
+        return total_dps(self._generic, inputs)

@@ -1,0 +1,267 @@
+"""The twin learns the part: a gyro model as a simulated part, and the simulation gap.
+
+`part_entry` turns a model (the starting model fitted to the run, or the extended one) into
+a config/sim `parts` entry: the bias, scale and first-order coefficients as the part's own
+keys, every other catalog effect and every library term under `effects` by its id, with the
+model's parameters (the bench carries library terms as generic terms, drivers/sim/
+generic_terms.py). The twin is quiet (its white noise 1 % of the measured one, no bias
+wander), so a comparison with it shows the model's error, not the twin's noise.
+
+`compare` is the comparison measurement-vs-simulation: the analysed windows of the measured
+run (static, plateau, stop_static) are matched to the twin run's windows of the same
+condition, kind and order; the **simulation gap** is the duration-weighted RMS over the
+matched windows of (measured window mean - simulated window mean), in deg/s,
+`sqrt(sum T_w d_w^2 / sum T_w)`; its noise floor is the same RMS of what the measured noise
+model alone leaves in a window mean about the record mean (NoiseModel.floor_per_block_dps
+with the windows as blocks). Pure functions: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from procedures.model.blocks import Blocks, block_mean
+from procedures.model.gyro_model import GyroModel
+from procedures.model.noise import NoiseModel
+from procedures.model.trajectory import FloatArray, Trajectory
+
+# model effect -> the sim part's own first-order key (drivers/sim/config.py PartSpec)
+FIRST_ORDER_KEYS = {
+    "bias_temperature": "bias_temp_coeff_dps_per_c",
+    "scale_temperature": "scale_temp_coeff_per_c",
+    "bias_supply": "bias_supply_coeff_dps_per_v",
+    "scale_supply": "scale_supply_coeff_per_v",
+}
+TWIN_NOISE_FRACTION = 0.01  # the twin's white noise, relative to the measured part's
+COMPARED_KINDS = ("static", "plateau", "stop_static")
+MAX_RATE_MISMATCH_DPS = 1.0  # matched windows must be at the same table rate
+MAX_ANGLE_MISMATCH_DEG = 5.0  # and, at rest, the same table angle
+MIN_WINDOW_SAMPLES = 3
+
+WindowKey = tuple[str, str, int]  # (condition, kind, ordinal within condition and kind)
+
+
+def part_entry(
+    model: GyroModel,
+    serial: str,
+    *,
+    socket: int = 1,
+    measured_arw_deg_per_sqrt_h: float = 0.0,
+    supply_current_a: float | None = None,
+) -> dict[str, Any]:
+    """A config/sim `parts` entry that behaves as `model` says (plain YAML-able values)."""
+    entry: dict[str, Any] = {
+        "socket": socket,
+        "serial": serial,
+        "bias_dps": float(model.bias_dps),
+        "scale": float(model.scale),
+        **{key: 0.0 for key in FIRST_ORDER_KEYS.values()},
+        "arw_deg_per_sqrt_h": TWIN_NOISE_FRACTION * max(measured_arw_deg_per_sqrt_h, 0.0),
+        "bias_instability_deg_per_h": 0.0,
+        "rrw_deg_per_h_per_sqrt_h": 0.0,
+    }
+    if supply_current_a is not None and 0 < supply_current_a <= 0.5:
+        entry["supply_current_a"] = float(supply_current_a)
+    effects: dict[str, dict[str, float]] = {}
+    for effect_id, params in model.effects.items():
+        if effect_id in FIRST_ORDER_KEYS:
+            entry[FIRST_ORDER_KEYS[effect_id]] = float(next(iter(params.values())))
+        else:
+            effects[effect_id] = {p: float(v) for p, v in params.items()}
+    entry["effects"] = effects
+    return entry
+
+
+@dataclass(frozen=True)
+class Windows:
+    """The analysed windows of one record: sample ranges, by key, in time order."""
+
+    keys: tuple[WindowKey, ...]
+    start: np.ndarray
+    stop: np.ndarray
+    mean_dps: FloatArray
+    rate_dps: FloatArray
+    angle_deg: FloatArray
+    duration_s: FloatArray
+    center_s: FloatArray
+
+
+def windows_of(traj: Trajectory) -> Windows:
+    """Every analysed window of a compared kind with enough samples, keyed by (condition,
+    kind, ordinal) so the same window of another run of the same procedure can be found."""
+    seen: dict[tuple[str, str], int] = defaultdict(int)
+    keys: list[WindowKey] = []
+    starts: list[int] = []
+    stops: list[int] = []
+    for seg in traj.segments:
+        if seg.kind not in COMPARED_KINDS:
+            continue
+        ordinal = seen[(seg.condition, seg.kind)]
+        seen[(seg.condition, seg.kind)] += 1
+        a = int(np.searchsorted(traj.time_s, seg.start_s, side="left"))
+        b = int(np.searchsorted(traj.time_s, seg.end_s, side="left"))
+        if b - a < MIN_WINDOW_SAMPLES:
+            continue
+        keys.append((seg.condition, seg.kind, ordinal))
+        starts.append(a)
+        stops.append(b)
+    start = np.asarray(starts, dtype=np.int64)
+    stop = np.asarray(stops, dtype=np.int64)
+    if not keys:
+        empty = np.zeros(0)
+        return Windows((), start, stop, empty, empty, empty, empty, empty)
+    step = float(np.median(np.diff(traj.time_s)))
+    t0 = traj.time_s[start]
+    t1 = traj.time_s[stop - 1] + step
+    ang = np.deg2rad(traj.ref_angle_deg)
+    angle = np.rad2deg(np.arctan2(block_mean(np.sin(ang), start, stop),
+                                  block_mean(np.cos(ang), start, stop))) % 360.0
+    return Windows(
+        keys=tuple(keys),
+        start=start,
+        stop=stop,
+        mean_dps=block_mean(traj.gyro_dps, start, stop),
+        rate_dps=block_mean(traj.ref_rate_dps, start, stop),
+        angle_deg=angle,
+        duration_s=t1 - t0,
+        center_s=0.5 * (t0 + t1),
+    )
+
+
+@dataclass(frozen=True)
+class TwinComparison:
+    """Measured window means against one twin's (the windows both runs have)."""
+
+    keys: tuple[WindowKey, ...]
+    residual_dps: FloatArray  # measured - simulated window mean
+    gap_dps: float
+
+
+@dataclass(frozen=True)
+class SimulationComparison:
+    """The comparison measurement-vs-simulation with the starting and the extended model."""
+
+    keys: tuple[WindowKey, ...]  # windows compared with both twins (measured order)
+    center_s: FloatArray  # measured window centres (station time of the measured run)
+    duration_s: FloatArray
+    rate_dps: FloatArray
+    residual_before_dps: FloatArray  # measured - starting-model twin, per window
+    residual_after_dps: FloatArray  # measured - extended-model twin
+    gap_before_dps: float
+    gap_after_dps: float
+    noise_floor_dps: float  # over the same windows, from the measured noise model
+    windows_measured: int
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "simulation_gap_before_dps": self.gap_before_dps,
+            "simulation_gap_after_dps": self.gap_after_dps,
+            "simulation_noise_floor_dps": self.noise_floor_dps,
+            "simulation_windows_compared": len(self.keys),
+            "simulation_windows_measured": self.windows_measured,
+            "simulation_notes": list(self.notes),
+            "simulation_windows": [
+                {
+                    "condition": k[0],
+                    "kind": k[1],
+                    "ordinal": k[2],
+                    "duration_s": float(d),
+                    "residual_before_dps": float(rb),
+                    "residual_after_dps": float(ra),
+                }
+                for k, d, rb, ra in zip(
+                    self.keys, self.duration_s, self.residual_before_dps,
+                    self.residual_after_dps, strict=True
+                )
+            ],
+        }
+
+
+def _matches(meas: Windows, i: int, twin: Windows, j: int) -> bool:
+    if abs(meas.rate_dps[i] - twin.rate_dps[j]) > MAX_RATE_MISMATCH_DPS:
+        return False
+    if abs(meas.rate_dps[i]) > MAX_RATE_MISMATCH_DPS:
+        return True  # a plateau turns the table: its mean angle says nothing
+    diff = (meas.angle_deg[i] - twin.angle_deg[j] + 180.0) % 360.0 - 180.0
+    return abs(diff) <= MAX_ANGLE_MISMATCH_DEG
+
+
+def residuals_against(meas: Windows, twin: Windows) -> dict[WindowKey, float]:
+    """measured - simulated mean of every window both runs hold (same key, same rate and
+    angle)."""
+    index = {k: j for j, k in enumerate(twin.keys)}
+    out: dict[WindowKey, float] = {}
+    for i, key in enumerate(meas.keys):
+        j = index.get(key)
+        if j is not None and _matches(meas, i, twin, j):
+            out[key] = float(meas.mean_dps[i] - twin.mean_dps[j])
+    return out
+
+
+def weighted_rms(values: FloatArray, duration_s: FloatArray) -> float:
+    if values.size == 0:
+        return math.nan
+    return float(np.sqrt(np.sum(duration_s * values**2) / np.sum(duration_s)))
+
+
+def window_floor_dps(noise: NoiseModel, center_s: FloatArray, duration_s: FloatArray) -> float:
+    """What the measured noise alone leaves in these windows' means about the record mean,
+    as a duration-weighted RMS (the noise floor of the simulation gap)."""
+    n = center_s.size
+    if n == 0:
+        return math.nan
+    idx = np.arange(n, dtype=np.int64)
+    zeros = np.zeros(n)
+    blocks = Blocks(start=idx, stop=idx + 1, kind=("window",) * n, duration_s=duration_s,
+                    center_s=center_s, rate_dps=zeros, angle_deg=zeros, temp_c=zeros,
+                    supply_v=zeros, time_since_power_on_s=zeros)
+    sigma = noise.floor_per_block_dps(blocks)
+    return weighted_rms(sigma, duration_s)
+
+
+def compare(
+    measured: Trajectory, before: Trajectory, after: Trajectory, noise: NoiseModel
+) -> SimulationComparison:
+    """The simulation gap with the starting-model twin (`before`) and the extended-model
+    twin (`after`) over the windows the measured run and both twin runs hold."""
+    meas = windows_of(measured)
+    r_before = residuals_against(meas, windows_of(before))
+    r_after = residuals_against(meas, windows_of(after))
+    chosen = [i for i, k in enumerate(meas.keys) if k in r_before and k in r_after]
+    if not chosen:
+        raise ValueError(
+            "the twin runs hold none of the measured run's windows (static, plateau, "
+            "stop_static); was the same procedure simulated?"
+        )
+    idx = np.asarray(chosen, dtype=np.int64)
+    keys = tuple(meas.keys[i] for i in chosen)
+    duration = meas.duration_s[idx]
+    center = meas.center_s[idx]
+    rb = np.array([r_before[k] for k in keys])
+    ra = np.array([r_after[k] for k in keys])
+    notes = []
+    if len(keys) < len(meas.keys):
+        notes.append(
+            f"{len(meas.keys) - len(keys)} of {len(meas.keys)} measured windows have no "
+            "matching window in both twin runs (a retry, or a step the twin ran differently) "
+            "and are not compared"
+        )
+    return SimulationComparison(
+        keys=keys,
+        center_s=center,
+        duration_s=duration,
+        rate_dps=meas.rate_dps[idx],
+        residual_before_dps=rb,
+        residual_after_dps=ra,
+        gap_before_dps=weighted_rms(rb, duration),
+        gap_after_dps=weighted_rms(ra, duration),
+        noise_floor_dps=window_floor_dps(noise, center, duration),
+        windows_measured=len(meas.keys),
+        notes=tuple(notes),
+    )

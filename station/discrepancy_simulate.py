@@ -1,0 +1,164 @@
+"""`station discrepancy RUN_FOLDER --simulate`: the twin learns the part.
+
+The starting model (fitted to the run) and the extended model each become a simulated part
+(procedures/model/twin.py `part_entry`); their sim configs are written next to the report
+(`twin_before.yaml`, `twin_after.yaml`), the procedure the run's record names runs on a
+freshly started simulated bench with each (one part, the procedure's conditions), and the
+measured run is compared window by window with both twin runs (`twin.compare`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
+
+from station.errors import UserError
+
+if TYPE_CHECKING:
+    from procedures.model.discrepancy import DiscrepancyResult
+    from procedures.model.trajectory import Trajectory
+    from procedures.model.twin import SimulationComparison
+
+log = logging.getLogger(__name__)
+
+DEFAULT_SPEED = 100.0
+TWINS = ("before", "after")
+
+
+def record_procedure(run_folder: Path, override: Path | None) -> tuple[Path, str | None]:
+    """The procedure to simulate: `override`, else the file the run's record names (as
+    recorded, else relative to the run folder's parent); with a note when the file's content
+    is not the one the run used."""
+    from procedures.record import read_record
+
+    try:
+        rec = read_record(run_folder)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
+    if override is not None:
+        if not override.is_file():
+            raise UserError(f"--procedure {override}: no such file; give the procedure YAML")
+        path = override
+    else:
+        recorded = Path(rec.procedure.path)
+        found = [p for p in (recorded, run_folder.parent / recorded) if p.is_file()]
+        if not found:
+            raise UserError(
+                f"{run_folder}: the procedure the run used ({rec.procedure.path}) is not there "
+                "any more; give it with --procedure PATH"
+            )
+        path = found[0]
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    note = None
+    if rec.procedure.sha256 and digest != rec.procedure.sha256:
+        note = (
+            f"the procedure {path} differs from the one the run used (sha256 changed); the "
+            "twins ran the file as it is now"
+        )
+    return path, note
+
+
+def supply_current_a(run_folder: Path) -> float | None:
+    """The part's mean supply current over the run's conditions (its self-heating), if
+    recorded."""
+    from procedures.record import read_record
+
+    currents = [c.supply_current_a for c in read_record(run_folder).conditions
+                if c.supply_current_a is not None]
+    return sum(currents) / len(currents) if currents else None
+
+
+def _check_entry(entry: dict[str, Any], model_name: str) -> None:
+    """UserError before any bench starts if the bench cannot hold the model as a part."""
+    from drivers.sim.config import SimConfigError, parse_sim_config
+
+    try:
+        parse_sim_config({"parts": [entry]}, source=f"twin of model {model_name}")
+    except SimConfigError as exc:
+        raise UserError(
+            f"the model {model_name} cannot be a simulated part ({exc}); --simulate needs "
+            "values the bench accepts"
+        ) from exc
+
+
+def run_twin(
+    entry: dict[str, Any], procedure: Path, out: Path, speed: float
+) -> tuple[Path, str]:
+    """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
+    from procedures.record import read_record
+    from station.uut import run_simulated
+
+    try:
+        result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed)
+    except Exception as exc:  # the bench or the station could not run the twin
+        log.exception("twin run failed")
+        raise UserError(f"the twin run on the simulated bench failed: {exc}") from exc
+    folder = result.folders.get(int(entry["socket"]))
+    if folder is None:
+        raise UserError(f"the twin run on the simulated bench left no run folder in {out}")
+    verdict = str(read_record(folder).verdict)
+    if verdict not in ("PASS", "FAIL"):
+        raise UserError(
+            f"the twin run ended {verdict} ({folder}); see its record.json for the reason"
+        )
+    return folder, verdict
+
+
+def simulate(
+    run_folder: Path,
+    measured: Trajectory,
+    result: DiscrepancyResult,
+    out: Path,
+    *,
+    procedure: Path | None = None,
+    speed: float = DEFAULT_SPEED,
+    say: Callable[[str], None] = lambda _line: None,
+) -> tuple[SimulationComparison, dict[str, Any]]:
+    """Run both twins and compare; returns the comparison and the JSON detail (twin configs,
+    run folders, verdicts)."""
+    from procedures.model.run_folder import load_data
+    from procedures.model.twin import compare, part_entry
+
+    proc, proc_note = record_procedure(run_folder, procedure)
+    current = supply_current_a(run_folder)
+    serial = measured.serial or "SIM-TWIN"
+    detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve())}
+    trajs: dict[str, Trajectory] = {}
+    models = {"before": result.initial_model, "after": result.final_model}
+    for label in TWINS:
+        entry = part_entry(models[label], serial,
+                           measured_arw_deg_per_sqrt_h=result.noise.arw_deg_per_sqrt_h,
+                           supply_current_a=current)
+        _check_entry(entry, models[label].name)
+        config = out / f"twin_{label}.yaml"
+        config.write_text(yaml.safe_dump({"parts": [entry]}, sort_keys=False), encoding="utf-8")
+        runs = out / f"twin_{label}_runs"
+        if runs.exists():  # a previous --simulate into the same --out
+            shutil.rmtree(runs)
+        say(f"simulate: running {proc.name} on the bench with the {models[label].name} twin")
+        folder, verdict = run_twin(entry, proc, runs, speed)
+        try:
+            trajs[label] = load_data(folder, dut=serial)
+        except ValueError as exc:
+            raise UserError(f"twin run {folder}: {exc}") from exc
+        detail[f"simulation_twin_{label}"] = {
+            "model": models[label].name,
+            "sim_config": str(config),
+            "run_folder": str(folder),
+            "verdict": verdict,
+        }
+    try:
+        comparison = compare(measured, trajs["before"], trajs["after"], result.noise)
+    except ValueError as exc:
+        raise UserError(f"{run_folder}: {exc}") from exc
+    if proc_note:
+        from dataclasses import replace
+
+        comparison = replace(comparison, notes=(proc_note, *comparison.notes))
+    return comparison, detail

@@ -1,0 +1,154 @@
+"""The twin: a model as a simulated part entry, and the simulation gap (window matching,
+duration-weighted RMS, noise floor over the windows). Fast, no bench."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from drivers.sim.config import parse_sim_config
+from procedures.model.gyro_model import GyroModel, first_order_model, zero_params
+from procedures.model.noise import NoiseModel
+from procedures.model.trajectory import Segment, Trajectory
+from procedures.model.twin import compare, part_entry, window_floor_dps, windows_of
+
+RATE_HZ = 20.0
+
+
+def test_part_entry_carries_every_term_the_bench_reads() -> None:
+    effects = {e: dict(zero_params(e)) for e in first_order_model().effects}
+    effects["bias_temperature"] = {"bias_temp_coeff_dps_per_c": 0.007}
+    effects["scale_supply"] = {"scale_supply_coeff_per_v": -1e-3}
+    effects["k2_quadratic"] = {"k2_per_dps": 2e-6}
+    effects["lib_dTdt"] = {"coeff": 0.9}
+    effects["lib_angleh2"] = {"amplitude_dps": 0.02, "phase_deg": 30.0}
+    model = GyroModel(name="x", bias_dps=1.25, scale=1.03, effects=effects)
+    entry = part_entry(model, "SIM-7", measured_arw_deg_per_sqrt_h=0.3, supply_current_a=0.02)
+    part = parse_sim_config({"parts": [entry]}).parts[0]  # the bench accepts it as it is
+    assert (part.bias_dps, part.scale) == (1.25, 1.03)
+    assert part.bias_temp_coeff_dps_per_c == 0.007
+    assert part.scale_supply_coeff_per_v == -1e-3
+    assert part.scale_temp_coeff_per_c == 0.0 and part.bias_supply_coeff_dps_per_v == 0.0
+    assert part.effects == {
+        "k2_quadratic": {"k2_per_dps": 2e-6},
+        "lib_dTdt": {"coeff": 0.9},
+        "lib_angleh2": {"amplitude_dps": 0.02, "phase_deg": 30.0},
+    }
+    assert part.arw_deg_per_sqrt_h == pytest.approx(0.003)  # quiet: 1 % of the measured
+    assert part.bias_instability_deg_per_h == 0.0 and part.rrw_deg_per_h_per_sqrt_h == 0.0
+    assert part.supply_current_a == 0.02
+
+
+def test_a_base_model_twin_has_no_first_order_terms_of_its_own() -> None:
+    """Left out, the bench would draw them from the population: they are set to zero."""
+    entry = part_entry(GyroModel(name="base", bias_dps=0.5, scale=1.0), "SIM-8")
+    part = parse_sim_config({"parts": [entry]}).parts[0]
+    assert part.bias_temp_coeff_dps_per_c == 0.0 and part.scale_temp_coeff_per_c == 0.0
+    assert part.effects == {}
+
+
+# windows: (condition, kind, seconds, rate, angle)
+PLAN = [
+    ("T25", "static", 10.0, 0.0, 0.0),
+    ("T25", "static", 10.0, 0.0, 90.0),
+    ("T25", "static", 10.0, 0.0, 180.0),
+    ("T25", "plateau", 5.0, 50.0, 0.0),
+    ("T25", "plateau", 5.0, -50.0, 0.0),
+    ("T35", "static", 10.0, 0.0, 270.0),
+    ("T35", "stop_static", 4.0, 0.0, 90.0),
+]
+
+
+def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: float = 3.0
+          ) -> Trajectory:
+    t_parts, rate, angle, segs = [], [], [], []
+    t0 = 0.0
+    for cond, kind, dur, w, ang in plan or PLAN:
+        n = int(dur * RATE_HZ)
+        t = t0 + np.arange(n) / RATE_HZ
+        t_parts.append(t)
+        rate.append(np.full(n, w))
+        a = ang + w * (t - t0)
+        angle.append(a % 360.0)
+        segs.append(Segment(kind, float(t[0]), float(t[-1]) + 1e-9, cond))
+        t0 = float(t[-1]) + gap_s
+    time_s = np.concatenate(t_parts)
+    n = time_s.size
+    return Trajectory(
+        time_s=time_s,
+        gyro_dps=np.zeros(n) if signal is None else signal,
+        ref_rate_dps=np.concatenate(rate),
+        ref_angle_deg=np.concatenate(angle),
+        temp_c=np.full(n, 25.0),
+        supply_v=np.full(n, 5.0),
+        time_since_power_on_s=time_s + 100.0,
+        segments=tuple(segs),
+    )
+
+
+def _white(n_dps_rt_s: float) -> NoiseModel:
+    return NoiseModel(white_dps_rt_s=n_dps_rt_s, floor_dps=0.0, tau_s=np.zeros(0),
+                      adev_dps=np.zeros(0))
+
+
+def test_simulation_gap_is_the_weighted_rms_of_window_mean_differences() -> None:
+    base = _traj()
+    pattern = 0.05 * np.cos(np.radians(2 * base.ref_angle_deg))
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0.0, 0.01, base.n)
+    measured = dataclasses.replace(base, gyro_dps=1.0 + base.ref_rate_dps + pattern + noise)
+    after = dataclasses.replace(base, gyro_dps=1.0 + base.ref_rate_dps + pattern)
+    before = dataclasses.replace(base, gyro_dps=1.0 + base.ref_rate_dps)
+    cmp = compare(measured, before, after, _white(0.01 / math.sqrt(RATE_HZ)))
+    assert len(cmp.keys) == len(PLAN) == cmp.windows_measured
+    w = windows_of(measured)
+    wb = windows_of(before)
+    d = w.mean_dps - wb.mean_dps
+    expected = math.sqrt(float(np.sum(w.duration_s * d**2) / np.sum(w.duration_s)))
+    assert cmp.gap_before_dps == pytest.approx(expected, rel=1e-12)
+    # the extended twin leaves only the measured noise: near the floor; the starting one
+    # misses the twice-per-turn pattern (0.05 deg/s at rest, averaged out on the plateaus)
+    assert cmp.gap_after_dps < 1.5 * cmp.noise_floor_dps
+    assert cmp.gap_before_dps > 10 * cmp.noise_floor_dps
+
+
+def test_windows_the_twin_does_not_hold_or_holds_elsewhere_are_not_compared() -> None:
+    measured = _traj()
+    short_plan = [p for p in PLAN if p[1] != "stop_static"]  # the twin ran no stop method
+    moved = [(*p[:4], 45.0) if k == 1 else p for k, p in enumerate(short_plan)]  # other angle
+    twin = _traj(plan=moved, gap_s=7.0)  # its own timing: windows still match by key
+    cmp = compare(measured, twin, twin, _white(0.001))
+    keys = set(cmp.keys)
+    assert ("T35", "stop_static", 0) not in keys
+    assert ("T25", "static", 1) not in keys  # at 45 deg in the twin, 90 deg measured
+    assert len(keys) == len(PLAN) - 2
+    assert "2 of 7 measured windows" in cmp.notes[0]
+
+
+def test_no_common_window_is_an_error_that_says_why() -> None:
+    measured = _traj()
+    other = _traj(plan=[("X", "plateau", 5.0, 20.0, 0.0)])
+    with pytest.raises(ValueError, match="same procedure"):
+        compare(measured, other, other, _white(0.001))
+
+
+def test_window_floor_of_white_noise_matches_its_formula() -> None:
+    n_white = 0.02
+    t = np.array([10.0, 5.0, 20.0])
+    centre = np.array([5.0, 30.0, 60.0])
+    w = t / t.sum()
+    var = n_white**2 / t * (1 - 2 * w) + np.sum(w**2 * n_white**2 / t)
+    expected = math.sqrt(float(np.sum(t * var) / t.sum()))
+    assert window_floor_dps(_white(n_white), centre, t) == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_model_the_bench_cannot_hold_is_refused_before_any_bench_starts() -> None:
+    from station.discrepancy_simulate import _check_entry
+    from station.errors import UserError
+
+    entry = part_entry(GyroModel(name="odd", bias_dps=0.0, scale=3.0), "SIM-9")
+    with pytest.raises(UserError, match="cannot be a simulated part.*scale"):
+        _check_entry(entry, "odd")
