@@ -212,3 +212,16 @@ def test_station_procedure_convert(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "already a list of steps" in capsys.readouterr().err
     assert main(["procedure", "convert", str(old)]) == 0  # printed
     assert "step: verify_stop" in capsys.readouterr().out
+
+
+def test_docs_hold_every_step_type_as_generated() -> None:
+    """docs/procedures.md's step tables are the registry's (regenerate with
+    `python -m procedures.steps.reference docs/procedures.md`)."""
+    from procedures.steps.reference import BEGIN, END, reference_markdown
+
+    doc = (ROOT / "docs" / "procedures.md").read_text()
+    block = BEGIN + doc.split(BEGIN, 1)[1].split(END, 1)[0] + END + "\n"
+    assert block == reference_markdown()
+    for name, cls in step_types().items():
+        section = block.split(f"### `{name}`\n", 1)[1].split("\n### ", 1)[0]
+        assert all(f"| `{f}` |" in section for f in cls.Settings.model_fields), name
