@@ -3,7 +3,9 @@ measurement names (at the same conditions), calibration and analysis keys, condi
 verification keys and certificate sections as the baselines in tests/data/baseline/, made on
 the bench with the code before the change (tests/data/baseline/make_baseline.py).
 
-Values are never compared (the bench is noisy); names and keys are."""
+Values are never compared (the bench is noisy); names and keys are. The one key the list
+form adds is `analysis.not_measured` (a declared measurement the run could not set, e.g. a
+bias instability the short record does not resolve, is now NOT_MEASURED on the record)."""
 
 from __future__ import annotations
 
@@ -32,13 +34,15 @@ def _compare(procedure: Path, tmp_path: Path, speed: float) -> None:
     maker.SPEED = speed
     expected: dict[str, Any] = json.loads((BASE / f"{procedure.stem}.json").read_text())
     got = maker.run(procedure, tmp_path)
-    assert got["verdict"] == "PASS", "the run did not pass (a loaded machine?): rerun it alone"
-    for key in expected:
+    assert got["verdict"] == "PASS", f"the run did not pass: {got['reason']}"
+    # new: the declared measurements the run could not set (NOT_MEASURED) are listed
+    got["analysis_keys"] = [k for k in got["analysis_keys"] if k != "not_measured"]
+    for key in expected.keys() - {"reason"}:
         assert got[key] == expected[key], key
 
 
 def test_the_short_procedure_gives_the_baseline_record(tmp_path: Path) -> None:
-    _compare(ROOT / "tests/procedures/data/short.yaml", tmp_path, speed=150.0)
+    _compare(ROOT / "tests/procedures/data/short.yaml", tmp_path, speed=100.0)
 
 
 @pytest.mark.station_grid

@@ -58,6 +58,7 @@ def summary(rec: RunRecord, folder: Path) -> dict[str, Any]:
     cal = rec.calibration.model_dump(exclude_none=True) if rec.calibration else {}
     return {
         "verdict": str(rec.verdict),
+        "reason": rec.reason,
         "measurements": [list(x) for x in measured],
         "calibration_keys": sorted(cal),
         "analysis_keys": sorted(rec.analysis),
