@@ -256,7 +256,9 @@ def expand(nodes: tuple[Node, ...], conditions: list[Condition],
         if isinstance(node, StepEntry):
             place = Place(base.condition, base.condition_index, base.previous, base.repeat,
                           _dotted(node.path))
-            out.append(node.type(node.settings, place, node.policy))
+            step = node.type(node.settings, place, node.policy)
+            if step.runs_here():
+                out.append(step)
         elif node.kind == "for_each":
             for i, cond in enumerate(conditions):
                 inner = Place(cond, i, conditions[i - 1] if i else None, base.repeat)
