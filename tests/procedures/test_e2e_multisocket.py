@@ -63,8 +63,10 @@ def test_four_records_four_verdicts_one_failing(four: SimRun) -> None:
 def test_coefficients_within_k2_of_truth(four: SimRun) -> None:
     misses, total = [], 0
     for sock in (1, 2, 3, 4):
-        cal = read_record(four.result.folders[sock]).calibration
-        assert cal is not None and cal.readback_ok
+        rec = read_record(four.result.folders[sock])
+        cal = rec.calibration
+        # socket 4 failed its raw bias: fitted, but never programmed
+        assert cal is not None and cal.readback_ok is (True if sock != 4 else None)
         truth = four.final_truth["sockets"][str(sock)]["parameters"]
         for key, tkey in COEFFS.items():
             c = getattr(cal, key)
@@ -76,10 +78,13 @@ def test_coefficients_within_k2_of_truth(four: SimRun) -> None:
 
 
 def test_residual_after_correction_below_0p05_percent(four: SimRun) -> None:
-    for sock in (1, 2, 3, 4):
+    for sock in (1, 2, 3):
         ver = read_record(four.result.folders[sock]).verification
         assert ver is not None and len(ver["residuals"]) == 2
         assert ver["max_error_pct"] < 0.05, ver
+    failing = read_record(four.result.folders[4])  # a failed part is never programmed
+    assert failing.verification is None
+    assert failing.reason.startswith("not programmed: failed raw_bias_dps@")
 
 
 def test_bench_safe_after_run(four: SimRun) -> None:

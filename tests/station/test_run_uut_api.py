@@ -51,7 +51,7 @@ def test_start_state_abort_wait(tmp_path: Path) -> None:
         state = runner.state()
         assert state["state"] == "running" and state["step"] == "bias"
         assert state["sockets"] == {1: "RUNNING", 2: "RUNNING"}
-        assert runner.context is not None and len(runner.context.alive()) == 2
+        assert runner.context is not None and len(runner.context.parts.alive()) == 2
         with pytest.raises(UserError, match="already in progress"):
             runner.start({1: "SIM-0601"})
         t_abort = time.monotonic()
