@@ -80,6 +80,8 @@ class Endpoints:
     duts: dict[int, str]
     # role -> the family its twin serves (the station picks `<role>.<family>`)
     families: dict[str, str] = field(default_factory=dict)
+    # where the simulated operator reads the station's prompts ('' = nobody simulated)
+    operator: str = ""
 
     @classmethod
     def of_bench(cls, e: BenchEndpoints) -> Endpoints:
@@ -87,6 +89,7 @@ class Endpoints:
         return cls(
             speed=e.speed, rate_table=e.rate_table, chamber=e.chamber, supply=e.supply,
             duts=dict(e.duts), families=dict(e.families),
+            operator=str(e.raw.get("operator", "") or ""),
         )
 
     def address(self, role: str) -> str:
@@ -292,6 +295,10 @@ class UutRunner:
         self.endpoints = endpoints
         self.certificate = certificate
         self.progress = ProgressBus()
+        if endpoints is not None and endpoints.operator:  # the simulated operator's eyes
+            from station.prompt_relay import PromptRelay
+
+            self.progress.subscribe(PromptRelay(endpoints.operator))
         self._lock = threading.Lock()
         self._ctx: RunContext | None = None
         self._engine: Engine | None = None
