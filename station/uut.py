@@ -82,6 +82,8 @@ class Endpoints:
     families: dict[str, str] = field(default_factory=dict)
     # where the simulated operator reads the station's prompts ('' = nobody simulated)
     operator: str = ""
+    # socket -> the inclinometer twin on that socket's fixture (none when the bench has none)
+    inclinometers: dict[int, str] = field(default_factory=dict)
 
     @classmethod
     def of_bench(cls, e: BenchEndpoints) -> Endpoints:
@@ -90,6 +92,7 @@ class Endpoints:
             speed=e.speed, rate_table=e.rate_table, chamber=e.chamber, supply=e.supply,
             duts=dict(e.duts), families=dict(e.families),
             operator=str(e.raw.get("operator", "") or ""),
+            inclinometers={int(k): str(v) for k, v in (e.raw.get("inclinometers") or {}).items()},
         )
 
     def address(self, role: str) -> str:

@@ -26,6 +26,7 @@ from drivers.sim.acutrol_twin import AcutrolTwin
 from drivers.sim.config import PartSpec, SimConfig
 from drivers.sim.control import ControlRequestError, ControlServer
 from drivers.sim.espec_twin import EspecP300Twin
+from drivers.sim.inclinometer_twin import InclinometerTwin
 from drivers.sim.modbus_twins import ChamberTwin, TableTwin
 from drivers.sim.operator_eyes import OperatorEyes
 from drivers.sim.pty_twins import FixtureTwin, SupplyTwin
@@ -99,6 +100,7 @@ TWINS: dict[tuple[str, str], Any] = {
     ("supply", "keysight-e36300"): KeysightE36300Twin,
     ("supply", "rigol-dp800"): RigolDp800Twin,
     ("rate_table", "none"): AbsentTwin,
+    ("inclinometer", "ascii-xy"): InclinometerTwin,  # one per socket: InclinometerTwin(world, s)
 }
 
 
@@ -145,6 +147,11 @@ class Bench:
         self.control = ControlServer(self.dispatch, host, control_port)
         self.eyes = OperatorEyes(self.world, host)  # the simulated operator reads prompts
         self.fixtures: dict[int, FixtureTwin] = {}
+        self.inclinometers: dict[int, InclinometerTwin] = {}
+        if config.instruments.inclinometer != "none":
+            self.inclinometers = {
+                s: InclinometerTwin(self.world, s, host) for s in self.world.sockets
+            }
         self._tick_task: asyncio.Task[None] | None = None
         self.ticks = 0
         self.table.before_write = self._flush_samples
@@ -165,6 +172,8 @@ class Bench:
             self.fixtures[index] = FixtureTwin(self.world, sock, loop, fifo)
         await self.control.start()
         await self.eyes.start()
+        for inclinometer in self.inclinometers.values():
+            await inclinometer.start()
         self._tick_task = asyncio.create_task(self._tick_loop())
 
     def endpoints(self) -> dict[str, Any]:
@@ -178,6 +187,7 @@ class Bench:
             "duts": {str(i): f.port.path for i, f in self.fixtures.items()},
             "control": self.control.endpoint,
             "operator": self.eyes.endpoint,
+            "inclinometers": {str(s): i.endpoint() for s, i in self.inclinometers.items()},
             "pid": os.getpid(),
             "sockets": len(self.fixtures),
             "families": dict(self.families),
@@ -199,6 +209,8 @@ class Bench:
                 await self._tick_task
         await self.control.shutdown()
         await self.eyes.shutdown()
+        for inclinometer in self.inclinometers.values():
+            await inclinometer.shutdown()
         for twin in (self.table, self.chamber, self.supply):
             await twin.shutdown()
         for fixture in self.fixtures.values():

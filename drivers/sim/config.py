@@ -210,6 +210,9 @@ class InstrumentsConfig(_Model):
     supply: Literal["scpi", "keysight-e36300", "rigol-dp800"] = Field(
         "scpi", description="supply twin: scpi, keysight-e36300 or rigol-dp800"
     )
+    inclinometer: Literal["none", "ascii-xy"] = Field(
+        "none", description="an inclinometer on each socket's fixture: none or ascii-xy"
+    )
 
     def families(self) -> dict[str, str]:
         """role -> family, the part role included (the fixture protocol)."""
@@ -218,6 +221,7 @@ class InstrumentsConfig(_Model):
             "chamber": self.chamber,
             "supply": self.supply,
             "part": DEFAULT_FAMILIES["part"],
+            **({"inclinometer": self.inclinometer} if self.inclinometer != "none" else {}),
         }
 
 
