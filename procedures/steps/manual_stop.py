@@ -1,0 +1,373 @@
+"""The article's own bench: the stop method with the fixture turned by hand, no rate table.
+
+The step rests, then prompts the operator (a ProgressEvent kind="prompt", shown on the
+operator screen and printed by `station run`) to turn the fixture by hand to its other stop,
+and watches the part's own output for the move: a move starts when the rate leaves the rest
+level by more than `detect_dps` and ends when it has stayed inside that band for `rest_s`.
+Nothing moving within `move_timeout_s` of the prompt is an ERROR naming the socket, the
+prompt and the timeout. After each move the fixture rests `static_s` at the stop. The whole
+record is then analysed by `procedures.analysis.stop_method` (bias from the leading rest,
+scale from integrating each move), as the table-driven stop method is.
+
+A move that over-ranges the part is refused by the analysis and warned about (the operator
+is asked for one more move, up to `extra_moves`); a bounce at the stop (the rate reversing
+at the end of a move) is warned about; its angle is inside the integral, so the move still
+counts. The reference angle between the stops is, by `reference`:
+
+- `inclinometer`: the station's inclinometer (station.yaml role `inclinometer`) read on the
+  fixture at each stop; the mean travel over the moves, with the readings' uncertainty;
+- `fixture`: the fixture's stored stop angle and its uncertainty (read at power-up);
+- `stored`: `stop_angle_deg` +/- `stop_angle_u_deg` given here (a fixture measured once).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import Field, model_validator
+
+from drivers.bounded import ONE_HOUR_S
+from drivers.errors import InstrumentError
+from drivers.protocols import SampleStatus
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.stop_method import (
+    StopMethodResult,
+    StopMethodSettings,
+    analyze_stop_method,
+)
+from procedures.record import Verdict
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.base import check_window, samples_between
+from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.stop import stop_noise_model
+
+CLIP_BITS = int(SampleStatus.OVER_RANGE | SampleStatus.SATURATED)
+POLL_S = 0.25  # station seconds between looks at the part's data while waiting for a move
+
+
+class ManualStopSettings(StepSettings):
+    moves: int = Field(2, ge=1, le=20, description="moves between the stops (out, back, ...)")
+    extra_moves: int = Field(
+        1, ge=0, le=5, description="further moves asked for when a move over-ranges the part"
+    )
+    static_s: float = Field(
+        5.0, gt=1.0, le=ONE_HOUR_S, description="rest before the first move and after each"
+    )
+    move_timeout_s: float = Field(
+        30.0, gt=0, le=ONE_HOUR_S,
+        description="after the prompt, time for the move to start (and again to end)",
+    )
+    detect_dps: float = Field(
+        3.0, gt=0, le=100.0, description="the rate leaving the rest level by this is a move"
+    )
+    rest_s: float = Field(
+        1.0, gt=0, le=60.0, description="inside the band this long: the fixture is at rest"
+    )
+    reference: Literal["inclinometer", "fixture", "stored"] = Field(
+        "inclinometer", description="reference angle: inclinometer at each stop, the "
+        "fixture's stored angle, or stop_angle_deg given here",
+    )
+    stop_angle_deg: float | None = Field(
+        None, gt=10.0, lt=350.0, description="reference: stored: the angle between the stops"
+    )
+    stop_angle_u_deg: float | None = Field(
+        None, gt=0.0, le=10.0, description="reference: stored: its standard uncertainty"
+    )
+
+    @model_validator(mode="after")
+    def _stored(self) -> ManualStopSettings:
+        if self.reference == "stored" and (
+            self.stop_angle_deg is None or self.stop_angle_u_deg is None
+        ):
+            raise ValueError(
+                "reference: stored needs stop_angle_deg and stop_angle_u_deg (the fixture's "
+                "measured angle between its stops and its standard uncertainty)"
+            )
+        return self
+
+
+@dataclass
+class _Watch:
+    """One part's move while the station waits for it (station times)."""
+
+    level_dps: float
+    started_s: float | None = None
+    rested_s: float | None = None
+    over_range: bool = False
+
+
+@dataclass
+class _PartStops:
+    """One part's record of the step: inclinometer readings at each stop, warnings."""
+
+    readings: list[tuple[float, float]] = field(default_factory=list)
+    over_ranged_moves: int = 0
+
+
+def prompt_text(sockets: list[int]) -> str:
+    """The instruction in plain words (BRIEF contract 2)."""
+    if len(sockets) == 1:
+        return f"Turn socket {sockets[0]}'s fixture by hand to the other stop"
+    listed = ", ".join(str(s) for s in sockets[:-1]) + f" and {sockets[-1]}"
+    return f"Turn the fixtures of sockets {listed} by hand to the other stop, one after another"
+
+
+class ManualStop(StepType[ManualStopSettings]):
+    """The stop method on a fixture turned by hand when the station prompts."""
+
+    type_name = "manual_stop"
+    Settings = ManualStopSettings
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [
+            Declared("raw_scale_error", "1", "stop-method scale - nominal (turned by hand)",
+                     per_condition=True),
+            Declared("manual_stop_reference_angle_deg", "deg",
+                     "the reference angle between the stops", informational=True,
+                     per_condition=True),
+        ]
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        cfg = self.settings
+        per_move = 2.0 + 4.0 + cfg.rest_s + cfg.static_s  # reaction, move, rest, static
+        return cfg.static_s + cfg.moves * per_move + 1.0
+
+    # ------------------------------------------------------------ the moves
+
+    def setup(self, ctx: RunContext) -> None:
+        self._inclinometer = getattr(ctx.instruments.bench, "inclinometer", None)
+        if self.settings.reference == "inclinometer" and self._inclinometer is None:
+            for part in ctx.parts.alive():
+                ctx.parts.drop(
+                    part, Verdict.ERROR,
+                    "manual_stop: reference: inclinometer, but this station has no "
+                    "inclinometer (station.yaml instruments.inclinometer): add it, or use "
+                    "reference: fixture or stored in the procedure",
+                )
+
+    def main(self, ctx: RunContext) -> None:
+        cfg = self.settings
+        stops = {p.socket: _PartStops() for p in ctx.parts.alive()}
+        t_start = ctx.wait.now_s()
+        ctx.wait.sleep(cfg.static_s)
+        self._read_stops(ctx, stops)
+        usable = 0
+        asked = 0
+        while usable < cfg.moves and asked < cfg.moves + cfg.extra_moves:
+            watches = self._one_move(ctx)
+            asked += 1
+            clipped = [s for s, w in watches.items() if w.over_range]
+            for sock in clipped:
+                stops[sock].over_ranged_moves += 1
+                ctx.records.event(
+                    f"socket {sock}: the hand move over-ranged the part: that move gives no "
+                    "scale; turn the fixture more slowly (3 to 4 s from stop to stop)",
+                    "WARNING", [p for p in ctx.parts.alive() if p.socket == sock],
+                )
+            if not clipped:
+                usable += 1
+            self._read_stops(ctx, stops)
+        t_end = ctx.wait.now_s()
+        ctx.parts.each(lambda part: self._analyse(ctx, part, stops[part.socket], t_start, t_end))
+
+    def _one_move(self, ctx: RunContext) -> dict[int, _Watch]:
+        """Prompt, wait for every alive part to move and come to rest, then rest."""
+        cfg = self.settings
+        parts = ctx.parts.alive()
+        sockets = [p.socket for p in parts]
+        now = ctx.wait.now_s()
+        watches = {p.socket: _Watch(self._rest_level(ctx, p, now - cfg.rest_s, now)) for p in parts}
+        message = prompt_text(sockets)
+        ctx.progress.prompt(message, sockets)
+        t_prompt = ctx.wait.now_s()
+        try:
+            while True:
+                ctx.wait.sleep(POLL_S)
+                now = ctx.wait.now_s()
+                for part in ctx.parts.alive():
+                    self._look(ctx, part, watches[part.socket], t_prompt, now)
+                waiting = [p for p in ctx.parts.alive() if watches[p.socket].rested_s is None]
+                if not waiting:
+                    break
+                self._drop_late(ctx, waiting, watches, message, t_prompt, now)
+                ctx.parts.require()
+        finally:
+            ctx.progress.prompt_done(sockets)
+        ctx.wait.sleep(cfg.static_s)
+        return watches
+
+    def _drop_late(
+        self, ctx: RunContext, waiting: list[PartRun], watches: dict[int, _Watch], message: str,
+        t_prompt: float, now: float,
+    ) -> None:
+        cfg = self.settings
+        for part in waiting:
+            watch = watches[part.socket]
+            if watch.started_s is None and now - t_prompt > cfg.move_timeout_s:
+                ctx.parts.drop(
+                    part, Verdict.ERROR,
+                    f"manual_stop: no move within {cfg.move_timeout_s:g} s of the prompt "
+                    f"\"{message}\": socket {part.socket}'s fixture was not turned to its other "
+                    "stop (the part's rate never left its rest level); turn it by hand when "
+                    "the station asks, and check that it turns freely",
+                )
+            elif watch.started_s is not None and now - watch.started_s > cfg.move_timeout_s:
+                ctx.parts.drop(
+                    part, Verdict.ERROR,
+                    f"manual_stop: socket {part.socket}'s fixture did not come to rest within "
+                    f"{cfg.move_timeout_s:g} s of starting to move: hold it still against the "
+                    "stop after each turn",
+                )
+
+    def _rest_level(self, ctx: RunContext, part: PartRun, t0_s: float, t1_s: float) -> float:
+        data = self._live(part, t0_s, t1_s)
+        return float(np.median(data["rate_dps"])) if data["rate_dps"].size else 0.0
+
+    @staticmethod
+    def _live(part: PartRun, t0_s: float, t1_s: float) -> dict[str, NDArray[Any]]:
+        """The samples received so far between two station times (no waiting)."""
+        stream = part.stream
+        assert stream is not None
+        return stream.window(stream.fixture_time(t0_s), stream.fixture_time(t1_s))
+
+    def _look(self, ctx: RunContext, part: PartRun, watch: _Watch, t_prompt: float,
+              now: float) -> None:
+        """Update one part's move from its data since the prompt."""
+        cfg = self.settings
+        data = self._live(part, t_prompt, now)
+        t, rate = data["time_s"], data["rate_dps"]
+        if t.size < 2:
+            return
+        moving = np.abs(rate - watch.level_dps) > cfg.detect_dps
+        if (data["status"].astype(np.int64) & CLIP_BITS).any():
+            watch.over_range = True
+        if watch.started_s is None:
+            if not moving.any():
+                return
+            stream = part.stream
+            assert stream is not None
+            first = float(t[int(np.argmax(moving))])
+            watch.started_s = t_prompt + (first - stream.fixture_time(t_prompt))
+        last_move = int(np.flatnonzero(moving)[-1]) if moving.any() else -1
+        if last_move >= 0 and t[-1] - t[last_move] >= cfg.rest_s:
+            watch.rested_s = now
+
+    def _read_stops(self, ctx: RunContext, stops: dict[int, _PartStops]) -> None:
+        """Read the inclinometer on every alive part's fixture (reference: inclinometer)."""
+        if self.settings.reference != "inclinometer" or self._inclinometer is None:
+            return
+        for part in ctx.parts.alive():
+            try:
+                stops[part.socket].readings.append(self._inclinometer.read_angle(part.socket))
+            except InstrumentError as exc:
+                ctx.parts.drop(
+                    part, Verdict.ERROR,
+                    f"manual_stop: the inclinometer on socket {part.socket}'s fixture could not "
+                    f"be read: {exc}",
+                )
+
+    # ------------------------------------------------------------ analysis
+
+    def _reference(self, part: PartRun, stops: _PartStops) -> tuple[float, float]:
+        cfg = self.settings
+        if cfg.reference == "stored":
+            assert cfg.stop_angle_deg is not None and cfg.stop_angle_u_deg is not None
+            return cfg.stop_angle_deg, cfg.stop_angle_u_deg
+        if cfg.reference == "fixture":
+            ref, u_ref = part.extra["stop_angle"]
+            return float(ref), float(u_ref)
+        angles = np.array([a for a, _ in stops.readings])
+        u_read = max(u for _, u in stops.readings)
+        travel = np.abs(np.diff(angles))
+        if travel.size == 0:
+            raise AnalysisError("the inclinometer was not read at both stops")
+        # each travel is two readings; their mean over the moves
+        return float(travel.mean()), u_read * math.sqrt(2.0) / math.sqrt(travel.size)
+
+    def _analyse(self, ctx: RunContext, part: PartRun, stops: _PartStops, t0: float,
+                 t1: float) -> None:
+        cfg = self.settings
+        condition = self.place.condition_name
+        data = samples_between(ctx, part, t0, t1)
+        masked = dict(data, status=data["status"] & ~CLIP_BITS)  # over-range: warned, below
+        if not check_window(ctx, part, masked, "manual stop method", cfg.static_s * 2):
+            return
+        try:
+            ref, u_ref = self._reference(part, stops)
+            result = analyze_stop_method(
+                data["time_s"], data["rate_dps"], ref, u_ref, status=data["status"],
+                settings=StopMethodSettings(full_scale_dps=ctx.product.range_dps),
+                noise=stop_noise_model(ctx, part),
+            )
+            if result.scale is None or result.u_scale is None:
+                raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+        except AnalysisError as exc:
+            ctx.parts.drop(part, Verdict.ERROR, f"manual stop method: {exc}")
+            return
+        self._warn_bounces(ctx, part, data, result)
+        self._record(ctx, part, result, ref, u_ref, condition)
+
+    def _warn_bounces(self, ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]],
+                      result: StopMethodResult) -> None:
+        """A move whose rate reverses beyond the detection band bounced at the stop."""
+        t, e = data["time_s"], data["rate_dps"] - result.bias_dps
+        for i, mv in enumerate(result.moves):
+            sel = (t >= mv.start_s) & (t <= mv.end_s)
+            back = float(np.max(-mv.direction * e[sel], initial=0.0))
+            if back > self.settings.detect_dps:
+                ctx.records.event(
+                    f"socket {part.socket}: the fixture bounced at the stop after move {i + 1} "
+                    f"({back:.1f} deg/s back); the move still counts (its angle is integrated "
+                    "through the bounce), but let it come gently to the stop",
+                    "WARNING", [part],
+                )
+
+    def _record(self, ctx: RunContext, part: PartRun, result: StopMethodResult, ref: float,
+                u_ref: float, condition: str) -> None:
+        scale, u_scale = result.scale, result.u_scale
+        assert scale is not None and u_scale is not None
+        cond = condition or None
+        ctx.records.measure(
+            part, "raw_scale_error", scale - ctx.product.nominal_scale, units="1",
+            uncertainty_k2=2 * u_scale, condition=cond,
+            description="stop-method scale - nominal (fixture turned by hand)",
+        )
+        ctx.records.measure(
+            part, "manual_stop_reference_angle_deg", ref, units="deg",
+            uncertainty_k2=2 * u_ref, condition=cond,
+            description=f"reference angle between the stops ({self.settings.reference})",
+        )
+        res = part.conditions.get(condition)
+        if res is not None:
+            res.stop = {"scale": scale, "u_scale": u_scale, "bias_dps": result.bias_dps,
+                        "reference_angle_deg": ref, "u_reference_angle_deg": u_ref}
+        for i, mv in enumerate(result.moves):
+            ctx.records.segment(
+                part, "stop_move", i, mv.start_s, mv.end_s,
+                ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
+            )
+        part.record.analysis.setdefault("stop_method", {})[condition or "manual"] = {
+            "method": "manual_stop",
+            "bias_dps": result.bias_dps,
+            "scale": scale,
+            "u_scale": u_scale,
+            "scale_correction": result.scale_correction,
+            "reference_angle_deg": ref,
+            "u_reference_angle_deg": u_ref,
+            "reference": self.settings.reference,
+            "static_windows": [[a, b] for a, b in result.static_segments_s],
+            "moves": [
+                {"start_s": m.start_s, "end_s": m.end_s,
+                 "measured_angle_deg": m.measured_angle_deg,
+                 "peak_rate_dps": m.peak_rate_dps, "over_range_samples": m.n_over_range,
+                 "scale_correction": m.scale_correction}
+                for m in result.moves
+            ],
+            "warnings": list(result.warnings),
+        }
