@@ -161,11 +161,11 @@ def _supply(
 
 def _no_table(procedure: ProcedureConfig, loaded: LoadedYaml) -> list[str]:
     """A station without a rate table refuses a procedure that turns one."""
-    if not (procedure.table_enabled or procedure.stop_enabled):
+    if not procedure.needs_table:
         return []
     return [
         f"{loaded.path}: this station has no rate table (no instruments.rate_table in "
-        "station.yaml), but the procedure moves one (rate_table or stop_method): choose a "
-        "procedure for a hand-turned fixture (manual_stop, e.g. eol-manual-stop.yaml) or "
-        "configure the table"
+        "station.yaml), but the procedure has steps that move one (rate_table, "
+        "stop_method, ...): choose a procedure for a hand-turned fixture (manual_stop, e.g. "
+        "eol-manual-stop.yaml) or configure the table"
     ]

@@ -246,7 +246,8 @@ def open_bench(
         supply: Supply = opened["supply"]
         table: RateTable | None = opened.get("rate_table")
         return OpenBench(
-            Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
+            Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table,
+                  inclinometer=opened.get("inclinometer")),
             records,
             closers,
             names,

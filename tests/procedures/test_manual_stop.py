@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from drivers.sim.launcher import launch_bench
+from procedures.record import Verdict
 from procedures.steps.manual_stop import ManualStop, prompt_text
 from procedures.steps.registry import step_type
-from procedures.record import Verdict
 from station.settings import load_settings
 from station.uut import Endpoints, UutRunner
 
