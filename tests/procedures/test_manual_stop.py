@@ -96,3 +96,29 @@ def test_reference_settings_are_checked(reference: str) -> None:
     assert settings.reference == reference
     with pytest.raises(ValueError, match="stop_angle_deg and stop_angle_u_deg"):
         ManualStop.Settings.model_validate({"reference": "stored"})
+
+
+@pytest.mark.station_grid
+def test_an_over_ranged_move_is_warned_and_repeated_and_a_bounce_is_warned(
+    tmp_path: Path,
+) -> None:
+    """Seed 0's operator flicks the second move (over-ranging the part) and bounces every
+    other one off the stop: both are warned, the flicked move gives no scale and one more
+    move is asked for, and the part still PASSes with the scale within k = 2 of the truth."""
+    sim = _sim_config(tmp_path, over_range_probability=0.4, bounce_probability=1.0)
+    with launch_bench(config=sim, speed=100) as bench:
+        runner = UutRunner(
+            load_settings(STATION), procedure_path=PROCEDURE, out=tmp_path / "runs",
+            endpoints=Endpoints.of_bench(bench.endpoints), certificate=False,
+        )
+        result = runner.run({1: "SIM-0701"})
+        hand = bench.control.truth()["sockets"]["1"]["hand"]
+    assert [m["over_range_flick"] for m in hand["moves"]] == [False, True, False]
+    assert result.verdicts[1] is Verdict.PASS, result.reasons[1]
+    record = json.loads((result.folders[1] / "record.json").read_text())
+    warnings = [e["message"] for e in record["events"] if e["level"] == "WARNING"]
+    assert sum("over-ranged the part" in w for w in warnings) == 1
+    assert any("bounced at the stop" in w for w in warnings)
+    stop = record["analysis"]["stop_method"]["T25_V5"]
+    assert [m["over_range_samples"] > 0 for m in stop["moves"]] == [False, True, False]
+    assert abs(stop["scale"] - SCALE) <= 2 * stop["u_scale"], stop
