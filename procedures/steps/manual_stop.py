@@ -59,7 +59,7 @@ class ManualStopSettings(StepSettings):
         5.0, gt=1.0, le=ONE_HOUR_S, description="rest before the first move and after each"
     )
     move_timeout_s: float = Field(
-        30.0, gt=0, le=ONE_HOUR_S,
+        60.0, gt=0, le=ONE_HOUR_S,
         description="after the prompt, time for the move to start (and again to end)",
     )
     detect_dps: float = Field(
@@ -93,11 +93,15 @@ class ManualStopSettings(StepSettings):
 
 @dataclass
 class _Watch:
-    """One part's move while the station waits for it (station times)."""
+    """One part's move while the station waits for it, in the part's own (fixture) time: the
+    samples reach the station a little late, more so on a loaded machine, so the timeouts
+    are judged on the data that has arrived, never on the station clock alone."""
 
-    level_dps: float
-    started_s: float | None = None
-    rested_s: float | None = None
+    prompt_f: float  # fixture time of the prompt
+    level_dps: float  # the rate at rest just before the prompt
+    last_f: float = 0.0  # the newest sample seen
+    started_f: float | None = None
+    rested: bool = False
     over_range: bool = False
 
 
@@ -181,35 +185,54 @@ class ManualStop(StepType[ManualStopSettings]):
         cfg = self.settings
         parts = ctx.parts.alive()
         sockets = [p.socket for p in parts]
-        now = ctx.wait.now_s()
-        watches = {p.socket: _Watch(self._rest_level(ctx, p, now - cfg.rest_s, now)) for p in parts}
+        t_prompt = ctx.wait.now_s()
+        self._catch_up(ctx, t_prompt)
+        watches = {p.socket: self._watch(p, t_prompt) for p in ctx.parts.alive()}
         message = prompt_text(sockets)
         ctx.progress.prompt(message, sockets)
-        t_prompt = ctx.wait.now_s()
         try:
             while True:
                 ctx.wait.sleep(POLL_S)
-                now = ctx.wait.now_s()
                 for part in ctx.parts.alive():
-                    self._look(ctx, part, watches[part.socket], t_prompt, now)
-                waiting = [p for p in ctx.parts.alive() if watches[p.socket].rested_s is None]
+                    self._look(part, watches[part.socket])
+                waiting = [p for p in ctx.parts.alive() if not watches[p.socket].rested]
                 if not waiting:
                     break
-                self._drop_late(ctx, waiting, watches, message, t_prompt, now)
+                self._drop_late(ctx, waiting, watches, message)
                 ctx.parts.require()
         finally:
             ctx.progress.prompt_done(sockets)
         ctx.wait.sleep(cfg.static_s)
         return watches
 
+    def _catch_up(self, ctx: RunContext, t_s: float) -> None:
+        """Wait (station time, bounded) until every alive part's samples up to `t_s` arrived."""
+        deadline = ctx.wait.now_s() + self.settings.move_timeout_s
+        while ctx.wait.now_s() < deadline:
+            behind = [
+                p for p in ctx.parts.alive()
+                if p.stream is not None
+                and (p.stream.last_time_s() or -math.inf) < p.stream.fixture_time(t_s)
+            ]
+            if not behind:
+                return
+            ctx.wait.sleep(POLL_S)
+
+    def _watch(self, part: PartRun, t_prompt: float) -> _Watch:
+        stream = part.stream
+        assert stream is not None
+        prompt_f = stream.fixture_time(t_prompt)
+        rest = stream.window(prompt_f - self.settings.rest_s, prompt_f)["rate_dps"]
+        level = float(np.median(rest)) if rest.size else 0.0
+        return _Watch(prompt_f, level, last_f=prompt_f)
+
     def _drop_late(
-        self, ctx: RunContext, waiting: list[PartRun], watches: dict[int, _Watch], message: str,
-        t_prompt: float, now: float,
+        self, ctx: RunContext, waiting: list[PartRun], watches: dict[int, _Watch], message: str
     ) -> None:
         cfg = self.settings
         for part in waiting:
             watch = watches[part.socket]
-            if watch.started_s is None and now - t_prompt > cfg.move_timeout_s:
+            if watch.started_f is None and watch.last_f - watch.prompt_f > cfg.move_timeout_s:
                 ctx.parts.drop(
                     part, Verdict.ERROR,
                     f"manual_stop: no move within {cfg.move_timeout_s:g} s of the prompt "
@@ -217,7 +240,10 @@ class ManualStop(StepType[ManualStopSettings]):
                     "stop (the part's rate never left its rest level); turn it by hand when "
                     "the station asks, and check that it turns freely",
                 )
-            elif watch.started_s is not None and now - watch.started_s > cfg.move_timeout_s:
+            elif (
+                watch.started_f is not None
+                and watch.last_f - watch.started_f > cfg.move_timeout_s
+            ):
                 ctx.parts.drop(
                     part, Verdict.ERROR,
                     f"manual_stop: socket {part.socket}'s fixture did not come to rest within "
@@ -225,38 +251,25 @@ class ManualStop(StepType[ManualStopSettings]):
                     "stop after each turn",
                 )
 
-    def _rest_level(self, ctx: RunContext, part: PartRun, t0_s: float, t1_s: float) -> float:
-        data = self._live(part, t0_s, t1_s)
-        return float(np.median(data["rate_dps"])) if data["rate_dps"].size else 0.0
-
-    @staticmethod
-    def _live(part: PartRun, t0_s: float, t1_s: float) -> dict[str, NDArray[Any]]:
-        """The samples received so far between two station times (no waiting)."""
+    def _look(self, part: PartRun, watch: _Watch) -> None:
+        """Update one part's move from the samples received since the prompt."""
+        cfg = self.settings
         stream = part.stream
         assert stream is not None
-        return stream.window(stream.fixture_time(t0_s), stream.fixture_time(t1_s))
-
-    def _look(self, ctx: RunContext, part: PartRun, watch: _Watch, t_prompt: float,
-              now: float) -> None:
-        """Update one part's move from its data since the prompt."""
-        cfg = self.settings
-        data = self._live(part, t_prompt, now)
+        data = stream.window(watch.prompt_f, math.inf)
         t, rate = data["time_s"], data["rate_dps"]
         if t.size < 2:
             return
+        watch.last_f = float(t[-1])
         moving = np.abs(rate - watch.level_dps) > cfg.detect_dps
         if (data["status"].astype(np.int64) & CLIP_BITS).any():
             watch.over_range = True
-        if watch.started_s is None:
-            if not moving.any():
-                return
-            stream = part.stream
-            assert stream is not None
-            first = float(t[int(np.argmax(moving))])
-            watch.started_s = t_prompt + (first - stream.fixture_time(t_prompt))
-        last_move = int(np.flatnonzero(moving)[-1]) if moving.any() else -1
-        if last_move >= 0 and t[-1] - t[last_move] >= cfg.rest_s:
-            watch.rested_s = now
+        if not moving.any():
+            return
+        if watch.started_f is None:
+            watch.started_f = float(t[int(np.argmax(moving))])
+        last_move = int(np.flatnonzero(moving)[-1])
+        watch.rested = bool(t[-1] - t[last_move] >= cfg.rest_s)
 
     def _read_stops(self, ctx: RunContext, stops: dict[int, _PartStops]) -> None:
         """Read the inclinometer on every alive part's fixture (reference: inclinometer)."""

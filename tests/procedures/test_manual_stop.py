@@ -81,7 +81,7 @@ def test_no_move_within_the_timeout_is_an_error_naming_it(tmp_path: Path) -> Non
         truth = bench.control.truth()
     assert result.verdicts[1] is Verdict.ERROR
     reason = result.reasons[1]
-    assert "no move within 20 s of the prompt" in reason and "socket 1" in reason
+    assert "no move within 60 s of the prompt" in reason and "socket 1" in reason
     assert [e.kind for e in events if e.kind.startswith("prompt")] == ["prompt", "prompt_done"]
     assert truth["operator"]["prompts"][0]["kind"] == "prompt"  # the operator saw it
     assert truth["safe"]["all"]
