@@ -14,6 +14,7 @@ import json
 import logging
 import socket
 import threading
+import time
 
 from procedures.progress import ProgressEvent
 
@@ -44,6 +45,8 @@ class PromptRelay:
                 "sockets": {str(k): v for k, v in event.sockets.items()},
                 "step": event.step,
                 "condition": event.condition,
+                # when it was shown, on the machine's monotonic clock (the bench's clock)
+                "monotonic_s": time.monotonic(),
             }
         ).encode() + b"\n"
         with self._lock:

@@ -167,14 +167,17 @@ class HandFixture:
     def target_after_moves_deg(self) -> float:
         return self.moves[-1].to_deg if self.moves else 0.0
 
-    def on_prompt(self, t_s: float) -> HandMove | None:
+    def on_prompt(self, t_s: float, earliest_s: float | None = None) -> HandMove | None:
         """The operator read a prompt for this socket at world time `t_s`: plan the turn to
-        the other stop (after the reaction time, and after any move still under way)."""
+        the other stop (after the reaction time, and after any move still under way), never
+        before `earliest_s` (the samples up to then are already sent)."""
         self.prompts_seen += 1
         if not self.cfg.responds:
             return None
         cfg = self.cfg
         start = t_s + float(self.rng.uniform(cfg.reaction_min_s, cfg.reaction_max_s))
+        if earliest_s is not None:
+            start = max(start, earliest_s)
         if self.moves:
             last = self.moves[-1]
             settled = last.end_s + (5.0 * last.bounce.decay_s if last.bounce else 0.0)

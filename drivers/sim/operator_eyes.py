@@ -10,7 +10,11 @@ instruments, only what the screen says. One line per event:
      "sockets": {"1": "PROMPT"}}
 
 On a prompt the operator turns the fixtures of the sockets named, one after another (one
-pair of hands); `prompt_done` needs no action. Nothing is answered.
+pair of hands); `prompt_done` needs no action. Nothing is answered. A line may carry
+`monotonic_s`, the machine's monotonic clock when the station showed the prompt: the
+operator's reaction counts from then (a busy bench process reads the line late; a real
+operator would not see the screen late), but a move never starts before the world's
+present, whose samples are already sent.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from drivers.sim.world import World
 log = logging.getLogger(__name__)
 MAX_LINE_BYTES = 64 * 1024
 KEEP_PROMPTS = 50
+MAX_SCREEN_LAG_S = 600.0  # world seconds; older stamps are not trusted
 
 
 class OperatorEyes:
@@ -83,10 +88,11 @@ class OperatorEyes:
         if not isinstance(event, dict) or event.get("kind") not in ("prompt", "prompt_done"):
             return
         sockets = _sockets(event.get("sockets"))
-        t = self.world.advance()
+        now = self.world.advance()
+        t = self._shown_at(event.get("monotonic_s"), now)
         self.seen.append(
-            {"time_s": t, "kind": event["kind"], "message": str(event.get("message", ""))[:200],
-             "sockets": sockets}
+            {"time_s": now, "shown_s": t, "kind": event["kind"],
+             "message": str(event.get("message", ""))[:200], "sockets": sockets}
         )
         del self.seen[:-KEEP_PROMPTS]
         if event["kind"] != "prompt":
@@ -95,9 +101,18 @@ class OperatorEyes:
             sock = self.world.sockets.get(index)
             if sock is None:
                 continue
-            move = sock.hand.on_prompt(t)
+            move = sock.hand.on_prompt(t, earliest_s=now)
             if move is not None:
                 t = max(t, move.end_s)
+
+    def _shown_at(self, monotonic_s: Any, now: float) -> float:
+        """World time the prompt appeared on the screen: the station stamps it with the
+        machine's monotonic clock (the world's clock too), so an operator reacts from when
+        it was shown even when this process reads it late; `now` if absent or implausible."""
+        if isinstance(monotonic_s, bool) or not isinstance(monotonic_s, int | float):
+            return now
+        shown = self.world.world_time_at(float(monotonic_s))
+        return shown if now - MAX_SCREEN_LAG_S <= shown <= now else now
 
     def truth(self) -> list[dict[str, Any]]:
         return list(self.seen)

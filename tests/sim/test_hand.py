@@ -110,3 +110,32 @@ def test_bench_without_a_table_turns_a_fixture_on_the_station_prompt() -> None:
         assert truth["sockets"]["1"]["hand"]["moves"] == []  # socket 1 was not prompted
         assert truth["operator"]["prompts"][0]["sockets"] == [2]
         relay.close()
+
+
+def test_the_operator_reacts_from_when_the_prompt_was_shown_not_when_it_was_read() -> None:
+    """A busy bench reads a prompt line late: the reaction counts from the station's stamp
+    (the machine's monotonic clock), but no move starts before the world's present."""
+    import json
+    import time
+
+    from drivers.sim.config import parse_sim_config
+    from drivers.sim.operator_eyes import OperatorEyes
+    from drivers.sim.world import World
+
+    world = World(parse_sim_config({"parts": [{"socket": 1, "serial": "SIM-H003"}]}), 100.0)
+    eyes = OperatorEyes(world)
+    time.sleep(0.05)  # 5 world seconds
+    shown = time.monotonic() - 0.02  # shown 2 world seconds before it is read
+    eyes.read(json.dumps({"kind": "prompt", "sockets": {"1": "PROMPT"},
+                          "monotonic_s": shown}).encode())
+    move = world.sockets[1].hand.moves[-1]
+    read_at, shown_at = eyes.seen[-1]["time_s"], eyes.seen[-1]["shown_s"]
+    hand = world.config.hand
+    assert shown_at <= read_at - 2.0 + 1e-6  # the station's stamp, not the reading
+    assert move.start_s >= read_at  # never in the past: those samples are sent
+    assert move.start_s >= shown_at + hand.reaction_min_s
+    assert move.start_s <= max(read_at, shown_at + hand.reaction_max_s) + 1e-9
+    eyes.read(b'{"kind": "prompt", "sockets": [1], "monotonic_s": "soon"}')  # not a time
+    assert len(world.sockets[1].hand.moves) == 2
+    eyes.read(b"not json")
+    assert len(eyes.seen) == 2
