@@ -41,7 +41,7 @@ from procedures.analysis.stop_method import (
 )
 from procedures.record import Verdict
 from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.run_parts import PartRun, condition_record
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import Declared, StepSettings, StepType
 from procedures.steps.stop import stop_noise_model
@@ -324,7 +324,7 @@ class ManualStop(StepType[ManualStopSettings]):
             ctx.parts.drop(part, Verdict.ERROR, f"manual stop method: {exc}")
             return
         self._warn_bounces(ctx, part, data, result)
-        self._record(ctx, part, result, ref, u_ref, condition)
+        self._record(ctx, part, result, ref, u_ref, condition, data["temp_c"])
 
     def _warn_bounces(self, ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]],
                       result: StopMethodResult) -> None:
@@ -342,7 +342,7 @@ class ManualStop(StepType[ManualStopSettings]):
                 )
 
     def _record(self, ctx: RunContext, part: PartRun, result: StopMethodResult, ref: float,
-                u_ref: float, condition: str) -> None:
+                u_ref: float, condition: str, data_temp_c: NDArray[Any]) -> None:
         scale, u_scale = result.scale, result.u_scale
         assert scale is not None and u_scale is not None
         cond = condition or None
@@ -360,6 +360,10 @@ class ManualStop(StepType[ManualStopSettings]):
         if res is not None:
             res.stop = {"scale": scale, "u_scale": u_scale, "bias_dps": result.bias_dps,
                         "reference_angle_deg": ref, "u_reference_angle_deg": u_ref}
+            res.note_temperature("scale", data_temp_c)
+            # the conditions so far on the record (a later fit step writes them again), so a
+            # procedure without a fit still shows its condition and stop scale
+            part.record.conditions = [condition_record(r) for r in part.conditions.values()]
         for i, mv in enumerate(result.moves):
             ctx.records.segment(
                 part, "stop_move", i, mv.start_s, mv.end_s,
