@@ -59,7 +59,8 @@ def run_part(index: int, procedure: Path, speed: float, out: Path) -> dict[str, 
     stops = record.analysis.get("stop_method", {})
     stop = next(iter(stops.values()), None)
     row: dict[str, Any] = {"serial": serial, "verdict": str(result.verdicts[1]),
-                           "station_s": result.station_time_s, "truth": truth}
+                           "station_s": result.station_time_s, "truth": truth,
+                           "reason": result.reasons[1]}
     if "manual_stop" in steps and "manual_stop_end" in steps:
         row["manual_s"] = steps["manual_stop_end"] - steps["manual_stop"]
     if stop is not None:
@@ -87,6 +88,8 @@ def main() -> int:
                 f"  z {row.get('z', float('nan')):+5.2f}",
                 flush=True,
             )
+            if row["verdict"] != "PASS":
+                print(f"  {row['reason']}", flush=True)
     done = [r for r in rows if "z" in r]
     print(f"station time per part: {statistics.fmean(r['station_s'] for r in rows) / 60:.2f} min")
     if done:

@@ -48,6 +48,7 @@ from procedures.steps.stop import stop_noise_model
 
 CLIP_BITS = int(SampleStatus.OVER_RANGE | SampleStatus.SATURATED)
 POLL_S = 0.25  # station seconds between looks at the part's data while waiting for a move
+CATCH_UP_WALL_S = 10.0  # at most this long (wall) for late samples before the analysis
 
 
 class ManualStopSettings(StepSettings):
@@ -178,6 +179,9 @@ class ManualStop(StepType[ManualStopSettings]):
                 usable += 1
             self._read_stops(ctx, stops)
         t_end = ctx.wait.now_s()
+        # a loaded station receives samples late: have them all before cutting the record
+        bound_s = max(cfg.move_timeout_s, CATCH_UP_WALL_S * ctx.wait.clock.speed)
+        self._catch_up(ctx, t_end, bound_s)
         ctx.parts.each(lambda part: self._analyse(ctx, part, stops[part.socket], t_start, t_end))
 
     def _one_move(self, ctx: RunContext) -> dict[int, _Watch]:
@@ -205,9 +209,9 @@ class ManualStop(StepType[ManualStopSettings]):
         ctx.wait.sleep(cfg.static_s)
         return watches
 
-    def _catch_up(self, ctx: RunContext, t_s: float) -> None:
+    def _catch_up(self, ctx: RunContext, t_s: float, bound_s: float | None = None) -> None:
         """Wait (station time, bounded) until every alive part's samples up to `t_s` arrived."""
-        deadline = ctx.wait.now_s() + self.settings.move_timeout_s
+        deadline = ctx.wait.now_s() + (bound_s or self.settings.move_timeout_s)
         while ctx.wait.now_s() < deadline:
             behind = [
                 p for p in ctx.parts.alive()
