@@ -198,7 +198,9 @@ class FixtureSocket:
         k = np.arange(self._next_k, last_k + 1, dtype=np.int64)
         self._next_k = last_k + 1
         times = (self._t_start + k * dt).astype(np.float64)
-        angle = self.angle_deg(times)
+        table_angle = self.world.table.angle_deg(times)
+        # the fixture turned by hand adds its angle (nothing to add until the hand moves it)
+        angle = table_angle + self.hand.angle_deg(times) if self.hand.moves else table_angle
         if self.part_silent or not self.part_powered():
             self._last_angle_deg = float(angle[-1])
             return b""  # a silent or unpowered part sends nothing
@@ -214,7 +216,7 @@ class FixtureSocket:
         status = np.zeros(k.size, dtype=np.int64)
         encoder = None
         if self.world.config.fixture.encoder_input:
-            encoder = self.world.table.absolute_counts(self.world.table.angle_deg(times))
+            encoder = self.world.table.absolute_counts(table_angle)
             status |= fp.SampleStatus.ENCODER_LATCHED
         out = raw
         if part.compensation:
