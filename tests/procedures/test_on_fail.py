@@ -16,7 +16,7 @@ def test_a_failing_part_stops_early_and_no_failed_part_is_programmed(tmp_path: P
         {"socket": 2, "serial": "SIM-0902", "scale": 1.1},  # raw scale error limit 0.08
         {"socket": 3, "serial": "SIM-0903"},
     ]
-    run = run_on_bench(tmp_path / "runs", parts, speed=150, procedure=DATA / "stop_part.yaml")
+    run = run_on_bench(tmp_path / "runs", parts, speed=80, procedure=DATA / "stop_part.yaml")
     res = run.result
     assert res.verdicts == {1: Verdict.FAIL, 2: Verdict.FAIL, 3: Verdict.PASS}, res.reasons
 
