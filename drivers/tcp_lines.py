@@ -113,6 +113,29 @@ class LineLink:
                 instrument=self.instrument,
             ) from exc
 
+    def query_more(self, line: str) -> str:
+        """The next line of a multi-line reply to `line` (already sent by `query`)."""
+        with self._lock:
+            if self._sock is None:
+                raise ConnectionLost(
+                    f"the connection to the {self.where} dropped before the rest of its reply "
+                    f"to {line!r}; retry", instrument=self.instrument,
+                )
+            try:
+                return self._read_line(self._sock, line)
+            except TimeoutError as exc:
+                self._drop()
+                raise InstrumentTimeout(
+                    f"the {self.where} sent only part of its reply to {line!r} within "
+                    f"{self.timeout_s:g} s: check its baud and mode", instrument=self.instrument,
+                ) from exc
+            except OSError as exc:
+                self._drop()
+                raise ConnectionLost(
+                    f"the connection to the {self.where} dropped during {line!r} ({exc})",
+                    instrument=self.instrument,
+                ) from exc
+
     def close(self) -> None:
         with self._lock:
             self._drop()

@@ -32,6 +32,7 @@ class Bench:
     links: dict[int, PartLink]
     clock: ScaledClock
     table: RateTable | None = None
+    inclinometer: Any = None  # reads a fixture's angle at a stop (manual_stop), optional
 
 
 @dataclass

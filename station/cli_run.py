@@ -64,6 +64,9 @@ class ProgressDisplay:
         self._last_step = ""
 
     def __call__(self, ev: ProgressEvent) -> None:
+        if ev.kind in ("prompt", "prompt_done"):
+            self._prompt(ev)
+            return
         step = f"{ev.step} {ev.condition}".strip()
         remaining = "" if ev.remaining_s is None else f"~{ev.remaining_s / 60:4.1f} min left"
         sockets = " ".join(f"{k}:{v}" for k, v in sorted(ev.sockets.items()))
@@ -83,6 +86,21 @@ class ProgressDisplay:
         ):
             self._last_step = step
             print(line, file=self.stream, flush=True)
+
+
+    def _prompt(self, ev: ProgressEvent) -> None:
+        """An instruction to the operator on its own line (never overwritten by progress):
+        `>>> OPERATOR (socket 1): Turn ...`; `prompt_done` says it was seen done."""
+        sockets = ", ".join(str(s) for s in sorted(ev.sockets))
+        who = f" (socket{'s' if len(ev.sockets) > 1 else ''} {sockets})" if sockets else ""
+        if ev.kind == "prompt":
+            text = f">>> OPERATOR{who}: {ev.message}"
+            if self.tty:
+                text = "\a" + text
+        else:
+            text = f"    done{who}" + (f": {ev.message}" if ev.message else "")
+        lead = "\n" if self.tty else ""
+        print(lead + text, file=self.stream, flush=True)
 
 
 @contextlib.contextmanager
@@ -158,7 +176,11 @@ def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | No
         except (SimConfigError, ValueError) as exc:
             raise UserError(f"--sim-config {exc}") from None
         has_speed = isinstance(data, dict) and "speed" in data
-        return p.resolve(), None if has_speed else DEFAULT_SIM_SPEED
+        speed = None if has_speed else DEFAULT_SIM_SPEED
+        if isinstance(data, dict) and not data.get("parts"):  # e.g. config/sim/manual.yaml
+            parts = [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
+            return {**data, "parts": parts}, speed
+        return p.resolve(), speed
     return {
         "parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
     }, DEFAULT_SIM_SPEED

@@ -133,7 +133,7 @@ def plan_role(
     """The driver of one station role (not the part role); None for an absent optional one."""
     cfg = loaded.settings.instruments
     entry: InstrumentSettings | None = getattr(cfg, role, None)
-    if entry is None:
+    if entry is None or table_absent(loaded, role, endpoints):
         return None
     driver, own_settings = _sim_driver(role, entry.driver, endpoints)
     name, factory = _resolve(loaded, role, driver)
@@ -141,10 +141,25 @@ def plan_role(
     settings = given if own_settings else _carried_over(given, factory, role, name)
     if endpoints is not None and endpoints.address(role):
         settings["address"] = endpoints.address(role)
+    if role == "inclinometer" and endpoints is not None and endpoints.inclinometers:
+        settings["ports"] = dict(endpoints.inclinometers)  # the twins on the bench's fixtures
+        settings.pop("address", None)
     return RoleDriver(
         role, name, factory, settings, ("instruments", _yaml_key(loaded, role)),
         entry.calibration_due, entry.expected_model,
     )
+
+
+def table_absent(loaded: LoadedSettings, role: str, endpoints: Endpoints | None) -> bool:
+    """A station without a rate table (the article's hand-turned bench): station.yaml has no
+    rate_table entry, or the simulated bench serves none. The role is absent, not broken."""
+    if role != "rate_table":
+        return False
+    if endpoints is not None:
+        return endpoints.families.get(role) == "none" or (
+            not endpoints.address(role) and ("instruments", role) not in loaded.source.lines
+        )
+    return ("instruments", role) not in loaded.source.lines
 
 
 def plan_part(

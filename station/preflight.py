@@ -108,7 +108,7 @@ def _chamber(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: 
 
 def _table(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: str) -> list[str]:
     if bench.table is None:
-        return []
+        return _no_table(procedure, loaded)
     if not isinstance(bench.table, RateLimited):
         log.info("%s reports no rate limits: rates and accelerations not checked", who)
         return []
@@ -157,3 +157,15 @@ def _supply(
             f"above the {max_a:g} A {who} can set: load fewer parts"
         )
     return out
+
+
+def _no_table(procedure: ProcedureConfig, loaded: LoadedYaml) -> list[str]:
+    """A station without a rate table refuses a procedure that turns one."""
+    if not procedure.needs_table:
+        return []
+    return [
+        f"{loaded.path}: this station has no rate table (no instruments.rate_table in "
+        "station.yaml), but the procedure has steps that move one (rate_table, "
+        "stop_method, ...): choose a procedure for a hand-turned fixture (manual_stop, e.g. "
+        "eol-manual-stop.yaml) or configure the table"
+    ]

@@ -136,7 +136,9 @@ class Instruments(_Strict):
         description="the part role: the fixture's sockets (key fixture or part)",
     )
     inclinometer: InstrumentSettings | None = Field(
-        None, description="optional: an inclinometer (no built-in driver; name one)"
+        None,
+        description="optional: an inclinometer (no default driver; name one, e.g. "
+        "inclinometer.ascii-xy)",
     )
 
     def role_entry(self, role: str) -> InstrumentSettings | None:

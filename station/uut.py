@@ -80,6 +80,10 @@ class Endpoints:
     duts: dict[int, str]
     # role -> the family its twin serves (the station picks `<role>.<family>`)
     families: dict[str, str] = field(default_factory=dict)
+    # where the simulated operator reads the station's prompts ('' = nobody simulated)
+    operator: str = ""
+    # socket -> the inclinometer twin on that socket's fixture (none when the bench has none)
+    inclinometers: dict[int, str] = field(default_factory=dict)
 
     @classmethod
     def of_bench(cls, e: BenchEndpoints) -> Endpoints:
@@ -87,6 +91,8 @@ class Endpoints:
         return cls(
             speed=e.speed, rate_table=e.rate_table, chamber=e.chamber, supply=e.supply,
             duts=dict(e.duts), families=dict(e.families),
+            operator=str(e.raw.get("operator", "") or ""),
+            inclinometers={int(k): str(v) for k, v in (e.raw.get("inclinometers") or {}).items()},
         )
 
     def address(self, role: str) -> str:
@@ -240,7 +246,8 @@ def open_bench(
         supply: Supply = opened["supply"]
         table: RateTable | None = opened.get("rate_table")
         return OpenBench(
-            Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table),
+            Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table,
+                  inclinometer=opened.get("inclinometer")),
             records,
             closers,
             names,
@@ -295,6 +302,10 @@ class UutRunner:
         self.endpoints = endpoints
         self.certificate = certificate
         self.progress = ProgressBus()
+        if endpoints is not None and endpoints.operator:  # the simulated operator's eyes
+            from station.prompt_relay import PromptRelay
+
+            self.progress.subscribe(PromptRelay(endpoints.operator))
         self._lock = threading.Lock()
         self._ctx: RunContext | None = None
         self._engine: Engine | None = None

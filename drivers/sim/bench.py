@@ -21,11 +21,14 @@ from typing import Any
 from pydantic import ValidationError
 
 from drivers.rate_table_map import Fault
+from drivers.sim.absent_twin import AbsentTwin
 from drivers.sim.acutrol_twin import AcutrolTwin
 from drivers.sim.config import PartSpec, SimConfig
 from drivers.sim.control import ControlRequestError, ControlServer
 from drivers.sim.espec_twin import EspecP300Twin
+from drivers.sim.inclinometer_twin import InclinometerTwin
 from drivers.sim.modbus_twins import ChamberTwin, TableTwin
+from drivers.sim.operator_eyes import OperatorEyes
 from drivers.sim.pty_twins import FixtureTwin, SupplyTwin
 from drivers.sim.scpi_lan_twins import KeysightE36300Twin, RigolDp800Twin
 from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
@@ -96,6 +99,8 @@ TWINS: dict[tuple[str, str], Any] = {
     ("supply", "scpi"): SerialSupplyTwin,
     ("supply", "keysight-e36300"): KeysightE36300Twin,
     ("supply", "rigol-dp800"): RigolDp800Twin,
+    ("rate_table", "none"): AbsentTwin,
+    ("inclinometer", "ascii-xy"): InclinometerTwin,  # one per socket: InclinometerTwin(world, s)
 }
 
 
@@ -140,7 +145,13 @@ class Bench:
         )
         self.supply: Any = twin_class("supply", self.families["supply"])(self.world, host, 0)
         self.control = ControlServer(self.dispatch, host, control_port)
+        self.eyes = OperatorEyes(self.world, host)  # the simulated operator reads prompts
         self.fixtures: dict[int, FixtureTwin] = {}
+        self.inclinometers: dict[int, InclinometerTwin] = {}
+        if config.instruments.inclinometer != "none":
+            self.inclinometers = {
+                s: InclinometerTwin(self.world, s, host) for s in self.world.sockets
+            }
         self._tick_task: asyncio.Task[None] | None = None
         self.ticks = 0
         self.table.before_write = self._flush_samples
@@ -160,6 +171,9 @@ class Bench:
         for index, sock in self.world.sockets.items():
             self.fixtures[index] = FixtureTwin(self.world, sock, loop, fifo)
         await self.control.start()
+        await self.eyes.start()
+        for inclinometer in self.inclinometers.values():
+            await inclinometer.start()
         self._tick_task = asyncio.create_task(self._tick_loop())
 
     def endpoints(self) -> dict[str, Any]:
@@ -172,6 +186,8 @@ class Bench:
             "supply": endpoint_of(self.supply),
             "duts": {str(i): f.port.path for i, f in self.fixtures.items()},
             "control": self.control.endpoint,
+            "operator": self.eyes.endpoint,
+            "inclinometers": {str(s): i.endpoint() for s, i in self.inclinometers.items()},
             "pid": os.getpid(),
             "sockets": len(self.fixtures),
             "families": dict(self.families),
@@ -192,6 +208,9 @@ class Bench:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._tick_task
         await self.control.shutdown()
+        await self.eyes.shutdown()
+        for inclinometer in self.inclinometers.values():
+            await inclinometer.shutdown()
         for twin in (self.table, self.chamber, self.supply):
             await twin.shutdown()
         for fixture in self.fixtures.values():
@@ -332,6 +351,7 @@ class Bench:
             out["sockets"][str(index)]["fifo_peak_bytes"] = fixture.fifo_peak_bytes
             out["sockets"][str(index)]["fifo_bytes"] = fixture.fifo_bytes
         out["ticks"] = self.ticks
+        out["operator"] = {"prompts": self.eyes.truth()}
         return out
 
 

@@ -207,14 +207,19 @@ class InstrumentsConfig(_Model):
     """Which instrument family each twin serves (names pinned: the station picks the
     registered driver `<role>.<family>` for each)."""
 
-    rate_table: Literal["modbus-servo", "acutrol"] = Field(
-        "modbus-servo", description="rate table twin: modbus-servo or acutrol"
+    rate_table: Literal["modbus-servo", "acutrol", "none"] = Field(
+        "modbus-servo",
+        description="rate table twin: modbus-servo or acutrol; none: a bench without a rate "
+        "table (the parts sit on fixtures turned by hand)",
     )
     chamber: Literal["watlow-f4", "watlow-f4t", "espec-p300"] = Field(
         "watlow-f4", description="chamber twin: watlow-f4, watlow-f4t or espec-p300"
     )
     supply: Literal["scpi", "keysight-e36300", "rigol-dp800"] = Field(
         "scpi", description="supply twin: scpi, keysight-e36300 or rigol-dp800"
+    )
+    inclinometer: Literal["none", "ascii-xy"] = Field(
+        "none", description="an inclinometer on each socket's fixture: none or ascii-xy"
     )
 
     def families(self) -> dict[str, str]:
@@ -224,7 +229,44 @@ class InstrumentsConfig(_Model):
             "chamber": self.chamber,
             "supply": self.supply,
             "part": DEFAULT_FAMILIES["part"],
+            **({"inclinometer": self.inclinometer} if self.inclinometer != "none" else {}),
         }
+
+
+class HandConfig(_Model):
+    """The simulated operator's hand at a fixture turned by hand (the article's bench): on a
+    prompt the operator reacts, then turns the socket's fixture to its other stop in a
+    human, jerky move (overlapping sub-movements), sometimes bouncing off the stop, and, when
+    configured, sometimes flicking it fast enough to over-range the part."""
+
+    responds: bool = Field(
+        True, description="false: the operator never turns the fixture (a prompt left unseen)"
+    )
+    reaction_min_s: float = Field(default=0.6, ge=0.0, le=60.0)
+    reaction_max_s: float = Field(default=1.5, ge=0.0, le=60.0)
+    move_min_s: float = Field(default=3.0, gt=0.1, le=60.0, description="stop to stop, s")
+    move_max_s: float = Field(default=4.0, gt=0.1, le=60.0)
+    submoves: int = Field(
+        default=3, ge=1, le=8, description="overlapping sub-movements of a move (jerkiness)"
+    )
+    bounce_probability: float = Field(default=0.3, ge=0.0, le=1.0)
+    bounce_amplitude_deg: float = Field(default=0.4, ge=0.0, le=10.0)
+    bounce_frequency_hz: float = Field(default=5.0, gt=0.0, le=100.0)
+    bounce_decay_s: float = Field(default=0.08, gt=0.0, le=2.0)
+    over_range_probability: float = Field(
+        default=0.0, ge=0.0, le=1.0, description="share of moves flicked too fast"
+    )
+    over_range_move_s: float = Field(
+        default=0.5, gt=0.05, le=10.0, description="duration of a flick, s"
+    )
+
+    @model_validator(mode="after")
+    def _ranges(self) -> HandConfig:
+        if self.reaction_min_s > self.reaction_max_s:
+            raise ValueError("reaction_min_s must not exceed reaction_max_s")
+        if self.move_min_s > self.move_max_s:
+            raise ValueError("move_min_s must not exceed move_max_s")
+        return self
 
 
 class SimConfig(_Model):
@@ -243,6 +285,9 @@ class SimConfig(_Model):
     part_physics: PartPhysicsConfig = Field(default_factory=PartPhysicsConfig)
     instruments: InstrumentsConfig = Field(
         default_factory=InstrumentsConfig, description="the family each twin serves"
+    )
+    hand: HandConfig = Field(
+        default_factory=HandConfig, description="the operator's hand at a hand-turned fixture"
     )
 
     @model_validator(mode="after")

@@ -17,6 +17,7 @@ from drivers import fixture_protocol as fp
 from drivers.part_codes import ADIS16130
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.gyro import PartModel
+from drivers.sim.hand import HandFixture
 
 if TYPE_CHECKING:
     from drivers.sim.world import World
@@ -64,6 +65,8 @@ class FixtureSocket:
         self.corrupt_byte_rate = 0.0
         self.drop_frame_rate = 0.0
         self.rng = np.random.default_rng([socket, world.config.seed, 77])
+        # the fixture turns by hand between its stops (on top of the table, if any)
+        self.hand = HandFixture(world.config.hand, stop_angle_deg, world.config.seed, socket)
 
     # ------------------------------------------------------------ state
 
@@ -72,6 +75,10 @@ class FixtureSocket:
 
     def part_powered(self) -> bool:
         return self.part_present() and self.part is not None and self.part.powered
+
+    def angle_deg(self, t_s: Any) -> Any:
+        """The part's angle about its sensitive axis: the table's plus the hand fixture's."""
+        return self.world.table.angle_deg(t_s) + self.hand.angle_deg(t_s)
 
     def fixture_time_us(self, t_s: float) -> int:
         return int(round((t_s + self.clock_offset_s) * 1e6))
@@ -112,7 +119,7 @@ class FixtureSocket:
                 self.streaming = True
                 self._t_start = t_s
                 self._next_k = 1
-                self._last_angle_deg = float(self.world.table.angle_deg(t_s)[0])
+                self._last_angle_deg = float(self.angle_deg(t_s)[0])
                 self.seq = 0
             return "OK"
         if upper == fp.Command.CAL_READ:
@@ -191,7 +198,9 @@ class FixtureSocket:
         k = np.arange(self._next_k, last_k + 1, dtype=np.int64)
         self._next_k = last_k + 1
         times = (self._t_start + k * dt).astype(np.float64)
-        angle = self.world.table.angle_deg(times)
+        table_angle = self.world.table.angle_deg(times)
+        # the fixture turned by hand adds its angle (nothing to add until the hand moves it)
+        angle = table_angle + self.hand.angle_deg(times) if self.hand.moves else table_angle
         if self.part_silent or not self.part_powered():
             self._last_angle_deg = float(angle[-1])
             return b""  # a silent or unpowered part sends nothing
@@ -207,7 +216,7 @@ class FixtureSocket:
         status = np.zeros(k.size, dtype=np.int64)
         encoder = None
         if self.world.config.fixture.encoder_input:
-            encoder = self.world.table.absolute_counts(angle)
+            encoder = self.world.table.absolute_counts(table_angle)
             status |= fp.SampleStatus.ENCODER_LATCHED
         out = raw
         if part.compensation:
@@ -261,6 +270,7 @@ class FixtureSocket:
             "bytes_corrupted": self.bytes_corrupted,
             "stop_angle_deg": self.stop_angle_deg,
             "fixture_clock_offset_s": self.clock_offset_s,  # fixture time = world time + this
+            "hand": self.hand.truth(self.world.now_s()),
             "faults": {
                 "absent": self.absent,
                 "part_silent": self.part_silent,

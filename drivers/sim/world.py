@@ -55,6 +55,10 @@ class World:
     def now_s(self) -> float:
         return (time.monotonic() - self._t0_wall) * self.speed
 
+    def world_time_at(self, monotonic_s: float) -> float:
+        """The world time at a reading of the machine's monotonic clock (any process)."""
+        return (monotonic_s - self._t0_wall) * self.speed
+
     def advance(self) -> float:
         """Bring every slow state up to now; returns the world time."""
         t = max(self.now_s(), self._last_t)

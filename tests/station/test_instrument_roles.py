@@ -69,7 +69,8 @@ def test_driver_settings_are_the_drivers_own(tmp_path: Path) -> None:
 
 def test_an_inclinometer_needs_a_named_driver(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"station.yaml:3: instruments.inclinometer has no "
-                       r"default driver: name one with driver: \(registered: none\)"):
+                       r"default driver: name one with driver: "
+                       r"\(registered: inclinometer.ascii-xy\)"):
         _settings(tmp_path, "  inclinometer: {address: 10.0.0.9:4001}\n")
 
 
