@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -34,7 +35,13 @@ FIT_ORDERS = (1, 2, 3)
 # record/calibration names of the terms beyond first order, by order
 HIGHER_BIAS_NAMES = {2: "bias_temp_coeff2_dps_per_c2", 3: "bias_temp_coeff3_dps_per_c3"}
 HIGHER_SCALE_NAMES = {2: "scale_temp_coeff2_per_c2", 3: "scale_temp_coeff3_per_c3"}
-HIGHER_UNITS = {
+UNITS = {
+    "bias_dps": "deg/s",
+    "bias_temp_coeff_dps_per_c": "deg/s/C",
+    "bias_supply_coeff_dps_per_v": "deg/s/V",
+    "scale": "1",
+    "scale_temp_coeff_per_c": "1/C",
+    "scale_supply_coeff_per_v": "1/V",
     "bias_temp_coeff2_dps_per_c2": "deg/s/C^2",
     "bias_temp_coeff3_dps_per_c3": "deg/s/C^3",
     "scale_temp_coeff2_per_c2": "1/C^2",
@@ -125,12 +132,19 @@ class TemperatureFit:
         return out
 
 
-def _from_first_order(fit: TempSupplyFit, n: int) -> TemperatureFit:
+def _chi2(fit: TemperatureFit, conditions: Sequence[ConditionMeasurement]) -> tuple[float, float]:
+    chi2_b = chi2_s = 0.0
+    for c in conditions:
+        chi2_b += float((fit.bias_at(c.temp_c, c.supply_v)[0] - c.bias_dps) / c.u_bias_dps) ** 2
+        chi2_s += float((fit.scale_at(c.temp_c, c.supply_v)[0] - c.scale) / c.u_scale) ** 2
+    return chi2_b, chi2_s
+
+
+def _from_first_order(
+    fit: TempSupplyFit, conditions: Sequence[ConditionMeasurement]
+) -> TemperatureFit:
     c = fit.coefficients
-    chi2_b = chi2_s = float("nan")
-    if fit.interaction is not None:
-        chi2_b, chi2_s = fit.interaction.bias_chi2, fit.interaction.scale_chi2
-    return TemperatureFit(
+    out = TemperatureFit(
         order=1,
         bias_params=np.array(
             [c.bias_dps, c.bias_temp_coeff_dps_per_c, c.bias_supply_coeff_dps_per_v]
@@ -138,13 +152,15 @@ def _from_first_order(fit: TempSupplyFit, n: int) -> TemperatureFit:
         bias_covariance=fit.bias_covariance,  # (b0, bT, bV) is already (b0, b1, bV)
         scale_params=np.array([c.scale, c.scale_temp_coeff_per_c, c.scale_supply_coeff_per_v]),
         scale_covariance=fit.scale_covariance,
-        bias_chi2=chi2_b,
-        scale_chi2=chi2_s,
-        dof=n - 3,
+        bias_chi2=0.0,
+        scale_chi2=0.0,
+        dof=len(conditions) - 3,
         reference_temperature_c=c.reference_temperature_c,
         reference_supply_v=c.reference_supply_v,
         first_order=fit,
     )
+    chi2_b, chi2_s = _chi2(out, conditions)
+    return replace(out, bias_chi2=chi2_b, scale_chi2=chi2_s)
 
 
 def _wls(
@@ -183,7 +199,7 @@ def fit_temperature(
         raise AnalysisError(f"fit order {order} is not supported; use 1, 2 or 3")
     if order == 1:
         fit = fit_temp_supply(conditions, reference_temperature_c, reference_supply_v)
-        return _from_first_order(fit, len(conditions))
+        return _from_first_order(fit, conditions)
     n_temps = distinct_temperatures([c.temp_c for c in conditions])
     if n_temps < order + 1 or len(conditions) < order + 2:
         raise AnalysisError(
@@ -223,3 +239,35 @@ def fit_temperature(
         reference_temperature_c=reference_temperature_c,
         reference_supply_v=reference_supply_v,
     )
+
+
+def record_summary(
+    bias_fit: TemperatureFit, scale_fit: TemperatureFit, points: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """record.analysis["temperature_fit"]: the bias terms from `bias_fit`, the scale terms
+    from `scale_fit` (each paired with the die temperature of its own windows), the points
+    fitted, and what the certificate's section draws (reports/cert_temperature_fit.py)."""
+    bias_names, _ = bias_fit.names()
+    _, scale_names = scale_fit.names()
+    coefficients = [
+        {
+            "name": name,
+            "value": fit.value(name),
+            "uncertainty_k2": 2.0 * fit.uncertainty(name),
+            "units": UNITS[name],
+        }
+        for fit, names in ((bias_fit, bias_names), (scale_fit, scale_names))
+        for name in names
+    ]
+    return {
+        "order": bias_fit.order,
+        "reference_temperature_c": bias_fit.reference_temperature_c,
+        "reference_supply_v": bias_fit.reference_supply_v,
+        "coefficients": coefficients,
+        "bias_params": [float(x) for x in bias_fit.bias_params],
+        "scale_params": [float(x) for x in scale_fit.scale_params],
+        "bias_chi2": bias_fit.bias_chi2,
+        "scale_chi2": scale_fit.scale_chi2,
+        "dof": bias_fit.dof,
+        "points": points,
+    }
