@@ -10,15 +10,13 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
 
 from drivers.bounded import (
-    MAX_ACCEL_DPS2,
     MAX_LIST,
     MAX_RATE_DPS,
-    MAX_REPEATS,
     MAX_SUPPLY_V,
     ONE_DAY_S,
     ONE_HOUR_S,
@@ -35,6 +33,9 @@ from drivers.yaml_input import LoadedYaml as LoadedYaml
 from drivers.yaml_input import format_validation_error as format_validation_error
 from drivers.yaml_input import load_yaml_model as load_yaml_model
 from drivers.yaml_input import read_yaml
+from procedures.conditions import Condition, plan_conditions
+from procedures.step_list import Node, StepEntry, entries, expand, measurement_problems, parse_steps
+from procedures.steps.registry import StepType
 
 # ---------------------------------------------------------------- YAML with line numbers
 # The bounded reader lives with the lowest layer (drivers.yaml_input) so that the simulated
@@ -77,6 +78,11 @@ class Limit(_Strict):
     marginal_low: LimitValue | None = Field(None, description="below this (and >= low): MARGINAL")
     marginal_high: LimitValue | None = Field(None, description="above this (and <= high): MARGINAL")
     units: ShortName = Field("", description="units of the value, for the certificate")
+    on_fail: Literal["continue", "stop_part"] = Field(
+        "continue",
+        description="continue: a failing part goes on being measured; stop_part: it stops at "
+        "once (dropped from the remaining steps, verdict FAIL, the reason names this limit)",
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> Limit:
@@ -231,27 +237,8 @@ class ProductConfig(_Strict):
         return self
 
 
+
 # ---------------------------------------------------------------- procedure file
-
-
-class StepPolicy(_Strict):
-    timeout_s: Seconds = Field(
-        3600.0, gt=0, description="station seconds before the step times out"
-    )
-    retries: int = Field(0, ge=0, le=5, description="extra attempts after an instrument timeout")
-
-
-class PowerConfig(_Strict):
-    settle_s: float = Field(
-        2.0, ge=0, le=ONE_HOUR_S, description="wait after switching the supply on"
-    )
-    supply_tolerance_v: float = Field(
-        0.05, gt=0, le=10, description="allowed |measured - set| supply"
-    )
-    output_rate_hz: Literal[50, 100, 200, 500, 1000] = Field(
-        100, description="part output data rate, Hz"
-    )
-
 
 class ConditionsConfig(_Strict):
     temperatures_c: list[ChamberTemp] = Field(
@@ -274,6 +261,7 @@ class ConditionsConfig(_Strict):
         return value
 
 
+
 class ChamberConfig(_Strict):
     ramp_c_per_min: float = Field(5.0, ge=0, le=100, description="chamber ramp rate (0 = fastest)")
     safe_temp_c: float = Field(
@@ -283,139 +271,6 @@ class ChamberConfig(_Strict):
     setpoint_band_c: float = Field(0.5, gt=0, le=50, description="air within this of setpoint")
     setpoint_timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach setpoint")
 
-
-class StabilityConfig(_Strict):
-    """Thermal stability, judged on each part's own temperature sensor."""
-
-    window_s: Seconds = Field(60.0, gt=0, description="window over which slope and band are judged")
-    slope_c_per_min: float = Field(
-        0.05, gt=0, le=100, description="largest |die temperature slope|"
-    )
-    band_c: float = Field(
-        0.1, gt=0, le=100, description="largest peak-to-peak die temperature in the window"
-    )
-    target_tolerance_c: float | None = Field(
-        None, gt=0, le=100, description="optional: die temperature within this of the setpoint"
-    )
-    timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach stability")
-    check_interval_s: float = Field(
-        5.0, gt=0, le=ONE_HOUR_S, description="how often stability is evaluated"
-    )
-
-
-class BiasConfig(_Strict):
-    dwell_s: Seconds | Literal["auto"] = Field(
-        30.0, description="static averaging time, s, or 'auto' (from Allan deviation and target)"
-    )
-    target_accuracy_dps: float = Field(0.005, gt=0, le=100, description="k=2 target for 'auto'")
-    min_dwell_s: Seconds = Field(10.0, gt=0, description="pilot dwell for 'auto'")
-    max_dwell_s: Seconds = Field(300.0, gt=0, description="cap for 'auto'")
-    wander_factor: float = Field(
-        1.5,
-        ge=0,
-        le=100,
-        description="bias wander between conditions, in units of the bias "
-        "instability, added to each condition's bias uncertainty (0: white noise only)",
-    )
-
-    @field_validator("dwell_s")
-    @classmethod
-    def _positive(cls, value: float | str) -> float | str:
-        if not isinstance(value, str) and value <= 0:
-            raise ValueError("dwell must be a positive number of seconds or 'auto'")
-        return value
-
-
-class RateTableConfig(_Strict):
-    enabled: bool = True
-    rates_dps: list[Rate] = Field(
-        min_length=2, max_length=MAX_LIST, description="rate set, deg/s (both signs)"
-    )
-    plateau_dwell_s: Seconds = Field(10.0, gt=0, description="averaging time on each plateau")
-    settle_s: float = Field(
-        1.0, ge=0, le=ONE_HOUR_S, description="wait after at-rate before averaging"
-    )
-    accel_dps2: float = Field(
-        200.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
-    )
-    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="passes through the rate set")
-    at_rate_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed to reach a rate")
-
-
-class StopMethodConfig(_Strict):
-    enabled: bool = True
-    stop_angle_deg: float = Field(90.0, gt=0, le=360, description="angle between the stops")
-    move_time_s: float = Field(3.5, gt=0, le=ONE_HOUR_S, description="duration of each smooth move")
-    static_s: float = Field(
-        5.0, gt=0, le=ONE_HOUR_S, description="rest before, between and after the moves"
-    )
-    bias_window_s: float = Field(
-        3.0, gt=0, le=ONE_HOUR_S, description="leading rest used for the bias"
-    )
-    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="out-and-back pairs")
-    reference: Literal["encoder", "fixture"] = Field(
-        "encoder", description="angle reference: the table encoder or the fixture's stop angle"
-    )
-    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
-
-
-class PositionsConfig(_Strict):
-    """Multi-position static: the table at rest at several angles, one static window each.
-
-    Rotation about a vertical axis changes nothing for a perfect part at rest; a part whose
-    sensitive axis is tilted in the fixture sees a share of gravity that turns with the table
-    (g sensitivity), which only static windows at several angles can show. Disabled unless
-    the section is present."""
-
-    enabled: bool = True
-    angles_deg: list[float] = Field(
-        default_factory=lambda: [0.0, 90.0, 180.0, 270.0],
-        min_length=1,
-        max_length=MAX_LIST,
-        description="table angles (encoder, deg) at which the part rests, in this order",
-    )
-    dwell_s: Seconds = Field(10.0, gt=0, description="static window at each angle, s")
-    settle_s: float = Field(
-        1.0, ge=0, le=ONE_HOUR_S, description="wait after in-position before the window"
-    )
-    accel_dps2: float = Field(
-        100.0, gt=0, le=MAX_ACCEL_DPS2, description="acceleration of each move, deg/s^2"
-    )
-    at: Literal["every_condition", "first_condition"] = Field(
-        "every_condition",
-        description="every_condition: after the bias step at each condition; "
-        "first_condition: only at the first",
-    )
-    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
-
-    @field_validator("angles_deg")
-    @classmethod
-    def _angles(cls, value: list[float]) -> list[float]:
-        if any(not -3600.0 <= a <= 3600.0 for a in value):
-            raise ValueError("angles must lie within +/-3600 deg")
-        return value
-
-
-class FitConfig(_Strict):
-    source: Literal["rate_table", "stop_method", "both"] = Field(
-        "rate_table",
-        description="which scale estimate feeds the fit (both: weighted by uncertainty)",
-    )
-
-
-class VerifyConfig(_Strict):
-    enabled: bool = True
-    method: Literal["auto", "rate_table", "stop_method"] = Field(
-        "auto", description="auto: rate table if enabled, else stop moves with compensation on"
-    )
-    rates_dps: list[Rate] = Field(
-        default_factory=list,
-        max_length=MAX_LIST,
-        description="verification rates, deg/s (rate_table method)",
-    )
-    dwell_s: Seconds = Field(10.0, gt=0, description="averaging time at each rate")
-    settle_s: float = Field(1.0, ge=0, le=ONE_HOUR_S)
-    supply_v: Volts | None = Field(None, description="supply during verification (default V0)")
 
 
 class StreamConfig(_Strict):
@@ -428,24 +283,13 @@ class StreamConfig(_Strict):
     )
 
 
-class StepsConfig(_Strict):
-    default: StepPolicy = StepPolicy()
-    power: StepPolicy | None = None
-    thermal: StepPolicy | None = None
-    bias: StepPolicy | None = None
-    rate_table: StepPolicy | None = None
-    stop_method: StepPolicy | None = None
-    positions: StepPolicy | None = None
-    fit: StepPolicy | None = None
-    program: StepPolicy | None = None
-    verify: StepPolicy | None = None
-
-    def policy(self, step: str) -> StepPolicy:
-        return getattr(self, step, None) or self.default
 
 
 class ProcedureConfig(_Strict):
-    """A calibration procedure: what to measure, where, and how long."""
+    """A calibration procedure: run-wide settings and the list of steps (see docs/procedures.md).
+
+    `steps` holds the list as written; it is parsed into step entries at validation (each
+    entry's settings against its step type's model) and `plan()` expands its loops."""
 
     name: Name = Field(min_length=1, description="procedure name shown on the certificate")
     version: ShortName = Field("1", description="procedure version")
@@ -453,63 +297,55 @@ class ProcedureConfig(_Strict):
     product: PathText | None = Field(
         None, description="product file, relative to this file (overridden by --product)"
     )
-    power: PowerConfig = PowerConfig()
+    output_rate_hz: Literal[50, 100, 200, 500, 1000] = Field(
+        100, description="part output data rate, Hz"
+    )
     conditions: ConditionsConfig
     chamber: ChamberConfig = ChamberConfig()
-    stability: StabilityConfig = StabilityConfig()
-    bias: BiasConfig = BiasConfig()
-    rate_table: RateTableConfig | None = None
-    stop_method: StopMethodConfig | None = None
-    positions: PositionsConfig | None = Field(
-        None, description="optional multi-position static step (absent: not run)"
-    )
-    fit: FitConfig = FitConfig()
-    verify: VerifyConfig | None = None
     stream: StreamConfig = StreamConfig()
-    steps: StepsConfig = StepsConfig()
+    steps: list[dict[str, Any]] = Field(
+        min_length=1,
+        max_length=MAX_LIST,
+        description="the steps in order: '- step: <type>' with its settings, "
+        "'- for_each: condition' or '- repeat: N' with nested 'steps:' (docs/procedures.md)",
+    )
+    _nodes: tuple[Node, ...] = PrivateAttr(default=())
 
     @model_validator(mode="after")
-    def _scale_source(self) -> ProcedureConfig:
-        table = self.rate_table is not None and self.rate_table.enabled
-        stop = self.stop_method is not None and self.stop_method.enabled
-        if not (table or stop):
-            raise ValueError("enable at least one of rate_table or stop_method")
-        method = self.verify_method
-        if method == "rate_table" and not (table and self.verify and self.verify.rates_dps):
-            raise ValueError(
-                "verify.method rate_table needs rate_table enabled and verify.rates_dps"
-            )
-        if method == "stop_method" and not stop:
-            raise ValueError("verify.method stop_method needs stop_method enabled")
-        need = {"rate_table": table, "stop_method": stop, "both": table and stop}
-        if not need[self.fit.source]:
-            raise ValueError(
-                f"fit.source is {self.fit.source!r} but that method is not enabled; "
-                "enable it or choose a source that is"
-            )
+    def _parse_steps(self) -> ProcedureConfig:
+        self._nodes = parse_steps(self.steps)
         return self
 
     @property
-    def verify_method(self) -> str | None:
-        """Which verification runs after programming (None: none)."""
-        v = self.verify
-        if v is None or not v.enabled:
-            return None
-        if v.method == "auto":
-            return "rate_table" if self.table_enabled and v.rates_dps else "stop_method"
-        return v.method
+    def nodes(self) -> tuple[Node, ...]:
+        return self._nodes
+
+    def entries(self) -> list[StepEntry]:
+        """Every step entry of the file (loops walked once)."""
+        return list(entries(self._nodes))
+
+    def entries_of(self, *type_names: str) -> list[StepEntry]:
+        return [e for e in self.entries() if e.type_name in type_names]
+
+    def planned_conditions(self, start_temp_c: float | None = None) -> list[Condition]:
+        cond = self.conditions
+        return plan_conditions(
+            cond.temperatures_c, cond.supplies_v, order=cond.order, start_temp_c=start_temp_c
+        )
+
+    def plan(self, start_temp_c: float | None = None) -> list[StepType[Any]]:
+        """The step instances in run order, loops unrolled."""
+        return expand(self._nodes, self.planned_conditions(start_temp_c))
 
     @property
-    def table_enabled(self) -> bool:
-        return self.rate_table is not None and self.rate_table.enabled
+    def needs_table(self) -> bool:
+        """Does any step need the rate table?"""
+        return any(e.type.uses_table for e in self.entries())
 
-    @property
-    def stop_enabled(self) -> bool:
-        return self.stop_method is not None and self.stop_method.enabled
-
-    @property
-    def positions_enabled(self) -> bool:
-        return self.positions is not None and self.positions.enabled
+    def settings_of(self, type_name: str) -> Any:
+        """The settings of the first entry of a step type, or None."""
+        found = self.entries_of(type_name)
+        return found[0].settings if found else None
 
 
 def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:
@@ -517,6 +353,19 @@ def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:
 
 
 def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
+    """Load a procedure file in the step-list form; ConfigError with file:line on any problem
+    (a file in the old section form is refused with the command that converts it)."""
+    from procedures.legacy_procedure import is_section_form
+
+    loaded = read_yaml(path)
+    if is_section_form(loaded.data):
+        raise ConfigError(
+            f"{loaded.path}:1: this procedure is in the old section form (power:, bias:, "
+            "rate_table:, ... sections); the station now runs a list of steps. Convert it "
+            f"with: station procedure convert {loaded.path} -o NEW.yaml"
+        )
+    if isinstance(loaded.data, dict) and "steps" in loaded.data:
+        parse_steps(loaded.data["steps"], loaded)  # file:line for every entry's problems
     return load_yaml_model(path, ProcedureConfig)
 
 
@@ -525,15 +374,22 @@ def check_procedure_for_product(
     procedure_file: LoadedYaml,
     product: ProductConfig,
     product_file: LoadedYaml,
-) -> None:
-    """Cross-checks of a procedure against the product it calibrates: every rate of the rate
-    set and of the verification within the part's rated range, every supply level within the
-    part's supply range. ConfigError with one line per problem, naming the procedure's file
-    and line and the product's limit."""
-    problems = [*_rate_problems(procedure, procedure_file, product, product_file),
+) -> list[str]:
+    """Cross-checks of a procedure against the product it calibrates: every declared
+    measurement has a limit (or is informational), every rate within the part's rated range,
+    every supply level within the part's supply range. ConfigError with one line per problem,
+    naming the procedure's file and line and the product's limit. Returns warnings: the
+    product limits the procedure never measures."""
+    limit_names = {k for k in LIMIT_NAMES if getattr(product.limits, k) is not None}
+    measured, warnings = measurement_problems(
+        procedure.nodes, limit_names, lambda p: _where(procedure_file, *p), str(product_file.path)
+    )
+    problems = [*measured,
+                *_rate_problems(procedure, procedure_file, product, product_file),
                 *_supply_problems(procedure, procedure_file, product, product_file)]
     if problems:
         raise ConfigError("\n".join(problems))
+    return warnings
 
 
 def _where(loaded: LoadedYaml, *path: str | int) -> str:
@@ -549,15 +405,14 @@ def _rate_problems(
     product_file: LoadedYaml,
 ) -> list[str]:
     out = []
-    for section, rates in (
-        ("rate_table", procedure.rate_table.rates_dps if procedure.rate_table else []),
-        ("verify", procedure.verify.rates_dps if procedure.verify else []),
-    ):
+    for entry in procedure.entries():
+        rates = getattr(entry.settings, "rates_dps", None) or []
         for i, rate in enumerate(rates):
             if abs(rate) > product.range_dps:
+                field = ".".join(map(str, (*entry.path, "rates_dps", i)))
                 out.append(
-                    f"{_where(procedure_file, section, 'rates_dps', i)}: field "
-                    f"{section}.rates_dps.{i}: {rate:g} deg/s is beyond the range of "
+                    f"{_where(procedure_file, *entry.path, 'rates_dps', i)}: field "
+                    f"{field} (step {entry.type_name}): {rate:g} deg/s is beyond the range of "
                     f"{product.product} (+/-{product.range_dps:g} deg/s, {product_file.path}); "
                     "give rates within the part's range"
                 )
@@ -572,8 +427,10 @@ def _supply_problems(
     levels: list[tuple[tuple[str | int, ...], float]] = [
         (("conditions", "supplies_v", i), v) for i, v in enumerate(procedure.conditions.supplies_v)
     ]
-    if procedure.verify is not None and procedure.verify.supply_v is not None:
-        levels.append((("verify", "supply_v"), procedure.verify.supply_v))
+    for entry in procedure.entries():
+        supply_v = getattr(entry.settings, "supply_v", None)
+        if supply_v is not None:
+            levels.append(((*entry.path, "supply_v"), supply_v))
     return [
         f"{_where(procedure_file, *path)}: field {'.'.join(map(str, path))}: {v:g} V is "
         f"outside the supply range [{low:g}, {high:g}] V of {product.product} "

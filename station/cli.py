@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "station.cli_reports",  # report, history, lot-report
     "station.cli_discrepancy",  # discrepancy
     "station.cli_ui",  # ui
+    "station.cli_procedure",  # procedure convert
 )
 
 

@@ -44,29 +44,31 @@ def _listed(section: str, key: str, values: list[float]) -> Iterator[_Setting]:
         yield _Setting((section, key, i), float(v), f"{section}.{key}")
 
 
+def _step_values(procedure: ProcedureConfig, key: str, table_only: bool) -> list[_Setting]:
+    """Every value of setting `key` in the procedure's step entries (with its place)."""
+    out: list[_Setting] = []
+    for entry in procedure.entries():
+        if table_only and not entry.type.uses_table:
+            continue
+        value = getattr(entry.settings, key, None)
+        if value is None:
+            continue
+        path = ".".join(map(str, entry.path))
+        text = f"{path}.{key} (step {entry.type_name})"
+        if isinstance(value, list):
+            out += [_Setting((*entry.path, key, i), float(v), text) for i, v in enumerate(value)]
+        else:
+            out.append(_Setting((*entry.path, key), float(value), text))
+    return out
+
+
 def _rates(procedure: ProcedureConfig) -> list[_Setting]:
     """Every table rate the procedure commands, deg/s."""
-    out: list[_Setting] = []
-    if procedure.table_enabled and procedure.rate_table is not None:
-        out += _listed("rate_table", "rates_dps", procedure.rate_table.rates_dps)
-        if procedure.verify_method == "rate_table" and procedure.verify is not None:
-            out += _listed("verify", "rates_dps", procedure.verify.rates_dps)
-    return out
+    return _step_values(procedure, "rates_dps", table_only=True)
 
 
 def _accelerations(procedure: ProcedureConfig) -> list[_Setting]:
-    out: list[_Setting] = []
-    if procedure.table_enabled and procedure.rate_table is not None:
-        out.append(
-            _Setting(("rate_table", "accel_dps2"), procedure.rate_table.accel_dps2,
-                     "rate_table.accel_dps2")
-        )
-    if procedure.positions_enabled and procedure.positions is not None:
-        out.append(
-            _Setting(("positions", "accel_dps2"), procedure.positions.accel_dps2,
-                     "positions.accel_dps2")
-        )
-    return out
+    return _step_values(procedure, "accel_dps2", table_only=True)
 
 
 def instrument_problems(
@@ -141,9 +143,7 @@ def _supply(
     out = []
     if max_v is not None:
         volts = list(_listed("conditions", "supplies_v", procedure.conditions.supplies_v))
-        if procedure.verify is not None and procedure.verify.supply_v is not None:
-            volts.append(_Setting(("verify", "supply_v"), procedure.verify.supply_v,
-                                  "verify.supply_v"))
+        volts += _step_values(procedure, "supply_v", table_only=False)
         out += [
             f"{_where(loaded, s.path)}: {s.text} {s.value:g} V is above the {max_v:g} V "
             f"{who} can set: lower the supply level"

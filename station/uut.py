@@ -281,7 +281,8 @@ class UutRunner:
             product_path = (self.procedure_path.parent / self.procedure.product).resolve()
         self.product_path = Path(product_path)
         self.product, self.product_file = load_product(self.product_path)
-        check_procedure_for_product(
+        # the product limits this procedure never measures: an event on every record
+        self.limit_warnings = check_procedure_for_product(
             self.procedure, self.procedure_file, self.product, self.product_file
         )
         self.operator = operator
@@ -332,7 +333,7 @@ class UutRunner:
         """The fixture's baud (station.yaml) must carry the procedure's output rate. Checked on
         the simulated bench too, where a pty has no baud: the procedure must suit the station."""
         problem = link_speed_problem(
-            self.procedure.power.output_rate_hz, self.settings.settings.instruments.fixture.baud
+            self.procedure.output_rate_hz, self.settings.settings.instruments.fixture.baud
         )
         if problem is not None:
             raise UserError(
@@ -354,7 +355,7 @@ class UutRunner:
 
     @property
     def needs_table(self) -> bool:
-        return self.procedure.table_enabled or self.procedure.stop_enabled
+        return self.procedure.needs_table
 
     def check_drivers(self, sockets: list[int]) -> None:
         """Resolve every role's driver and check its settings, without connecting: a bad
@@ -600,15 +601,17 @@ class UutRunner:
             pending_abort = self._abort_requested
         if pending_abort:
             ctx.abort(pending_abort)
-        for warning in warnings or []:
-            ctx.event(warning, level="WARNING")
+        for warning in [*(warnings or []), *self.limit_warnings]:
+            ctx.records.event(warning, level="WARNING")
         for part in parts:  # the supply limit must allow for parts that may sit there
             part.extra[UNASKED_SOCKETS] = len(warnings or [])
         if overdue:
-            ctx.event(f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING")
+            ctx.records.event(
+                f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING"
+            )
             if self.settings.settings.refuse_overdue_instruments:
                 for part in parts:
-                    ctx.drop(
+                    ctx.parts.drop(
                         part,
                         Verdict.ERROR,
                         f"instrument calibration overdue ({', '.join(overdue)}); "

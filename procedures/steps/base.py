@@ -1,9 +1,8 @@
-"""What every step shares: names, the no-op phases, and sample helpers."""
+"""What every step shares: the part's samples in a window, and the window checks."""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -11,33 +10,15 @@ from numpy.typing import NDArray
 
 from drivers.fixture_protocol import SEQ_MODULO
 from drivers.protocols import SampleStatus
-from procedures.engine import PartRun, RunContext
 from procedures.record import Verdict
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
 
 DELIVERY_WAIT_WALL_S = 3.0
 
 
-@dataclass
-class BaseStep:
-    name: str = "step"
-    policy: str = "default"
-    condition: str = ""
-
-    def estimate_s(self, ctx: RunContext) -> float:
-        return 0.0
-
-    def setup(self, ctx: RunContext) -> None:
-        return None
-
-    def main(self, ctx: RunContext) -> None:
-        return None
-
-    def cleanup(self, ctx: RunContext) -> None:
-        return None
-
-
 def sample_rate_hz(ctx: RunContext) -> float:
-    return float(ctx.procedure.power.output_rate_hz)
+    return float(ctx.procedure.output_rate_hz)
 
 
 def samples_between(
@@ -78,8 +59,9 @@ def check_window(
     n = int(data["time_s"].size)
     expected = expected_s * fs
     if expected > 0 and n < 0.5 * expected:
-        ctx.supply_reading()  # a shorted part browns out: say so, for every part on the supply
-        ctx.drop(
+        # a shorted part browns out: say so, for every part on the supply
+        ctx.instruments.supply_reading()
+        ctx.parts.drop(
             part,
             Verdict.ERROR,
             f"{what}: only {n} samples where about {expected:.0f} were expected: the part "
@@ -93,7 +75,7 @@ def check_window(
         int(ctx.procedure.stream.max_lost_fraction * (n + lost)),
     )
     if lost > allowed:
-        ctx.drop(
+        ctx.parts.drop(
             part,
             Verdict.ERROR,
             f"{what}: stream damaged: {lost} frames lost in this window of {n + lost} (at most "
@@ -105,7 +87,7 @@ def check_window(
         np.count_nonzero(data["status"] & (SampleStatus.OVER_RANGE | SampleStatus.SATURATED))
     )
     if over:
-        ctx.drop(
+        ctx.parts.drop(
             part,
             Verdict.FAIL,
             f"{what}: {over} samples over range or saturated; the part must never "

@@ -3,26 +3,84 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import Field, field_validator
 
 from procedures.analysis.allan import analyze_allan
 from procedures.analysis.bias import estimate_bias, required_averaging_time_s
 from procedures.analysis.errors import AnalysisError
-from procedures.engine import PartRun, RunContext
+from procedures.config import Seconds
 from procedures.record import Verdict
-from procedures.steps.base import BaseStep, check_window, sample_rate_hz, samples_between
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.base import check_window, sample_rate_hz, samples_between
+from procedures.steps.registry import Declared, StepSettings, StepType
 
 
-@dataclass
-class Bias(BaseStep):
-    first: bool = False
-    name: str = "bias"
-    policy: str = "bias"
+class BiasSettings(StepSettings):
+    dwell_s: Seconds | Literal["auto"] = Field(
+        30.0, description="static averaging time, s, or 'auto' (from Allan deviation and target)"
+    )
+    target_accuracy_dps: float = Field(0.005, gt=0, le=100, description="k=2 target for 'auto'")
+    min_dwell_s: Seconds = Field(10.0, gt=0, description="pilot dwell for 'auto'")
+    max_dwell_s: Seconds = Field(300.0, gt=0, description="cap for 'auto'")
+    wander_factor: float = Field(
+        1.5,
+        ge=0,
+        le=100,
+        description="bias wander between conditions, in units of the bias "
+        "instability, added to each condition's bias uncertainty (0: white noise only)",
+    )
+    allan: Literal["first_condition", "every_condition", "never"] = Field(
+        "first_condition",
+        description="where the Allan deviation (noise_arw_deg_per_sqrt_h, "
+        "bias_instability_deg_per_h) is measured: at the loop's first condition, at every one, "
+        "or never",
+    )
+
+    @field_validator("dwell_s")
+    @classmethod
+    def _positive(cls, value: float | str) -> float | str:
+        if not isinstance(value, str) and value <= 0:
+            raise ValueError("dwell must be a positive number of seconds or 'auto'")
+        return value
+
+
+NOISE = (
+    Declared("noise_arw_deg_per_sqrt_h", "deg/sqrt(h)", "angle random walk from the Allan "
+             "deviation"),
+    Declared("bias_instability_deg_per_h", "deg/h", "bias instability (short record: "
+             "indicative)"),
+)
+
+
+class Bias(StepType[BiasSettings]):
+    """Bias at rest (inside for_each: condition); the Allan deviation where `allan` says."""
+
+    type_name = "bias"
+    Settings = BiasSettings
+    provides = frozenset({"bias"})
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        raw = Declared("raw_bias_dps", "deg/s", "uncalibrated bias at rest", per_condition=True)
+        return [raw, *(NOISE if settings.allan != "never" else ())]
+
+    @property
+    def first(self) -> bool:
+        """Is the Allan deviation measured here?"""
+        allan = self.settings.allan
+        return allan == "every_condition" or (
+            allan == "first_condition" and self.place.condition_index == 0
+        )
+
+    def expected(self) -> list[Declared]:
+        return [d for d in super().expected() if self.first or d not in NOISE]
 
     def estimate_s(self, ctx: RunContext) -> float:
-        cfg = ctx.procedure.bias
+        cfg = self.settings
         return (
             float(cfg.dwell_s)
             if cfg.dwell_s != "auto"
@@ -30,33 +88,33 @@ class Bias(BaseStep):
         )
 
     def main(self, ctx: RunContext) -> None:
-        cfg = ctx.procedure.bias
+        cfg = self.settings
         fs = sample_rate_hz(ctx)
-        if ctx.bench.table is not None:
-            ctx.snapshot()
-        t0 = ctx.clock.now_s()
+        if ctx.instruments.table is not None:
+            ctx.instruments.snapshot()
+        t0 = ctx.wait.clock.now_s()
         if cfg.dwell_s == "auto":
-            ctx.sleep(cfg.min_dwell_s)
+            ctx.wait.sleep(cfg.min_dwell_s)
             need = cfg.min_dwell_s
-            for part in ctx.alive():
-                data = samples_between(ctx, part, t0, ctx.clock.now_s())
+            for part in ctx.parts.alive():
+                data = samples_between(ctx, part, t0, ctx.wait.clock.now_s())
                 try:
                     noise = analyze_allan(data["rate_dps"], fs).noise.model
                     need = max(need, required_averaging_time_s(noise, cfg.target_accuracy_dps))
                 except AnalysisError:
                     need = cfg.max_dwell_s
             dwell = min(max(need, cfg.min_dwell_s), cfg.max_dwell_s)
-            ctx.event(
+            ctx.records.event(
                 f"bias: automatic dwell {dwell:.1f} s for {cfg.target_accuracy_dps:g} deg/s (k=2)"
             )
-            ctx.sleep(t0 + dwell - ctx.clock.now_s())
+            ctx.wait.sleep(t0 + dwell - ctx.wait.clock.now_s())
         else:
             dwell = float(cfg.dwell_s)
-            ctx.sleep(dwell)
-        t1 = ctx.clock.now_s()
-        if ctx.bench.table is not None:
-            ctx.snapshot()
-        ctx.each(lambda part: self._analyse(ctx, part, t0, t1, dwell))
+            ctx.wait.sleep(dwell)
+        t1 = ctx.wait.clock.now_s()
+        if ctx.instruments.table is not None:
+            ctx.instruments.snapshot()
+        ctx.parts.each(lambda part: self._analyse(ctx, part, t0, t1, dwell))
 
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float, dwell: float) -> None:
         fs = sample_rate_hz(ctx)
@@ -79,17 +137,17 @@ class Bias(BaseStep):
             noise = allan.noise.model
             est = estimate_bias(data["rate_dps"], fs, noise)
         except AnalysisError as exc:
-            ctx.drop(part, Verdict.ERROR, f"bias at {self.condition}: {exc}")
+            ctx.parts.drop(part, Verdict.ERROR, f"bias at {self.condition}: {exc}")
             return
         part.extra["noise"] = noise
         res = part.conditions[self.condition]
         # the bias wanders between conditions (bias instability): a short record cannot see
         # it, so the product's typical value is its floor
         b_dps = max(noise.bias_instability_dps, ctx.product.bias_instability_deg_per_h / 3600.0)
-        u_wander = ctx.procedure.bias.wander_factor * b_dps
+        u_wander = self.settings.wander_factor * b_dps
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
         res.note_temperature("bias", data["temp_c"])
-        ctx.measure(
+        ctx.records.measure(
             part,
             "raw_bias_dps",
             est.bias_dps,
@@ -98,7 +156,7 @@ class Bias(BaseStep):
             condition=self.condition,
             description="uncalibrated bias at rest",
         )
-        ctx.segment(
+        ctx.records.segment(
             part,
             "static",
             0,
@@ -120,7 +178,7 @@ class Bias(BaseStep):
                 "rate_random_walk_deg_per_h_per_sqrt_h": noise.rrw_deg_per_h_per_sqrt_h,
                 "record_s": float(data["time_s"][-1] - data["time_s"][0]),
             }
-            ctx.measure(
+            ctx.records.measure(
                 part,
                 "noise_arw_deg_per_sqrt_h",
                 arw if math.isfinite(arw) else None,
@@ -130,7 +188,7 @@ class Bias(BaseStep):
                 description="angle random walk from the Allan deviation",
             )
             if bi > 0 and np.isfinite(bi):
-                ctx.measure(
+                ctx.records.measure(
                     part,
                     "bias_instability_deg_per_h",
                     bi,

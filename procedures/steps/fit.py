@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any, Literal
+
+from pydantic import Field
 
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.temp_supply_fit import (
@@ -12,9 +15,10 @@ from procedures.analysis.temp_supply_fit import (
     TempSupplyFit,
     fit_temp_supply,
 )
-from procedures.engine import ConditionResult, PartRun, RunContext, condition_record
 from procedures.record import Calibration, Verdict
-from procedures.steps.base import BaseStep
+from procedures.run_context import RunContext
+from procedures.run_parts import ConditionResult, PartRun, condition_record
+from procedures.steps.registry import Declared, StepSettings, StepType
 
 COEFF_UNITS = {
     "bias_temp_coeff_dps_per_c": "deg/s/C",
@@ -42,16 +46,36 @@ def scale_estimate(source: str, res: ConditionResult) -> tuple[float, float]:
     return (w1 * table[0] + w2 * stop[0]) / (w1 + w2), math.sqrt(1 / (w1 + w2))
 
 
-@dataclass
-class Fit(BaseStep):
-    name: str = "fit"
-    policy: str = "fit"
+class FitSettings(StepSettings):
+    source: Literal["rate_table", "stop_method", "both"] = Field(
+        "rate_table",
+        description="which scale estimate feeds the fit (both: weighted by uncertainty)",
+    )
+
+
+class Fit(StepType[FitSettings]):
+    """First-order bias and scale fit over the conditions measured so far."""
+
+    type_name = "fit"
+    Settings = FitSettings
+    provides = frozenset({"fit"})
+
+    @classmethod
+    def requires(cls, settings: Any) -> set[str]:
+        need = {"rate_table": {"scale_table"}, "stop_method": {"scale_stop"},
+                "both": {"scale_table", "scale_stop"}}[settings.source]
+        return {"bias", *need}
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [Declared(name, units, "first-order coefficient")
+                for name, units in COEFF_UNITS.items()]
 
     def main(self, ctx: RunContext) -> None:
-        ctx.each(lambda part: self._fit(ctx, part))
+        ctx.parts.each(lambda part: self._fit(ctx, part))
 
     def _fit(self, ctx: RunContext, part: PartRun) -> None:
-        source = ctx.procedure.fit.source
+        source = self.settings.source
         by_kind: dict[str, list[ConditionMeasurement]] = {"bias": [], "scale": []}
         try:
             for res in part.conditions.values():
@@ -78,7 +102,7 @@ class Fit(BaseStep):
             fit_b = fit_temp_supply(by_kind["bias"], t0, v0)
             fit_s = fit_temp_supply(by_kind["scale"], t0, v0)
         except AnalysisError as exc:
-            ctx.drop(part, Verdict.ERROR, f"first-order fit: {exc}")
+            ctx.parts.drop(part, Verdict.ERROR, f"first-order fit: {exc}")
             return
         cb, cs = fit_b.coefficients, fit_s.coefficients
         coefficients = replace(
@@ -118,7 +142,7 @@ class Fit(BaseStep):
         }
         for name, units in COEFF_UNITS.items():
             fit = fit_b if name.startswith("bias") else fit_s
-            ctx.measure(
+            ctx.records.measure(
                 part,
                 name,
                 getattr(coefficients, name),

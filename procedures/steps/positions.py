@@ -15,12 +15,18 @@ left it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, field_validator
 
-from procedures.engine import PartRun, RunContext
-from procedures.steps.base import BaseStep, check_window, samples_between
+from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
+from procedures.config import Seconds
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.base import check_window, samples_between
+from procedures.steps.registry import StepSettings, StepType
 
 SEGMENT_KIND = "position_static"
 AT_REST_DPS = 0.05  # |rate| at the snapshot above this: the table was not at rest
@@ -35,15 +41,52 @@ class PositionWindow:
     t1_s: float  # station time, window end
 
 
-@dataclass
-class Positions(BaseStep):
-    name: str = "positions"
-    policy: str = "positions"
-    windows: list[PositionWindow] = field(default_factory=list)
+class PositionsSettings(StepSettings):
+    """Multi-position static: the table at rest at several angles, one static window each."""
+
+    angles_deg: list[float] = Field(
+        default_factory=lambda: [0.0, 90.0, 180.0, 270.0],
+        min_length=1,
+        max_length=MAX_LIST,
+        description="table angles (encoder, deg) at which the part rests, in this order",
+    )
+    dwell_s: Seconds = Field(10.0, gt=0, description="static window at each angle, s")
+    settle_s: float = Field(
+        1.0, ge=0, le=ONE_HOUR_S, description="wait after in-position before the window"
+    )
+    accel_dps2: float = Field(
+        100.0, gt=0, le=MAX_ACCEL_DPS2, description="acceleration of each move, deg/s^2"
+    )
+    at: Literal["every_condition", "first_condition"] = Field(
+        "every_condition",
+        description="every_condition: at each condition of the loop; "
+        "first_condition: only at the first",
+    )
+    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
+
+    @field_validator("angles_deg")
+    @classmethod
+    def _angles(cls, value: list[float]) -> list[float]:
+        if any(not -3600.0 <= a <= 3600.0 for a in value):
+            raise ValueError("angles must lie within +/-3600 deg")
+        return value
+
+
+class Positions(StepType[PositionsSettings]):
+    """Static windows at several table angles (records segments; no judged measurement)."""
+
+    type_name = "positions"
+    Settings = PositionsSettings
+    uses_table = True
+
+    @property
+    def skipped(self) -> bool:
+        return self.settings.at == "first_condition" and self.place.condition_index > 0
 
     def estimate_s(self, ctx: RunContext) -> float:
-        cfg = ctx.procedure.positions
-        assert cfg is not None
+        cfg = self.settings
+        if self.skipped:
+            return 0.0
         angles = list(cfg.angles_deg)
         travel = [
             abs(b - a) for a, b in zip([angles[0], *angles], [*angles, angles[0]], strict=True)
@@ -53,30 +96,32 @@ class Positions(BaseStep):
         return len(angles) * (cfg.dwell_s + cfg.settle_s) + float(moves)
 
     def main(self, ctx: RunContext) -> None:
-        cfg = ctx.procedure.positions
-        table = ctx.bench.table
-        assert cfg is not None and table is not None
+        cfg = self.settings
+        table = ctx.instruments.table
+        assert table is not None
+        if self.skipped:
+            return
         table.enable()
         table.set_rate(0.0)
         table.wait_at_rate(cfg.move_timeout_s)
-        _, start = ctx.snapshot()
+        _, start = ctx.instruments.snapshot()
         home = start.position_deg
         # angles are table angles within the current turn: never unwind the turns a rate
         # sweep left on the (continuous) position feedback
         origin = 360.0 * round(home / 360.0)
-        self.windows = []
+        self.windows: list[PositionWindow] = []
         for angle in cfg.angles_deg:
-            ctx.check()
+            ctx.wait.check()
             table.move_to(origin + angle, accel_dps2=cfg.accel_dps2)
             table.wait_in_position(cfg.move_timeout_s)
-            ctx.sleep(cfg.settle_s)
-            t0 = ctx.clock.now_s()
-            ctx.sleep(0.5 * cfg.dwell_s)
-            _, rest = ctx.snapshot()
-            ctx.sleep(t0 + cfg.dwell_s - ctx.clock.now_s())
-            t1 = ctx.clock.now_s()
+            ctx.wait.sleep(cfg.settle_s)
+            t0 = ctx.wait.clock.now_s()
+            ctx.wait.sleep(0.5 * cfg.dwell_s)
+            _, rest = ctx.instruments.snapshot()
+            ctx.wait.sleep(t0 + cfg.dwell_s - ctx.wait.clock.now_s())
+            t1 = ctx.wait.clock.now_s()
             if abs(rest.rate_dps) > AT_REST_DPS:
-                ctx.event(
+                ctx.records.event(
                     f"positions: table not at rest at {angle:g} deg "
                     f"({rest.rate_dps:.3f} deg/s at the snapshot)",
                     "WARNING",
@@ -87,11 +132,10 @@ class Positions(BaseStep):
         # back to where the bias step left the table
         table.move_to(home, accel_dps2=cfg.accel_dps2)
         table.wait_in_position(cfg.move_timeout_s)
-        ctx.each(lambda part: self._analyse(ctx, part))
+        ctx.parts.each(lambda part: self._analyse(ctx, part))
 
     def _analyse(self, ctx: RunContext, part: PartRun) -> None:
-        cfg = ctx.procedure.positions
-        assert cfg is not None
+        cfg = self.settings
         res = part.conditions[self.condition]
         summary = []
         for i, w in enumerate(self.windows):
@@ -105,7 +149,7 @@ class Positions(BaseStep):
             ):
                 return
             start_s, end_s = float(data["time_s"][0]), float(data["time_s"][-1])
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 SEGMENT_KIND,
                 i,

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Any
 
+from pydantic import Field
+
+from drivers.bounded import ONE_HOUR_S
 from drivers.errors import InstrumentError, PartAbsent
-from procedures.engine import PartRun, RunContext
+from procedures.config import Volts
 from procedures.record import InstrumentRecord
-from procedures.steps.base import BaseStep
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.registry import Declared, StepSettings, StepType
 
 
 class SerialMismatch(InstrumentError):  # noqa: N818 - like drivers.errors
@@ -22,33 +27,56 @@ UNASKED_SOCKETS = "unasked_sockets"
 def parts_maybe_powered(ctx: RunContext) -> int:
     """Scanned parts still running plus unscanned sockets that may hold a part."""
     unasked = max((int(p.extra.get(UNASKED_SOCKETS, 0)) for p in ctx.parts), default=0)
-    return len(ctx.alive()) + unasked
+    return len(ctx.parts.alive()) + unasked
 
 
-@dataclass
-class PowerIdentify(BaseStep):
+class PowerSettings(StepSettings):
+    settle_s: float = Field(
+        2.0, ge=0, le=ONE_HOUR_S, description="wait after switching the supply on"
+    )
+    supply_tolerance_v: float = Field(
+        0.05, gt=0, le=10, description="allowed |measured - set| supply"
+    )
+    supply_v: Volts | None = Field(
+        None, description="supply level at power-on (default: the first condition's)"
+    )
+
+
+class PowerIdentify(StepType[PowerSettings]):
     """Supply on at the first condition's level, each part identified, streams started."""
 
-    supply_v: float = 5.0
-    name: str = "power_identify"
-    policy: str = "power"
+    type_name = "power_identify"
+    Settings = PowerSettings
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [Declared("supply_current_a", "A",
+                         "supply current at power-on (shared supply, per part)")]
 
     def estimate_s(self, ctx: RunContext) -> float:
-        return ctx.procedure.power.settle_s + 1.0
+        return self.settings.settle_s + 1.0
+
+    def _supply_v(self, ctx: RunContext) -> float:
+        if self.settings.supply_v is not None:
+            return self.settings.supply_v
+        if self.place.condition is not None:
+            return self.place.condition.supply_v
+        return ctx.procedure.planned_conditions()[0].supply_v
 
     def setup(self, ctx: RunContext) -> None:
-        supply = ctx.bench.supply
+        self.supply_v = self._supply_v(ctx)
+        supply = ctx.instruments.supply
         supply.output(False)
         supply.set_current_limit(ctx.product.current_limit_a * max(parts_maybe_powered(ctx), 1))
         supply.set_voltage(self.supply_v)
         supply.check_errors()
         supply.output(True)
-        ctx.sleep(ctx.procedure.power.settle_s)
+        ctx.wait.sleep(self.settings.settle_s)
 
     def main(self, ctx: RunContext) -> None:
-        supply = ctx.bench.supply
-        _, volts, amps = ctx.log_environment()
-        tol = ctx.procedure.power.supply_tolerance_v
+        supply = ctx.instruments.supply
+        _, volts, amps = ctx.instruments.log_environment()
+        tol = self.settings.supply_tolerance_v
         if abs(volts - self.supply_v) > tol:
             raise InstrumentError(
                 f"supply measures {volts:.3f} V with {self.supply_v:.3f} V set (allowed "
@@ -56,18 +84,18 @@ class PowerIdentify(BaseStep):
                 instrument="supply",
             )
         supply.check_errors()
-        ctx.each(lambda part: self._identify(ctx, part))
-        per_part_a = amps / max(len(ctx.alive()), 1)
-        for part in ctx.alive():
-            ctx.measure(
+        ctx.parts.each(lambda part: self._identify(ctx, part))
+        per_part_a = amps / max(len(ctx.parts.alive()), 1)
+        for part in ctx.parts.alive():
+            ctx.records.measure(
                 part,
                 "supply_current_a",
                 per_part_a,
                 units="A",
                 description="supply current at power-on (shared supply, per part)",
             )
-            part.extra["power_on_station_s"] = ctx.clock.now_s()
-        ctx.each(self._start)
+            part.extra["power_on_station_s"] = ctx.wait.clock.now_s()
+        ctx.parts.each(self._start)
 
     def _identify(self, ctx: RunContext, part: PartRun) -> None:
         assert part.stream is not None
@@ -96,7 +124,7 @@ class PowerIdentify(BaseStep):
             )
         part.extra["stop_angle"] = link.stop_angle()
         link.set_compensation(False)  # calibrate on the raw output
-        link.set_output_rate(ctx.procedure.power.output_rate_hz)
+        link.set_output_rate(ctx.procedure.output_rate_hz)
 
     def _start(self, part: PartRun) -> None:
         assert part.stream is not None

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
+from typing import Any
 
 from drivers.protocols import CalibrationRegisters
-from procedures.engine import PartRun, RunContext
-from procedures.record import Verdict
-from procedures.steps.base import BaseStep
+from procedures.record import Outcome, Verdict
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.registry import StepSettings, StepType
 
 READBACK_REL_TOL = 1e-6
 
@@ -36,27 +38,57 @@ def readback_differences(written: CalibrationRegisters, read: CalibrationRegiste
     return bad
 
 
-@dataclass
-class Program(BaseStep):
-    name: str = "program"
-    policy: str = "program"
+class ProgramSettings(StepSettings):
+    """No settings: the fitted coefficients are written as they are."""
+
+
+def failed_limits(part: PartRun) -> list[str]:
+    """What the part failed so far (name@condition), from its record."""
+    return [f"{m.name}@{m.condition}" if m.condition else m.name
+            for m in part.record.measurements if m.outcome is Outcome.FAIL]
+
+
+class Program(StepType[ProgramSettings]):
+    """Write the fit to each part, read it back, switch compensation on; a part that failed
+    any limit is never programmed (it leaves the run FAIL, the record says why)."""
+
+    type_name = "program"
+    Settings = ProgramSettings
+    provides = frozenset({"programmed"})
+
+    @classmethod
+    def requires(cls, settings: Any) -> set[str]:
+        return {"fit"}
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Any]:
+        return []
+
+    def setup(self, ctx: RunContext) -> None:
+        for part in ctx.parts.alive():
+            failed = failed_limits(part)
+            if failed:
+                reason = f"not programmed: failed {', '.join(failed)}"
+                part.record.analysis["programming"] = {"programmed": False, "reason": reason}
+                ctx.parts.drop(part, Verdict.FAIL, reason)
+        ctx.parts.require()
 
     def estimate_s(self, ctx: RunContext) -> float:
         return 2.0
 
     def main(self, ctx: RunContext) -> None:
-        for part in ctx.alive():
+        for part in ctx.parts.alive():
             assert part.stream is not None
-            ctx.per_part(part, lambda p: p.stream.stop())  # type: ignore[union-attr]
-        ctx.check()  # the watchdog: programming is no reason to miss an e-stop
-        ctx.each(lambda part: self._program(ctx, part))
-        ctx.check()
-        for part in ctx.alive():
-            ctx.per_part(part, lambda p: p.stream.start())  # type: ignore[union-attr]
+            ctx.parts.per_part(part, lambda p: p.stream.stop())  # type: ignore[union-attr]
+        ctx.wait.check()  # the watchdog: programming is no reason to miss an e-stop
+        ctx.parts.each(lambda part: self._program(ctx, part))
+        ctx.wait.check()
+        for part in ctx.parts.alive():
+            ctx.parts.per_part(part, lambda p: p.stream.start())  # type: ignore[union-attr]
 
     def _program(self, ctx: RunContext, part: PartRun) -> None:
         if part.fit is None:
-            ctx.drop(part, Verdict.ERROR, "no fitted coefficients to program")
+            ctx.parts.drop(part, Verdict.ERROR, "no fitted coefficients to program")
             return
         regs = registers_from_fit(part)
         link = part.link
@@ -68,7 +100,7 @@ class Program(BaseStep):
             cal.readback_ok = not diffs
             cal.readback = {k: float(v) for k, v in asdict(read).items()}
         if diffs:
-            ctx.drop(
+            ctx.parts.drop(
                 part,
                 Verdict.FAIL,
                 "calibration read back differs from what was written ("
@@ -77,4 +109,4 @@ class Program(BaseStep):
             )
             return
         link.set_compensation(True)
-        ctx.event(f"socket {part.socket}: coefficients written and read back", parts=[part])
+        ctx.records.event(f"socket {part.socket}: coefficients written and read back", parts=[part])

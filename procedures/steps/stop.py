@@ -11,11 +11,13 @@ the leading rest and each move, and a few seconds of rest cannot show by how muc
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import replace
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import Field
 
+from drivers.bounded import MAX_REPEATS, ONE_HOUR_S
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import stop_vs_rate_table
 from procedures.analysis.errors import AnalysisError
@@ -24,9 +26,12 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from procedures.engine import PartRun, RunContext
+from procedures.config import Seconds, Volts
 from procedures.record import Verdict
-from procedures.steps.base import BaseStep, check_window, samples_between
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.base import check_window, samples_between
+from procedures.steps.registry import Declared, StepSettings, StepType
 
 # the table counts as already at the first stop within this (a move is skipped)
 AT_STOP_TOLERANCE_DEG = 0.001
@@ -46,61 +51,90 @@ def stop_noise_model(ctx: RunContext, part: PartRun) -> NoiseModel | None:
     return replace(noise, bias_instability_dps=max(noise.bias_instability_dps, floor_dps))
 
 
-@dataclass
-class StopMethod(BaseStep):
-    name: str = "stop_method"
-    policy: str = "stop_method"
+class StopSettings(StepSettings):
+    stop_angle_deg: float = Field(90.0, gt=0, le=360, description="angle between the stops")
+    move_time_s: float = Field(3.5, gt=0, le=ONE_HOUR_S, description="duration of each smooth move")
+    static_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="rest before, between and after the moves"
+    )
+    bias_window_s: float = Field(
+        3.0, gt=0, le=ONE_HOUR_S, description="leading rest used for the bias"
+    )
+    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="out-and-back pairs")
+    reference: Literal["encoder", "fixture"] = Field(
+        "encoder", description="angle reference: the table encoder or the fixture's stop angle"
+    )
+    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
+
+
+class VerifyStopSettings(StopSettings):
+    supply_v: Volts | None = Field(
+        None, description="supply during verification (default: the product's V0)"
+    )
+
+
+class StopMethod(StepType[Any]):
+    """The article's stop method at one condition, the table moving the part between stops."""
+
+    type_name = "stop_method"
+    Settings = StopSettings
+    uses_table = True
+    provides = frozenset({"scale_stop"})
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [Declared("stop_table_consistency", "1", "(stop scale - table scale) / combined "
+                         "standard (k=1) uncertainty; needs a rate-table fit at the condition",
+                         per_condition=True, optional=True)]
 
     def estimate_s(self, ctx: RunContext) -> float:
-        cfg = ctx.procedure.stop_method
-        assert cfg is not None
+        cfg = self.settings
         return cfg.static_s + cfg.repeats * 2 * (cfg.move_time_s + cfg.static_s + 1.0) + 2.0
 
     def main(self, ctx: RunContext) -> None:
-        cfg = ctx.procedure.stop_method
-        table = ctx.bench.table
-        assert cfg is not None and table is not None
+        cfg = self.settings
+        table = ctx.instruments.table
+        assert table is not None
         table.enable()
         table.set_rate(0.0)
         table.wait_at_rate(cfg.move_timeout_s)
         # The stops sit at fixed table angles: go to the first stop of this turn rather than
         # re-zeroing the encoder where the sweep happened to end, so every condition uses
         # the same stops and table angles stay comparable across the whole run.
-        _, here = ctx.snapshot()
+        _, here = ctx.instruments.snapshot()
         origin = 360.0 * round(here.position_deg / 360.0)
         if abs(here.position_deg - origin) > AT_STOP_TOLERANCE_DEG:
             table.move_to(origin, move_time_s=cfg.move_time_s)
             table.wait_in_position(cfg.move_timeout_s)
-        t_start = ctx.clock.now_s()
-        _, rest = ctx.snapshot()
+        t_start = ctx.wait.clock.now_s()
+        _, rest = ctx.instruments.snapshot()
         positions = [rest.position_deg]
-        ctx.sleep(cfg.static_s)
+        ctx.wait.sleep(cfg.static_s)
         far = cfg.stop_angle_deg
         if cfg.reference == "fixture":
             # the stops are the fixture's: move to its measured angle (mean over sockets)
-            far = float(np.mean([p.extra["stop_angle"][0] for p in ctx.alive()]))
+            far = float(np.mean([p.extra["stop_angle"][0] for p in ctx.parts.alive()]))
         for _ in range(cfg.repeats):
             for target in (origin + far, origin):
                 table.move_to(target, move_time_s=cfg.move_time_s)
                 table.wait_in_position(cfg.move_timeout_s)
-                ctx.sleep(cfg.static_s)
-                _, rest = ctx.snapshot()
+                ctx.wait.sleep(cfg.static_s)
+                _, rest = ctx.instruments.snapshot()
                 positions.append(rest.position_deg)
-        t_end = ctx.clock.now_s()
+        t_end = ctx.wait.clock.now_s()
         travel = np.abs(np.diff(positions))
         self._encoder_angle = float(travel.mean())
         # each end quantised to one count; two ends per move, averaged over the moves
         count_deg = 360.0 / table.counts_per_rev()  # the table driver's encoder resolution
         self._encoder_u = count_deg * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
-        ctx.each(lambda part: self._analyse(ctx, part, t_start, t_end))
+        ctx.parts.each(lambda part: self._analyse(ctx, part, t_start, t_end))
 
     def _scale(
         self, ctx: RunContext, part: PartRun, data: dict[str, Any]
     ) -> tuple[StopMethodResult, float, float, float, float]:
         """Stop-method analysis of a window against this step's reference angle: the result,
         scale, its standard uncertainty, the reference angle and its uncertainty."""
-        cfg = ctx.procedure.stop_method
-        assert cfg is not None
+        cfg = self.settings
         if cfg.reference == "fixture":
             ref, u_ref = part.extra["stop_angle"]
         else:
@@ -121,8 +155,7 @@ class StopMethod(BaseStep):
         return result, result.scale, result.u_scale, ref, u_ref
 
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:
-        cfg = ctx.procedure.stop_method
-        assert cfg is not None
+        cfg = self.settings
         res = part.conditions[self.condition]
         data = samples_between(ctx, part, t0, t1)
         if not check_window(
@@ -136,7 +169,7 @@ class StopMethod(BaseStep):
         try:
             result, scale, u_scale, ref, u_ref = self._scale(ctx, part, data)
         except AnalysisError as exc:
-            ctx.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
+            ctx.parts.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
             return
         res.note_temperature("scale", data["temp_c"])
         res.stop = {
@@ -147,7 +180,7 @@ class StopMethod(BaseStep):
             "u_reference_angle_deg": u_ref,
         }
         for i, (a, b) in enumerate(result.static_segments_s):
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 "stop_static",
                 i,
@@ -158,7 +191,7 @@ class StopMethod(BaseStep):
                 supply_v=res.supply_v,
             )
         for i, mv in enumerate(result.moves):
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 "stop_move",
                 i,
@@ -193,11 +226,11 @@ class StopMethod(BaseStep):
             try:
                 cons = stop_vs_rate_table(result, res.table_fit)
             except AnalysisError as exc:
-                ctx.event(
+                ctx.records.event(
                     f"socket {part.socket}: consistency not computed: {exc}", "WARNING", [part]
                 )
                 return
-            ctx.measure(
+            ctx.records.measure(
                 part,
                 "stop_table_consistency",
                 cons.normalised_difference,
@@ -207,34 +240,43 @@ class StopMethod(BaseStep):
             )
 
 
-@dataclass
 class VerifyStop(StopMethod):
     """Verification without a rate table: the stop moves again, now on the part's own
     compensated output; the residual scale error is the compensated scale minus one."""
 
-    name: str = "verify"
-    policy: str = "verify"
+    type_name = "verify_stop"
+    Settings = VerifyStopSettings
+    provides = frozenset()
+
+    @classmethod
+    def requires(cls, settings: Any) -> set[str]:
+        return {"programmed"}
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [
+            Declared("residual_bias_dps", "deg/s", "compensated output at rest (stop method)"),
+            Declared("residual_scale_error", "1", "compensated stop-method scale - 1"),
+        ]
 
     def setup(self, ctx: RunContext) -> None:
         supply_v = ctx.product.reference_supply_v
-        v = ctx.procedure.verify
-        if v is not None and v.supply_v is not None:
-            supply_v = v.supply_v
-        ctx.set_supply_voltage(supply_v)
+        if self.settings.supply_v is not None:
+            supply_v = self.settings.supply_v
+        ctx.instruments.set_supply_voltage(supply_v)
         self.supply_v = supply_v
 
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:
-        cfg = ctx.procedure.stop_method
-        assert cfg is not None
+        cfg = self.settings
         data = samples_between(ctx, part, t0, t1)
         if not check_window(ctx, part, data, "verification (stop moves)", cfg.static_s * 3):
             return
         try:
             result, scale, u_scale, ref, u_ref = self._scale(ctx, part, data)
         except AnalysisError as exc:
-            ctx.drop(part, Verdict.ERROR, f"verification (stop moves): {exc}")
+            ctx.parts.drop(part, Verdict.ERROR, f"verification (stop moves): {exc}")
             return
-        ctx.measure(
+        ctx.records.measure(
             part,
             "residual_bias_dps",
             result.bias_dps,
@@ -243,7 +285,7 @@ class VerifyStop(StopMethod):
             condition="verify",
             description="compensated output at rest (stop method)",
         )
-        ctx.measure(
+        ctx.records.measure(
             part,
             "residual_scale_error",
             scale - 1.0,
@@ -253,7 +295,7 @@ class VerifyStop(StopMethod):
             description="compensated stop-method scale - 1",
         )
         for i, mv in enumerate(result.moves):
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 "verify",
                 i,

@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
+from pydantic import Field
+
+from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, MAX_REPEATS, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.rate_table import fit_rate_table, reference_rate_from_encoder
-from procedures.engine import PartRun, RunContext
+from procedures.config import Rate, Seconds
 from procedures.record import Verdict
-from procedures.steps.base import BaseStep, check_window, sample_rate_hz, samples_between
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.base import check_window, sample_rate_hz, samples_between
+from procedures.steps.registry import Declared, StepSettings, StepType
 
 
 def plateau_time_s(rate_dps: float, previous_dps: float, accel_dps2: float) -> float:
@@ -35,18 +42,18 @@ def run_plateaus(
     timeout_s: float,
 ) -> list[Plateau]:
     """Drive the table through `rates`; each plateau's reference from two encoder snapshots."""
-    table = ctx.bench.table
+    table = ctx.instruments.table
     assert table is not None
     cpr = table.counts_per_rev()
     out: list[Plateau] = []
     for rate in rates:
-        ctx.check()
+        ctx.wait.check()
         table.set_rate(rate, accel_dps2)
         table.wait_at_rate(timeout_s)
-        ctx.sleep(settle_s)
-        t0, s0 = ctx.snapshot()
-        ctx.sleep(dwell_s)
-        t1, s1 = ctx.snapshot()
+        ctx.wait.sleep(settle_s)
+        t0, s0 = ctx.instruments.snapshot()
+        ctx.wait.sleep(dwell_s)
+        t1, s1 = ctx.instruments.snapshot()
         c0 = s0.encoder_counts_unwrapped or s0.encoder_counts
         c1 = s1.encoder_counts_unwrapped or s1.encoder_counts
         ref = reference_rate_from_encoder(
@@ -61,15 +68,41 @@ def run_plateaus(
     return out
 
 
-@dataclass
-class RateSweep(BaseStep):
-    name: str = "rate_table"
-    policy: str = "rate_table"
-    plateaus: list[Plateau] = field(default_factory=list)
+class RateTableSettings(StepSettings):
+    rates_dps: list[Rate] = Field(
+        min_length=2, max_length=MAX_LIST, description="rate set, deg/s (both signs)"
+    )
+    plateau_dwell_s: Seconds = Field(10.0, gt=0, description="averaging time on each plateau")
+    settle_s: float = Field(
+        1.0, ge=0, le=ONE_HOUR_S, description="wait after at-rate before averaging"
+    )
+    accel_dps2: float = Field(
+        200.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
+    )
+    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="passes through the rate set")
+    at_rate_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed to reach a rate")
+
+
+class RateSweep(StepType[RateTableSettings]):
+    """Rate-table sweep at one condition: scale, nonlinearity and asymmetry from a line fit."""
+
+    type_name = "rate_table"
+    Settings = RateTableSettings
+    uses_table = True
+    provides = frozenset({"scale_table"})
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [
+            Declared("raw_scale_error", "1", "uncalibrated scale / nominal - 1 (rate table)",
+                     per_condition=True),
+            Declared("nonlinearity_pct_fs", "% FS", "largest residual from the line",
+                     per_condition=True),
+            Declared("asymmetry", "1", "(K+ - K-) / mean K", per_condition=True),
+        ]
 
     def estimate_s(self, ctx: RunContext) -> float:
-        cfg = ctx.procedure.rate_table
-        assert cfg is not None
+        cfg = self.settings
         rates = cfg.rates_dps * cfg.repeats
         ramps = (
             sum(abs(b - a) for a, b in zip([0.0, *rates], [*rates, 0.0], strict=True))
@@ -78,10 +111,10 @@ class RateSweep(BaseStep):
         return len(rates) * (cfg.plateau_dwell_s + cfg.settle_s + 0.5) + ramps
 
     def main(self, ctx: RunContext) -> None:
-        cfg = ctx.procedure.rate_table
-        assert cfg is not None and ctx.bench.table is not None
-        ctx.bench.table.enable()
-        self.plateaus = run_plateaus(
+        cfg = self.settings
+        assert ctx.instruments.table is not None
+        ctx.instruments.table.enable()
+        self.plateaus: list[Plateau] = run_plateaus(
             ctx,
             list(cfg.rates_dps) * cfg.repeats,
             cfg.plateau_dwell_s,
@@ -89,11 +122,10 @@ class RateSweep(BaseStep):
             cfg.accel_dps2,
             cfg.at_rate_timeout_s,
         )
-        ctx.each(lambda part: self._analyse(ctx, part))
+        ctx.parts.each(lambda part: self._analyse(ctx, part))
 
     def _analyse(self, ctx: RunContext, part: PartRun) -> None:
-        cfg = ctx.procedure.rate_table
-        assert cfg is not None
+        cfg = self.settings
         fs = sample_rate_hz(ctx)
         noise = part.extra.get("noise")
         res = part.conditions[self.condition]
@@ -114,7 +146,7 @@ class RateSweep(BaseStep):
             u_ref.append(p.u_ref_dps)
             out.append(wm.mean_dps)
             u_out.append(wm.u_mean_dps)
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 "plateau",
                 i,
@@ -128,11 +160,11 @@ class RateSweep(BaseStep):
         try:
             fit = fit_rate_table(ref, u_ref, out, u_out, ctx.product.range_dps)
         except AnalysisError as exc:
-            ctx.drop(part, Verdict.ERROR, f"rate-table fit at {self.condition}: {exc}")
+            ctx.parts.drop(part, Verdict.ERROR, f"rate-table fit at {self.condition}: {exc}")
             return
         res.table_fit = fit
         nominal = ctx.product.nominal_scale
-        ctx.measure(
+        ctx.records.measure(
             part,
             "raw_scale_error",
             fit.scale / nominal - 1.0,
@@ -141,7 +173,7 @@ class RateSweep(BaseStep):
             condition=self.condition,
             description="uncalibrated scale / nominal - 1 (rate table)",
         )
-        ctx.measure(
+        ctx.records.measure(
             part,
             "nonlinearity_pct_fs",
             fit.nonlinearity_pct_fs,
@@ -149,7 +181,7 @@ class RateSweep(BaseStep):
             uncertainty_k2=2 * fit.u_nonlinearity_pct_fs,
             condition=self.condition,
         )
-        ctx.measure(
+        ctx.records.measure(
             part,
             "asymmetry",
             fit.asymmetry_ppm * 1e-6,

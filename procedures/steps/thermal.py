@@ -11,14 +11,19 @@ is stable; a part that never gets there is dropped when the stability timeout ru
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
-from procedures.conditions import Condition
-from procedures.engine import ConditionResult, RunContext
+from drivers.bounded import ONE_HOUR_S
+from drivers.errors import ChamberSetpointNotReached
+from procedures.config import Seconds
 from procedures.record import Verdict
-from procedures.steps.base import BaseStep
+from procedures.run_context import RunContext
+from procedures.run_parts import ConditionResult
+from procedures.steps.registry import StepSettings, StepType
 
 
 @dataclass(frozen=True)
@@ -64,32 +69,58 @@ def judge_stability(
     return StabilityVerdict(ok, slope, band, mean, float(t[-1] - t[0]))
 
 
-@dataclass
-class Stabilise(BaseStep):
-    """Set the condition (chamber setpoint, supply level) and wait for every die to settle."""
+class ThermalSettings(StepSettings):
+    """Thermal stability, judged on each part's own temperature sensor."""
 
-    target: Condition = Condition(25.0, 5.0)
-    first: bool = False
-    name: str = "thermal"
-    policy: str = "thermal"
+    window_s: Seconds = Field(60.0, gt=0, description="window over which slope and band are judged")
+    slope_c_per_min: float = Field(
+        0.05, gt=0, le=100, description="largest |die temperature slope|"
+    )
+    band_c: float = Field(
+        0.1, gt=0, le=100, description="largest peak-to-peak die temperature in the window"
+    )
+    target_tolerance_c: float | None = Field(
+        None, gt=0, le=100, description="optional: die temperature within this of the setpoint"
+    )
+    stability_timeout_s: Seconds = Field(
+        3600.0, gt=0, description="time allowed to reach stability (a part not stable by then "
+        "is dropped)"
+    )
+    check_interval_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="how often stability is evaluated"
+    )
+
+
+class Stabilise(StepType[ThermalSettings]):
+    """Set the condition (chamber setpoint, supply level) and wait for every die to settle.
+
+    Inside `for_each: condition` (the condition comes from the loop)."""
+
+    type_name = "thermal"
+    Settings = ThermalSettings
+
+    @property
+    def target(self) -> Any:
+        if self.place.condition is None:
+            raise ValueError("the thermal step runs inside 'for_each: condition'")
+        return self.place.condition
 
     def estimate_s(self, ctx: RunContext) -> float:
-        st = ctx.procedure.stability
-        if self.first or self.temperature_changes:
+        st = self.settings
+        previous = self.place.previous
+        if previous is None or previous.temperature_c != self.target.temperature_c:
             return 20 * 60.0 + st.window_s
         return st.window_s + st.check_interval_s
 
-    temperature_changes: bool = False
-
     def setup(self, ctx: RunContext) -> None:
-        chamber, cfg = ctx.bench.chamber, ctx.procedure.chamber
+        chamber, cfg = ctx.instruments.chamber, ctx.procedure.chamber
         if abs(chamber.read_setpoint() - self.target.temperature_c) > 0.05:
             chamber.set_ramp_rate(cfg.ramp_c_per_min)
             chamber.set_setpoint(self.target.temperature_c)
         if not chamber.is_running():
             chamber.run()
-        ctx.set_supply_voltage(self.target.supply_v)
-        for part in ctx.alive():
+        ctx.instruments.set_supply_voltage(self.target.supply_v)
+        for part in ctx.parts.alive():
             part.conditions[self.condition] = ConditionResult(
                 name=self.condition,
                 temperature_c=self.target.temperature_c,
@@ -97,31 +128,29 @@ class Stabilise(BaseStep):
             )
 
     def main(self, ctx: RunContext) -> None:
-        st, cfg = ctx.procedure.stability, ctx.procedure.chamber
-        start = ctx.clock.now_s()
+        st, cfg = self.settings, ctx.procedure.chamber
+        start = ctx.wait.clock.now_s()
         # 1. the air first: a die that has not started to move is not stable
         while True:
-            air, _, _ = ctx.log_environment()
+            air, _, _ = ctx.instruments.log_environment()
             if abs(air - self.target.temperature_c) <= cfg.setpoint_band_c:
                 break
-            if ctx.clock.now_s() - start > cfg.setpoint_timeout_s:
-                from drivers.errors import ChamberSetpointNotReached
-
+            if ctx.wait.clock.now_s() - start > cfg.setpoint_timeout_s:
                 raise ChamberSetpointNotReached(
                     f"chamber air at {air:.1f} C did not reach {self.target.temperature_c:g} C "
                     f"within {cfg.setpoint_timeout_s:g} s: check the chamber (door, compressor)",
                     instrument="chamber",
                 )
-            ctx.sleep(st.check_interval_s)
-        air_at = ctx.clock.now_s()
+            ctx.wait.sleep(st.check_interval_s)
+        air_at = ctx.wait.clock.now_s()
         window_start = max(start, air_at - 0.0)
         # 2. every part on its own sensor
         stable_at: dict[int, float] = {}
         verdicts: dict[int, StabilityVerdict] = {}
         while True:
-            ctx.sleep(st.check_interval_s)
-            _, volts, amps = ctx.log_environment()
-            for part in ctx.alive():
+            ctx.wait.sleep(st.check_interval_s)
+            _, volts, amps = ctx.instruments.log_environment()
+            for part in ctx.parts.alive():
                 if part.socket in stable_at:
                     continue
                 assert part.stream is not None
@@ -138,39 +167,40 @@ class Stabilise(BaseStep):
                 )
                 verdicts[part.socket] = v
                 if v.stable:
-                    stable_at[part.socket] = ctx.clock.now_s()
-            alive = ctx.alive()
+                    stable_at[part.socket] = ctx.wait.clock.now_s()
+            alive = ctx.parts.alive()
             if all(p.socket in stable_at for p in alive):
                 break
-            if ctx.clock.now_s() - start > st.timeout_s:
+            if ctx.wait.clock.now_s() - start > st.stability_timeout_s:
                 for part in alive:
                     if part.socket not in stable_at:
                         last = verdicts.get(part.socket)
                         slope = last.slope_c_per_min if last else float("nan")
                         band = last.band_c if last else float("nan")
-                        ctx.drop(
+                        ctx.parts.drop(
                             part,
                             Verdict.ERROR,
                             (
-                                f"die temperature not stable within {st.timeout_s:g} s at "
+                                "die temperature not stable within "
+                                f"{st.stability_timeout_s:g} s at "
                                 f"{self.condition} (slope {slope:.3f} C/min, band {band:.3f} C): "
                                 "check the part's seating and the chamber; or relax stability "
                                 "in the procedure"
                             ),
                         )
-                ctx.require_parts()
+                ctx.parts.require()
                 break
-        end = ctx.clock.now_s()
-        for part in ctx.alive():
+        end = ctx.wait.clock.now_s()
+        for part in ctx.parts.alive():
             v = verdicts[part.socket]
             res = part.conditions[self.condition]
             res.stable = True
             res.time_to_stability_s = stable_at[part.socket] - start
             res.die_temperature_c = v.mean_c  # until the measurements give their own mean
             res.supply_measured_v = volts
-            res.supply_current_a = amps / max(len(ctx.alive()), 1)
+            res.supply_current_a = amps / max(len(ctx.parts.alive()), 1)
             assert part.stream is not None
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 "stabilise",
                 0,
@@ -194,4 +224,4 @@ class Stabilise(BaseStep):
                 "condition_set_station_s": start,
                 "measurement_start_station_s": end,
             }
-        ctx.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")
+        ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")

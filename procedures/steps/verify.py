@@ -2,63 +2,92 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from pydantic import Field
 
+from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.verification import verify_correction
-from procedures.engine import PartRun, RunContext
+from procedures.config import Rate, Seconds, Volts
 from procedures.record import Verdict
-from procedures.steps.base import BaseStep, check_window, sample_rate_hz, samples_between
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
+from procedures.steps.base import check_window, sample_rate_hz, samples_between
+from procedures.steps.registry import Declared, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
 
 
-@dataclass
-class Verify(BaseStep):
-    name: str = "verify"
-    policy: str = "verify"
+class VerifySettings(StepSettings):
+    rates_dps: list[Rate] = Field(
+        min_length=1, max_length=MAX_LIST, description="verification rates, deg/s"
+    )
+    dwell_s: Seconds = Field(10.0, gt=0, description="averaging time at each rate")
+    settle_s: float = Field(1.0, ge=0, le=ONE_HOUR_S, description="wait after at-rate")
+    supply_v: Volts | None = Field(None, description="supply during verification (default V0)")
+    accel_dps2: float = Field(
+        100.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
+    )
+    at_rate_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed to reach a rate")
+
+
+class Verify(StepType[VerifySettings]):
+    """After programming: the part's own compensated output against the table's encoder."""
+
+    type_name = "verify"
+    Settings = VerifySettings
+    uses_table = True
+
+    @classmethod
+    def requires(cls, settings: Any) -> set[str]:
+        return {"programmed"}
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [
+            Declared("residual_bias_dps", "deg/s", "compensated output at rest"),
+            Declared("residual_scale_error", "1", "compensated output / encoder rate - 1"),
+        ]
 
     def estimate_s(self, ctx: RunContext) -> float:
-        cfg = ctx.procedure.verify
-        assert cfg is not None
+        cfg = self.settings
         return (len(cfg.rates_dps) + 1) * (cfg.dwell_s + cfg.settle_s + 1.0) + 5.0
 
     def main(self, ctx: RunContext) -> None:
-        cfg = ctx.procedure.verify
-        table = ctx.bench.table
-        assert cfg is not None and table is not None
+        cfg = self.settings
+        table = ctx.instruments.table
+        assert table is not None
         supply_v = cfg.supply_v if cfg.supply_v is not None else ctx.product.reference_supply_v
-        ctx.set_supply_voltage(supply_v)
+        ctx.instruments.set_supply_voltage(supply_v)
         self.supply_v = supply_v
         table.enable()
-        ctx.sleep(cfg.settle_s)
-        t0 = ctx.clock.now_s()
-        ctx.sleep(cfg.dwell_s)
-        rest = (t0, ctx.clock.now_s())
+        ctx.wait.sleep(cfg.settle_s)
+        t0 = ctx.wait.clock.now_s()
+        ctx.wait.sleep(cfg.dwell_s)
+        rest = (t0, ctx.wait.clock.now_s())
         plateaus = run_plateaus(
             ctx,
             list(cfg.rates_dps),
             cfg.dwell_s,
             cfg.settle_s,
-            ctx.procedure.rate_table.accel_dps2 if ctx.procedure.rate_table else 100.0,
-            60.0,
+            cfg.accel_dps2,
+            cfg.at_rate_timeout_s,
         )
-        ctx.each(lambda part: self._analyse(ctx, part, rest, plateaus))
+        ctx.parts.each(lambda part: self._analyse(ctx, part, rest, plateaus))
 
     def _analyse(
         self, ctx: RunContext, part: PartRun, rest: tuple[float, float], plateaus: list[Plateau]
     ) -> None:
-        cfg = ctx.procedure.verify
-        assert cfg is not None
+        cfg = self.settings
         fs = sample_rate_hz(ctx)
         noise = part.extra.get("noise")
         data = samples_between(ctx, part, *rest)
         if not check_window(ctx, part, data, "verification at rest", cfg.dwell_s):
             return
         zero = window_mean(data["rate_dps"], fs, noise)
-        ctx.measure(
+        ctx.records.measure(
             part,
             "residual_bias_dps",
             zero.mean_dps,
@@ -67,7 +96,7 @@ class Verify(BaseStep):
             condition="verify",
             description="compensated output at rest",
         )
-        ctx.segment(
+        ctx.records.segment(
             part,
             "verify",
             0,
@@ -88,7 +117,7 @@ class Verify(BaseStep):
             u_ref.append(p.u_ref_dps)
             out.append(wm.mean_dps)
             u_out.append(wm.u_mean_dps)
-            ctx.segment(
+            ctx.records.segment(
                 part,
                 "verify",
                 i + 1,
@@ -104,13 +133,13 @@ class Verify(BaseStep):
                 ref, u_ref, np.asarray(out) - zero.mean_dps, u_out, ctx.product.range_dps
             )
         except AnalysisError as exc:
-            ctx.drop(part, Verdict.ERROR, f"verification: {exc}")
+            ctx.parts.drop(part, Verdict.ERROR, f"verification: {exc}")
             return
         residuals = []
         for pt in result.points:
             rel = pt.error_dps / pt.reference_rate_dps
             u_rel = pt.u_error_dps / abs(pt.reference_rate_dps)
-            ctx.measure(
+            ctx.records.measure(
                 part,
                 "residual_scale_error",
                 rel,

@@ -12,11 +12,15 @@ CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 def test_shipped_files_load() -> None:
     proc, loaded = load_procedure(CONFIG / "procedures" / "eol-rate-table.yaml")
-    assert proc.table_enabled and proc.stop_enabled
+    types = [e.type_name for e in proc.entries()]
+    assert types == ["power_identify", "thermal", "bias", "rate_table", "stop_method", "fit",
+                     "program", "verify"]
+    assert proc.needs_table
     assert len(loaded.sha256) == 64
     stop, _ = load_procedure(CONFIG / "procedures" / "eol-stop-method.yaml")
-    assert not stop.table_enabled and stop.fit.source == "stop_method"
-    assert stop.stop_method is not None and stop.stop_method.reference == "fixture"
+    assert "rate_table" not in [e.type_name for e in stop.entries()]
+    assert stop.settings_of("fit").source == "stop_method"
+    assert stop.settings_of("stop_method").reference == "fixture"
     product, _ = load_product(CONFIG / "products" / "gyr130.yaml")
     assert product.limits.residual_scale_error is not None
     assert product.limits.residual_scale_error.high == pytest.approx(0.0005)
@@ -42,20 +46,23 @@ def _line_of(tmp_path: Path, needle: str) -> int:
 def test_error_names_file_line_field_and_allowed(tmp_path: Path) -> None:
     msg = _bad(tmp_path, "slope_c_per_min: 0.1", "slope_c_per_min: -1")
     line = _line_of(tmp_path, "slope_c_per_min: -1")
-    assert msg.startswith(f"{tmp_path / 'bad.yaml'}:{line}: field stability.slope_c_per_min")
+    assert msg.startswith(
+        f"{tmp_path / 'bad.yaml'}:{line}: field steps.1.steps.0.slope_c_per_min (step thermal)"
+    )
     assert "greater than 0" in msg
 
 
 def test_unknown_field_lists_allowed(tmp_path: Path) -> None:
     msg = _bad(tmp_path, "plateau_dwell_s: 8", "plateu_dwell_s: 8")
     line = _line_of(tmp_path, "plateu_dwell_s")
-    assert f":{line}: field rate_table.plateu_dwell_s: unknown field" in msg
+    assert f":{line}: field steps.1.steps.2.plateu_dwell_s (step rate_table): unknown field" in msg
     assert "plateau_dwell_s" in msg.split("allowed here:")[1]
 
 
 def test_enum_choice_says_what_is_allowed(tmp_path: Path) -> None:
     msg = _bad(tmp_path, "reference: encoder", "reference: laser")
-    assert "stop_method.reference" in msg and "'encoder' or 'fixture'" in msg
+    assert "steps.1.steps.3.reference (step stop_method)" in msg
+    assert "'encoder' or 'fixture'" in msg
 
 
 def test_list_item_error_points_at_item_line(tmp_path: Path) -> None:
@@ -65,15 +72,21 @@ def test_list_item_error_points_at_item_line(tmp_path: Path) -> None:
 
 
 def test_duplicate_key_refused(tmp_path: Path) -> None:
-    msg = _bad(tmp_path, "  repeats: 1\n", "  repeats: 1\n  repeats: 2\n")
+    msg = _bad(tmp_path, "        repeats: 1\n", "        repeats: 1\n        repeats: 2\n")
     assert "appears twice" in msg
 
 
-def test_fit_source_must_be_enabled(tmp_path: Path) -> None:
-    msg = _bad(tmp_path, "source: rate_table", "source: both\nrate_table_x: 1")
+def test_fit_source_must_be_measured_before_the_fit(tmp_path: Path) -> None:
+    msg = _bad(tmp_path, "    source: rate_table", "    source: both\n    rate_table_x: 1")
     assert "rate_table_x" in msg
-    msg = _bad(tmp_path, "  enabled: true\n  rates_dps", "  enabled: false\n  rates_dps")
-    assert "fit.source is 'rate_table' but that method is not enabled" in msg
+    text = (CONFIG / "procedures" / "eol-stop-method.yaml").read_text()
+    path = tmp_path / "stop.yaml"
+    path.write_text(text.replace("source: stop_method", "source: rate_table"))
+    with pytest.raises(ConfigError) as info:
+        load_procedure(path)
+    line = next(i + 1 for i, t in enumerate(text.splitlines()) if "step: fit" in t)
+    assert f"stop.yaml:{line}: steps.2: step fit needs scale_table from an earlier step " \
+        "(rate_table)" in str(info.value)
 
 
 def test_not_yaml_and_missing_file(tmp_path: Path) -> None:

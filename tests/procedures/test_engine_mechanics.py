@@ -16,7 +16,7 @@ from procedures.config import load_procedure, load_product
 from procedures.engine import Bench, Engine, PartRun, RunContext
 from procedures.progress import ProgressEvent
 from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
-from procedures.steps.base import BaseStep
+from procedures.steps.registry import StepPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -29,20 +29,34 @@ class FakeInstrument:
         self.calls.append(f"{self.name}.safe_state")
 
 
-@dataclass
-class Scripted(BaseStep):
-    """A step that sleeps, then does what it is told."""
+# the policies of the steps these tests name (as a procedure file would give them)
+POLICIES = {"power": StepPolicy(timeout_s=60.0, retries=1)}
 
+
+@dataclass
+class Scripted:
+    """A step that sleeps, then does what it is told (the engine's Step protocol)."""
+
+    name: str = "step"
+    policy: Any = None
+    condition: str = ""
     sleep_s: float = 1.0
     action: Any = None
     attempts: list[int] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.policy, StepPolicy):
+            self.policy = POLICIES.get(self.policy or "", StepPolicy())
+
+    def setup(self, ctx: RunContext) -> None:
+        return None
 
     def estimate_s(self, ctx: RunContext) -> float:
         return self.sleep_s
 
     def main(self, ctx: RunContext) -> None:
         self.attempts.append(1)
-        ctx.sleep(self.sleep_s)
+        ctx.wait.sleep(self.sleep_s)
         if self.action is not None:
             self.action(ctx, len(self.attempts))
 
@@ -159,7 +173,7 @@ def test_one_part_dropping_does_not_stop_the_others(tmp_path: Path) -> None:
                 raise PartAbsent("socket 2: no part", instrument="fixture on socket 2")
             part.extra["ok"] = True
 
-        ctx.each(go)
+        ctx.parts.each(go)
 
     verdicts = Engine(
         ctx, [Scripted(name="identify", action=absent_two), Scripted(name="more")]

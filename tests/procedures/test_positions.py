@@ -1,6 +1,6 @@
 """The optional multi-position static step against the simulated bench: one static window
 per configured angle in raw.h5 (kind position_static, rate 0, the encoder angle), and a
-procedure without the section plans exactly the steps it did before."""
+procedure without the step plans exactly the steps it did before."""
 
 from __future__ import annotations
 
@@ -21,10 +21,13 @@ ANGLES = [0.0, 90.0, 180.0, 270.0]
 
 
 def _procedure(tmp_path: Path, positions: dict | None) -> Path:
+    """SHORT with a positions step after the bias step of the condition loop."""
     data = yaml.safe_load(SHORT.read_text())
     data["product"] = str((SHORT.parent / data["product"]).resolve())
     if positions is not None:
-        data["positions"] = positions
+        loop = next(e for e in data["steps"] if e.get("for_each") == "condition")
+        at = [e.get("step") for e in loop["steps"]].index("bias") + 1
+        loop["steps"].insert(at, {"step": "positions", **positions})
     path = tmp_path / "positions.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
@@ -56,23 +59,23 @@ def test_positions_step_writes_a_static_window_per_angle(tmp_path: Path) -> None
 
 def test_positions_every_condition_and_disabled_plans(tmp_path: Path) -> None:
     base, _ = load_procedure(_procedure(tmp_path, None))
-    assert base.positions is None and not base.positions_enabled
+    assert base.settings_of("positions") is None
     names = [s.name for s in build_plan(base)]
     assert "positions" not in names
     every, _ = load_procedure(_procedure(tmp_path, {}))
-    assert every.positions is not None and every.positions.angles_deg == ANGLES
+    assert every.settings_of("positions").angles_deg == ANGLES
     plan = build_plan(every)
     assert [s.name for s in plan if s.name != "positions"] == names
     pos = [i for i, s in enumerate(plan) if s.name == "positions"]
     assert len(pos) == 4 and all(plan[i - 1].name == "bias" for i in pos)
-    off, _ = load_procedure(_procedure(tmp_path, {"enabled": False}))
-    assert "positions" not in [s.name for s in build_plan(off)]
+    assert [plan[i].condition for i in pos] == [plan[i - 1].condition for i in pos]
 
 
 def test_positions_config_errors(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="positions.dwell_s"):
+    where = r"steps\.1\.steps\.2\."
+    with pytest.raises(ConfigError, match=where + r"dwell_s \(step positions\)"):
         load_procedure(_procedure(tmp_path, {"dwell_s": 0}))
-    with pytest.raises(ConfigError, match="positions.at"):
+    with pytest.raises(ConfigError, match=where + r"at \(step positions\)"):
         load_procedure(_procedure(tmp_path, {"at": "sometimes"}))
-    with pytest.raises(ConfigError, match="positions.angles_deg"):
+    with pytest.raises(ConfigError, match=where + r"angles_deg \(step positions\)"):
         load_procedure(_procedure(tmp_path, {"angles_deg": []}))

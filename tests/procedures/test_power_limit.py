@@ -5,7 +5,9 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from procedures.steps.power import UNASKED_SOCKETS, PowerIdentify
+from procedures.steps.power import UNASKED_SOCKETS, PowerIdentify, PowerSettings
+
+STEP = PowerIdentify(PowerSettings(settle_s=0.0, supply_v=5.0))
 
 
 class FakeSupply:
@@ -25,25 +27,28 @@ class FakeSupply:
         pass
 
 
+class _Parts(list[Any]):
+    def alive(self) -> list[Any]:
+        return list(self)
+
+
 def _ctx(n_parts: int, unasked: int) -> Any:
     parts = [SimpleNamespace(extra={UNASKED_SOCKETS: unasked}) for _ in range(n_parts)]
     return SimpleNamespace(
-        bench=SimpleNamespace(supply=FakeSupply()),
+        instruments=SimpleNamespace(supply=FakeSupply()),
         product=SimpleNamespace(current_limit_a=0.01),
-        procedure=SimpleNamespace(power=SimpleNamespace(settle_s=0.0)),
-        parts=parts,
-        alive=lambda: parts,
-        sleep=lambda s: None,
+        parts=_Parts(parts),
+        wait=SimpleNamespace(sleep=lambda s: None),
     )
 
 
 def test_limit_is_sized_by_scanned_parts() -> None:
     ctx = _ctx(2, 0)
-    PowerIdentify().setup(ctx)
-    assert abs(ctx.bench.supply.limit_a - 0.02) < 1e-12
+    STEP.setup(ctx)
+    assert abs(ctx.instruments.supply.limit_a - 0.02) < 1e-12
 
 
 def test_limit_allows_for_sockets_that_could_not_be_asked() -> None:
     ctx = _ctx(2, 1)
-    PowerIdentify().setup(ctx)
-    assert abs(ctx.bench.supply.limit_a - 0.03) < 1e-12
+    STEP.setup(ctx)
+    assert abs(ctx.instruments.supply.limit_a - 0.03) < 1e-12

@@ -25,7 +25,8 @@ from procedures.safe_state import (
     supply_target,
     table_target,
 )
-from procedures.steps.base import BaseStep, frames_lost_in
+from procedures.steps.base import frames_lost_in
+from procedures.steps.registry import StepPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
 FAST = SafeStatePolicy(deadline_s=0.0, wall_floor_s=0.5, first_backoff_wall_s=0.01)
@@ -167,15 +168,25 @@ def _ctx(tmp_path: Path, table: FakeTable, chamber: FakeChamber) -> RunContext:
     return RunContext(bench, proc, prod, [part])
 
 
-class Dwell(BaseStep):
+class Dwell:
+    name, condition, policy = "dwell", "", StepPolicy()
+
     def __init__(self, sleep_s: float, hook: Any = None) -> None:
-        super().__init__(name="dwell", policy="default")
         self.sleep_s, self.hook = sleep_s, hook
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        return self.sleep_s
+
+    def setup(self, ctx: RunContext) -> None:
+        return None
+
+    def cleanup(self, ctx: RunContext) -> None:
+        return None
 
     def main(self, ctx: RunContext) -> None:
         if self.hook:
             self.hook()
-        ctx.sleep(self.sleep_s)
+        ctx.wait.sleep(self.sleep_s)
 
 
 def test_estop_at_rest_ends_a_long_dwell_within_two_station_seconds(tmp_path: Path) -> None:
@@ -184,7 +195,7 @@ def test_estop_at_rest_ends_a_long_dwell_within_two_station_seconds(tmp_path: Pa
     trip_at: list[float] = []
 
     def trip() -> None:
-        trip_at.append(ctx.clock.now_s())
+        trip_at.append(ctx.wait.clock.now_s())
         table.fault = True
 
     engine = Engine(ctx, [Dwell(600.0, trip)])  # type: ignore[list-item]

@@ -181,34 +181,48 @@ def _station() -> dict[str, tuple[bytes, str]]:
     return out
 
 
+# where each step entry sits in config/procedures/eol-rate-table.yaml
+POWER, FIT, VERIFY = "steps.0", "steps.2", "steps.4"
+THERMAL, BIAS, TABLE, STOP = (f"steps.1.steps.{i}" for i in range(4))
+
+
 def _procedure() -> dict[str, tuple[bytes, str]]:
     b = _base("procedure")
     cases = {
-        "dwell_nan.yaml": ("bias.dwell_s", NAN, "dwell_s"),
-        "dwell_two_days.yaml": ("bias.dwell_s", 172_800.0, "dwell_s"),
-        "rates_1e308.yaml": ("rate_table.rates_dps", [1e308, -50.0], "rates_dps"),
-        "rates_beyond_range.yaml": ("rate_table.rates_dps", [300.0, -200.0], "range"),
-        "verify_rate_beyond_range.yaml": ("verify.rates_dps", [-150.0, 251.0], "range"),
-        "timeout_inf.yaml": ("steps.default.timeout_s", INF, "timeout_s"),
+        "dwell_nan.yaml": (f"{BIAS}.dwell_s", NAN, "dwell_s"),
+        "dwell_two_days.yaml": (f"{BIAS}.dwell_s", 172_800.0, "dwell_s"),
+        "rates_1e308.yaml": (f"{TABLE}.rates_dps", [1e308, -50.0], "rates_dps"),
+        "rates_beyond_range.yaml": (f"{TABLE}.rates_dps", [300.0, -200.0], "range"),
+        "verify_rate_beyond_range.yaml": (f"{VERIFY}.rates_dps", [-150.0, 251.0], "range"),
+        "timeout_inf.yaml": (f"{POWER}.timeout_s", INF, "timeout_s"),
         "setpoint_timeout_huge.yaml": ("chamber.setpoint_timeout_s", 1e12, "setpoint_timeout_s"),
-        "stability_timeout_nan.yaml": ("stability.timeout_s", NAN, "timeout_s"),
+        "stability_timeout_nan.yaml": (f"{THERMAL}.stability_timeout_s", NAN, "timeout_s"),
         "safe_temp_300.yaml": ("chamber.safe_temp_c", 300.0, "safe_temp_c"),
         "safe_temp_nan.yaml": ("chamber.safe_temp_c", NAN, "safe_temp_c"),
         "temperature_1000.yaml": ("conditions.temperatures_c", [25.0, 1000.0], "temperatures_c"),
         "supply_negative.yaml": ("conditions.supplies_v", [-5.0], "supplies_v"),
         "supply_1e6.yaml": ("conditions.supplies_v", [1e6], "supplies_v"),
-        "repeats_million.yaml": ("rate_table.repeats", 1_000_000, "repeats"),
-        "accel_1e12.yaml": ("rate_table.accel_dps2", 1e12, "accel_dps2"),
-        "retries_negative.yaml": ("steps.default.retries", -1, "retries"),
-        "stop_angle_1000.yaml": ("stop_method.stop_angle_deg", 1000.0, "stop_angle_deg"),
-        "rates_text.yaml": ("rate_table.rates_dps", "fast", "rates_dps"),
-        "rates_300.yaml": ("rate_table.rates_dps", [1.0, -1.0] * 150, "rates_dps"),
-        "output_rate_7.yaml": ("power.output_rate_hz", 7, "output_rate_hz"),
+        "repeats_million.yaml": (f"{TABLE}.repeats", 1_000_000, "repeats"),
+        "accel_1e12.yaml": (f"{TABLE}.accel_dps2", 1e12, "accel_dps2"),
+        "retries_negative.yaml": (f"{POWER}.retries", -1, "retries"),
+        "stop_angle_1000.yaml": (f"{STOP}.stop_angle_deg", 1000.0, "stop_angle_deg"),
+        "rates_text.yaml": (f"{TABLE}.rates_dps", "fast", "rates_dps"),
+        "rates_300.yaml": (f"{TABLE}.rates_dps", [1.0, -1.0] * 150, "rates_dps"),
+        "output_rate_7.yaml": ("output_rate_hz", 7, "output_rate_hz"),
+        "step_unknown.yaml": (f"{FIT}.step", "fitt", "unknown step type"),
+        "step_setting_unknown.yaml": (f"{BIAS}.dwel_s", 30.0, "dwel_s"),
+        "informational_misspelt.yaml": (f"{BIAS}.informational", ["raw_bias_dpz"],
+                                        "raw_bias_dpz"),
         "description_nul.yaml": ("description", "line one\x00", "NUL"),
         "lost_fraction_2.yaml": ("stream.max_lost_fraction", 2.0, "max_lost_fraction"),
     }
     out = {k: (_dump(_set(b, f, v)), e) for k, (f, v, e) in cases.items()}
     out["conditions_missing.yaml"] = (_dump(_drop(b, "conditions")), "conditions")
+    old_form = yaml.safe_load((REPO / "tests/data/old_form/eol-rate-table.yaml").read_text())
+    old_form.pop("product", None)
+    loop = {"repeat": 0, "steps": b["steps"][1]["steps"]}
+    out["repeat_zero.yaml"] = (_dump(_set(b, "steps.1", loop)), "whole number 1..")
+    out["old_section_form.yaml"] = (_dump(old_form), "station procedure convert")
     out["file_over_size_limit.yaml"] = (b"name: " + b"N" * 70_000 + b"\n", "too large")
     return out
 

@@ -1,0 +1,365 @@
+"""The old section form of a procedure file, read only to convert it to the step list.
+
+Before procedures were lists of steps, a procedure file had one section per measurement
+(`power:`, `stability:`, `bias:`, `rate_table:`, `stop_method:`, `positions:`, `fit:`,
+`verify:`) and `steps:` held timeouts by step; the engine decided the order. `convert`
+turns such a file into the list form the station runs (`station procedure convert`), with
+the same steps in the same order and the same settings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from drivers.bounded import (
+    MAX_ACCEL_DPS2,
+    MAX_LIST,
+    MAX_REPEATS,
+    ONE_HOUR_S,
+    Name,
+    PathText,
+    ShortName,
+    Text,
+)
+from procedures.config import (
+    ChamberConfig,
+    ConditionsConfig,
+    LoadedYaml,
+    Rate,
+    Seconds,
+    StreamConfig,
+    Volts,
+    _Strict,
+    load_yaml_model,
+)
+
+# the keys that mark a file in the old form
+SECTION_KEYS = ("power", "stability", "bias", "rate_table", "stop_method", "positions", "fit",
+                "verify")
+
+class StepPolicy(_Strict):
+    timeout_s: Seconds = Field(
+        3600.0, gt=0, description="station seconds before the step times out"
+    )
+    retries: int = Field(0, ge=0, le=5, description="extra attempts after an instrument timeout")
+
+
+class PowerConfig(_Strict):
+    settle_s: float = Field(
+        2.0, ge=0, le=ONE_HOUR_S, description="wait after switching the supply on"
+    )
+    supply_tolerance_v: float = Field(
+        0.05, gt=0, le=10, description="allowed |measured - set| supply"
+    )
+    output_rate_hz: Literal[50, 100, 200, 500, 1000] = Field(
+        100, description="part output data rate, Hz"
+    )
+
+
+class StabilityConfig(_Strict):
+    """Thermal stability, judged on each part's own temperature sensor."""
+
+    window_s: Seconds = Field(60.0, gt=0, description="window over which slope and band are judged")
+    slope_c_per_min: float = Field(
+        0.05, gt=0, le=100, description="largest |die temperature slope|"
+    )
+    band_c: float = Field(
+        0.1, gt=0, le=100, description="largest peak-to-peak die temperature in the window"
+    )
+    target_tolerance_c: float | None = Field(
+        None, gt=0, le=100, description="optional: die temperature within this of the setpoint"
+    )
+    timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach stability")
+    check_interval_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="how often stability is evaluated"
+    )
+
+
+class BiasConfig(_Strict):
+    dwell_s: Seconds | Literal["auto"] = Field(
+        30.0, description="static averaging time, s, or 'auto' (from Allan deviation and target)"
+    )
+    target_accuracy_dps: float = Field(0.005, gt=0, le=100, description="k=2 target for 'auto'")
+    min_dwell_s: Seconds = Field(10.0, gt=0, description="pilot dwell for 'auto'")
+    max_dwell_s: Seconds = Field(300.0, gt=0, description="cap for 'auto'")
+    wander_factor: float = Field(
+        1.5,
+        ge=0,
+        le=100,
+        description="bias wander between conditions, in units of the bias "
+        "instability, added to each condition's bias uncertainty (0: white noise only)",
+    )
+
+    @field_validator("dwell_s")
+    @classmethod
+    def _positive(cls, value: float | str) -> float | str:
+        if not isinstance(value, str) and value <= 0:
+            raise ValueError("dwell must be a positive number of seconds or 'auto'")
+        return value
+
+
+class RateTableConfig(_Strict):
+    enabled: bool = True
+    rates_dps: list[Rate] = Field(
+        min_length=2, max_length=MAX_LIST, description="rate set, deg/s (both signs)"
+    )
+    plateau_dwell_s: Seconds = Field(10.0, gt=0, description="averaging time on each plateau")
+    settle_s: float = Field(
+        1.0, ge=0, le=ONE_HOUR_S, description="wait after at-rate before averaging"
+    )
+    accel_dps2: float = Field(
+        200.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
+    )
+    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="passes through the rate set")
+    at_rate_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed to reach a rate")
+
+
+class StopMethodConfig(_Strict):
+    enabled: bool = True
+    stop_angle_deg: float = Field(90.0, gt=0, le=360, description="angle between the stops")
+    move_time_s: float = Field(3.5, gt=0, le=ONE_HOUR_S, description="duration of each smooth move")
+    static_s: float = Field(
+        5.0, gt=0, le=ONE_HOUR_S, description="rest before, between and after the moves"
+    )
+    bias_window_s: float = Field(
+        3.0, gt=0, le=ONE_HOUR_S, description="leading rest used for the bias"
+    )
+    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="out-and-back pairs")
+    reference: Literal["encoder", "fixture"] = Field(
+        "encoder", description="angle reference: the table encoder or the fixture's stop angle"
+    )
+    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
+
+
+class PositionsConfig(_Strict):
+    """Multi-position static: the table at rest at several angles, one static window each.
+
+    Rotation about a vertical axis changes nothing for a perfect part at rest; a part whose
+    sensitive axis is tilted in the fixture sees a share of gravity that turns with the table
+    (g sensitivity), which only static windows at several angles can show. Disabled unless
+    the section is present."""
+
+    enabled: bool = True
+    angles_deg: list[float] = Field(
+        default_factory=lambda: [0.0, 90.0, 180.0, 270.0],
+        min_length=1,
+        max_length=MAX_LIST,
+        description="table angles (encoder, deg) at which the part rests, in this order",
+    )
+    dwell_s: Seconds = Field(10.0, gt=0, description="static window at each angle, s")
+    settle_s: float = Field(
+        1.0, ge=0, le=ONE_HOUR_S, description="wait after in-position before the window"
+    )
+    accel_dps2: float = Field(
+        100.0, gt=0, le=MAX_ACCEL_DPS2, description="acceleration of each move, deg/s^2"
+    )
+    at: Literal["every_condition", "first_condition"] = Field(
+        "every_condition",
+        description="every_condition: after the bias step at each condition; "
+        "first_condition: only at the first",
+    )
+    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
+
+    @field_validator("angles_deg")
+    @classmethod
+    def _angles(cls, value: list[float]) -> list[float]:
+        if any(not -3600.0 <= a <= 3600.0 for a in value):
+            raise ValueError("angles must lie within +/-3600 deg")
+        return value
+
+
+class FitConfig(_Strict):
+    source: Literal["rate_table", "stop_method", "both"] = Field(
+        "rate_table",
+        description="which scale estimate feeds the fit (both: weighted by uncertainty)",
+    )
+
+
+class VerifyConfig(_Strict):
+    enabled: bool = True
+    method: Literal["auto", "rate_table", "stop_method"] = Field(
+        "auto", description="auto: rate table if enabled, else stop moves with compensation on"
+    )
+    rates_dps: list[Rate] = Field(
+        default_factory=list,
+        max_length=MAX_LIST,
+        description="verification rates, deg/s (rate_table method)",
+    )
+    dwell_s: Seconds = Field(10.0, gt=0, description="averaging time at each rate")
+    settle_s: float = Field(1.0, ge=0, le=ONE_HOUR_S)
+    supply_v: Volts | None = Field(None, description="supply during verification (default V0)")
+
+
+class StepsConfig(_Strict):
+    default: StepPolicy = StepPolicy()
+    power: StepPolicy | None = None
+    thermal: StepPolicy | None = None
+    bias: StepPolicy | None = None
+    rate_table: StepPolicy | None = None
+    stop_method: StepPolicy | None = None
+    positions: StepPolicy | None = None
+    fit: StepPolicy | None = None
+    program: StepPolicy | None = None
+    verify: StepPolicy | None = None
+
+    def policy(self, step: str) -> StepPolicy:
+        return getattr(self, step, None) or self.default
+
+
+class SectionProcedure(_Strict):
+    """A procedure in the old section form (read only to convert it)."""
+
+    name: Name = Field(min_length=1, description="procedure name shown on the certificate")
+    version: ShortName = Field("1", description="procedure version")
+    description: Text = ""
+    product: PathText | None = Field(
+        None, description="product file, relative to this file (overridden by --product)"
+    )
+    power: PowerConfig = PowerConfig()
+    conditions: ConditionsConfig
+    chamber: ChamberConfig = ChamberConfig()
+    stability: StabilityConfig = StabilityConfig()
+    bias: BiasConfig = BiasConfig()
+    rate_table: RateTableConfig | None = None
+    stop_method: StopMethodConfig | None = None
+    positions: PositionsConfig | None = Field(
+        None, description="optional multi-position static step (absent: not run)"
+    )
+    fit: FitConfig = FitConfig()
+    verify: VerifyConfig | None = None
+    stream: StreamConfig = StreamConfig()
+    steps: StepsConfig = StepsConfig()
+
+    @model_validator(mode="after")
+    def _scale_source(self) -> SectionProcedure:
+        table = self.rate_table is not None and self.rate_table.enabled
+        stop = self.stop_method is not None and self.stop_method.enabled
+        if not (table or stop):
+            raise ValueError("enable at least one of rate_table or stop_method")
+        method = self.verify_method
+        if method == "rate_table" and not (table and self.verify and self.verify.rates_dps):
+            raise ValueError(
+                "verify.method rate_table needs rate_table enabled and verify.rates_dps"
+            )
+        if method == "stop_method" and not stop:
+            raise ValueError("verify.method stop_method needs stop_method enabled")
+        need = {"rate_table": table, "stop_method": stop, "both": table and stop}
+        if not need[self.fit.source]:
+            raise ValueError(
+                f"fit.source is {self.fit.source!r} but that method is not enabled; "
+                "enable it or choose a source that is"
+            )
+        return self
+
+    @property
+    def verify_method(self) -> str | None:
+        """Which verification runs after programming (None: none)."""
+        v = self.verify
+        if v is None or not v.enabled:
+            return None
+        if v.method == "auto":
+            return "rate_table" if self.table_enabled and v.rates_dps else "stop_method"
+        return v.method
+
+    @property
+    def table_enabled(self) -> bool:
+        return self.rate_table is not None and self.rate_table.enabled
+
+    @property
+    def stop_enabled(self) -> bool:
+        return self.stop_method is not None and self.stop_method.enabled
+
+    @property
+    def positions_enabled(self) -> bool:
+        return self.positions is not None and self.positions.enabled
+
+
+def is_section_form(data: Any) -> bool:
+    """Is this parsed YAML a procedure in the old section form?"""
+    if not isinstance(data, dict):
+        return False
+    return any(k in data for k in SECTION_KEYS) or isinstance(data.get("steps"), dict)
+
+
+def load_section_procedure(path: Path) -> tuple[SectionProcedure, LoadedYaml]:
+    return load_yaml_model(path, SectionProcedure)
+
+
+_POLICY_DEFAULT = StepPolicy()
+
+
+def _entry(step: str, settings: dict[str, Any], policies: StepsConfig, policy: str,
+           explicit: set[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {"step": step, **settings}
+    pol = getattr(policies, policy, None)
+    if pol is None and "default" in explicit:
+        pol = policies.default
+    if pol is not None:
+        if pol.timeout_s != _POLICY_DEFAULT.timeout_s:
+            out["timeout_s"] = pol.timeout_s
+        if pol.retries != _POLICY_DEFAULT.retries:
+            out["retries"] = pol.retries
+    return out
+
+
+def _set(model: Any, drop: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The fields the file gave (defaults stay defaults in the new form too)."""
+    return {k: v for k, v in model.model_dump(exclude_unset=True, mode="json").items()
+            if k not in drop}
+
+
+def convert(old: SectionProcedure) -> dict[str, Any]:
+    """The list form of an old section-form procedure (same steps, order and settings)."""
+    policies = old.steps
+    explicit = set(policies.model_fields_set)
+    power = _set(old.power, drop=("output_rate_hz",))
+    stability = _set(old.stability)
+    if "timeout_s" in stability:
+        stability["stability_timeout_s"] = stability.pop("timeout_s")
+    loop: list[dict[str, Any]] = [
+        _entry("thermal", stability, policies, "thermal", explicit),
+        _entry("bias", _set(old.bias), policies, "bias", explicit),
+    ]
+    if old.positions_enabled and old.positions is not None:
+        loop.append(_entry("positions", _set(old.positions, ("enabled",)), policies,
+                           "positions", explicit))
+    if old.table_enabled and old.rate_table is not None:
+        loop.append(_entry("rate_table", _set(old.rate_table, ("enabled",)), policies,
+                           "rate_table", explicit))
+    if old.stop_enabled and old.stop_method is not None:
+        loop.append(_entry("stop_method", _set(old.stop_method, ("enabled",)), policies,
+                           "stop_method", explicit))
+    steps: list[dict[str, Any]] = [
+        _entry("power_identify", power, policies, "power", explicit),
+        {"for_each": "condition", "steps": loop},
+        _entry("fit", _set(old.fit), policies, "fit", explicit),
+        _entry("program", {}, policies, "program", explicit),
+    ]
+    method = old.verify_method
+    verify = old.verify
+    if method == "rate_table" and verify is not None:
+        settings = _set(verify, ("enabled", "method"))
+        settings["accel_dps2"] = old.rate_table.accel_dps2 if old.rate_table else 100.0
+        steps.append(_entry("verify", settings, policies, "verify", explicit))
+    elif method == "stop_method" and old.stop_method is not None:
+        settings = _set(old.stop_method, ("enabled",))
+        if verify is not None and verify.supply_v is not None:
+            settings["supply_v"] = verify.supply_v
+        steps.append(_entry("verify_stop", settings, policies, "verify", explicit))
+    out: dict[str, Any] = {"name": old.name, "version": old.version}
+    if old.description:
+        out["description"] = old.description
+    if old.product:
+        out["product"] = old.product
+    if "output_rate_hz" in old.power.model_fields_set:
+        out["output_rate_hz"] = old.power.output_rate_hz
+    out["conditions"] = _set(old.conditions)
+    for key in ("chamber", "stream"):
+        given = _set(getattr(old, key))
+        if given:
+            out[key] = given
+    out["steps"] = steps
+    return out

@@ -1,0 +1,156 @@
+"""The parts of a run: one socket's part (`PartRun`), its results per condition, its row buffer.
+
+These are the data a step works on; `procedures.run_context` holds the helpers that wait,
+log, record and publish around them.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.clock import ScaledClock
+from drivers.protocols import Chamber, PartLink, RateTable, Supply
+from procedures.rawdata import RawDataWriter
+from procedures.record import ConditionRecord, RunRecord, Verdict
+from procedures.streams import PartStream
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Bench:
+    """The instruments of one run (shared by every socket) and the station clock."""
+
+    chamber: Chamber
+    supply: Supply
+    links: dict[int, PartLink]
+    clock: ScaledClock
+    table: RateTable | None = None
+
+
+@dataclass
+class ConditionResult:
+    """What one part measured at one condition (engineering units, k=1 uncertainties)."""
+
+    name: str
+    temperature_c: float
+    supply_v: float
+    die_temperature_c: float | None = None
+    supply_measured_v: float | None = None
+    supply_current_a: float | None = None
+    time_to_stability_s: float | None = None
+    stable: bool | None = None
+    bias_dps: float | None = None
+    u_bias_dps: float | None = None
+    table_fit: Any = None  # procedures.analysis.rate_table.RateTableFit
+    # die temperature over the measurement windows: the bias and the scale are each paired
+    # with the temperature of their own windows (the die may still creep within a condition)
+    temp_sums: dict[str, tuple[float, int]] = field(default_factory=dict)
+
+    def note_temperature(self, kind: str, temp_c: Any) -> None:
+        """Add a window's die temperatures to `kind` ("bias" or "scale")."""
+        arr = np.asarray(temp_c, dtype=np.float64)
+        if arr.size:
+            total, n = self.temp_sums.get(kind, (0.0, 0))
+            self.temp_sums[kind] = (total + float(arr.sum()), n + int(arr.size))
+            all_sum = sum(v[0] for v in self.temp_sums.values())
+            all_n = sum(v[1] for v in self.temp_sums.values())
+            self.die_temperature_c = all_sum / all_n
+
+    def temperature_for(self, kind: str) -> float | None:
+        if kind in self.temp_sums:
+            total, n = self.temp_sums[kind]
+            return total / n
+        return self.die_temperature_c
+
+    stop: dict[str, Any] | None = None  # scale, u_scale, bias, moves...
+
+
+class RowBuffer:
+    """Rows for raw.h5's small groups (table, chamber, supply, segments, events), written in
+    batches (end of each step, and every 2 wall s): an HDF5 flush per row costs wall time,
+    which the simulated bench's fast clock turns into minutes of station time."""
+
+    def __init__(self, writer: RawDataWriter | None) -> None:
+        self.writer = writer
+        self._rows: dict[str, list[dict[str, Any]]] = {}
+        self._last_flush_wall = time.monotonic()
+
+    def flush_if_due(self, every_wall_s: float = 2.0) -> None:
+        """Flush when rows have waited `every_wall_s` (a killed run loses at most that)."""
+        if self._rows and time.monotonic() - self._last_flush_wall > every_wall_s:
+            self.flush()
+
+    def append(self, group: str, **columns: Any) -> None:
+        if self.writer is not None:
+            self._rows.setdefault(group, []).append(columns)
+
+    def flush(self) -> None:
+        if self.writer is None:
+            return
+        rows, self._rows = self._rows, {}
+        self._last_flush_wall = time.monotonic()
+        for group, items in rows.items():
+            merged = {k: [row[k] for row in items] for k in items[0]}
+            try:
+                self.writer.append(group, **merged)
+            except Exception:  # never lose a run over a log row
+                log.exception("could not write %d rows to raw data group %s", len(items), group)
+
+
+@dataclass
+class PartRun:
+    """One socket's part: its record, data file, stream and state."""
+
+    socket: int
+    serial: str
+    folder: Path
+    record: RunRecord
+    writer: RawDataWriter | None = None
+    stream: PartStream | None = None
+    alive: bool = True
+    verdict: Verdict | None = None
+    reason: str = ""
+    conditions: dict[str, ConditionResult] = field(default_factory=dict)
+    fit: Any = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    rows: RowBuffer = field(default_factory=lambda: RowBuffer(None))
+    # set when the part failed a limit: what it failed (it is then never programmed)
+    failed_limits: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.rows = RowBuffer(self.writer)
+
+    @property
+    def link(self) -> PartLink:
+        assert self.stream is not None
+        return self.stream.link
+
+
+def condition_record(result: ConditionResult) -> ConditionRecord:
+    fit = result.table_fit
+    stop = result.stop or {}
+    return ConditionRecord.model_validate(
+        dict(
+            name=result.name,
+            temperature_c=result.temperature_c,
+            supply_v=result.supply_v,
+            die_temperature_c=result.die_temperature_c,
+            time_to_stability_s=result.time_to_stability_s,
+            stable=result.stable,
+            bias_dps=result.bias_dps,
+            bias_uncertainty_dps=None if result.u_bias_dps is None else 2 * result.u_bias_dps,
+            scale_table=None if fit is None else fit.scale,
+            scale_table_uncertainty=None if fit is None else 2 * fit.u_scale,
+            scale_stop=stop.get("scale"),
+            scale_stop_uncertainty=None if stop.get("u_scale") is None else 2 * stop["u_scale"],
+            supply_current_a=result.supply_current_a,
+            supply_measured_v=result.supply_measured_v,
+        )
+    )
