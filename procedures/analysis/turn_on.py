@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.stats import chi2
@@ -33,6 +34,15 @@ def c4(n: int) -> float:
     """Bias factor of the sample standard deviation of n normal values: E[s] = c4 sigma."""
     return math.exp(
         0.5 * math.log(2.0 / (n - 1)) + math.lgamma(n / 2.0) - math.lgamma((n - 1) / 2.0)
+    )
+
+
+@lru_cache(maxsize=256)
+def _chi2_factors(n: int) -> tuple[float, float]:
+    """(low, high) factors on s of the exact 95 % interval for sigma from n values."""
+    return (
+        math.sqrt((n - 1) / float(chi2.ppf(0.975, n - 1))),
+        math.sqrt((n - 1) / float(chi2.ppf(0.025, n - 1))),
     )
 
 
@@ -99,8 +109,5 @@ def turn_on_repeatability(
         excess_dps=math.sqrt(max(s * s - floor * floor, 0.0)),
         biases_dps=tuple(float(x) for x in b),
         u_biases_dps=tuple(float(x) for x in u),
-        interval_95_dps=(
-            s * math.sqrt((n - 1) / float(chi2.ppf(0.975, n - 1))),
-            s * math.sqrt((n - 1) / float(chi2.ppf(0.025, n - 1))),
-        ),
+        interval_95_dps=(s * _chi2_factors(n)[0], s * _chi2_factors(n)[1]),
     )
