@@ -20,6 +20,7 @@ integrated white noise.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict
 from typing import Any
 
@@ -35,6 +36,7 @@ FloatArray = NDArray[np.float64]
 T_REF_C = 25.0
 V_REF_V = 5.0
 GM_TAUS_S = (3.0, 30.0, 300.0)
+TURN_ON_HISTORY = 256  # turn-on offsets the truth keeps (the latest), for tests and benchmarks
 
 
 def first_order_filter(x: FloatArray, a: float, b: float, y_prev: float) -> FloatArray:
@@ -118,6 +120,7 @@ class PartModel:
         self._turn_on_rng = np.random.default_rng([serial_seed(params.serial, "turn-on"), seed])
         self.turn_on_bias_dps = 0.0
         self.power_on_count = 0
+        self.turn_on_history_dps: deque[float] = deque(maxlen=TURN_ON_HISTORY)
 
     # ------------------------------------------------------------ electrical, thermal
 
@@ -150,6 +153,7 @@ class PartModel:
         sigma = self.params.turn_on_bias_sigma_dps
         if sigma > 0:
             self.turn_on_bias_dps = float(self._turn_on_rng.normal(0.0, sigma))
+        self.turn_on_history_dps.append(self.turn_on_bias_dps)
 
     def die_temp_c(self) -> float:
         return self.die_c + self.heat_c
@@ -269,4 +273,5 @@ class PartModel:
             "calibration": asdict(self.cal),
             "turn_on_bias_dps": self.turn_on_bias_dps,
             "power_on_count": self.power_on_count,
+            "turn_on_history_dps": list(self.turn_on_history_dps),
         }

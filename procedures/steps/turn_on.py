@@ -8,6 +8,7 @@ standard deviation of the N biases (procedures.analysis.turn_on); measurement
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 from pydantic import Field
@@ -63,14 +64,15 @@ class TurnOnRepeatability(StepType[TurnOnSettings]):
             t0 = ctx.wait.now_s()
             ctx.wait.sleep(s.dwell_s)
             t1 = ctx.wait.now_s()
-            ctx.parts.each(lambda part, i=i: self._bias(ctx, part, i, t0, t1, biases))
+            ctx.parts.each(partial(self._bias, ctx, window=(i, t0, t1), biases=biases))
         ctx.records.event(f"turn-on repeatability: {s.turn_ons} power-ons at {level_v:g} V")
         ctx.parts.each(lambda part: self._judge(ctx, part, biases[part.socket]))
 
     def _bias(
-        self, ctx: RunContext, part: PartRun, i: int, t0: float, t1: float,
+        self, ctx: RunContext, part: PartRun, *, window: tuple[int, float, float],
         biases: dict[int, list[tuple[float, float]]],
     ) -> None:
+        i, t0, t1 = window
         data = samples_between(ctx, part, t0, t1)
         what = f"turn-on {i + 1} bias"
         if not check_window(ctx, part, data, what, self.settings.dwell_s):

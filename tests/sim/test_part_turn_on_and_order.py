@@ -55,6 +55,7 @@ def test_each_power_on_draws_a_new_offset_with_the_parts_sigma() -> None:
         biases.append(_static_bias(part, 10.0 * k + 1.0))
         assert part.truth()["turn_on_bias_dps"] == offsets[-1]
     assert np.std(offsets, ddof=1) == pytest.approx(0.08, rel=0.12)
+    assert part.truth()["turn_on_history_dps"] == offsets[-256:]
     # the offset is what the bias moves by, and it holds while the part stays on
     assert np.allclose(np.array(biases) - np.array(offsets), biases[0] - offsets[0], atol=1e-12)
     part.step(10.0 * 400, 1.0, 25.0, 5.0)
