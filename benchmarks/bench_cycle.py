@@ -31,23 +31,22 @@ from station.uut import run_simulated  # noqa: E402
 
 
 def measurement_floor_s(proc_path: Path, arw_deg_per_sqrt_h: float) -> float:
+    """Station seconds spent measuring (bias, plateaus, stop moves, verification) per run."""
     proc, _ = load_procedure(proc_path)
     n_cond = len(proc.conditions.temperatures_c) * len(proc.conditions.supplies_v)
     noise = NoiseModel.from_datasheet(arw_deg_per_sqrt_h=arw_deg_per_sqrt_h)
-    bias = required_averaging_time_s(noise, proc.bias.target_accuracy_dps)
-    per_cond = bias
-    if proc.rate_table and proc.rate_table.enabled:
-        per_cond += (
-            len(proc.rate_table.rates_dps)
-            * proc.rate_table.repeats
-            * proc.rate_table.plateau_dwell_s
-        )
-    if proc.stop_method and proc.stop_method.enabled:
-        sm = proc.stop_method
+    bias = proc.settings_of("bias")
+    per_cond = required_averaging_time_s(noise, bias.target_accuracy_dps) if bias else 0.0
+    table = proc.settings_of("rate_table")
+    if table is not None:
+        per_cond += len(table.rates_dps) * table.repeats * table.plateau_dwell_s
+    sm = proc.settings_of("stop_method")
+    if sm is not None:
         per_cond += sm.static_s + sm.repeats * 2 * (sm.move_time_s + sm.static_s)
     verify = 0.0
-    if proc.verify and proc.verify.enabled:
-        verify = (len(proc.verify.rates_dps) + 1) * proc.verify.dwell_s
+    check = proc.settings_of("verify")
+    if check is not None:
+        verify = (len(check.rates_dps) + 1) * check.dwell_s
     return n_cond * per_cond + verify
 
 

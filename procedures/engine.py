@@ -263,7 +263,9 @@ class Engine:
                     part.verdict = Verdict.ERROR
                     part.reason = f"{part.reason}; {unsafe}" if part.reason else unsafe
         for part in ctx.parts:
-            if part.alive and part.stream is not None:
+            # judged parts (alive, or taken out FAIL) get the run's lost-frame figure
+            judged = part.alive or part.verdict is Verdict.FAIL
+            if judged and part.stream is not None:
                 lost, ok = part.stream.frames_lost, part.stream.frames_ok
                 ctx.records.measure(
                     part,

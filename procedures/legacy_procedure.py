@@ -291,64 +291,76 @@ def load_section_procedure(path: Path) -> tuple[SectionProcedure, LoadedYaml]:
 _POLICY_DEFAULT = StepPolicy()
 
 
-def _entry(step: str, settings: dict[str, Any], policies: StepsConfig, policy: str,
-           explicit: set[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {"step": step, **settings}
-    pol = getattr(policies, policy, None)
-    if pol is None and "default" in explicit:
-        pol = policies.default
-    if pol is not None:
-        if pol.timeout_s != _POLICY_DEFAULT.timeout_s:
-            out["timeout_s"] = pol.timeout_s
-        if pol.retries != _POLICY_DEFAULT.retries:
-            out["retries"] = pol.retries
-    return out
+class _Converter:
+    """One old file to the list form; `raw` (the file as read) keeps numbers as written."""
+
+    def __init__(self, old: SectionProcedure, raw: dict[str, Any]) -> None:
+        self.old, self.raw = old, raw
+        self.policies = old.steps
+        self.explicit = set(old.steps.model_fields_set)
+
+    def given(self, section: str, drop: tuple[str, ...] = ()) -> dict[str, Any]:
+        """The fields of `section` the file gave, as written (defaults stay defaults)."""
+        model = getattr(self.old, section)
+        raw = self.raw.get(section)
+        dumped = model.model_dump(exclude_unset=True, mode="json")
+        return {k: (raw[k] if isinstance(raw, dict) and k in raw else v)
+                for k, v in dumped.items() if k not in drop}
+
+    def entry(self, step: str, settings: dict[str, Any], policy: str) -> dict[str, Any]:
+        out: dict[str, Any] = {"step": step, **settings}
+        pol = getattr(self.policies, policy, None)
+        if pol is None and "default" in self.explicit:
+            pol = self.policies.default
+        if pol is not None:
+            if pol.timeout_s != _POLICY_DEFAULT.timeout_s:
+                out["timeout_s"] = _number(pol.timeout_s)
+            if pol.retries != _POLICY_DEFAULT.retries:
+                out["retries"] = pol.retries
+        return out
+
+    def steps(self) -> list[dict[str, Any]]:
+        old = self.old
+        stability = self.given("stability")
+        if "timeout_s" in stability:
+            stability["stability_timeout_s"] = stability.pop("timeout_s")
+        loop = [self.entry("thermal", stability, "thermal"),
+                self.entry("bias", self.given("bias"), "bias")]
+        for section, enabled in (("positions", old.positions_enabled),
+                                 ("rate_table", old.table_enabled),
+                                 ("stop_method", old.stop_enabled)):
+            if enabled:
+                loop.append(self.entry(section, self.given(section, ("enabled",)), section))
+        out = [
+            self.entry("power_identify", self.given("power", ("output_rate_hz",)), "power"),
+            {"for_each": "condition", "steps": loop},
+            self.entry("fit", self.given("fit"), "fit"),
+            self.entry("program", {}, "program"),
+        ]
+        method, verify = old.verify_method, old.verify
+        if method == "rate_table" and verify is not None:
+            settings = self.given("verify", ("enabled", "method"))
+            table = old.rate_table
+            settings["accel_dps2"] = (
+                self.given("rate_table").get("accel_dps2", table.accel_dps2) if table else 100
+            )
+            out.append(self.entry("verify", settings, "verify"))
+        elif method == "stop_method":
+            settings = self.given("stop_method", ("enabled",))
+            if verify is not None and verify.supply_v is not None:
+                settings["supply_v"] = self.given("verify")["supply_v"]
+            out.append(self.entry("verify_stop", settings, "verify"))
+        return out
 
 
-def _set(model: Any, drop: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The fields the file gave (defaults stay defaults in the new form too)."""
-    return {k: v for k, v in model.model_dump(exclude_unset=True, mode="json").items()
-            if k not in drop}
+def _number(value: float) -> float | int:
+    return int(value) if float(value).is_integer() else value
 
 
-def convert(old: SectionProcedure) -> dict[str, Any]:
-    """The list form of an old section-form procedure (same steps, order and settings)."""
-    policies = old.steps
-    explicit = set(policies.model_fields_set)
-    power = _set(old.power, drop=("output_rate_hz",))
-    stability = _set(old.stability)
-    if "timeout_s" in stability:
-        stability["stability_timeout_s"] = stability.pop("timeout_s")
-    loop: list[dict[str, Any]] = [
-        _entry("thermal", stability, policies, "thermal", explicit),
-        _entry("bias", _set(old.bias), policies, "bias", explicit),
-    ]
-    if old.positions_enabled and old.positions is not None:
-        loop.append(_entry("positions", _set(old.positions, ("enabled",)), policies,
-                           "positions", explicit))
-    if old.table_enabled and old.rate_table is not None:
-        loop.append(_entry("rate_table", _set(old.rate_table, ("enabled",)), policies,
-                           "rate_table", explicit))
-    if old.stop_enabled and old.stop_method is not None:
-        loop.append(_entry("stop_method", _set(old.stop_method, ("enabled",)), policies,
-                           "stop_method", explicit))
-    steps: list[dict[str, Any]] = [
-        _entry("power_identify", power, policies, "power", explicit),
-        {"for_each": "condition", "steps": loop},
-        _entry("fit", _set(old.fit), policies, "fit", explicit),
-        _entry("program", {}, policies, "program", explicit),
-    ]
-    method = old.verify_method
-    verify = old.verify
-    if method == "rate_table" and verify is not None:
-        settings = _set(verify, ("enabled", "method"))
-        settings["accel_dps2"] = old.rate_table.accel_dps2 if old.rate_table else 100.0
-        steps.append(_entry("verify", settings, policies, "verify", explicit))
-    elif method == "stop_method" and old.stop_method is not None:
-        settings = _set(old.stop_method, ("enabled",))
-        if verify is not None and verify.supply_v is not None:
-            settings["supply_v"] = verify.supply_v
-        steps.append(_entry("verify_stop", settings, policies, "verify", explicit))
+def convert(old: SectionProcedure, raw: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The list form of an old section-form procedure (same steps, order and settings);
+    `raw`: the file as read, so that numbers keep the form they were written in."""
+    conv = _Converter(old, raw or {})
     out: dict[str, Any] = {"name": old.name, "version": old.version}
     if old.description:
         out["description"] = old.description
@@ -356,10 +368,10 @@ def convert(old: SectionProcedure) -> dict[str, Any]:
         out["product"] = old.product
     if "output_rate_hz" in old.power.model_fields_set:
         out["output_rate_hz"] = old.power.output_rate_hz
-    out["conditions"] = _set(old.conditions)
+    out["conditions"] = conv.given("conditions")
     for key in ("chamber", "stream"):
-        given = _set(getattr(old, key))
+        given = conv.given(key)
         if given:
             out[key] = given
-    out["steps"] = steps
+    out["steps"] = conv.steps()
     return out

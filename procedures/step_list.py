@@ -256,7 +256,9 @@ def expand(nodes: tuple[Node, ...], conditions: list[Condition],
         if isinstance(node, StepEntry):
             place = Place(base.condition, base.condition_index, base.previous, base.repeat,
                           _dotted(node.path))
-            out.append(node.type(node.settings, place, node.policy))
+            step = node.type(node.settings, place, node.policy)
+            if step.runs_here():
+                out.append(step)
         elif node.kind == "for_each":
             for i, cond in enumerate(conditions):
                 inner = Place(cond, i, conditions[i - 1] if i else None, base.repeat)
@@ -310,3 +312,39 @@ def measurement_problems(
 
 def known_step_types() -> list[str]:
     return list(step_types())
+
+
+def procedure_json_schema(base: dict[str, Any]) -> dict[str, Any]:
+    """The procedure file's JSON Schema (`base`: ProcedureConfig's) with `steps:` spelt out:
+    each item one registered step type with its settings, or a loop with nested steps."""
+    defs = base.setdefault("$defs", {})
+    policy = StepPolicy.model_json_schema()["properties"]
+    choices: list[dict[str, Any]] = []
+    for name, cls in step_types().items():
+        schema = cls.Settings.model_json_schema(ref_template="#/$defs/{model}")
+        defs.update(schema.pop("$defs", {}))
+        props = {"step": {"const": name}, **schema.get("properties", {}), **policy,
+                 "informational": {"type": "array", "items": {"type": "string"}}}
+        defs[f"Step_{name}"] = {
+            "type": "object",
+            "title": f"step {name}",
+            "description": (cls.__doc__ or "").strip().split("\n\n")[0],
+            "properties": props,
+            "required": ["step", *schema.get("required", [])],
+            "additionalProperties": False,
+        }
+        choices.append({"$ref": f"#/$defs/Step_{name}"})
+    loop_steps = {"$ref": "#/$defs/StepList"}
+    choices.append({"type": "object", "title": "for_each loop", "additionalProperties": False,
+                    "properties": {"for_each": {"const": "condition"}, "steps": loop_steps},
+                    "required": ["for_each", "steps"]})
+    choices.append({"type": "object", "title": "repeat loop", "additionalProperties": False,
+                    "properties": {"repeat": {"type": "integer", "minimum": 1,
+                                              "maximum": MAX_REPEATS},
+                                   "steps": loop_steps},
+                    "required": ["repeat", "steps"]})
+    defs["StepList"] = {"type": "array", "minItems": 1, "maxItems": MAX_LIST,
+                        "items": {"oneOf": choices}}
+    description = base["properties"]["steps"].get("description", "")
+    base["properties"]["steps"] = {"$ref": "#/$defs/StepList", "description": description}
+    return base

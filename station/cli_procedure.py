@@ -55,7 +55,7 @@ def convert_text(old_path: Path) -> str:
         old, _ = load_section_procedure(old_path)
     except ConfigError as exc:
         raise UserError(f"{old_path}: not a valid old-form procedure:\n{exc}") from None
-    new = convert(old)
+    new = convert(old, loaded.data)
     return HEADER.format(source=old_path.name) + yaml.dump(
         new, Dumper=_Dumper, sort_keys=False, default_flow_style=False, width=100,
         allow_unicode=True,

@@ -22,6 +22,7 @@ from pydantic import BaseModel
 
 from procedures.config import ConfigError, ProcedureConfig, ProductConfig
 from procedures.progress import ProgressEvent
+from procedures.step_list import procedure_json_schema
 from station.errors import UserError
 from station.settings import CONFIG_DIR, StationSettings, load_settings
 
@@ -45,6 +46,8 @@ def _schema(args: argparse.Namespace) -> int:
     for name, model in SCHEMAS.items():
         path = out / f"{name}.schema.json"
         schema = model.model_json_schema()
+        if model is ProcedureConfig:  # steps: each registered step type's settings
+            schema = procedure_json_schema(schema)
         schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
         schema.setdefault("title", f"gyrocal {name} file")
         path.write_text(json.dumps(schema, indent=2) + "\n", encoding="utf-8")

@@ -285,6 +285,8 @@ class UutRunner:
         self.limit_warnings = check_procedure_for_product(
             self.procedure, self.procedure_file, self.product, self.product_file
         )
+        for warning in self.limit_warnings:
+            log.warning("%s", warning)
         self.operator = operator
         self.work_order = work_order
         self.lot = lot

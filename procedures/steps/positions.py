@@ -79,14 +79,11 @@ class Positions(StepType[PositionsSettings]):
     Settings = PositionsSettings
     uses_table = True
 
-    @property
-    def skipped(self) -> bool:
-        return self.settings.at == "first_condition" and self.place.condition_index > 0
+    def runs_here(self) -> bool:
+        return self.settings.at == "every_condition" or self.place.condition_index == 0
 
     def estimate_s(self, ctx: RunContext) -> float:
         cfg = self.settings
-        if self.skipped:
-            return 0.0
         angles = list(cfg.angles_deg)
         travel = [
             abs(b - a) for a, b in zip([angles[0], *angles], [*angles, angles[0]], strict=True)
@@ -99,8 +96,6 @@ class Positions(StepType[PositionsSettings]):
         cfg = self.settings
         table = ctx.instruments.table
         assert table is not None
-        if self.skipped:
-            return
         table.enable()
         table.set_rate(0.0)
         table.wait_at_rate(cfg.move_timeout_s)

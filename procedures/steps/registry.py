@@ -130,6 +130,11 @@ class StepType(Generic[S]):
         """What an earlier entry of the procedure must provide (checked at load)."""
         return set()
 
+    def runs_here(self) -> bool:
+        """Does this instance run at its place? (False: left out of the plan, e.g. a step
+        set to run at the first condition only)"""
+        return True
+
     def expected(self) -> list[Declared]:
         """The declared measurements this instance must set (override to narrow, e.g. only
         at the first condition); what it does not set becomes NOT_MEASURED."""

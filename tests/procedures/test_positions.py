@@ -69,6 +69,11 @@ def test_positions_every_condition_and_disabled_plans(tmp_path: Path) -> None:
     pos = [i for i, s in enumerate(plan) if s.name == "positions"]
     assert len(pos) == 4 and all(plan[i - 1].name == "bias" for i in pos)
     assert [plan[i].condition for i in pos] == [plan[i - 1].condition for i in pos]
+    first, _ = load_procedure(_procedure(tmp_path, {"at": "first_condition"}))
+    plan = build_plan(first)
+    assert [(s.name, s.place.condition_index) for s in plan if s.name == "positions"] == [
+        ("positions", 0)
+    ]
 
 
 def test_positions_config_errors(tmp_path: Path) -> None:

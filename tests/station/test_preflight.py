@@ -94,11 +94,13 @@ def test_rate_beyond_the_parts_range_is_refused_not_failed(tmp_path: Path) -> No
 
 
 def test_acceleration_beyond_the_tables_limit_is_refused(tmp_path: Path) -> None:
-    proc = _procedure(tmp_path, "accel_dps2: 200", "accel_dps2: 5000")
+    proc = _procedure(tmp_path, "accel_dps2: 200\n    repeats", "accel_dps2: 5000\n    repeats")
     out = tmp_path / "out"
     r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
     (line,) = _refused(r, out)
-    assert "rate_table.accel_dps2 5000 deg/s^2 is beyond the 2000 deg/s^2" in line
+    assert line.startswith(f"{proc}:{_line_of(proc, 'accel_dps2: 5000')}: ")
+    assert "steps.1.steps.2.accel_dps2 (step rate_table) 5000 deg/s^2 is beyond the 2000 " \
+        "deg/s^2" in line
 
 
 def _closed_port() -> int:

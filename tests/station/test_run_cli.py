@@ -46,7 +46,7 @@ def test_bad_yaml_names_file_line_field(tmp_path: Path) -> None:
     r = station("run", "--dut", "SIM-0001", "--procedure", str(bad), "--out", str(out))
     assert r.returncode == 2
     line = next(i + 1 for i, t in enumerate(bad.read_text().splitlines()) if "plateau_dwell_s" in t)
-    assert f"{bad}:{line}: field rate_table.plateau_dwell_s" in r.stderr
+    assert f"{bad}:{line}: field steps.1.steps.2.plateau_dwell_s (step rate_table)" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not out.exists()
 

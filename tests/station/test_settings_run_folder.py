@@ -93,5 +93,8 @@ def test_schema_command_writes_valid_json(tmp_path: Path) -> None:
     assert out.returncode == 0, out.stderr
     schema = json.loads((tmp_path / "procedure.schema.json").read_text())
     assert "conditions" in schema["required"]
-    assert schema["$defs"]["StabilityConfig"]["additionalProperties"] is False
+    assert schema["$defs"]["Step_thermal"]["additionalProperties"] is False
+    assert "stability_timeout_s" in schema["$defs"]["Step_thermal"]["properties"]
+    kinds = schema["$defs"]["StepList"]["items"]["oneOf"]
+    assert {"$ref": "#/$defs/Step_bias"} in kinds and len(kinds) >= 12
     assert (tmp_path / "station.schema.json").exists()

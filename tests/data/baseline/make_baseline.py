@@ -13,7 +13,6 @@ up to the bench's noise; only names and keys are compared, never values.
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -31,25 +30,35 @@ SHIPPED = [ROOT / "config/procedures/eol-rate-table.yaml",
 SERIAL = "SIM-0001"
 
 
-def certificate_headings(pdf: Path) -> list[str]:
-    """Section headings of a certificate: its lines that are a known heading."""
-    text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
-                          text=True, check=True).stdout
-    return [line.strip() for line in text.splitlines() if line.strip() in HEADINGS]
+def certificate_headings(folder: Path) -> list[str]:
+    """The certificate's section headings (its H2 paragraphs), in order."""
+    from reportlab.platypus import Flowable, Paragraph
+
+    from reports.cert_inputs import load_inputs
+    from reports.certificate import build_story
+
+    out: list[str] = []
+
+    def walk(items: list[Flowable]) -> None:
+        for item in items:
+            if isinstance(item, Paragraph) and item.style.name == "h2":
+                out.append(item.getPlainText())
+            inner = getattr(item, "_content", None)
+            if isinstance(inner, list):
+                walk(inner)
+
+    walk(build_story(load_inputs(folder)))
+    return out
 
 
-HEADINGS = {"Traceability", "Test conditions", "Results", "Calibration coefficients",
-            "Verification", "Plots", "Stop method", "Rate table", "Allan deviation",
-            "Thermal stabilisation", "Sign-off"}
-
-
-def summary(rec: RunRecord, pdf: Path | None) -> dict[str, Any]:
+def summary(rec: RunRecord, folder: Path) -> dict[str, Any]:
     """What must stay the same between the old and the new form of a procedure."""
     measured = sorted({(m.name, m.condition or "") for m in rec.measurements
                        if m.value is not None})
     cal = rec.calibration.model_dump(exclude_none=True) if rec.calibration else {}
     return {
         "verdict": str(rec.verdict),
+        "reason": rec.reason,
         "measurements": [list(x) for x in measured],
         "calibration_keys": sorted(cal),
         "analysis_keys": sorted(rec.analysis),
@@ -60,7 +69,7 @@ def summary(rec: RunRecord, pdf: Path | None) -> dict[str, Any]:
         },
         "conditions": [c.name for c in rec.conditions],
         "verification_keys": sorted(rec.verification or {}),
-        "certificate_headings": certificate_headings(pdf) if pdf else [],
+        "certificate_headings": certificate_headings(folder),
     }
 
 
@@ -71,7 +80,7 @@ def run(procedure: Path, out: Path) -> dict[str, Any]:
     result, _ = run_simulated([{"socket": 1, "serial": SERIAL}], procedure_path=procedure,
                               out=out, speed=SPEED, certificate=True)
     folder = result.folders[1]
-    return summary(read_record(folder), result.certificates.get(1))
+    return summary(read_record(folder), folder)
 
 
 def main(paths: list[Path]) -> None:
