@@ -8,7 +8,7 @@ included), so the coefficients and uncertainties of a first-order run do not cha
 and 3 are the same weighted least squares (each condition's own uncertainty, not rescaled by
 the scatter) on the wider design; the scale is fitted in its linear form
 q0 + q1 dT + ... + qV dV and carried to s_k = q_k / q0 through the Jacobian. Order N needs
-N + 1 distinct temperatures and two supply levels, and at least N + 2 conditions.
+N + 1 temperatures at least 3 C apart and two supply levels, and at least N + 2 conditions.
 """
 
 from __future__ import annotations
@@ -47,8 +47,9 @@ UNITS = {
     "scale_temp_coeff2_per_c2": "1/C^2",
     "scale_temp_coeff3_per_c3": "1/C^3",
 }
-# relative tolerance for telling two die temperatures apart when counting distinct ones
-_DISTINCT_TEMP_C = 1.0
+# die temperatures closer than this count as one temperature (the two supply levels of one
+# chamber setpoint differ by the self-heating, a degree or so)
+_DISTINCT_TEMP_C = 3.0
 
 
 @dataclass(frozen=True)
@@ -180,7 +181,7 @@ def _wls(
 
 
 def distinct_temperatures(temps_c: Sequence[float]) -> int:
-    """How many temperatures at least 1 C apart the conditions hold."""
+    """How many temperatures at least 3 C apart the conditions hold."""
     count, last = 0, -math.inf
     for t in sorted(temps_c):
         if t - last >= _DISTINCT_TEMP_C:
@@ -203,7 +204,7 @@ def fit_temperature(
     n_temps = distinct_temperatures([c.temp_c for c in conditions])
     if n_temps < order + 1 or len(conditions) < order + 2:
         raise AnalysisError(
-            f"an order-{order} temperature fit needs {order + 1} temperatures (at least 1 C "
+            f"an order-{order} temperature fit needs {order + 1} temperatures (at least 3 C "
             f"apart) and {order + 2} conditions; got {n_temps} temperature(s) in "
             f"{len(conditions)} condition(s): add temperatures to the procedure or lower fit.order"
         )

@@ -21,7 +21,6 @@ from procedures.analysis.temp_fit import (
     HIGHER_SCALE_NAMES,
     UNITS,
     TemperatureFit,
-    distinct_temperatures,
     fit_temperature,
     record_summary,
 )
@@ -98,7 +97,7 @@ def record_first_order_summary(
 ) -> None:
     """analysis.temperature_fit for a first-order fit over three or more temperatures (the
     certificate's plot); nothing for today's two-temperature runs."""
-    if distinct_temperatures([c.temp_c for c in by_kind["bias"]]) < 3:
+    if len({r.temperature_c for r in part.conditions.values()}) < 3:  # chamber setpoints
         return
     try:
         fit_b = fit_temperature(by_kind["bias"], 1, t0, v0)
