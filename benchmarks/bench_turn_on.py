@@ -16,6 +16,7 @@ the k = 2 and the exact 95 % intervals.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 import tempfile
@@ -71,6 +72,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--first-serial", type=int, default=7001)
     args = ap.parse_args()
+    logging.basicConfig(level=logging.ERROR)  # not the load-time list of unmeasured limits
     rng = np.random.default_rng(args.seed)
     out = Path(tempfile.mkdtemp(prefix="bench-turn-on-"))
     rows: list[dict[str, float | str]] = []
