@@ -24,7 +24,7 @@ import numpy as np
 
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError, PartAbsent, PartSilent, StreamCorrupted
-from drivers.protocols import TableStatus
+from drivers.protocols import RateTable, TableStatus
 from procedures.limits import judge
 from procedures.progress import ProgressBus, ProgressEvent
 from procedures.record import Event, Measurement, Outcome, Verdict, write_record
@@ -412,6 +412,18 @@ class Instruments:
     @property
     def table(self) -> Any:
         """The rate table (drivers.protocols.RateTable) or None on a bench without one."""
+        return self.bench.table
+
+    def need_table(self) -> RateTable:
+        """The rate table, for a step that moves the part with it (InstrumentError if the
+        station has none: the preflight should have said so before the run)."""
+        if self.bench.table is None:
+            raise InstrumentError(
+                f"step {self._records._progress.step} needs a rate table and this station "
+                "has none (station.yaml instruments.rate_table); use a procedure without "
+                "table steps",
+                instrument="rate_table",
+            )
         return self.bench.table
 
     @property

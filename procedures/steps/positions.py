@@ -94,8 +94,7 @@ class Positions(StepType[PositionsSettings]):
 
     def main(self, ctx: RunContext) -> None:
         cfg = self.settings
-        table = ctx.instruments.table
-        assert table is not None
+        table = ctx.instruments.need_table()
         table.enable()
         table.set_rate(0.0)
         table.wait_at_rate(cfg.move_timeout_s)

@@ -42,8 +42,7 @@ def run_plateaus(
     timeout_s: float,
 ) -> list[Plateau]:
     """Drive the table through `rates`; each plateau's reference from two encoder snapshots."""
-    table = ctx.instruments.table
-    assert table is not None
+    table = ctx.instruments.need_table()
     cpr = table.counts_per_rev()
     out: list[Plateau] = []
     for rate in rates:
@@ -112,8 +111,7 @@ class RateSweep(StepType[RateTableSettings]):
 
     def main(self, ctx: RunContext) -> None:
         cfg = self.settings
-        assert ctx.instruments.table is not None
-        ctx.instruments.table.enable()
+        ctx.instruments.need_table().enable()
         self.plateaus: list[Plateau] = run_plateaus(
             ctx,
             list(cfg.rates_dps) * cfg.repeats,

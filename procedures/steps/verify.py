@@ -57,8 +57,7 @@ class Verify(StepType[VerifySettings]):
 
     def main(self, ctx: RunContext) -> None:
         cfg = self.settings
-        table = ctx.instruments.table
-        assert table is not None
+        table = ctx.instruments.need_table()
         supply_v = cfg.supply_v if cfg.supply_v is not None else ctx.product.reference_supply_v
         ctx.instruments.set_supply_voltage(supply_v)
         self.supply_v = supply_v
