@@ -121,6 +121,9 @@ class Command:
 
 
 CAL_KEYS = ("bias", "scale", "bias_tc", "scale_tc", "bias_vc", "scale_vc", "t0", "v0")
+# registers beyond first order in temperature, on parts that hold them (CAL? lists them after
+# the eight; a fixture whose part has none answers the eight and refuses these with ERR 4)
+CAL_KEYS_HIGHER_ORDER = ("bias_tc2", "bias_tc3", "scale_tc2", "scale_tc3")
 
 
 class ReplyError(IntEnum):

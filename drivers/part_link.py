@@ -34,6 +34,7 @@ from drivers.errors import (
 )
 from drivers.fixture_protocol import (
     CAL_KEYS,
+    CAL_KEYS_HIGHER_ORDER,
     OUTPUT_RATES_HZ,
     Command,
     FrameParser,
@@ -56,6 +57,15 @@ CAL_FIELDS = {
     "v0": "v0_v",
 }
 assert tuple(CAL_FIELDS) == CAL_KEYS
+# registers beyond first order in temperature: optional in CAL? (a part without them lists
+# only the eight, and they read as 0); written only when non-zero or the part holds them
+CAL_FIELDS_HIGHER_ORDER = {
+    "bias_tc2": "bias_tc2_dps_per_c2",
+    "bias_tc3": "bias_tc3_dps_per_c3",
+    "scale_tc2": "scale_tc2_per_c2",
+    "scale_tc3": "scale_tc3_per_c3",
+}
+assert tuple(CAL_FIELDS_HIGHER_ORDER) == CAL_KEYS_HIGHER_ORDER
 # The reader pauses between reads so frames arrive in batches (the parser's cost is mostly
 # per call). A pty buffers only about 4 KB, so the pause is sized from the measured byte
 # rate to let no more than _PAUSE_FILL_BYTES pile up: at 100k frames/s (2.5 MB/s of 25-byte
@@ -365,14 +375,21 @@ class SerialPartLink:
     # ------------------------------------------------------------ calibration registers
 
     def read_calibration(self) -> CalibrationRegisters:
+        """The part's registers; higher-order ones it does not list read as 0."""
+        regs, _ = self._read_calibration()
+        return regs
+
+    def _read_calibration(self) -> tuple[CalibrationRegisters, set[str]]:
+        """(registers, the higher-order CAL? keys the part listed)."""
         reply = self.command(Command.CAL_READ)
         values: dict[str, float] = {}
+        fields = {**CAL_FIELDS, **CAL_FIELDS_HIGHER_ORDER}
         for item in reply.split():
             key, sep, value = item.partition("=")
-            if not sep or key not in CAL_FIELDS:
+            if not sep or key not in fields:
                 continue
             try:
-                values[CAL_FIELDS[key]] = float(value)
+                values[fields[key]] = float(value)
             except ValueError:
                 raise ProtocolError(
                     f"CAL? gave {item!r}, not a number: {reply!r}", instrument=self.name
@@ -382,22 +399,38 @@ class SerialPartLink:
             raise ProtocolError(
                 f"CAL? answered {reply!r}, missing {', '.join(missing)}", instrument=self.name
             )
-        return CalibrationRegisters(**values)
+        listed = {k for k in CAL_FIELDS_HIGHER_ORDER if f" {k}=" in f" {reply}"}
+        return CalibrationRegisters(**values), listed
 
     def write_calibration(self, registers: CalibrationRegisters) -> None:
-        """Write all calibration registers, then read them back and compare."""
+        """Write the calibration registers, then read them back and compare.
+
+        The eight first-order registers always; a higher-order one when it is not 0 (a part
+        without it refuses the write: ERR 4). A part that still holds a non-zero higher-order
+        register the new calibration leaves at 0 gets it cleared by a second write."""
         wanted = {k: float(getattr(registers, f)) for k, f in CAL_FIELDS.items()}
-        bad = [k for k, v in wanted.items() if not math.isfinite(v)]
+        higher = {k: float(getattr(registers, f)) for k, f in CAL_FIELDS_HIGHER_ORDER.items()}
+        bad = [k for k, v in (wanted | higher).items() if not math.isfinite(v)]
         if bad:
             raise ValueError(f"calibration values must be finite: {', '.join(bad)}")
-        assignments = " ".join(f"{k}={v:.9g}" for k, v in wanted.items())
-        self.command(Command.CAL_WRITE.format(assignments=assignments))
-        back = self.read_calibration()
+        wanted.update({k: v for k, v in higher.items() if v != 0.0})
+        self._cal_write(wanted)
+        back, listed = self._read_calibration()
+        stale = {
+            k: 0.0
+            for k in listed - set(wanted)
+            if getattr(back, CAL_FIELDS_HIGHER_ORDER[k]) != 0.0
+        }
+        if stale:
+            self._cal_write(stale)
+            back, _ = self._read_calibration()
+            wanted.update(stale)
+        fields = {**CAL_FIELDS, **CAL_FIELDS_HIGHER_ORDER}
         diffs = [
-            f"{k} wrote {v:.9g} read {getattr(back, f):.9g}"
-            for (k, f), v in zip(CAL_FIELDS.items(), wanted.values(), strict=True)
+            f"{k} wrote {v:.9g} read {getattr(back, fields[k]):.9g}"
+            for k, v in wanted.items()
             if not math.isclose(
-                getattr(back, f), v, rel_tol=_CAL_TOLERANCE_REL, abs_tol=_CAL_TOLERANCE_ABS
+                getattr(back, fields[k]), v, rel_tol=_CAL_TOLERANCE_REL, abs_tol=_CAL_TOLERANCE_ABS
             )
         ]
         if diffs:
@@ -406,6 +439,22 @@ class SerialPartLink:
                 "the write failed; retry once, then reject the part",
                 instrument=self.name,
             )
+
+    def _cal_write(self, values: dict[str, float]) -> None:
+        assignments = " ".join(f"{k}={v:.9g}" for k, v in values.items())
+        try:
+            self.command(Command.CAL_WRITE.format(assignments=assignments))
+        except FixtureRefused as exc:
+            higher = [k for k in values if k in CAL_FIELDS_HIGHER_ORDER]
+            if exc.code != ReplyError.BAD_REGISTER or not higher:
+                raise
+            raise FixtureRefused(
+                f"the part in the {self.name} has no register for {', '.join(higher)} (ERR 4): "
+                "it cannot hold a temperature fit beyond first order; list only the orders it "
+                "holds in the product file's calibration.fit_orders",
+                code=exc.code,
+                instrument=self.name,
+            ) from None
 
     # ------------------------------------------------------------ streaming
 

@@ -264,6 +264,9 @@ class CalibrationRegisters:
             / (scale*(1 + scale_tc*(T-T0) + scale_vc*(V-V0)))
     with raw the uncompensated output in deg/s, T the die temperature and V the supply.
     The erased state (bias 0, scale 1, coefficients 0) passes the raw output through.
+    Parts with higher-order temperature registers add bias_tc2*dT^2 + bias_tc3*dT^3 to the
+    bias and scale*(scale_tc2*dT^2 + scale_tc3*dT^3) to the scale (dT = T - T0); 0 on parts
+    calibrated to first order (and on fixtures without them).
     """
 
     bias_dps: float = 0.0
@@ -274,6 +277,10 @@ class CalibrationRegisters:
     scale_vc_per_v: float = 0.0
     t0_c: float = 25.0
     v0_v: float = 5.0
+    bias_tc2_dps_per_c2: float = 0.0
+    bias_tc3_dps_per_c3: float = 0.0
+    scale_tc2_per_c2: float = 0.0
+    scale_tc3_per_c3: float = 0.0
 
 
 class SampleStatus(IntFlag):

@@ -362,6 +362,9 @@ class ReplayPartLink:
         d_v = supply_v - reg.v0_v
         bias = reg.bias_dps + reg.bias_tc_dps_per_c * d_t + reg.bias_vc_dps_per_v * d_v
         scale = reg.scale * (1.0 + reg.scale_tc_per_c * d_t + reg.scale_vc_per_v * d_v)
+        # registers beyond first order in temperature (0 on a first-order calibration)
+        bias = bias + reg.bias_tc2_dps_per_c2 * d_t**2 + reg.bias_tc3_dps_per_c3 * d_t**3
+        scale = scale + reg.scale * (reg.scale_tc2_per_c2 * d_t**2 + reg.scale_tc3_per_c3 * d_t**3)
         out = codes.rate_dps_to_code((codes.rate_code_to_dps(rate_code) - bias) / scale)
         rate_code = np.where(raw, out, rate_code)
         status = np.where(raw, status | SampleStatus.COMPENSATED, status)

@@ -123,6 +123,12 @@ LIMIT_NAMES = (
     "stop_table_consistency",
     "supply_current_a",
     "frames_lost_fraction",
+    "turn_on_bias_repeatability_dps",
+    "warm_up_time_s",
+    "bias_temp_coeff2_dps_per_c2",
+    "bias_temp_coeff3_dps_per_c3",
+    "scale_temp_coeff2_per_c2",
+    "scale_temp_coeff3_per_c3",
 )
 
 
@@ -162,6 +168,32 @@ class Limits(_Strict):
     )
     supply_current_a: Limit | None = Field(None, description="supply current per part, A")
     frames_lost_fraction: Limit | None = Field(None, description="lost frames / expected frames")
+    turn_on_bias_repeatability_dps: Limit | None = Field(
+        None, description="turn-on to turn-on bias repeatability (1 sigma), deg/s"
+    )
+    warm_up_time_s: Limit | None = Field(
+        None, description="time from power-on until the bias settles within its band, s"
+    )
+    bias_temp_coeff2_dps_per_c2: Limit | None = Field(None, description="fitted b2, deg/s/C^2")
+    bias_temp_coeff3_dps_per_c3: Limit | None = Field(None, description="fitted b3, deg/s/C^3")
+    scale_temp_coeff2_per_c2: Limit | None = Field(None, description="fitted s2, 1/C^2")
+    scale_temp_coeff3_per_c3: Limit | None = Field(None, description="fitted s3, 1/C^3")
+
+
+FitOrder = Literal[1, 2, 3]
+FIRST_ORDER: FitOrder = 1
+
+
+class CalibrationStorage(_Strict):
+    """What the part's calibration registers can hold."""
+
+    fit_orders: list[FitOrder] = Field(
+        default_factory=lambda: [FIRST_ORDER],
+        min_length=1,
+        max_length=3,
+        description="temperature-fit orders the part's registers hold (1: the eight "
+        "first-order registers; 2, 3: also bias_tc2/scale_tc2, bias_tc3/scale_tc3)",
+    )
 
 
 class Dispositions(_Strict):
@@ -227,6 +259,10 @@ class ProductConfig(_Strict):
         None,
         description="what the operator does with a part of each verdict (PASS, FAIL, ERROR, "
         "ABORTED), shown with the verdict on the operator screen",
+    )
+    calibration: CalibrationStorage = Field(
+        default_factory=CalibrationStorage,
+        description="what the part's calibration registers hold (fit_orders)",
     )
 
     @property
@@ -406,7 +442,8 @@ def check_procedure_for_product(
     )
     problems = [*measured,
                 *_rate_problems(procedure, procedure_file, product, product_file),
-                *_supply_problems(procedure, procedure_file, product, product_file)]
+                *_supply_problems(procedure, procedure_file, product, product_file),
+                *_fit_order_problems(procedure, procedure_file, product, product_file)]
     if problems:
         raise ConfigError("\n".join(problems))
     return warnings
@@ -459,3 +496,29 @@ def _supply_problems(
         for path, v in levels
         if not low <= v <= high
     ]
+
+
+def _fit_order_problems(
+    procedure: ProcedureConfig, procedure_file: LoadedYaml, product: ProductConfig,
+    product_file: LoadedYaml,
+) -> list[str]:
+    """A fit of an order the part cannot store, or with too few temperatures for it."""
+    out = []
+    temps = len(set(procedure.conditions.temperatures_c))
+    for entry in procedure.entries_of("fit"):
+        order = getattr(entry.settings, "order", 1)
+        where = _where(procedure_file, *entry.path, "order")
+        if order not in product.calibration.fit_orders:
+            out.append(
+                f"{where}: field {'.'.join(map(str, (*entry.path, 'order')))} (step fit): "
+                f"order {order} cannot be stored by {product.product}: its calibration "
+                f"registers hold orders {product.calibration.fit_orders} ({product_file.path}, "
+                "calibration.fit_orders); fit to an order the part holds"
+            )
+        elif temps < order + 1:
+            out.append(
+                f"{where}: field {'.'.join(map(str, (*entry.path, 'order')))} (step fit): an "
+                f"order-{order} fit needs {order + 1} temperatures, conditions.temperatures_c "
+                f"gives {temps}; add temperatures or lower the order"
+            )
+    return out

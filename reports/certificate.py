@@ -27,7 +27,7 @@ from pathlib import Path
 from reportlab.platypus import Flowable, KeepTogether, Spacer
 
 from procedures.record import CERTIFICATE_FILE
-from reports import cert_plots, cert_sections, cert_standards
+from reports import cert_plots, cert_sections, cert_standards, cert_temperature_fit
 from reports.cert_inputs import CertificateInputs, load_inputs
 from reports.pdfdoc import PageFurniture, build_pdf, parse_utc, write_atomic
 from reports.styles import bounded
@@ -57,6 +57,7 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story += cert_sections.conditions(inputs)
     story += cert_sections.results(inputs)
     story += cert_sections.calibration(inputs)
+    story += cert_temperature_fit.temperature_fit(inputs)
     if inputs.record is not None:
         story += cert_plots.all_plots(inputs)
     story += [Spacer(1, 8), KeepTogether([cert_sections.sign_off(), Spacer(1, 4),

@@ -87,6 +87,15 @@ class PartSpec(_Model):
     effects: dict[str, dict[str, Annotated[float, Field(ge=-1e6, le=1e6)]]] = Field(
         default_factory=dict, max_length=len(EFFECT_PARAMS) + MAX_GENERIC_TERMS
     )
+    # Appended (issue 12): not drawn from the population; left out they are 0, so every part
+    # configured before keeps its behaviour. Turn-on to turn-on bias repeatability (IEEE 1431):
+    # a bias offset drawn anew at each power-on, N(0, sigma); the temperature terms beyond
+    # first order, about the 25 C reference (bias + b2 dT^2 + b3 dT^3, scale (1 + s2 dT^2 ...)).
+    turn_on_bias_sigma_dps: float | None = Field(default=None, ge=0.0, le=100.0)
+    bias_temp_coeff2_dps_per_c2: Coefficient | None = None
+    bias_temp_coeff3_dps_per_c3: Coefficient | None = None
+    scale_temp_coeff2_per_c2: Coefficient | None = None
+    scale_temp_coeff3_per_c3: Coefficient | None = None
 
     @field_validator("effects")
     @classmethod
@@ -180,6 +189,13 @@ class FixtureConfig(_Model):
         default=True,
         description="the table's encoder output is wired to the fixture, which latches its "
         "count into every sample frame (hardware sync); false: the field is 0, the bit clear",
+    )
+    calibration_order: int = Field(
+        default=3,
+        ge=1,
+        le=3,
+        description="highest temperature order the part's calibration registers hold: 1 is "
+        "the eight first-order registers only (CAL? lists eight; bias_tc2.. are refused)",
     )
 
 

@@ -23,7 +23,19 @@ if TYPE_CHECKING:
     from drivers.sim.world import World
 
 # CAL? keys -> CalibrationRegisters fields, in CAL_KEYS order
-_CAL_FIELDS = dict(zip(fp.CAL_KEYS, [f.name for f in fields(CalibrationRegisters)], strict=True))
+_CAL_FIELDS = dict(
+    zip(
+        fp.CAL_KEYS + fp.CAL_KEYS_HIGHER_ORDER,
+        [f.name for f in fields(CalibrationRegisters)],
+        strict=True,
+    )
+)
+# the higher-order keys a part calibrated to `order` holds (order 2: the two tc2 registers)
+_ORDER_KEYS = {
+    1: (),
+    2: ("bias_tc2", "scale_tc2"),
+    3: fp.CAL_KEYS_HIGHER_ORDER,
+}
 _ERR = fp.ReplyError
 
 
@@ -126,7 +138,7 @@ class FixtureSocket:
             if part_error:
                 return part_error
             cal = self.part.cal  # type: ignore[union-attr]
-            return "OK " + " ".join(f"{k}={getattr(cal, f)!r}" for k, f in _CAL_FIELDS.items())
+            return "OK " + " ".join(f"{k}={getattr(cal, _CAL_FIELDS[k])!r}" for k in self._keys())
         if upper.startswith("CAL "):
             return part_error or self._cal_write(text[4:])
         if upper.startswith("COMP"):
@@ -138,6 +150,10 @@ class FixtureSocket:
             self.part.compensation = m.group(1) == "1"  # type: ignore[union-attr]
             return "OK"
         return _err(_ERR.UNKNOWN_COMMAND, f"unknown command {text[:40]!r}")
+
+    def _keys(self) -> tuple[str, ...]:
+        """The calibration registers this socket's part holds, in CAL? order."""
+        return fp.CAL_KEYS + _ORDER_KEYS[self.world.config.fixture.calibration_order]
 
     def _part_error(self) -> str | None:
         if not self.part_present():
@@ -166,9 +182,9 @@ class FixtureSocket:
             key, sep, value = item.partition("=")
             if not sep:
                 return _err(_ERR.SYNTAX, f"expected key=value, got {item[:30]!r}")
-            if key.lower() not in _CAL_FIELDS:
+            if key.lower() not in self._keys():
                 return _err(
-                    _ERR.BAD_REGISTER, f"no register {key[:20]!r}; use {','.join(fp.CAL_KEYS)}"
+                    _ERR.BAD_REGISTER, f"no register {key[:20]!r}; use {','.join(self._keys())}"
                 )
             try:
                 number = float(value)

@@ -7,6 +7,11 @@ model): the world may hold effects the station's model does not know.
         + k2 w^2 + k3 w^3 + g_sens sin(tilt) cos(angle - phase) + warm-up drift
         -> first-order sensor lag (if any) -> + white noise + bias instability + rate random walk
 
+Beyond first order in temperature (0 unless the part's parameters give them): the bias gains
+b2 dT^2 + b3 dT^3 and the scale's bracket s2 dT^2 + s3 dT^3. Turn-on to turn-on repeatability
+(IEEE 1431): at every power-on the bias takes a new offset drawn from N(0, sigma) with the
+part's `turn_on_bias_sigma_dps`, held until the part next powers off (truth: `turn_on_bias_dps`).
+
 Bias instability is a sum of three Gauss-Markov processes a decade apart in correlation time,
 scaled so the flat part of the Allan deviation is 0.664 B (IEEE 952); rate random walk is
 integrated white noise.
@@ -15,6 +20,7 @@ integrated white noise.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict
 from typing import Any
 
@@ -31,6 +37,7 @@ FloatArray = NDArray[np.float64]
 T_REF_C = 25.0
 V_REF_V = 5.0
 GM_TAUS_S = (3.0, 30.0, 300.0)
+TURN_ON_HISTORY = 256  # turn-on offsets the truth keeps (the latest), for tests and benchmarks
 
 
 def first_order_filter(x: FloatArray, a: float, b: float, y_prev: float) -> FloatArray:
@@ -111,6 +118,11 @@ class PartModel:
         w = fx.get("warmup_drift")
         self._warmup = (w["amplitude_dps"], w["tau_s"]) if w else None
         self._generic = build_terms(fx)  # generic terms of an extended model (lib_...)
+        # turn-on offsets come from their own generator: the noise sequence stays as it was
+        self._turn_on_rng = np.random.default_rng([serial_seed(params.serial, "turn-on"), seed])
+        self.turn_on_bias_dps = 0.0
+        self.power_on_count = 0
+        self.turn_on_history_dps: deque[float] = deque(maxlen=TURN_ON_HISTORY)
 
     # ------------------------------------------------------------ electrical, thermal
 
@@ -124,6 +136,7 @@ class PartModel:
         self.powered = supply_v >= self.physics.brownout_v and not self.shorted
         if self.powered and not was:
             self.power_on_s = t_s
+            self._turn_on()
         if not self.powered:
             self.power_on_s = None if supply_v < self.physics.brownout_v else self.power_on_s
         if dt_s > 0:
@@ -135,6 +148,14 @@ class PartModel:
             self.heat_c += (target - self.heat_c) * kh
             self._hist_t = [self._hist_t[1], t_s]
             self._hist_die = [self._hist_die[1], self.die_temp_c()]
+
+    def _turn_on(self) -> None:
+        """A new turn-on bias offset (IEEE 1431 turn-on to turn-on repeatability)."""
+        self.power_on_count += 1
+        sigma = self.params.turn_on_bias_sigma_dps
+        if sigma > 0:
+            self.turn_on_bias_dps = float(self._turn_on_rng.normal(0.0, sigma))
+        self.turn_on_history_dps.append(self.turn_on_bias_dps)
 
     def die_temp_c(self) -> float:
         return self.die_c + self.heat_c
@@ -186,10 +207,18 @@ class PartModel:
         d_v = supply_v - V_REF_V
         w = rate_dps
         scale = p.scale * (1.0 + p.scale_temp_coeff_per_c * d_t + p.scale_supply_coeff_per_v * d_v)
+        if p.scale_temp_coeff2_per_c2 or p.scale_temp_coeff3_per_c3:
+            scale = scale + p.scale * (
+                p.scale_temp_coeff2_per_c2 * d_t**2 + p.scale_temp_coeff3_per_c3 * d_t**3
+            )
         if self._asym:
             scale = scale * (1.0 + 0.5 * self._asym * np.sign(w))
         y = scale * w + p.bias_dps + p.bias_temp_coeff_dps_per_c * d_t
         y = y + p.bias_supply_coeff_dps_per_v * d_v
+        if p.bias_temp_coeff2_dps_per_c2 or p.bias_temp_coeff3_dps_per_c3:
+            y = y + p.bias_temp_coeff2_dps_per_c2 * d_t**2 + p.bias_temp_coeff3_dps_per_c3 * d_t**3
+        if self.turn_on_bias_dps:
+            y = y + self.turn_on_bias_dps
         if self._k2:
             y = y + self._k2 * w * w
         if self._k3:
@@ -229,6 +258,10 @@ class PartModel:
         d_v = supply_v - c.v0_v
         bias = c.bias_dps + c.bias_tc_dps_per_c * d_t + c.bias_vc_dps_per_v * d_v
         scale = c.scale * (1.0 + c.scale_tc_per_c * d_t + c.scale_vc_per_v * d_v)
+        if c.bias_tc2_dps_per_c2 or c.bias_tc3_dps_per_c3:
+            bias = bias + c.bias_tc2_dps_per_c2 * d_t**2 + c.bias_tc3_dps_per_c3 * d_t**3
+        if c.scale_tc2_per_c2 or c.scale_tc3_per_c3:
+            scale = scale + c.scale * (c.scale_tc2_per_c2 * d_t**2 + c.scale_tc3_per_c3 * d_t**3)
         return (raw_dps - bias) / scale
 
     def truth(self) -> dict[str, Any]:
@@ -242,6 +275,9 @@ class PartModel:
             "shorted": self.shorted,
             "compensation": self.compensation,
             "calibration": asdict(self.cal),
+            "turn_on_bias_dps": self.turn_on_bias_dps,
+            "power_on_count": self.power_on_count,
+            "turn_on_history_dps": list(self.turn_on_history_dps),
         }
 
     def _generic_dps(

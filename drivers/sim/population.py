@@ -31,6 +31,12 @@ class PartParams:
     rrw_deg_per_h_per_sqrt_h: float
     supply_current_a: float
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    # appended (issue 12); 0 unless the sim config gives them (never drawn)
+    turn_on_bias_sigma_dps: float = 0.0
+    bias_temp_coeff2_dps_per_c2: float = 0.0
+    bias_temp_coeff3_dps_per_c3: float = 0.0
+    scale_temp_coeff2_per_c2: float = 0.0
+    scale_temp_coeff3_per_c3: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -86,4 +92,17 @@ def resolve_part(spec: PartSpec) -> PartParams:
         if param in spec.effects.get(effect_id, {}):
             values[param] = float(spec.effects[effect_id][param])
     effects = {k: dict(v) for k, v in spec.effects.items()}
+    for name in UNDRAWN_PARAMS:
+        given = getattr(spec, name)
+        values[name] = float(given) if given is not None else 0.0
     return PartParams(serial=spec.serial, effects=effects, **values)
+
+
+# part parameters never drawn from the population: 0 unless the sim config gives them
+UNDRAWN_PARAMS = (
+    "turn_on_bias_sigma_dps",
+    "bias_temp_coeff2_dps_per_c2",
+    "bias_temp_coeff3_dps_per_c3",
+    "scale_temp_coeff2_per_c2",
+    "scale_temp_coeff3_per_c3",
+)

@@ -18,6 +18,11 @@ from procedures.analysis.temp_supply_fit import (
 from procedures.record import Calibration, Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import ConditionResult, PartRun, condition_record
+from procedures.steps.fit_order import (
+    declared_beyond_first_order,
+    fit_beyond_first_order,
+    record_first_order_summary,
+)
 from procedures.steps.registry import Declared, StepSettings, StepType
 
 COEFF_UNITS = {
@@ -51,6 +56,12 @@ class FitSettings(StepSettings):
         "rate_table",
         description="which scale estimate feeds the fit (both: weighted by uncertainty)",
     )
+    order: Literal[1, 2, 3] = Field(
+        1,
+        description="order of the fit in temperature (first order in supply); 2 and 3 need "
+        "that many + 1 temperatures and a part whose product file lists the order in "
+        "calibration.fit_orders (procedures.steps.fit_order)",
+    )
 
 
 class Fit(StepType[FitSettings]):
@@ -69,7 +80,8 @@ class Fit(StepType[FitSettings]):
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
         return [Declared(name, units, "first-order coefficient")
-                for name, units in COEFF_UNITS.items()]
+                for name, units in COEFF_UNITS.items()] + declared_beyond_first_order(
+                    settings.order)
 
     def main(self, ctx: RunContext) -> None:
         ctx.parts.each(lambda part: self._fit(ctx, part))
@@ -98,6 +110,9 @@ class Fit(StepType[FitSettings]):
                         )
                     )
             t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
+            if self.settings.order > 1:
+                fit_beyond_first_order(ctx, part, self.settings.order, by_kind, t0, v0, source)
+                return
             # bias paired with the die temperature of its own windows, scale with its own
             fit_b = fit_temp_supply(by_kind["bias"], t0, v0)
             fit_s = fit_temp_supply(by_kind["scale"], t0, v0)
@@ -122,6 +137,7 @@ class Fit(StepType[FitSettings]):
             }
         part.record.conditions = [condition_record(r) for r in part.conditions.values()]
         part.record.calibration = Calibration.model_validate(cal)
+        record_first_order_summary(part, by_kind, t0, v0)
         part.record.analysis["fit"] = {
             "source": source,
             "conditions": [

@@ -10,6 +10,7 @@ from drivers.protocols import CalibrationRegisters
 from procedures.record import Outcome, Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
+from procedures.steps.fit_order import readback_dict
 from procedures.steps.registry import StepSettings, StepType
 
 READBACK_REL_TOL = 1e-6
@@ -26,6 +27,7 @@ def registers_from_fit(part: PartRun) -> CalibrationRegisters:
         scale_vc_per_v=co.scale_supply_coeff_per_v,
         t0_c=co.reference_temperature_c,
         v0_v=co.reference_supply_v,
+        **getattr(part.fit, "registers_beyond_first_order", {}),  # procedures.steps.fit_order
     )
 
 
@@ -98,7 +100,7 @@ class Program(StepType[ProgramSettings]):
         cal = part.record.calibration
         if cal is not None:
             cal.readback_ok = not diffs
-            cal.readback = {k: float(v) for k, v in asdict(read).items()}
+            cal.readback = readback_dict(read)
         if diffs:
             ctx.parts.drop(
                 part,

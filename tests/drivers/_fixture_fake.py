@@ -33,6 +33,7 @@ class FakeFixture:
         self.deaf = False
         self.go_silent = False
         self.cal_sticky_bias: float | None = None  # a part that does not keep bias
+        self.cal_keys: set[str] | None = None  # registers the part holds (None: any written)
         self.mangle: Callable[[bytes, int], bytes] | None = None  # (frames, first_seq) -> bytes
         self.sent = 0
         self.wall_streaming_s = 0.0  # START to STOP, wall seconds
@@ -98,9 +99,14 @@ class FakeFixture:
             self.reply(f"OK {self.cal}")
         elif word == "CAL":
             values = dict(item.split("=") for item in arg.split())
+            unknown = sorted(set(values) - self.cal_keys) if self.cal_keys is not None else []
+            if unknown:
+                self.reply(f"ERR 4 no register {unknown[0]!r}")
+                return
             if self.cal_sticky_bias is not None:
                 values["bias"] = str(self.cal_sticky_bias)
-            self.cal = " ".join(f"{k}={v}" for k, v in values.items())
+            held = dict(item.split("=") for item in self.cal.split())
+            self.cal = " ".join(f"{k}={v}" for k, v in {**held, **values}.items())
             self.reply("OK")
         elif word == "COMP":
             self.reply("OK")
