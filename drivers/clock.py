@@ -37,6 +37,9 @@ class ScaledClock:
     `sleep_s` can be cut short by `interrupt()`, so an operator abort ends a long dwell at once.
     """
 
+    # True when every sample taken up to now_s() is already in when a sleep returns
+    lockstep = False
+
     def __init__(self, speed: float = 1.0) -> None:
         if not speed > 0:
             raise ValueError(f"clock speed must be positive, got {speed!r}")
@@ -70,7 +73,7 @@ class ScaledClock:
 
 Advance = Callable[[float], Mapping[str, Any]]
 Waiter = Callable[[float, Mapping[str, Any]], None]
-LOCKSTEP_STEP_S = 0.5  # longest station step per request: the samples of one step fit the FIFO
+LOCKSTEP_STEP_S = 1.0  # longest station step per request: the samples of one step fit the FIFO
 
 
 class LockstepClock(ScaledClock):
@@ -84,6 +87,8 @@ class LockstepClock(ScaledClock):
     After `interrupt()` (abort) a sleep still moves station time, in one step, so every
     deadline loop ends.
     """
+
+    lockstep = True
 
     def __init__(self, advance: Advance, max_step_s: float = LOCKSTEP_STEP_S) -> None:
         super().__init__(1.0)

@@ -271,6 +271,19 @@ class PartStream:
             i0, i1 = np.searchsorted(t, [start_s, end_s], side="left")
             return {c: self._data.column(c)[i0:i1].copy() for c in _COLUMNS}
 
+    def wait_delivered(self, fixture_s: float, wall_s: float) -> None:
+        """Wait (wall time, at most `wall_s`) until the stream holds its samples up to fixture
+        time `fixture_s`: they reach the station a little after they are taken. In lockstep
+        they are in already (the clock's step waited for them)."""
+        if getattr(self.clock, "lockstep", False):
+            return
+        deadline = time.monotonic() + wall_s
+        while time.monotonic() < deadline and self.streaming and self.error is None:
+            last = self.last_time_s()
+            if last is not None and last >= fixture_s:
+                return
+            time.sleep(0.005)
+
     def last_time_s(self) -> float | None:
         with self.lock:
             t = self._data.column("time_s")
