@@ -345,7 +345,7 @@ class RunContext:
             left = end - self.clock.now_s()
             if left <= 0:
                 return
-            self.clock.sleep_s(min(left, slice_s))
+            self.clock.sleep_s(min(left, max(slice_s, self.clock.check_every_s)))
 
     def snapshot(self) -> tuple[float, TableStatus]:
         """Table status with the station time at the middle of the read; logged to raw data."""
