@@ -197,8 +197,9 @@ def open_part_link(
 
 
 def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: float = 1.0) -> float:
-    """Station seconds of silence before a part counts as silent (at least `wall_floor_s` wall)."""
-    return max(silent_after_s, wall_floor_s * clock.speed)
+    """Station seconds of silence before a part counts as silent (at least `wall_floor_s` wall,
+    and two of a lockstep clock's steps: a step's frames arrive only after it)."""
+    return max(silent_after_s, wall_floor_s * clock.speed, 2 * clock.check_every_s)
 
 
 def open_bench(
