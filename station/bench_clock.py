@@ -12,9 +12,14 @@ from drivers.clock import LockstepClock, ScaledClock
 class BenchTiming(Protocol):
     """What the clock needs to know of the bench (station.uut.Endpoints has it)."""
 
-    speed: float
-    lockstep: bool
-    control: str
+    @property
+    def speed(self) -> float: ...
+
+    @property
+    def lockstep(self) -> bool: ...
+
+    @property
+    def control(self) -> str: ...
 
 
 def station_clock(

@@ -12,7 +12,10 @@ from procedures.record import Verdict, read_record
 from station.uut import run_simulated
 
 LOCKSTEP_PROC = Path(__file__).resolve().parent / "data" / "lockstep.yaml"
-HOG = "import os, time\nos.nice(5)\nend = time.monotonic() + 600\nwhile time.monotonic() < end:\n    pass\n"
+HOG = (
+    "import os, time\nos.nice(5)\nend = time.monotonic() + 600\n"
+    "while time.monotonic() < end:\n    pass\n"
+)
 
 
 def run_once(out: Path) -> tuple[float, float, Verdict]:
