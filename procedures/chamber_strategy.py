@@ -75,7 +75,7 @@ def simulate(
     row of die temperatures per (overshoot, hold) pair (arrays broadcast together)."""
     over, hold = np.broadcast_arrays(np.atleast_1d(overshoot_c), np.atleast_1d(hold_s))
     n = int(math.ceil(horizon_s / STEP_S)) + 1
-    t = np.arange(n) * STEP_S
+    t = np.arange(n, dtype=np.float64) * STEP_S
     die = np.empty((over.size, n))
     air = np.full(over.size, state.air_c)
     ramped = air.copy()
