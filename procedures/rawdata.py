@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 FORMAT = "gyrocal-raw/1"
+CHUNK_CACHE_BYTES = 1 << 16  # two 4096-row chunks of 8-byte values
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -103,7 +104,9 @@ class RawDataWriter:
 
     def __init__(self, path: Path, attrs: Mapping[str, Any]) -> None:
         self.path = path
-        self._file = h5py.File(path, "w", libver="latest")
+        # a small chunk cache per dataset (HDF5's default is 1 MiB each, 32 datasets a file):
+        # rows are appended, so only the chunk being filled needs to stay in memory
+        self._file = h5py.File(path, "w", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
         self._file.attrs["format"] = FORMAT
         for key, value in attrs.items():
             self._file.attrs[key] = value
