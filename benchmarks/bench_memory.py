@@ -41,7 +41,10 @@ def rss_mb() -> float:
 def procedure_at(path: Path, rate_hz: int, folder: Path) -> Path:
     """A copy of the procedure at `rate_hz` (its product path made absolute)."""
     data: dict[str, Any] = yaml.safe_load(path.read_text(encoding="utf-8"))
-    data["power"]["output_rate_hz"] = rate_hz
+    if isinstance(data.get("power"), dict) and "output_rate_hz" in data["power"]:
+        data["power"]["output_rate_hz"] = rate_hz  # the section form
+    else:
+        data["output_rate_hz"] = rate_hz  # the step-list form
     data["product"] = str((path.parent / data["product"]).resolve())
     out = folder / f"{path.stem}-{rate_hz}hz.yaml"
     out.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
