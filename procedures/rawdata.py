@@ -21,7 +21,8 @@ Layout (all 1-D, resizable, appended together within a group so rows line up):
                ref_rate_dps, ref_angle_deg, temp_setpoint_c, supply_v
     /events    station_time_s, text
 
-Readers use `read_raw`, which returns plain numpy arrays per group.
+Readers use `read_raw`, which returns plain numpy arrays per group; the run itself reads its
+older sample windows back with `RawDataWriter.read_window`.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 FORMAT = "gyrocal-raw/1"
+CHUNK_CACHE_BYTES = 1 << 16  # two 4096-row chunks of 8-byte values
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -102,7 +104,9 @@ class RawDataWriter:
 
     def __init__(self, path: Path, attrs: Mapping[str, Any]) -> None:
         self.path = path
-        self._file = h5py.File(path, "w", libver="latest")
+        # a small chunk cache per dataset (HDF5's default is 1 MiB each, 32 datasets a file):
+        # rows are appended, so only the chunk being filled needs to stay in memory
+        self._file = h5py.File(path, "w", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
         self._file.attrs["format"] = FORMAT
         for key, value in attrs.items():
             self._file.attrs[key] = value
@@ -148,6 +152,17 @@ class RawDataWriter:
                 ds[old:] = values
         self._file.flush()
 
+    def read_window(
+        self, group: str, key: str, start: float, end: float
+    ) -> dict[str, NDArray[Any]]:
+        """The rows written so far whose `key` column (sorted ascending, e.g. samples'
+        time_s) lies in [start, end): every column of the group, read back from the file
+        (only the window and a binary search's few values come into memory)."""
+        g = self._file[group]
+        ds = g[key]
+        i0, i1 = _bisect(ds, start), _bisect(ds, end)
+        return {column: g[column][i0:i1] for column in GROUPS[group]}
+
     def close(self) -> None:
         if self._file.id.valid:
             self._file.flush()
@@ -158,6 +173,19 @@ class RawDataWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _bisect(ds: Any, value: float, block: int = 4096) -> int:
+    """First index of the sorted 1-D dataset `ds` whose value is not below `value`: a binary
+    search over blocks (one read each), then one block read."""
+    lo, hi = 0, ds.shape[0]
+    while hi - lo > block:
+        mid = (lo + hi) // 2
+        if ds[mid] < value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo + int(np.searchsorted(ds[lo:hi], value, side="left"))
 
 
 @dataclass(frozen=True)

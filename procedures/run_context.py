@@ -396,7 +396,7 @@ class Waiting:
             left = end - self.clock.now_s()
             if left <= 0:
                 return
-            self.clock.sleep_s(min(left, slice_s))
+            self.clock.sleep_s(min(left, max(slice_s, self.clock.check_every_s)))
 
 
 # ---------------------------------------------------------------- instruments

@@ -3,8 +3,9 @@
 One background thread reads every streaming `PartLink` (the fixture streams whether or not
 the engine is looking, and a blocked serial buffer would lose frames), converts codes to
 engineering units (with the product's code format, `ProductConfig.codes`), estimates each
-sample's station time, keeps everything in memory for the steps and appends it to the part's
-raw data file in batches.
+sample's station time, keeps the newest samples in memory for the steps (a fixed number) and
+appends everything to the part's raw data file in batches; a window older than memory holds
+is read back from that file, so memory does not grow with the run's length or output rate.
 
 Station time of a sample: fixture clock + offset, where the offset is the smallest
 (station time at read - fixture time of the newest sample) seen so far; transport latency only
@@ -19,7 +20,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
 import numpy as np
@@ -27,6 +28,7 @@ from numpy.typing import NDArray
 
 from drivers.clock import Clock
 from drivers.errors import InstrumentError, PartSilent
+from drivers.fixture_protocol import SEQ_MODULO
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import PartLink, SampleBlock
 from procedures.rawdata import RawDataWriter
@@ -45,23 +47,39 @@ _COLUMNS = (
     "station_time_s",
     "encoder_counts",
 )
+_DTYPES = {c: np.float64 for c in ("time_s", "rate_dps", "temp_c", "station_time_s")}
 _FLUSH_SAMPLES = 2000
 FIXTURE_WRAP_S = (1 << 32) * 1e-6  # the fixture's u32 microsecond timestamp
 _FLUSH_WALL_S = 0.5
+# samples kept in memory per part (between this and twice this): 65 s at 1 kHz, 9 MB
+KEEP_SAMPLES = 1 << 16
+CATCH_UP_WALL_S = 0.5  # lockstep: longest wall wait for an interval's frames
+CATCH_UP_POLL_WALL_S = 0.0005
 
 
 class _Growable:
-    """Columns that grow by doubling, so appends are cheap and slices are views."""
+    """Columns that grow by doubling, so appends are cheap and slices are views.
 
-    def __init__(self) -> None:
+    With `keep` set, only about the newest `keep` samples stay (between `keep` and `2 keep`):
+    when the buffer would outgrow `2 keep` the newest `keep` move to the front, so memory is
+    fixed whatever the run's length and output rate. `dropped` counts the samples let go.
+    """
+
+    def __init__(self, keep: int | None = None) -> None:
         self.n = 0
+        self.dropped = 0
+        self.keep = keep
         self._cap = 0
         self._cols: dict[str, NDArray[Any]] = {}
 
     def append(self, cols: dict[str, NDArray[Any]]) -> None:
         k = len(next(iter(cols.values())))
+        if self.keep is not None and self.n + k > 2 * self.keep:
+            self._let_go(max(self.n + k - self.keep, 0))
         if self.n + k > self._cap:
             cap = max(4096, 2 * (self.n + k))
+            if self.keep is not None:
+                cap = max(cap if cap <= 2 * self.keep else 2 * self.keep, self.n + k)
             for name, values in cols.items():
                 new = np.empty(cap, dtype=values.dtype)
                 if name in self._cols:
@@ -71,6 +89,14 @@ class _Growable:
         for name, values in cols.items():
             self._cols[name][self.n : self.n + k] = values
         self.n += k
+
+    def _let_go(self, count: int) -> None:
+        """Drop the oldest `count` samples (all of them when count >= n)."""
+        count = min(count, self.n)
+        for col in self._cols.values():
+            col[: self.n - count] = col[count : self.n]
+        self.n -= count
+        self.dropped += count
 
     def column(self, name: str) -> NDArray[Any]:
         if name not in self._cols:
@@ -89,6 +115,7 @@ class PartStream:
         writer: RawDataWriter | None = None,
         silent_timeout_s: float = 5.0,
         codes: CodeFormat = ADIS16130,
+        keep_samples: int = KEEP_SAMPLES,
     ) -> None:
         self.socket = socket
         # how the part's codes read (the product's `codes:`; the run context sets it)
@@ -98,7 +125,9 @@ class PartStream:
         self.writer = writer
         self.silent_timeout_s = silent_timeout_s
         self.lock = threading.RLock()
-        self._data = _Growable()
+        # with a raw data file only the newest samples stay in memory; older windows are
+        # read back from the file (PartStream.window)
+        self._data = _Growable(keep_samples if writer is not None else None)
         self._pending: list[dict[str, NDArray[Any]]] = []
         self._pending_n = 0
         self._last_flush = time.monotonic()
@@ -110,6 +139,7 @@ class PartStream:
         self.frames_corrupted = 0
         self._last_data_station_s = 0.0
         self._wrap_s = 0.0
+        self.last_seq: int | None = None  # of the newest frame in (lockstep catch-up)
 
     # ------------------------------------------------------------ control (main thread)
 
@@ -172,6 +202,7 @@ class PartStream:
         if n == 0:
             return 0
         self.frames_ok += n
+        self.last_seq = int(block.seq[-1]) % SEQ_MODULO
         time_s = np.asarray(block.time_s, dtype=np.float64) + self._wrap_s
         last = self._data.column("time_s")
         if last.size and time_s[0] < last[-1] - FIXTURE_WRAP_S / 2:
@@ -229,11 +260,29 @@ class PartStream:
             return station_time_s - self.offset_s
 
     def window(self, start_s: float, end_s: float) -> dict[str, NDArray[Any]]:
-        """Samples with fixture time in [start_s, end_s] (copies)."""
+        """Samples with fixture time in [start_s, end_s) (copies): from memory, or read back
+        from the raw data file when the window starts before the samples memory still holds."""
         with self.lock:
             t = self._data.column("time_s")
+            if self._data.dropped and self.writer is not None and (not t.size or start_s < t[0]):
+                self.flush()
+                disk = self.writer.read_window("samples", "time_s", start_s, end_s)
+                return {c: np.asarray(disk[c], dtype=_DTYPES.get(c, np.int64)) for c in _COLUMNS}
             i0, i1 = np.searchsorted(t, [start_s, end_s], side="left")
             return {c: self._data.column(c)[i0:i1].copy() for c in _COLUMNS}
+
+    def wait_delivered(self, fixture_s: float, wall_s: float) -> None:
+        """Wait (wall time, at most `wall_s`) until the stream holds its samples up to fixture
+        time `fixture_s`: they reach the station a little after they are taken. In lockstep
+        they are in already (the clock's step waited for them)."""
+        if getattr(self.clock, "lockstep", False):
+            return
+        deadline = time.monotonic() + wall_s
+        while time.monotonic() < deadline and self.streaming and self.error is None:
+            last = self.last_time_s()
+            if last is not None and last >= fixture_s:
+                return
+            time.sleep(0.005)
 
     def last_time_s(self) -> float | None:
         with self.lock:
@@ -255,9 +304,36 @@ class Acquisition:
         self._thread: threading.Thread | None = None
 
     def __enter__(self) -> Acquisition:
+        for clock in self._lockstep_clocks():
+            clock.add_waiter(self.catch_up)
         self._thread = threading.Thread(target=self._run, name="acquisition", daemon=True)
         self._thread.start()
         return self
+
+    def _lockstep_clocks(self) -> list[Any]:
+        clocks = {id(s.clock): s.clock for s in self.streams.values()}
+        return [c for c in clocks.values() if hasattr(c, "add_waiter")]
+
+    def catch_up(self, t_s: float, reply: Mapping[str, Any]) -> None:
+        """Lockstep: after the bench advanced to `t_s`, wait (wall time, bounded) until every
+        stream holds the last frame its fixture sent (`reply["seq"]`), so a step that goes on
+        sees the whole interval. A frame lost on the way ends the wait at the bound."""
+        sent = reply.get("seq") or {}
+        waiting = [s for s in self.streams.values() if str(s.socket) in sent]
+        deadline = time.monotonic() + CATCH_UP_WALL_S
+        while waiting:
+            for stream in waiting:
+                stream.poll()
+            waiting = [
+                s
+                for s in waiting
+                if s.streaming and s.error is None and s.last_seq != int(sent[str(s.socket)])
+            ]
+            if waiting and time.monotonic() > deadline:
+                log.debug("lockstep at %.3f s: sockets %s did not catch up", t_s, waiting)
+                return
+            if waiting:
+                time.sleep(CATCH_UP_POLL_WALL_S)
 
     def __exit__(self, *exc: object) -> None:
         self.close()
@@ -271,6 +347,8 @@ class Acquisition:
                 self._stop.wait(self.poll_wall_s)
 
     def close(self) -> None:
+        for clock in self._lockstep_clocks():
+            clock.remove_waiter(self.catch_up)
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)

@@ -19,6 +19,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--state", type=Path, help="state file to write (default: print to stdout)")
     p.add_argument("--speed", type=float, help="world speed factor (default: the config's, or 1)")
     p.add_argument("--sockets", type=int, help="fixture sockets (default: the config's, or 1)")
+    p.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="virtual time: the world moves only when the station's clock asks (control "
+        "cmd advance); --speed is then ignored",
+    )
     p.set_defaults(handler=handle)
 
 
@@ -47,4 +53,4 @@ def handle(args: argparse.Namespace) -> int:
             raise UserError(str(exc)) from None
     if args.state is not None and not args.state.parent.is_dir():
         raise UserError(f"--state: directory {args.state.parent} does not exist; create it first")
-    return run_bench(config, args.state, args.speed)
+    return run_bench(config, args.state, args.speed, lockstep=args.lockstep)

@@ -256,14 +256,15 @@ def run_cycle(
             config=sim_config,
             speed=speed,
             sockets=max(duts) if isinstance(sim_config, dict) else None,
+            lockstep=speed is None,  # pinned: lockstep unless a speed is given
         )
     wall0 = time.monotonic()
     with _sigterm_interrupts(), _bench_errors(), bench_cm as bench:
         endpoints = None
         if bench is not None:
             endpoints = Endpoints.of_bench(bench.endpoints)
-            print(f"simulated bench running at {endpoints.speed:g}x "
-                  f"(pid {bench.endpoints.pid})", flush=True)
+            pace = "in lockstep" if endpoints.lockstep else f"at {endpoints.speed:g}x"
+            print(f"simulated bench running {pace} (pid {bench.endpoints.pid})", flush=True)
         runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)  # type: ignore[arg-type]
         display = ProgressDisplay()
         runner.progress.subscribe(display)
@@ -294,10 +295,9 @@ def _run(args: argparse.Namespace) -> int:
             raise UserError(str(exc)) from None
         if settings.settings.sim_config:
             sim_path = str(settings.resolve(settings.settings.sim_config))
-    sim_config, speed = _sim_config(sim_path, duts) if args.sim else (None, None)
-    if args.speed is not None:
-        speed = args.speed
-    return run_cycle(args, duts, sim=args.sim, sim_config=sim_config, speed=speed)
+    sim_config, _ = _sim_config(sim_path, duts) if args.sim else (None, None)
+    # lockstep (station time is physics time) unless --speed asks for a scaled clock
+    return run_cycle(args, duts, sim=args.sim, sim_config=sim_config, speed=args.speed)
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -309,7 +309,7 @@ def _demo(args: argparse.Namespace) -> int:
         duts,
         sim=True,
         sim_config={"parts": [{"socket": 1, "serial": DEMO_SERIAL}]},
-        speed=DEMO_SPEED if args.speed is None else args.speed,
+        speed=args.speed,  # lockstep unless --speed asks for a scaled clock
     )
     return 0 if code in (0, 1) else code
 
@@ -349,7 +349,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     d.add_argument("--out", help="output folder (default: station.yaml's)")
     d.add_argument("--procedure", help="procedure file (default: the full rate-table procedure)")
     d.add_argument("--station", help="station file (default: config/station.yaml)")
-    d.add_argument("--speed", type=float, help=f"bench speed factor (default {DEMO_SPEED:g})")
+    d.add_argument(
+        "--speed",
+        type=float,
+        help=f"bench speed factor, e.g. {DEMO_SPEED:g} (default: lockstep, as fast as it computes)",
+    )
     d.add_argument("--operator", default="demo")
     d.set_defaults(handler=_demo)
     p = subparsers.add_parser(

@@ -59,6 +59,7 @@ from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
 from station import __version__, preflight
 from station import instruments as roles
+from station.bench_clock import station_clock
 from station.errors import UserError
 from station.run_folder import create_run_folder, recover_crashed_runs, release, validate_serial
 from station.settings import LoadedSettings
@@ -84,6 +85,8 @@ class Endpoints:
     operator: str = ""
     # socket -> the inclinometer twin on that socket's fixture (none when the bench has none)
     inclinometers: dict[int, str] = field(default_factory=dict)
+    lockstep: bool = False  # the bench's world moves only when the station's clock asks
+    control: str = ""  # the bench's control channel (host:port)
 
     @classmethod
     def of_bench(cls, e: BenchEndpoints) -> Endpoints:
@@ -93,6 +96,7 @@ class Endpoints:
             duts=dict(e.duts), families=dict(e.families),
             operator=str(e.raw.get("operator", "") or ""),
             inclinometers={int(k): str(v) for k, v in (e.raw.get("inclinometers") or {}).items()},
+            lockstep=e.lockstep, control=e.control,
         )
 
     def address(self, role: str) -> str:
@@ -199,8 +203,9 @@ def open_part_link(
 
 
 def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: float = 1.0) -> float:
-    """Station seconds of silence before a part counts as silent (at least `wall_floor_s` wall)."""
-    return max(silent_after_s, wall_floor_s * clock.speed)
+    """Station seconds of silence before a part counts as silent (at least `wall_floor_s` wall,
+    and two of a lockstep clock's steps: a step's frames arrive only after it)."""
+    return max(silent_after_s, wall_floor_s * clock.speed, 2 * clock.check_every_s)
 
 
 def open_bench(
@@ -213,8 +218,8 @@ def open_bench(
     """Open every role through its configured driver (station.yaml `driver:`, or the family
     the bench's twin serves). A bad driver name or setting is a UserError (file:line); an
     instrument that cannot be reached raises `station.instruments.Unreachable`."""
-    clock = ScaledClock(endpoints.speed if endpoints else 1.0)
     closers: list[Callable[[], None]] = []
+    clock = station_clock(endpoints, closers)
     records: list[InstrumentRecord] = []
     names: dict[str, str] = {}
     opened: dict[str, Any] = {}
@@ -790,18 +795,21 @@ def run_simulated(
     *,
     procedure_path: Path | None = None,
     out: Path,
-    speed: float = 100.0,
+    speed: float | None = None,
     settings: LoadedSettings | None = None,
     certificate: bool = False,
     on_progress: Callable[[ProgressEvent], None] | None = None,
 ) -> tuple[UutResult, dict[str, Any]]:
     """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
-    entries); returns the result and the bench's truth at the end (for benchmarks and tests)."""
+    entries); returns the result and the bench's truth at the end (for benchmarks and tests).
+    Without `speed` the bench runs in lockstep (station time is physics time)."""
     from drivers.sim.launcher import launch_bench
     from station.settings import load_settings
 
     sockets = max(int(p["socket"]) for p in parts)
-    with launch_bench(config={"parts": parts}, speed=speed, sockets=sockets) as bench:
+    with launch_bench(
+        config={"parts": parts}, speed=speed, sockets=sockets, lockstep=speed is None
+    ) as bench:
         runner = UutRunner(
             settings or load_settings(),
             procedure_path=procedure_path,

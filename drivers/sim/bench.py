@@ -20,6 +20,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from drivers.fixture_protocol import SEQ_MODULO
 from drivers.rate_table_map import Fault
 from drivers.sim.absent_twin import AbsentTwin
 from drivers.sim.acutrol_twin import AcutrolTwin
@@ -133,8 +134,9 @@ class Bench:
         table_port: int = 0,
         chamber_port: int = 0,
         control_port: int = 0,
+        lockstep: bool = False,
     ) -> None:
-        self.world = World(config, speed)
+        self.world = World(config, speed, lockstep)
         self.host = host
         self.families = config.instruments.families()
         self.table: Any = twin_class("rate_table", self.families["rate_table"])(
@@ -191,9 +193,12 @@ class Bench:
             "pid": os.getpid(),
             "sockets": len(self.fixtures),
             "families": dict(self.families),
+            "lockstep": self.world.lockstep,
         }
 
     async def _tick_loop(self) -> None:
+        if self.world.lockstep:
+            return  # the world moves only when the station's clock asks (cmd advance)
         while True:
             t = self.world.advance()
             for fixture in self.fixtures.values():
@@ -222,6 +227,8 @@ class Bench:
         cmd = req["cmd"]
         if cmd == "ping":
             return {"time_s": self.world.advance(), "speed": self.world.speed}
+        if cmd == "advance":
+            return self._advance(req)
         if cmd == "truth":
             return self.truth()
         if cmd == "endpoints":
@@ -237,8 +244,28 @@ class Bench:
             await self._clear_faults()
             return {"cleared": True}
         raise ControlRequestError(
-            f"unknown cmd {cmd!r}; use ping, truth, endpoints, load, unload, fault, clear_faults"
+            f"unknown cmd {cmd!r}; use ping, advance, truth, endpoints, load, unload, fault, "
+            "clear_faults"
         )
+
+    def _advance(self, req: dict[str, Any]) -> dict[str, Any]:
+        """Lockstep: move the world to `to_s` and send every sample frame due by then. The
+        reply's `seq` gives, per socket that sent frames, the last frame's sequence number:
+        the station waits for it before it goes on."""
+        if not self.world.lockstep:
+            raise ControlRequestError(
+                "advance needs a lockstep bench (station bench --lockstep); this one runs "
+                f"at {self.world.speed:g}x on its own clock"
+            )
+        to_s = _number(req, "to_s", 0.0, 0.0, 1e9)
+        t = self.world.advance_to(to_s)
+        last_seq: dict[str, int] = {}
+        for index, fixture in self.fixtures.items():
+            sent = fixture.socket.frames_sent
+            fixture.tick(t)
+            if fixture.socket.frames_sent > sent:
+                last_seq[str(index)] = (fixture.socket.seq - 1) % SEQ_MODULO
+        return {"time_s": t, "seq": last_seq}
 
     def _socket_index(self, req: dict[str, Any]) -> int:
         try:
@@ -384,8 +411,9 @@ def ready_line(state: dict[str, Any], state_path: Path | None) -> str:
     duts = state.get("duts", {})
     dut_text = " ".join(f"{k}={v}" for k, v in duts.items()) or "none"
     where = f"state file {state_path}" if state_path is not None else "state on stdout"
+    pace = "in lockstep" if state.get("lockstep") else f"at {state.get('speed')}x"
     return (
-        f"bench ready at {state.get('speed')}x: {where}; rate_table {state.get('rate_table')}, "
+        f"bench ready {pace}: {where}; rate_table {state.get('rate_table')}, "
         f"chamber {state.get('chamber')}, supply {state.get('supply')}, duts {dut_text}, "
         f"control {state.get('control')} (Ctrl-C or SIGTERM stops it)"
     )
@@ -396,8 +424,9 @@ async def serve(
     state_path: Path | None,
     speed: float | None = None,
     ports: dict[str, int] | None = None,
+    lockstep: bool = False,
 ) -> None:
-    """Run the bench until SIGINT or SIGTERM."""
+    """Run the bench until SIGINT or SIGTERM (in lockstep: its world moves only on `advance`)."""
     ports = ports or {}
     bench = Bench(
         config,
@@ -405,6 +434,7 @@ async def serve(
         table_port=ports.get("rate_table", 0),
         chamber_port=ports.get("chamber", 0),
         control_port=ports.get("control", 0),
+        lockstep=lockstep,
     )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
@@ -434,7 +464,8 @@ def run_bench(
     state_path: Path | None,
     speed: float | None = None,
     ports: dict[str, int] | None = None,
+    lockstep: bool = False,
 ) -> int:
-    asyncio.run(serve(config, state_path, speed, ports))
+    asyncio.run(serve(config, state_path, speed, ports, lockstep))
     sys.stdout.flush()
     return 0

@@ -51,6 +51,8 @@ class BenchEndpoints:
     raw: dict[str, Any]
     # role -> the instrument family its twin serves (sim config `instruments:`)
     families: dict[str, str] = field(default_factory=lambda: dict(DEFAULT_FAMILIES))
+    # the world moves only when the station's clock asks (control cmd advance)
+    lockstep: bool = False
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> BenchEndpoints:
@@ -66,6 +68,7 @@ class BenchEndpoints:
             pid=int(state.get("pid", 0)),
             raw=dict(state),
             families=families,
+            lockstep=bool(state.get("lockstep", False)),
         )
 
     @staticmethod
@@ -114,10 +117,12 @@ def launch_bench(
     start_timeout_s: float = 20.0,
     stop_timeout_s: float = 10.0,
     extra_args: tuple[str, ...] = (),
+    lockstep: bool = False,
 ) -> Iterator[BenchHandle]:
     """Run `python -m station bench` in a subprocess for the duration of the block.
 
     `config` is a sim config file path or a mapping (written to a temp YAML file).
+    `lockstep`: the world moves only when the station's clock asks (`LockstepClock`).
     """
     with tempfile.TemporaryDirectory(prefix="simbench-") as tmp:
         tmp_dir = Path(tmp)
@@ -134,6 +139,8 @@ def launch_bench(
             cmd += ["--speed", repr(float(speed))]
         if sockets is not None:
             cmd += ["--sockets", str(sockets)]
+        if lockstep:
+            cmd.append("--lockstep")
         cmd += list(extra_args)
         err_path = tmp_dir / "bench.err"
         with open(err_path, "wb") as err:

@@ -1,6 +1,7 @@
 """The simulated bench's world: one clock at a speed factor, and every instrument's physics.
 
-World time = wall time since start x speed. The world is advanced lazily (`advance()`) on
+World time = wall time since start x speed, or in lockstep the time the station's clock last
+asked for (`advance_to`). The world is advanced lazily (`advance()`) on
 every request and by the bench's tick, with exact exponential steps for the slow thermal
 states; the table's motion is analytic and evaluated at any time.
 """
@@ -25,8 +26,13 @@ SAFE_CHAMBER_RANGE_C = (10.0, 40.0)
 
 
 class World:
-    def __init__(self, config: SimConfig, speed: float | None = None) -> None:
+    def __init__(
+        self, config: SimConfig, speed: float | None = None, lockstep: bool = False
+    ) -> None:
         self.config = config
+        # lockstep: world time moves only by advance_to() (the station's clock asks)
+        self.lockstep = lockstep
+        self._lockstep_t = 0.0
         self.speed = float(speed if speed is not None else config.speed)
         if not self.speed > 0:
             raise ValueError(f"speed must be positive, got {self.speed}")
@@ -53,11 +59,23 @@ class World:
     # ------------------------------------------------------------ time
 
     def now_s(self) -> float:
+        if self.lockstep:
+            return self._lockstep_t
         return (time.monotonic() - self._t0_wall) * self.speed
 
     def world_time_at(self, monotonic_s: float) -> float:
-        """The world time at a reading of the machine's monotonic clock (any process)."""
+        """The world time at a reading of the machine's monotonic clock (any process); in
+        lockstep the world does not follow the machine's clock: the present world time."""
+        if self.lockstep:
+            return self._lockstep_t
         return (monotonic_s - self._t0_wall) * self.speed
+
+    def advance_to(self, t_s: float) -> float:
+        """Lockstep: move world time to `t_s` (never backwards) and bring every state there."""
+        if not self.lockstep:
+            raise ValueError("advance_to needs a lockstep world (station bench --lockstep)")
+        self._lockstep_t = max(self._lockstep_t, float(t_s))
+        return self.advance()
 
     def advance(self) -> float:
         """Bring every slow state up to now; returns the world time."""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -31,12 +30,7 @@ def samples_between(
     f1 = stream.fixture_time(t1_station_s)
     # samples reach the station a little after they are taken: wait (wall time, bounded)
     # until the stream has delivered the whole window before cutting it
-    deadline = time.monotonic() + DELIVERY_WAIT_WALL_S
-    while time.monotonic() < deadline and stream.streaming and stream.error is None:
-        last = stream.last_time_s()
-        if last is not None and last >= f1:
-            break
-        time.sleep(0.005)
+    stream.wait_delivered(f1, DELIVERY_WAIT_WALL_S)
     return stream.window(f0, f1)
 
 

@@ -155,7 +155,9 @@ class Stabilise(StepType[ThermalSettings]):
                     continue
                 assert part.stream is not None
                 f0 = part.stream.fixture_time(window_start)
-                data = part.stream.window(f0, np.inf)
+                # only the last window is judged: read no more (the run's raw file holds it)
+                recent = part.stream.fixture_time(ctx.clock.now_s()) - 2.0 * st.window_s
+                data = part.stream.window(max(f0, recent), np.inf)
                 v = judge_stability(
                     data["time_s"],
                     data["temp_c"],

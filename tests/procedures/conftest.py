@@ -35,7 +35,7 @@ def run_on_bench(
     parts: list[dict[str, Any]],
     *,
     procedure: Path = SHORT,
-    speed: float = 200.0,
+    speed: float | None = None,
     inject: tuple[str, Callable[[ControlClient], None]] | None = None,
     poll_truth: bool = False,
     sim_extra: dict[str, Any] | None = None,
@@ -45,10 +45,13 @@ def run_on_bench(
     """Start a bench with `parts`, run `procedure` on them, return results and truth.
 
     `inject=(step_name, action)`: `action(control)` runs when the step first starts.
+    Without `speed` the bench runs in lockstep (station time is physics time).
     """
     config = {"parts": parts, **(sim_extra or {})}
     sockets = max(p["socket"] for p in parts)
-    with launch_bench(config=config, speed=speed, sockets=sockets) as bench:
+    with launch_bench(
+        config=config, speed=speed, sockets=sockets, lockstep=speed is None
+    ) as bench:
         e = bench.endpoints
         runner = UutRunner(
             load_settings(),

@@ -1,0 +1,175 @@
+"""Chamber setpoint planning for the `fastest` thermal strategy (no I/O).
+
+A first-order model of the chamber and the die: the chamber's ramped setpoint moves towards
+the commanded setpoint at its ramp limit, the air follows the ramped setpoint with `air_tau_s`,
+and each die follows the air with its own lag `die_tau_s`, learned from the part's own sensor
+as the run goes (`learn_die_tau_s`; the product file gives the starting value). The plan
+(`plan_setpoint`) is one overshoot beyond the target held for a while, then the target: the
+overshoot and the hold are searched for the soonest time the die enters its band and stays,
+within the chamber's setpoint limits, a maximum overshoot and the product's maximum part
+temperature. With no overshoot allowed it is the `setpoint` strategy (straight to target).
+The stability criterion itself is unchanged and is still judged on each part's own sensor.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+STEP_S = 5.0  # model time step: the air and die time constants are a minute and more
+
+
+@dataclass(frozen=True)
+class ThermalModel:
+    """Time constants and ramp limit of the first-order chamber and die model."""
+
+    air_tau_s: float = 60.0
+    die_tau_s: float = 300.0
+    ramp_c_per_min: float = 5.0
+
+
+@dataclass(frozen=True)
+class ThermalLimits:
+    """Where the setpoint may go: the chamber's limits, the overshoot bound, the part's max."""
+
+    setpoint_low_c: float = -40.0
+    setpoint_high_c: float = 125.0
+    max_overshoot_c: float = 10.0
+    max_part_c: float = 125.0
+    min_part_c: float = -40.0
+
+
+@dataclass(frozen=True)
+class ThermalState:
+    """Where the chamber and the die are now (the ramped setpoint starts at the air)."""
+
+    air_c: float
+    die_c: float
+
+
+@dataclass(frozen=True)
+class SetpointPlan:
+    target_c: float
+    overshoot_c: float  # beyond the target, in the direction of travel (0: straight)
+    hold_s: float  # how long the overshoot setpoint is held before the target
+    settle_s: float  # predicted time from now until the die is in its band for good
+    die_peak_c: float  # the die's predicted extreme (never beyond the part's limits)
+
+    def setpoint_at(self, elapsed_s: float) -> float:
+        """The setpoint to command `elapsed_s` after the plan was made."""
+        return self.target_c + (self.overshoot_c if elapsed_s < self.hold_s else 0.0)
+
+
+def simulate(
+    model: ThermalModel,
+    state: ThermalState,
+    target_c: float,
+    overshoot_c: NDArray[np.float64] | float,
+    hold_s: NDArray[np.float64] | float,
+    horizon_s: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(time, die temperature) predicted every STEP_S for overshoot-and-hold profiles: one
+    row of die temperatures per (overshoot, hold) pair (arrays broadcast together)."""
+    over, hold = np.broadcast_arrays(np.atleast_1d(overshoot_c), np.atleast_1d(hold_s))
+    n = int(math.ceil(horizon_s / STEP_S)) + 1
+    t = np.arange(n, dtype=np.float64) * STEP_S
+    die = np.empty((over.size, n))
+    air = np.full(over.size, state.air_c)
+    ramped = air.copy()
+    d = np.full(over.size, state.die_c)
+    k_air = 1.0 - math.exp(-STEP_S / model.air_tau_s)
+    k_die = 1.0 - math.exp(-STEP_S / model.die_tau_s)
+    max_move = model.ramp_c_per_min / 60.0 * STEP_S
+    for i in range(n):
+        die[:, i] = d
+        sp = target_c + np.where(t[i] < hold, over, 0.0)
+        start = ramped
+        ramped = ramped + np.clip(sp - ramped, -max_move, max_move)
+        air_next = air + (0.5 * (start + ramped) - air) * k_air
+        d = d + (0.5 * (air + air_next) - d) * k_die
+        air = air_next
+    return t, die
+
+
+def settle_times_s(
+    t: NDArray[np.float64], die: NDArray[np.float64], target_c: float, band_c: float
+) -> NDArray[np.float64]:
+    """Per row, the first time after which the die stays within `band_c` of the target
+    (inf: not within the horizon)."""
+    outside = np.abs(np.atleast_2d(die) - target_c) > band_c
+    any_out = outside.any(axis=1)
+    last = outside.shape[1] - 1 - np.argmax(outside[:, ::-1], axis=1)
+    after = np.append(t, math.inf)[np.minimum(last + 1, t.size)]
+    return np.where(any_out, after, 0.0)
+
+
+def plan_setpoint(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    state: ThermalState,
+    target_c: float,
+    band_c: float,
+    hold_step_s: float = 15.0,
+    overshoot_step_c: float = 0.5,
+) -> SetpointPlan:
+    """The overshoot and hold that bring the die into its band soonest (a grid search over
+    the model), within the setpoint limits, the overshoot bound and the part's limits; the
+    straight setpoint when nothing beats it."""
+    if not (model.air_tau_s > 0 and model.die_tau_s > 0 and model.ramp_c_per_min > 0):
+        raise ValueError("the thermal model's time constants and ramp rate must be positive")
+    if not limits.setpoint_low_c <= target_c <= limits.setpoint_high_c:
+        raise ValueError(
+            f"target {target_c:g} C is outside the chamber's setpoint limits "
+            f"{limits.setpoint_low_c:g}..{limits.setpoint_high_c:g} C"
+        )
+    sign = 1.0 if target_c >= state.die_c else -1.0
+    room = (limits.setpoint_high_c - target_c) if sign > 0 else (target_c - limits.setpoint_low_c)
+    max_over = max(0.0, min(limits.max_overshoot_c, room))  # the die's peak is checked below
+    travel_s = abs(target_c - state.air_c) / model.ramp_c_per_min * 60.0
+    horizon_s = travel_s + 8.0 * model.die_tau_s + 4.0 * model.air_tau_s
+    overs = np.arange(0.0, max_over + 1e-9, overshoot_step_c)
+    holds = np.arange(0.0, 4.0 * model.die_tau_s + travel_s, hold_step_s)
+    over_grid, hold_grid = (g.ravel() for g in np.meshgrid(sign * overs, holds))
+    t, die = simulate(model, state, target_c, over_grid, hold_grid, horizon_s)
+    peaks = die.max(axis=1) if sign > 0 else die.min(axis=1)
+    allowed = (peaks <= limits.max_part_c) & (peaks >= limits.min_part_c)
+    allowed |= (over_grid == 0.0) | (hold_grid == 0.0)  # straight to target: always allowed
+    settle = np.where(allowed, settle_times_s(t, die, target_c, band_c), math.inf)
+    # ties (equal settle) go to the smallest overshoot, then the shortest hold
+    best = int(np.lexsort((hold_grid, np.abs(over_grid), settle))[0])
+    if not math.isfinite(settle[best]) or over_grid[best] == 0.0 or hold_grid[best] == 0.0:
+        straight = float(settle_times_s(t, die, target_c, band_c)[0])
+        return SetpointPlan(target_c, 0.0, 0.0, straight, float(peaks[0]))
+    return SetpointPlan(
+        target_c, float(over_grid[best]), float(hold_grid[best]), float(settle[best]),
+        float(peaks[best]),
+    )
+
+
+def learn_die_tau_s(
+    time_s: NDArray[np.float64],
+    air_c: NDArray[np.float64],
+    die_c: NDArray[np.float64],
+    prior_tau_s: float,
+    prior_weight_c2: float = 1.0,
+) -> float:
+    """The die's lag behind the air from its own readings: least squares on
+    d(die)/dt = (air - die) / tau, pulled towards `prior_tau_s` (the product file's value)
+    with the weight of `prior_weight_c2` (C^2) of temperature difference; the prior alone
+    while the die has not moved away from the air."""
+    t = np.asarray(time_s, dtype=np.float64)
+    if t.size < 3 or not prior_tau_s > 0:
+        return prior_tau_s
+    dt = np.diff(t)
+    ok = dt > 0
+    x = (0.5 * (air_c[1:] + air_c[:-1]) - 0.5 * (die_c[1:] + die_c[:-1]))[ok]
+    y = (np.diff(die_c)[ok]) / dt[ok]
+    # rate = x / tau: fit r = 1/tau, with the prior as one more weighted observation
+    sxx = float(x @ x) + prior_weight_c2
+    sxy = float(x @ y) + prior_weight_c2 / prior_tau_s
+    if not sxy > 0:
+        return prior_tau_s
+    return sxx / sxy
