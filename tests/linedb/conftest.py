@@ -7,8 +7,11 @@ from collections.abc import Iterator
 import pytest
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser() -> Iterator[object]:
+    """Module-scoped: Playwright's sync API holds an event loop on the main thread while it
+    is open, so it must be closed before other modules' tests (asyncio.run, tests/ui's own
+    browser) run."""
     from station.ui.headless import chromium, chromium_missing_reason
 
     reason = chromium_missing_reason()
