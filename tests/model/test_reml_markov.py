@@ -188,3 +188,23 @@ def test_workflow_same_as_dense_reference(monkeypatch: pytest.MonkeyPatch, seed:
         assert f_new[e] == pytest.approx(f, rel=rel, abs=rel), e
     if effect is not None:
         assert effect[0] in new.effects_added  # the records do exercise a named effect
+
+
+def test_white_only_fitter_whitens_as_the_dense_cholesky() -> None:
+    """With no wander (F = K = 0) the Fitter whitens by a scaling; the same as the dense
+    Cholesky factor's inverse, and the fit the same."""
+    from procedures.model.fit import Fitter
+
+    traj = as_trajectory(generate(realistic_part(), 5, TINY))
+    blocks = discrepancy.make_blocks(traj)
+    noise = NoiseModel(2e-3, 0.0, np.zeros(0), np.zeros(0))
+    fitter = Fitter(traj, blocks, noise)
+    chol = np.linalg.cholesky(noise.block_covariance(blocks))
+    x = np.column_stack([np.ones(blocks.count), blocks.rate_dps])
+    np.testing.assert_allclose(fitter.whiten(x), solve_triangular(chol, x, lower=True),
+                               rtol=1e-14)
+    fit = fitter.fit(first_order_model())
+    yw = solve_triangular(chol, fitter.y_block, lower=True)
+    xw = solve_triangular(chol, fitter.design(fit.model), lower=True)
+    theta = np.linalg.lstsq(xw, yw, rcond=None)[0]
+    assert fit.chi2 == pytest.approx(float(np.sum((yw - xw @ theta) ** 2)), rel=1e-9)
