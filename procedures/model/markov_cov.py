@@ -77,8 +77,10 @@ class MarkovCovariance:
                 if b < self.m and block_of[b] == block_of[a]:
                     rows.append(b)
                     cols.append(a)
-        self._obs_rows = np.asarray(rows, dtype=np.int64)
-        self._obs_cols = np.asarray(cols, dtype=np.int64)
+        r = np.asarray(rows, dtype=np.int64)
+        c = np.asarray(cols, dtype=np.int64)
+        self._obs_banded = np.zeros((BANDWIDTH + 1, self.m))
+        np.add.at(self._obs_banded, (r - c, c), 1.0 / self.white_var[block_of[r]])
 
     def _chains(self, gm_var: float, walk_var_rate: float) -> list[tuple[
             NDArray[np.int64], FloatArray, FloatArray, float]]:
@@ -97,9 +99,7 @@ class MarkovCovariance:
     def _banded(self, chains: list[tuple[NDArray[np.int64], FloatArray, FloatArray, float]]
                 ) -> tuple[FloatArray, float]:
         """M in lower banded storage and log|P|."""
-        ab = np.zeros((BANDWIDTH + 1, self.m))
-        r, c = self._obs_rows, self._obs_cols
-        np.add.at(ab, (r - c, c), 1.0 / self.white_var[self.block_of[r]])
+        ab = self._obs_banded.copy()
         logdet_p = 0.0
         for idx, a, q, var0 in chains:
             if var0 > 0:  # Gauss-Markov: x_0 ~ N(0, var0), x_i = a_i x_(i-1) + e_i
