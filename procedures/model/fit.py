@@ -63,17 +63,28 @@ class Fitter:
         self.traj = traj
         self.blocks = blocks
         self.noise = noise
-        cov = noise.block_covariance(blocks)
-        try:
-            self._chol = np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError as exc:
-            raise ValueError(
-                "the noise covariance of the blocks is not positive definite; "
-                "the record may hold duplicated samples"
-            ) from exc
-        # explicit inverse factor: one matrix product per solve is far cheaper than a
-        # triangular solve call for the small systems here
-        self._white = solve_triangular(self._chol, np.eye(self._chol.shape[0]), lower=True)
+        self._white_diag: FloatArray | None = None
+        if noise.wander_dps <= 0 and noise.rrw_dps_per_rt_s <= 0:
+            # white noise only: the covariance is diagonal, whitening a scaling (O(n))
+            var = noise.white_dps_rt_s**2 / blocks.duration_s
+            if not np.all(var > 0):
+                raise ValueError(
+                    "the noise covariance of the blocks is not positive definite; "
+                    "the record may hold duplicated samples"
+                )
+            self._white_diag = 1.0 / np.sqrt(var)
+        else:
+            cov = noise.block_covariance(blocks)
+            try:
+                chol = np.linalg.cholesky(cov)
+            except np.linalg.LinAlgError as exc:
+                raise ValueError(
+                    "the noise covariance of the blocks is not positive definite; "
+                    "the record may hold duplicated samples"
+                ) from exc
+            # explicit inverse factor: one matrix product per solve is far cheaper than a
+            # triangular solve call for the small systems here
+            self._white = solve_triangular(chol, np.eye(chol.shape[0]), lower=True)
         self.y_block = blocks.mean(traj.gyro_dps)
         self.y_white = self._whiten(self.y_block)
         self._cache: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
@@ -81,6 +92,9 @@ class Fitter:
         self._basis: tuple[tuple[object, ...], FloatArray] | None = None  # last base's Q
 
     def _whiten(self, x: FloatArray) -> FloatArray:
+        if self._white_diag is not None:
+            d = self._white_diag
+            return d * x if x.ndim == 1 else d[:, None] * x
         return self._white @ x
 
     def whiten(self, x: FloatArray) -> FloatArray:
