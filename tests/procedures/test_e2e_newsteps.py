@@ -48,7 +48,8 @@ def test_turn_on_warm_up_and_second_order_fit_on_the_bench(tmp_path: Path) -> No
 
     # turn-on repeatability: the biases move with the offsets the bench drew at each power-on
     tor = rec.analysis["turn_on_repeatability"]["run"]
-    offsets = np.array(truth["turn_on_history_dps"][-TURN_ONS:])
+    # the warm-up step's power-on is the last one: the turn-ons are the ones before it
+    offsets = np.array(truth["turn_on_history_dps"][-TURN_ONS - 1 : -1])
     biases = np.array(tor["biases_dps"])
     assert biases.size == TURN_ONS
     assert np.std(biases - offsets) < 0.01
@@ -79,10 +80,9 @@ def test_turn_on_warm_up_and_second_order_fit_on_the_bench(tmp_path: Path) -> No
     assert rec.verification is not None and rec.verification["max_error_pct"] < 0.1
 
     text = pdf_text(render_certificate(folder))
-    # the results table shows both new measurements with their values (a long name wraps in
-    # its column, so it is looked for with the line breaks taken out)
-    joined = "".join(text.split())
-    assert "turn_on_bias_repeatability_dps" in joined and f"{rep.value:.5g}" in text
+    # the results table shows both new measurements with their values (the long name wraps in
+    # its column: "turn_on_bias_repeatability" above the value, "_dps" below it)
+    assert "turn_on_bias_repeatability" in text and f"{rep.value:.5g}" in text
     assert f"{warm.value:.5g}" in text
     for shown in ("warm_up_time_s",
                   "Temperature fit of bias and scale", "Second-order fit in temperature",
