@@ -63,7 +63,12 @@ class RoleDriver:
 
     @property
     def address(self) -> str:
-        return str(self.settings.get("address", ""))
+        """Where the instrument is: its address, or for a per-socket instrument (the
+        inclinometers) its ports as "1=host:port, 2=..."."""
+        if self.settings.get("address"):
+            return str(self.settings["address"])
+        ports = self.settings.get("ports") or {}
+        return ", ".join(f"{sock}={port}" for sock, port in sorted(ports.items()))
 
     @property
     def label(self) -> str:
