@@ -62,7 +62,10 @@ def test_full_procedure_passes_with_each_family_set(name: str, tmp_path: Path) -
         host, _, port = instruments["chamber"].address.rpartition(":")
         assert host == "127.0.0.1" and port.isdigit()
         cal = rec.calibration
-        assert cal is not None and cal.readback_ok
+        assert cal is not None
+        # a part that failed is not programmed (no read-back); every PASS part is, and reads back
+        passed = run.result.verdicts[sock] is Verdict.PASS
+        assert cal.readback_ok if passed else cal.readback_ok is None, (sock, cal.readback_ok)
         truth = run.final_truth["sockets"][str(sock)]["parameters"]
         for key, tkey in COEFFS.items():
             c = getattr(cal, key)
