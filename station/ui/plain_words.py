@@ -13,46 +13,21 @@ import math
 import re
 from typing import Any
 
+from station.ui import catalog
+
 Phrase = dict[str, Any]
 
-# Step type names the catalog has words for (ProgressEvent.step); others read "step.other".
-KNOWN_STEPS = (
-    "connect",
-    "power_identify",
-    "thermal",
-    "bias",
-    "positions",
-    "rate_table",
-    "stop_method",
-    "fit",
-    "program",
-    "verify",
-    "manual_stop",
-    "turn_on_repeatability",
-    "warm_up",
-)
-# Measurement names (product limit keys) the catalog has words for; others read their name.
-KNOWN_MEASUREMENTS = (
-    "raw_bias_dps",
-    "raw_scale_error",
-    "noise_arw_deg_per_sqrt_h",
-    "bias_instability_deg_per_h",
-    "nonlinearity_pct_fs",
-    "asymmetry",
-    "bias_temp_coeff_dps_per_c",
-    "scale_temp_coeff_per_c",
-    "bias_supply_coeff_dps_per_v",
-    "scale_supply_coeff_per_v",
-    "residual_bias_dps",
-    "residual_scale_error",
-    "stop_table_consistency",
-    "supply_current_a",
-    "frames_lost_fraction",
-)
+# A step type or measurement name reads as its own words when the catalog (English is
+# complete by definition) has a `step.<type>` / `measure.<name>` entry; others read their name.
+# tests/ui/test_plain_words.py checks that every shipped step type and limit has words.
 VERDICTS = ("PASS", "FAIL", "ERROR", "ABORTED")
 ROOM_BAND_C = (20.0, 30.0)  # a thermal step to a target inside this band "settles"
 _CONDITION = re.compile(r"^T(?P<temp>-?\d+(?:\.\d+)?)(?:_V(?P<supply>\d+(?:\.\d+)?))?$")
 _SUPPLY_ONLY = re.compile(r"^V(?P<supply>\d+(?:\.\d+)?)$")
+
+
+def _has_words(key: str) -> bool:
+    return key in catalog.load(catalog.DEFAULT_LANGUAGE)
 
 
 def phrase(key: str, **params: Any) -> Phrase:
@@ -90,7 +65,7 @@ def step_phrases(step: str, condition: str) -> list[Phrase]:
         if supply_v is not None:
             out.append(phrase("cond.supply", supply_v=_num(supply_v)))
         return out
-    if step in KNOWN_STEPS:
+    if step not in ("other", "starting") and _has_words(f"step.{step}"):
         out.append(phrase(f"step.{step}"))
     elif step:
         out.append(phrase("step.other", name=step.replace("_", " ")))
@@ -108,7 +83,7 @@ def step_phrases(step: str, condition: str) -> list[Phrase]:
 
 
 def measurement_phrase(name: str) -> Phrase:
-    if name in KNOWN_MEASUREMENTS:
+    if _has_words(f"measure.{name}"):
         return phrase(f"measure.{name}")
     return phrase("measure.other", name=name.replace("_", " "))
 

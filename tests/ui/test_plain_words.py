@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 import re
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from procedures.config import LIMIT_NAMES
+from procedures.steps.registry import STEP_GROUP
 from station.ui import catalog, plain_words
 from station.ui.plain_words import failure_phrase, step_phrases
 
@@ -85,9 +88,28 @@ def _keys_used_by_the_page() -> set[str]:
     return keys
 
 
+def _shipped_step_types() -> set[str]:
+    """The step types this package registers (pyproject's `gyrocal.steps` entry points)."""
+    return {
+        ep.name
+        for ep in importlib.metadata.entry_points(group=STEP_GROUP)
+        if ep.value.startswith("procedures.")
+    }
+
+
+def test_every_shipped_step_type_and_limit_reads_as_words() -> None:
+    assert {"thermal", "verify_stop", "warm_up"} <= _shipped_step_types()
+    for step in _shipped_step_types():
+        assert plain_words.step_phrases(step, "")[0] == {"key": f"step.{step}", "params": {}}
+    for name in LIMIT_NAMES:
+        assert plain_words.measurement_phrase(name) == {"key": f"measure.{name}", "params": {}}
+    assert plain_words.measurement_phrase("made_up_x")["key"] == "measure.other"
+    assert plain_words.step_phrases("made_up", "")[0]["key"] == "step.other"
+
+
 def _keys_plain_words_makes() -> set[str]:
-    keys = {f"step.{s}" for s in plain_words.KNOWN_STEPS}
-    keys |= {f"measure.{m}" for m in plain_words.KNOWN_MEASUREMENTS}
+    keys = {f"step.{s}" for s in _shipped_step_types()}
+    keys |= {f"measure.{m}" for m in LIMIT_NAMES}
     keys |= {f"step.thermal.{h}" for h in ("heat", "cool", "settle")}
     keys |= {"step.other", "step.starting", "measure.other", "value"}
     keys |= {f"cond.{c}" for c in ("both", "temp", "supply", "other")}
