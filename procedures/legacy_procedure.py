@@ -12,12 +12,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, model_validator
 
 from drivers.bounded import (
-    MAX_ACCEL_DPS2,
     MAX_LIST,
-    MAX_REPEATS,
     ONE_HOUR_S,
     Name,
     PathText,
@@ -35,6 +33,13 @@ from procedures.config import (
     _Strict,
     load_yaml_model,
 )
+from procedures.steps.bias import BiasSettings
+from procedures.steps.fit import FitSettings
+from procedures.steps.positions import PositionsSettings
+from procedures.steps.power import PowerSettings
+from procedures.steps.stop import StopSettings
+from procedures.steps.sweep import RateTableSettings
+from procedures.steps.thermal import ThermalSettings
 
 # the keys that mark a file in the old form
 SECTION_KEYS = ("power", "stability", "bias", "rate_table", "stop_method", "positions", "fit",
@@ -47,135 +52,46 @@ class StepPolicy(_Strict):
     retries: int = Field(0, ge=0, le=5, description="extra attempts after an instrument timeout")
 
 
-class PowerConfig(_Strict):
-    settle_s: float = Field(
-        2.0, ge=0, le=ONE_HOUR_S, description="wait after switching the supply on"
-    )
-    supply_tolerance_v: float = Field(
-        0.05, gt=0, le=10, description="allowed |measured - set| supply"
-    )
+# The old sections hold the same settings as the step types they became: each section is the
+# step's own Settings (plus `enabled` where the old form had it), so the two cannot drift.
+
+
+class PowerConfig(PowerSettings):
     output_rate_hz: Literal[50, 100, 200, 500, 1000] = Field(
         100, description="part output data rate, Hz"
     )
 
 
-class StabilityConfig(_Strict):
-    """Thermal stability, judged on each part's own temperature sensor."""
+class StabilityConfig(ThermalSettings):
+    """Thermal stability; the old form called the step's `stability_timeout_s` `timeout_s`."""
 
-    window_s: Seconds = Field(60.0, gt=0, description="window over which slope and band are judged")
-    slope_c_per_min: float = Field(
-        0.05, gt=0, le=100, description="largest |die temperature slope|"
-    )
-    band_c: float = Field(
-        0.1, gt=0, le=100, description="largest peak-to-peak die temperature in the window"
-    )
-    target_tolerance_c: float | None = Field(
-        None, gt=0, le=100, description="optional: die temperature within this of the setpoint"
-    )
-    timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach stability")
-    check_interval_s: float = Field(
-        5.0, gt=0, le=ONE_HOUR_S, description="how often stability is evaluated"
-    )
-
-
-class BiasConfig(_Strict):
-    dwell_s: Seconds | Literal["auto"] = Field(
-        30.0, description="static averaging time, s, or 'auto' (from Allan deviation and target)"
-    )
-    target_accuracy_dps: float = Field(0.005, gt=0, le=100, description="k=2 target for 'auto'")
-    min_dwell_s: Seconds = Field(10.0, gt=0, description="pilot dwell for 'auto'")
-    max_dwell_s: Seconds = Field(300.0, gt=0, description="cap for 'auto'")
-    wander_factor: float = Field(
-        1.5,
-        ge=0,
-        le=100,
-        description="bias wander between conditions, in units of the bias "
-        "instability, added to each condition's bias uncertainty (0: white noise only)",
-    )
-
-    @field_validator("dwell_s")
+    @model_validator(mode="before")
     @classmethod
-    def _positive(cls, value: float | str) -> float | str:
-        if not isinstance(value, str) and value <= 0:
-            raise ValueError("dwell must be a positive number of seconds or 'auto'")
-        return value
+    def _old_timeout_name(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "timeout_s" in data:
+            if "stability_timeout_s" in data:
+                raise ValueError("give stability timeout_s or stability_timeout_s, not both")
+            data = {("stability_timeout_s" if k == "timeout_s" else k): v
+                    for k, v in data.items()}
+        return data
 
 
-class RateTableConfig(_Strict):
+BiasConfig = BiasSettings
+FitConfig = FitSettings
+
+
+class RateTableConfig(RateTableSettings):
     enabled: bool = True
-    rates_dps: list[Rate] = Field(
-        min_length=2, max_length=MAX_LIST, description="rate set, deg/s (both signs)"
-    )
-    plateau_dwell_s: Seconds = Field(10.0, gt=0, description="averaging time on each plateau")
-    settle_s: float = Field(
-        1.0, ge=0, le=ONE_HOUR_S, description="wait after at-rate before averaging"
-    )
-    accel_dps2: float = Field(
-        200.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
-    )
-    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="passes through the rate set")
-    at_rate_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed to reach a rate")
 
 
-class StopMethodConfig(_Strict):
+class StopMethodConfig(StopSettings):
     enabled: bool = True
-    stop_angle_deg: float = Field(90.0, gt=0, le=360, description="angle between the stops")
-    move_time_s: float = Field(3.5, gt=0, le=ONE_HOUR_S, description="duration of each smooth move")
-    static_s: float = Field(
-        5.0, gt=0, le=ONE_HOUR_S, description="rest before, between and after the moves"
-    )
-    bias_window_s: float = Field(
-        3.0, gt=0, le=ONE_HOUR_S, description="leading rest used for the bias"
-    )
-    repeats: int = Field(1, ge=1, le=MAX_REPEATS, description="out-and-back pairs")
-    reference: Literal["encoder", "fixture"] = Field(
-        "encoder", description="angle reference: the table encoder or the fixture's stop angle"
-    )
-    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
 
 
-class PositionsConfig(_Strict):
-    """Multi-position static: the table at rest at several angles, one static window each.
-
-    Rotation about a vertical axis changes nothing for a perfect part at rest; a part whose
-    sensitive axis is tilted in the fixture sees a share of gravity that turns with the table
-    (g sensitivity), which only static windows at several angles can show. Disabled unless
-    the section is present."""
+class PositionsConfig(PositionsSettings):
+    """Multi-position static; disabled unless the section is present."""
 
     enabled: bool = True
-    angles_deg: list[float] = Field(
-        default_factory=lambda: [0.0, 90.0, 180.0, 270.0],
-        min_length=1,
-        max_length=MAX_LIST,
-        description="table angles (encoder, deg) at which the part rests, in this order",
-    )
-    dwell_s: Seconds = Field(10.0, gt=0, description="static window at each angle, s")
-    settle_s: float = Field(
-        1.0, ge=0, le=ONE_HOUR_S, description="wait after in-position before the window"
-    )
-    accel_dps2: float = Field(
-        100.0, gt=0, le=MAX_ACCEL_DPS2, description="acceleration of each move, deg/s^2"
-    )
-    at: Literal["every_condition", "first_condition"] = Field(
-        "every_condition",
-        description="every_condition: after the bias step at each condition; "
-        "first_condition: only at the first",
-    )
-    move_timeout_s: Seconds = Field(60.0, gt=0, description="time allowed for a move")
-
-    @field_validator("angles_deg")
-    @classmethod
-    def _angles(cls, value: list[float]) -> list[float]:
-        if any(not -3600.0 <= a <= 3600.0 for a in value):
-            raise ValueError("angles must lie within +/-3600 deg")
-        return value
-
-
-class FitConfig(_Strict):
-    source: Literal["rate_table", "stop_method", "both"] = Field(
-        "rate_table",
-        description="which scale estimate feeds the fit (both: weighted by uncertainty)",
-    )
 
 
 class VerifyConfig(_Strict):
@@ -322,8 +238,6 @@ class _Converter:
     def steps(self) -> list[dict[str, Any]]:
         old = self.old
         stability = self.given("stability")
-        if "timeout_s" in stability:
-            stability["stability_timeout_s"] = stability.pop("timeout_s")
         loop = [self.entry("thermal", stability, "thermal"),
                 self.entry("bias", self.given("bias"), "bias")]
         for section, enabled in (("positions", old.positions_enabled),
