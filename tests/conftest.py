@@ -1,4 +1,4 @@
-"""Fixtures for the line tests: a headless chromium (as tests/ui's) and its pages."""
+"""Fixtures shared by every test directory: a headless chromium and its pages."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 @pytest.fixture(scope="module")
 def browser() -> Iterator[object]:
     """Module-scoped: Playwright's sync API holds an event loop on the main thread while it
-    is open, so it must be closed before other modules' tests (asyncio.run, tests/ui's own
-    browser) run."""
+    is open, so it is closed before another module's tests (asyncio.run) run. Skips with the
+    reason when this machine has no chromium."""
     from station.ui.headless import chromium, chromium_missing_reason
 
     reason = chromium_missing_reason()
