@@ -17,6 +17,7 @@ import fcntl
 import json
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from procedures.record import (
@@ -188,3 +189,13 @@ def finish_run_folder(folder: Path, settings: LoadedSettings, *, certificate: bo
     except Exception as exc:
         log.error("certificate or manifest for %s failed: %s", folder, exc)
     return None
+
+
+def recovered_run_sealer(settings: LoadedSettings) -> Callable[[Path], None]:
+    """For crash recovery (station/run_folder.py): a crashed run, once marked ERROR, is
+    numbered and sealed as any finished run is (no certificate: it has no result)."""
+
+    def seal_recovered(folder: Path) -> None:
+        finish_run_folder(folder, settings, certificate=False)
+
+    return seal_recovered

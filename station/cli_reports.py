@@ -145,18 +145,21 @@ def history_table(runs: list[RunRow]) -> list[str]:
 def _recover(runs_dir: Path | None, db_path: Path | str | None) -> None:
     """Runs a dead station left RUNNING become ERROR (naming their last completed step) and
     are indexed before anything is listed (station/run_folder.py)."""
+    from station.certify import recovered_run_sealer
     from station.run_folder import recover_results
+    from station.settings import LoadedSettings, load_settings
 
+    settings: LoadedSettings | None = None
+    try:
+        settings = load_settings()
+    except Exception as exc:  # no station file here: nothing to seal with
+        log.info("no station settings (%s): recovered runs stay unsealed", exc)
     if runs_dir is None:
-        try:
-            from station.settings import load_settings
-
-            settings = load_settings()
-        except Exception as exc:  # no station file here: nothing to recover from
-            log.info("no station settings (%s): no crash recovery", exc)
+        if settings is None:
             return
         runs_dir, db_path = settings.output_folder, db_path or settings.results_db
-    for folder in recover_results(runs_dir, db_path):
+    seal = recovered_run_sealer(settings) if settings is not None else None
+    for folder in recover_results(runs_dir, db_path, seal=seal):
         print(f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr)
 
 

@@ -15,6 +15,7 @@ import logging
 import os
 import re
 import socket
+from collections.abc import Callable
 from pathlib import Path
 
 from procedures.record import (
@@ -133,10 +134,14 @@ def _candidates(root: Path, locks_only: bool) -> list[Path]:
     return sorted(record_path.parent for record_path in root.glob(f"*/{RECORD_FILE}"))
 
 
-def recover_crashed_runs(out: Path, *, locks_only: bool = False) -> list[Path]:
+def recover_crashed_runs(
+    out: Path, *, locks_only: bool = False, seal: Callable[[Path], None] | None = None
+) -> list[Path]:
     """Mark ERROR every run under `out` left RUNNING by a process that no longer exists,
     naming the last step it completed. `locks_only` looks only at folders still holding a
-    `.running` lock (cheap enough for every refresh of the review screen)."""
+    `.running` lock (cheap enough for every refresh of the review screen). `seal(folder)`
+    then numbers and seals each recovered folder as a finished run's is (station/certify.py);
+    a failure there is logged and the folder stays recovered, unsealed."""
     root = Path(out)
     if not root.is_dir():
         return []
@@ -173,17 +178,28 @@ def recover_crashed_runs(out: Path, *, locks_only: bool = False) -> list[Path]:
         except OSError as exc:
             log.error("could not mark crashed run %s as ERROR: %s", folder, exc)
             continue
+        if seal is not None:
+            _seal_recovered(folder, seal)
         recovered.append(folder)
         log.warning("marked crashed run %s as ERROR", folder)
     return recovered
 
 
+def _seal_recovered(folder: Path, seal: Callable[[Path], None]) -> None:
+    try:
+        seal(folder)
+    except Exception as exc:  # the record stands; `station verify` will say it is unsealed
+        log.error("recovered run %s could not be sealed: %s", folder, exc)
+
+
 def recover_results(
-    out: Path, db_path: Path | str | None, *, locks_only: bool = False
+    out: Path, db_path: Path | str | None, *, locks_only: bool = False,
+    seal: Callable[[Path], None] | None = None,
 ) -> list[Path]:
-    """Recovery for an entry point that opens the results: crashed runs marked ERROR and
-    indexed in the results database (when there is one), so that history and review list them."""
-    folders = recover_crashed_runs(out, locks_only=locks_only)
+    """Recovery for an entry point that opens the results: crashed runs marked ERROR (and
+    sealed, with `seal`) and indexed in the results database (when there is one), so that
+    history and review list them."""
+    folders = recover_crashed_runs(out, locks_only=locks_only, seal=seal)
     if folders and db_path is not None:
         try:
             from station.results_db import ResultsDB

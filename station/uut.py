@@ -324,7 +324,9 @@ class UutRunner:
 
     def recover(self) -> list[Path]:
         """Mark ERROR the runs a crashed station left RUNNING in the output folder."""
-        folders = recover_crashed_runs(self.out)
+        from station.certify import recovered_run_sealer
+
+        folders = recover_crashed_runs(self.out, seal=recovered_run_sealer(self.settings))
         self._mark_crashed_in_db(folders)
         return folders
 

@@ -12,6 +12,7 @@ import logging
 import re
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,9 +79,13 @@ class History:
 
     RECOVER_EVERY_S = 2.0  # a crashed station's run is looked for at most this often
 
-    def __init__(self, out_dir: Path, db_path: Path | str | None = None) -> None:
+    def __init__(
+        self, out_dir: Path, db_path: Path | str | None = None,
+        seal: Callable[[Path], None] | None = None,
+    ) -> None:
         self.out_dir = out_dir
         self.db_path = db_path
+        self.seal = seal  # numbers and seals a recovered run (UutRunner.seal_recovered)
         self._lock = threading.Lock()
         self._cache: dict[Path, tuple[float, dict[str, Any] | None]] = {}
         self._recovered_at = -1e9
@@ -91,7 +96,7 @@ class History:
         from station.run_folder import recover_results
 
         self._recovered_at = time.monotonic()
-        return recover_results(self.out_dir, self.db_path, locks_only=locks_only)
+        return recover_results(self.out_dir, self.db_path, locks_only=locks_only, seal=self.seal)
 
     def query(
         self, flt: RunFilter, limit: int = 500

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from station.certify import recovered_run_sealer
 from station.errors import UserError
 from station.ui import catalog
 from station.ui.app import Security, create_app
@@ -185,7 +186,7 @@ def ui_station(
             if runner.out.resolve() == settings.output_folder.resolve()
             else runner.out / "results.sqlite"
         )
-        history = History(runner.out, db_path)
+        history = History(runner.out, db_path, seal=recovered_run_sealer(settings))
         # A station that died mid-run left that run RUNNING: ERROR now, before the screens open.
         recovered = history.recover()
         for folder in recovered:

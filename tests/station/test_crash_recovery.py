@@ -137,3 +137,24 @@ def test_station_history_lists_a_crashed_run_as_error(tmp_path: Path) -> None:
     rows = json.loads(done.stdout)
     assert [(r["serial"], r["verdict"]) for r in rows] == [("SIM-0006", "ERROR")]
     assert "after step 'bias' completed" in rows[0]["reason"]
+
+
+def test_a_recovered_run_is_numbered_and_sealed(tmp_path: Path) -> None:
+    """The station recovers a crashed run as it finishes any other: a certificate number and
+    a manifest that `station verify` accepts; a later edit shows as altered."""
+    from station.manifest import Status, verify_folder
+    from station.settings import load_settings
+    from station.uut import UutRunner
+    from tests.reports.test_signing import station_file
+
+    settings = load_settings(station_file(tmp_path / "station"))  # its own key and counter
+    out = tmp_path / "runs"
+    folder = _crashed(out, "SIM-0009", {"power": 3.0}, "thermal")
+    assert verify_folder(folder).status is Status.ALTERED  # no manifest yet
+    runner = UutRunner(settings, out=out, operator="pytest")
+    assert runner.recover() == [folder]
+    rec = read_record(folder)
+    assert rec.verdict is Verdict.ERROR and rec.certificate_number.endswith("-000001")
+    assert verify_folder(folder).status is Status.INTACT
+    (folder / "record.json").write_text((folder / "record.json").read_text() + " ")
+    assert verify_folder(folder).status is Status.ALTERED
