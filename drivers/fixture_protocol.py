@@ -155,6 +155,19 @@ CAL3_SIZES = {
     "v0": 1,
 }
 CAL3_KEYS = tuple(CAL3_SIZES)
+# CAL3 keys -> the CalibrationRegisters3 field each one fills
+CAL3_FIELDS = {
+    "bias": "bias_dps",
+    "matrix": "matrix",
+    "gsens": "g_sensitivity_dps_per_mps2",
+    "bias_tc": "bias_tc_dps_per_c",
+    "bias_vc": "bias_vc_dps_per_v",
+    "scale_tc": "scale_tc_per_c",
+    "scale_vc": "scale_vc_per_v",
+    "t0": "t0_c",
+    "v0": "v0_v",
+}
+assert tuple(CAL3_FIELDS) == CAL3_KEYS
 
 
 class ReplyError(IntEnum):
