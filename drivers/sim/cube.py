@@ -3,11 +3,12 @@
 The part sits in a cube on the single-axis table (table axis vertical); the cube rests on one
 of its six faces, named by the part axis that points up ("+x" .. "-z", drivers/orientation.py).
 On a prompt naming a face (the operator endpoint, drivers/sim/operator_eyes.py) the operator
-reacts, then turns the cube in a few seconds so that face points up: the attitude follows a
-minimum-jerk rotation about a fixed axis from the old resting attitude to the new one, so the
-part sees a real (non-zero) rate during the turn. Everything is analytic in world time (as
-drivers/sim/hand.py), evaluated vectorised at any sample times; a turn is planned after its
-prompt and starts no earlier than the world's present, so samples already sent never change.
+reacts, then tips the cube over in a few seconds so that face points up: 90 deg over an edge
+to a neighbouring face, 180 deg to the opposite one, as a minimum-jerk rotation about a fixed
+axis, so the part sees a real (non-zero) rate during the turn. Everything is analytic in
+world time (as drivers/sim/hand.py), evaluated vectorised at any sample times; a turn is
+planned after its prompt and starts no earlier than the world's present, so samples already
+sent never change.
 
 The attitude R maps part-frame vectors to the table frame (z up). The part-frame rate is the
 table's rate about z, R^T z r, plus the turn's own rate; the accelerometer reads +g R^T z.
@@ -39,6 +40,17 @@ def resting_attitude(face: str) -> FloatArray:
     return np.vstack([side, second, up])
 
 
+def tip_rotvec(here: str, target: str) -> FloatArray:
+    """The part-frame rotation (axis x angle, rad) that tips the cube from resting on `here`
+    to resting on `target`: R_new = R Rot with Rot e_target = e_here (so R_new^T z = e_target),
+    90 deg over an edge or 180 deg for the opposite face."""
+    a, b = up_vector(target), up_vector(here)
+    axis = np.cross(a, b)
+    if np.linalg.norm(axis) < 0.5:  # opposite faces: any horizontal axis will do
+        return math.pi * np.roll(np.abs(a), 1)
+    return 0.5 * math.pi * axis
+
+
 def _min_jerk(s: FloatArray) -> FloatArray:
     s = np.clip(s, 0.0, 1.0)
     return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
@@ -60,6 +72,7 @@ class CubeTurn:
     to_face: str
     asked_face: str
     rotvec: tuple[float, float, float]  # k theta, rad, part frame
+    from_attitude: tuple[tuple[float, ...], ...]  # R at the start (part -> table)
 
     def progress(self, t: FloatArray) -> FloatArray:
         return _min_jerk((t - self.start_s) / (self.end_s - self.start_s))
@@ -68,7 +81,10 @@ class CubeTurn:
         """(n, 3, 3) attitudes at times `t` inside or around the turn."""
         s = self.progress(t)
         rel = Rotation.from_rotvec(np.outer(s, self.rotvec)).as_matrix()
-        return np.asarray(resting_attitude(self.from_face) @ rel, dtype=np.float64)
+        return np.asarray(np.asarray(self.from_attitude) @ rel, dtype=np.float64)
+
+    def final_attitude(self) -> FloatArray:
+        return np.asarray(self.from_attitude) @ Rotation.from_rotvec(self.rotvec).as_matrix()
 
     def body_rate_dps(self, t: FloatArray) -> FloatArray:
         s = (t - self.start_s) / (self.end_s - self.start_s)
@@ -90,6 +106,13 @@ class Cube:
         self.rng = np.random.default_rng([seed, socket, 3303])
         self.turns: list[CubeTurn] = []
         self.prompts_seen = 0
+        self._attitude = resting_attitude(self.initial_face)  # after the planned turns
+
+    def place(self, face: str) -> None:
+        """Put the cube down on `face` with no turns (a test's or a bench operator's setup)."""
+        self.initial_face = normalise_face(face)
+        self.turns.clear()
+        self._attitude = resting_attitude(self.initial_face)
 
     @property
     def face_after_turns(self) -> str:
@@ -127,11 +150,12 @@ class Cube:
         if self.turns:
             start = max(start, self.turns[-1].end_s)
         duration = float(self.rng.uniform(cfg.turn_min_s, cfg.turn_max_s))
-        rel = resting_attitude(here).T @ resting_attitude(target)
-        rotvec = Rotation.from_matrix(rel).as_rotvec()
+        rotvec = tip_rotvec(here, target)
         turn = CubeTurn(start, start + duration, here, target, asked,
-                        (float(rotvec[0]), float(rotvec[1]), float(rotvec[2])))
+                        (float(rotvec[0]), float(rotvec[1]), float(rotvec[2])),
+                        tuple(tuple(float(v) for v in row) for row in self._attitude))
         self.turns.append(turn)
+        self._attitude = turn.final_attitude()
         return turn
 
     def _segments(self, t: FloatArray) -> list[tuple[NDArray[np.bool_], CubeTurn | None, str]]:

@@ -73,8 +73,7 @@ def test_static_output_is_bias_plus_g_sensitivity_times_gravity_on_each_face() -
     sock.handle_line("START", 0.0)
     t = 0.0
     for face in ("+z", "-x", "+y"):
-        sock.cube.turns.clear()
-        sock.cube.initial_face = face
+        sock.cube.place(face)
         t += 2.0
         res = _record(w, t)
         die = fp.temp_code_to_c(res.temp_code)
@@ -92,7 +91,7 @@ def test_table_rate_on_a_face_gives_the_matrix_column_and_compensation_undoes_it
     sock = w.sockets[1]
     part = sock.part
     assert isinstance(part, PartModel3)
-    sock.cube.initial_face = "-y"
+    sock.cube.place("-y")
     sock.handle_line("ODR 100", 0.0)
     sock.handle_line("START", 0.0)
     _record(w, 1.0)
@@ -173,6 +172,17 @@ def test_a_turn_takes_seconds_shows_rate_and_ends_on_the_face() -> None:
     assert cube.face_at(turn.start_s + 0.1) is None and cube.face_at(turn.end_s) == "+x"
     np.testing.assert_allclose(cube.up_in_part(turn.end_s + 1.0)[0], [1, 0, 0], atol=1e-12)
     assert cube.on_prompt(20.0, "+x") is None  # already up
+    assert turn.as_dict()["angle_deg"] == pytest.approx(90.0)  # tipped over an edge
+    back = cube.on_prompt(20.0, "-x")
+    assert back is not None and back.as_dict()["angle_deg"] == pytest.approx(180.0)
+    np.testing.assert_allclose(cube.up_in_part(back.end_s)[0], [-1, 0, 0], atol=1e-12)
+    # every turn starts from where the previous one left the cube (a continuous attitude)
+    np.testing.assert_allclose(back.attitude(np.array([back.start_s]))[0],
+                               turn.final_attitude(), atol=1e-12)
+    for face in ("+y", "-z", "+z", "-y"):
+        nxt = cube.on_prompt(cube.turns[-1].end_s, face)
+        assert nxt is not None
+        np.testing.assert_allclose(cube.up_in_part(nxt.end_s)[0], up_vector(face), atol=1e-12)
 
 
 def test_operator_turns_the_named_cubes_on_an_orientation_prompt() -> None:
