@@ -249,3 +249,59 @@ def test_noise_is_independent_per_axis_at_the_single_axis_level() -> None:
     np.testing.assert_allclose(x.std(axis=0), white, rtol=0.15)
     corr = np.corrcoef(x.T)
     assert np.abs(corr[~np.eye(3, dtype=bool)]).max() < 0.1
+
+
+def test_six_faces_and_turntable_rates_recover_the_truth_from_the_wire() -> None:
+    """The whole chain a three-axis calibration rests on: the operator turns the cube to each
+    face on its prompt, the table spins +-r about the up axis, and the decoded frames give back
+    b, G (statics) and S = M^-1 D (rate differences) of the part's truth."""
+    w = _world()
+    sock = w.sockets[1]
+    part = sock.part
+    assert isinstance(part, PartModel3)
+    eyes = OperatorEyes(w)
+    sock.handle_line("ODR 100", 0.0)
+    sock.handle_line("START", 0.0)
+    rate_dps, t = 100.0, 0.0
+    static: dict[str, np.ndarray] = {}
+    spin: dict[str, np.ndarray] = {}
+    temps = []
+
+    def hold(rate: float, seconds: float) -> fp.ParseResult:
+        nonlocal t
+        _spin(w, rate, t)
+        _record(w, t + 0.5)  # settle: the first samples straddle the change
+        t += seconds
+        res = _record(w, t)
+        temps.append(fp.temp_code_to_c(res.temp_code).mean())
+        return res
+
+    for face in ORIENTATIONS:
+        eyes.read(json.dumps({"kind": "prompt", "sockets": {"1": "PROMPT"},
+                              "orientation": face, "message": f"face {face} up"}).encode())
+        if sock.cube.turns and sock.cube.turns[-1].to_face == face:
+            turn_rate = _dps(_record(w, sock.cube.turns[-1].end_s + 0.5))
+            if face != "+z":
+                assert np.abs(turn_rate).max() > 10.0  # the gyro saw the cube turn
+        t = max(t, w.now_s())
+        res = hold(0.0, 4.0)
+        assert face_from_accel(_mps2(res).mean(axis=0)) == face
+        # the die warms by self-heating meanwhile: take the bias's temperature term out
+        d_t_face = fp.temp_code_to_c(res.temp_code).mean() - 25.0
+        static[face] = _dps(res).mean(axis=0) - np.asarray(
+            part.three.bias_temp_coeff_dps_per_c) * d_t_face
+        spin[face] = (_dps(hold(rate_dps, 3.0)).mean(axis=0)
+                      - _dps(hold(-rate_dps, 3.0)).mean(axis=0)) / (2 * rate_dps)
+        # S e_up = M^-1 e_up (1 + sT_up dT): take the scale's temperature term out too
+        axis = "xyz".index(face[1])
+        d_t_spin = float(np.mean(temps[-2:])) - 25.0
+        spin[face] /= 1 + part.three.scale_temp_coeff_per_c[axis] * d_t_spin
+    th = part.three
+    g = STANDARD_GRAVITY_MPS2
+    bias = np.mean([static[f] for f in ORIENTATIONS], axis=0)
+    g_sens = np.column_stack([(static[f"+{a}"] - static[f"-{a}"]) / (2 * g) for a in "xyz"])
+    s_est = np.column_stack([(spin[f"+{a}"] - spin[f"-{a}"]) / 2 for a in "xyz"])
+    s_true = np.linalg.inv(np.asarray(th.matrix))
+    np.testing.assert_allclose(bias, np.asarray(th.bias_dps), atol=1e-4)
+    np.testing.assert_allclose(g_sens, np.asarray(th.g_sensitivity_dps_per_mps2), atol=2e-4)
+    np.testing.assert_allclose(s_est, s_true, atol=1e-4)
