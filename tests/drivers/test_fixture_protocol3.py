@@ -106,3 +106,15 @@ def test_the_pages_three_axis_example_decodes_to_what_it_says() -> None:
 @pytest.mark.parametrize(("axes", "size"), [(1, fp.SAMPLE_FRAME_SIZE), (3, 40)])
 def test_stream_baud_counts_the_frame_kind(axes: int, size: int) -> None:
     assert fp.sample_stream_baud(200, axes) == 200 * size * 10
+
+
+def test_a_single_axis_frame_among_three_axis_ones_keeps_its_place_and_rate() -> None:
+    data, seq, _, rate, *_ = _stream3(4, seed=4)
+    one = fp.encode_samples(np.array([4]), np.array([25_000]), np.array([1234]),
+                            np.array([5]), np.array([0]))
+    res = fp.FrameParser().feed(data + one)
+    assert res.seq.tolist() == [0, 1, 2, 3, 4] and res.frames_lost == 0
+    assert res.rate_code_xyz is not None and res.accel_code_xyz is not None
+    assert res.rate_code_xyz[4].tolist() == [1234, 0, 0]
+    assert res.accel_code_xyz[4].tolist() == [0, 0, 0]
+    assert res.rate_code.tolist() == [*rate[:, 0].tolist(), 1234]
