@@ -495,9 +495,24 @@ class SerialPartLink:
             )
         return CalibrationRegisters3(**values)  # type: ignore[arg-type]
 
+    def _cal3_command(self, command: str) -> str:
+        """A CAL3 command; a part without three-axis registers (ERR 4, or ERR 2 from older
+        fixture firmware) is reported as what it is."""
+        try:
+            return self.command(command)
+        except FixtureRefused as exc:
+            if exc.code not in (ReplyError.BAD_REGISTER, ReplyError.UNKNOWN_COMMAND):
+                raise
+            raise FixtureRefused(
+                f"the part in the {self.name} has no three-axis registers ({exc}): it is not "
+                "a three-axis part (check the product file's axes and the part seated)",
+                code=exc.code,
+                instrument=self.name,
+            ) from None
+
     def _cal3_read(self, key: str, size: int) -> list[float]:
         command = Command.CAL3_READ.format(key=key)
-        reply = self.command(command).strip()
+        reply = self._cal3_command(command).strip()
         name, sep, text = reply.partition("=")
         try:
             numbers = [float(v) for v in text.split(",")] if sep and name == key else []
@@ -520,7 +535,7 @@ class SerialPartLink:
             assignments = " ".join(
                 f"{k}=" + ",".join(f"{v:.9g}" for v in wanted[k]) for k in group
             )
-            self.command(Command.CAL3_WRITE.format(assignments=assignments))
+            self._cal3_command(Command.CAL3_WRITE.format(assignments=assignments))
         back = self.read_calibration3()
         diffs = []
         for key, field_name in CAL3_FIELDS.items():

@@ -187,3 +187,12 @@ def test_three_axis_frames_arrive_as_xyz_columns(rig) -> None:  # noqa: ANN001
     np.testing.assert_array_equal(np.concatenate([b.accel_code_xyz for b in blocks]), accel)
     np.testing.assert_array_equal(np.concatenate([b.rate_code for b in blocks]), rate[:, 0])
     assert link.stats().frames_lost == 0
+
+
+def test_a_single_axis_part_refusing_cal3_is_named_as_such(rig) -> None:  # noqa: ANN001
+    _, link = rig(lambda line: "ERR 4 single-axis part: use CAL? and CAL")
+    with pytest.raises(FixtureRefused, match="not a three-axis part") as info:
+        link.read_calibration3()
+    assert info.value.code == 4
+    with pytest.raises(FixtureRefused, match="not a three-axis part"):
+        link.write_calibration3(REGS)
