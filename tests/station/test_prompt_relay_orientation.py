@@ -44,3 +44,13 @@ def test_orientation_is_forwarded_only_on_prompts_that_carry_it() -> None:
 def test_progress_event_orientation_defaults_to_none() -> None:
     event = ProgressEvent(kind="prompt")
     assert event.orientation is None and event.to_dict()["orientation"] is None
+
+
+def test_link_speed_counts_three_axis_frames() -> None:
+    from station.uut import link_speed_problem
+
+    assert link_speed_problem(200, 115_200) is None
+    assert link_speed_problem(200, 115_200, axes=3) is None  # 80,000 baud
+    problem = link_speed_problem(200, 57_600, axes=3)  # 80,000 > 90 % of 57,600
+    assert problem is not None and "40-byte" in problem and "115,200" in problem
+    assert link_speed_problem(200, 57_600) is None  # 50,000 baud of 25-byte frames
