@@ -47,7 +47,7 @@ def test_three_axis_frame_bytes_field_by_field() -> None:
 
 
 def test_three_axis_stream_decodes_losslessly_in_any_chunking() -> None:
-    data, seq, t_us, rate, accel, temp, status, encoder = _stream3(1000)
+    data, seq, t_us, rate, accel, temp, status, encoder = _stream3(300)
     for chunk in (1, 7, 40, 4096):
         parser = fp.FrameParser()
         out = [parser.feed(data[i : i + chunk]) for i in range(0, len(data), chunk)]
