@@ -7,8 +7,9 @@ binary frames only, so replies and samples share one stream and one parser:
 
     offset size  field
     0      2     sync 0xA5 0x5A
-    2      1     type: 0x01 sample, 0x02 reply
-    3      1     payload length n (17 for a sample, 13 from older firmware, 0..250 for a reply)
+    2      1     type: 0x01 sample, 0x02 reply, 0x03 three-axis sample
+    3      1     payload length n (17 for a sample, 13 from older firmware, 0..250 for a reply,
+                 32 for a three-axis sample)
     4      n     payload
     4+n    4     CRC-32 (zlib/IEEE 802.3) of bytes 2 .. 4+n-1, big-endian
 
@@ -32,6 +33,12 @@ Older fixture firmware sends a 13-byte sample payload: the same fields without t
 The parser accepts both lengths, also mixed in one stream (a firmware update between START
 and STOP), and decodes the encoder of an old frame as 0 (its ENCODER_LATCHED bit is whatever
 the status byte says, normally clear).
+
+Three-axis sample payload (32 bytes, a three-axis part's fixture): seq u16, time u32, gyro
+rate codes x, y, z (u24 each), accelerometer codes x, y, z (u24 each, `codes:` accel_*),
+temperature code u24, status u8, encoder u32; the same meanings as the single-axis sample's.
+The parser decodes its x rate code as `rate_code`, so single-axis consumers keep working.
+Such a fixture answers `AXES?` with 3 and holds the part's three-axis registers (`CAL3`).
 
 Reply payload: printable ASCII (0x20..0x7E), "OK[ data]" or "ERR <code> <text>".
 
@@ -79,6 +86,9 @@ SAMPLE_FRAME_SIZE = HEADER_SIZE + SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 25
 LEGACY_SAMPLE_PAYLOAD_SIZE = 13  # older fixture firmware: no encoder field
 LEGACY_SAMPLE_FRAME_SIZE = HEADER_SIZE + LEGACY_SAMPLE_PAYLOAD_SIZE + CRC_SIZE  # 21
 MAX_REPLY_PAYLOAD = 250
+# three-axis parts (docs/fixture-protocol.md section 7): frame type 0x03, 32-byte payload
+SAMPLE3_PAYLOAD_SIZE = 32
+SAMPLE3_FRAME_SIZE = HEADER_SIZE + SAMPLE3_PAYLOAD_SIZE + CRC_SIZE  # 40
 
 # the ADIS16130's codes; a product states its own in its file (drivers.part_codes.CodeFormat)
 RATE_ZERO_CODE = ADIS16130.rate_zero_code
@@ -94,14 +104,17 @@ TIME_MODULO_US = 1 << 32
 UART_BITS_PER_BYTE = 10  # start bit, 8 data bits, stop bit
 
 
-def sample_stream_baud(output_rate_hz: float) -> int:
-    """Baud rate a stream of sample frames needs at `output_rate_hz` (replies not counted)."""
-    return math.ceil(output_rate_hz * SAMPLE_FRAME_SIZE * UART_BITS_PER_BYTE)
+def sample_stream_baud(output_rate_hz: float, axes: int = 1) -> int:
+    """Baud rate a stream of sample frames needs at `output_rate_hz` (replies not counted);
+    `axes=3`: a three-axis part's frames."""
+    size = SAMPLE3_FRAME_SIZE if axes == 3 else SAMPLE_FRAME_SIZE
+    return math.ceil(output_rate_hz * size * UART_BITS_PER_BYTE)
 
 
 class FrameType(IntEnum):
     SAMPLE = 0x01
     REPLY = 0x02
+    SAMPLE3 = 0x03  # a three-axis part's sample: gyro and accelerometer x, y, z
 
 
 class Command:
@@ -118,12 +131,43 @@ class Command:
     CAL_WRITE = "CAL {assignments}"  # key=value pairs as CAL? gives them -> OK | ERR 4 ...
     COMPENSATION = "COMP {on:d}"  # -> OK
     STOP_ANGLE = "STOPANGLE?"  # -> OK <angle_deg> <std_uncertainty_deg>
+    # three-axis parts (fixture firmware 1.4 and later; older firmware answers ERR 2)
+    AXES = "AXES?"  # -> OK 1 | OK 3 (the part's rate axes) | ERR 10/11 as SN?
+    CAL3_READ = "CAL3? {key}"  # -> OK <key>=<v>[,<v>...] (one register, row-major)
+    CAL3_WRITE = "CAL3 {assignments}"  # <key>=<v>,<v>,... pairs -> OK | ERR 1/3/4
 
 
 CAL_KEYS = ("bias", "scale", "bias_tc", "scale_tc", "bias_vc", "scale_vc", "t0", "v0")
 # registers beyond first order in temperature, on parts that hold them (CAL? lists them after
 # the eight; a fixture whose part has none answers the eight and refuses these with ERR 4)
 CAL_KEYS_HIGHER_ORDER = ("bias_tc2", "bias_tc3", "scale_tc2", "scale_tc3")
+# a three-axis part's registers (CAL3? <key> / CAL3 <key>=...) and how many values each holds
+# (matrices row-major: row i is output axis i); see drivers.protocols.CalibrationRegisters3
+CAL3_SIZES = {
+    "bias": 3,
+    "matrix": 9,
+    "gsens": 9,
+    "bias_tc": 3,
+    "bias_vc": 3,
+    "scale_tc": 3,
+    "scale_vc": 3,
+    "t0": 1,
+    "v0": 1,
+}
+CAL3_KEYS = tuple(CAL3_SIZES)
+# CAL3 keys -> the CalibrationRegisters3 field each one fills
+CAL3_FIELDS = {
+    "bias": "bias_dps",
+    "matrix": "matrix",
+    "gsens": "g_sensitivity_dps_per_mps2",
+    "bias_tc": "bias_tc_dps_per_c",
+    "bias_vc": "bias_vc_dps_per_v",
+    "scale_tc": "scale_tc_per_c",
+    "scale_vc": "scale_vc_per_v",
+    "t0": "t0_c",
+    "v0": "v0_v",
+}
+assert tuple(CAL3_FIELDS) == CAL3_KEYS
 
 
 class ReplyError(IntEnum):
@@ -216,6 +260,23 @@ assert _SAMPLE_DTYPE.itemsize == SAMPLE_FRAME_SIZE
 # the older firmware's frame: the same fields without the encoder
 _LEGACY_SAMPLE_DTYPE = np.dtype([f for f in _SAMPLE_DTYPE.descr if f[0] != "encoder"])
 assert _LEGACY_SAMPLE_DTYPE.itemsize == LEGACY_SAMPLE_FRAME_SIZE
+# a three-axis part's frame: gyro x, y, z and accelerometer x, y, z codes (u24 each)
+_SAMPLE3_DTYPE = np.dtype(
+    [
+        ("sync", ">u2"),
+        ("type", "u1"),
+        ("len", "u1"),
+        ("seq", ">u2"),
+        ("t_us", ">u4"),
+        ("rate", "u1", (3, 3)),
+        ("accel", "u1", (3, 3)),
+        ("temp", "u1", (3,)),
+        ("status", "u1"),
+        ("encoder", ">u4"),
+        ("crc", ">u4"),
+    ]
+)
+assert _SAMPLE3_DTYPE.itemsize == SAMPLE3_FRAME_SIZE
 
 
 def _u24_bytes(values: NDArray[np.int64]) -> NDArray[np.uint8]:
@@ -259,6 +320,35 @@ def encode_samples(
     return frames.tobytes()
 
 
+def encode_samples3(
+    seq: NDArray[np.int64],
+    time_us: NDArray[np.int64],
+    rate_code_xyz: NDArray[np.int64],
+    accel_code_xyz: NDArray[np.int64],
+    temp_code: NDArray[np.int64],
+    status: NDArray[np.int64],
+    encoder: NDArray[np.int64] | None = None,
+) -> bytes:
+    """Encode a batch of a three-axis part's samples (codes (n, 3) columns x, y, z) as
+    consecutive three-axis sample frames; otherwise as `encode_samples`."""
+    n = len(seq)
+    frames = np.zeros(n, dtype=_SAMPLE3_DTYPE)
+    frames["sync"] = 0xA55A
+    frames["type"] = FrameType.SAMPLE3
+    frames["len"] = SAMPLE3_PAYLOAD_SIZE
+    frames["seq"] = np.asarray(seq, dtype=np.int64) % SEQ_MODULO
+    frames["t_us"] = np.asarray(time_us, dtype=np.int64) % TIME_MODULO_US
+    frames["rate"] = _u24_bytes(np.asarray(rate_code_xyz).reshape(n, 3))
+    frames["accel"] = _u24_bytes(np.asarray(accel_code_xyz).reshape(n, 3))
+    frames["temp"] = _u24_bytes(temp_code)
+    frames["status"] = np.asarray(status, dtype=np.int64) & 0xFF
+    if encoder is not None:
+        frames["encoder"] = np.asarray(encoder, dtype=np.int64) % ENCODER_MODULO
+    raw = frames.view(np.uint8).reshape(n, SAMPLE3_FRAME_SIZE)
+    frames["crc"] = _sample_crcs(raw)
+    return frames.tobytes()
+
+
 def encode_reply(text: str) -> bytes:
     """A reply frame; characters outside printable ASCII are sent as '?'."""
     printable = "".join(c if " " <= c <= "~" else "?" for c in text)
@@ -284,6 +374,11 @@ class ParseResult:
     frames_lost: int = 0
     frames_corrupted: int = 0
     bytes_discarded: int = 0
+    # three-axis frames (None when the call decoded none): codes (n, 3), columns x, y, z;
+    # `rate_code` is then the x column. A single-axis frame decoded in the same call (the
+    # protocol does not mix them in one stream) gets its rate code as x and 0 elsewhere.
+    rate_code_xyz: NDArray[np.int64] | None = None
+    accel_code_xyz: NDArray[np.int64] | None = None
 
 
 _EMPTY_I = np.zeros(0, dtype=np.int64)
@@ -299,11 +394,16 @@ _SAMPLE_DTYPES = {
     LEGACY_SAMPLE_PAYLOAD_SIZE: _LEGACY_SAMPLE_DTYPE,
 }
 _SAMPLE_PAYLOAD_SIZES = frozenset(_SAMPLE_DTYPES)
+_TYPE_SAMPLE3 = int(FrameType.SAMPLE3)
+
+
+def _is_three_axis(frames: NDArray[np.void]) -> bool:
+    return "accel" in (frames.dtype.names or ())
 
 
 def _u24(column: NDArray[np.uint8]) -> NDArray[np.int64]:
     c = column.astype(np.int64)
-    return (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
+    return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
 
 
 class FrameParser:
@@ -373,7 +473,10 @@ class FrameParser:
             ftype = buf[start + 2]
             plen = buf[start + 3]
             end = start + HEADER_SIZE + plen + CRC_SIZE
-            valid_header = (ftype == _TYPE_SAMPLE and plen in _SAMPLE_PAYLOAD_SIZES) or (
+            valid_header = (
+                (ftype == _TYPE_SAMPLE and plen in _SAMPLE_PAYLOAD_SIZES)
+                or (ftype == _TYPE_SAMPLE3 and plen == SAMPLE3_PAYLOAD_SIZE)
+            ) or (
                 ftype == _TYPE_REPLY
                 and plen <= MAX_REPLY_PAYLOAD
                 # replies are printable ASCII: a false sync inside sample data announcing a
@@ -417,6 +520,8 @@ class FrameParser:
                 frames_corrupted=corrupted,
                 bytes_discarded=discarded,
             )
+        if any(_is_three_axis(run) for run in runs):
+            return self._three_axis_result(runs, replies, corrupted, discarded)
         frames = runs[0] if len(runs) == 1 else np.concatenate(runs)
         seq = frames["seq"].astype(np.int64)
         t_us = frames["t_us"].astype(np.int64)
@@ -437,12 +542,54 @@ class FrameParser:
             bytes_discarded=discarded,
         )
 
+    def _three_axis_result(
+        self, runs: list[NDArray[np.void]], replies: list[str], corrupted: int, discarded: int
+    ) -> ParseResult:
+        """A call's result when it decoded three-axis frames (runs of either kind, in order)."""
+        rates, accels = [], []
+        for run in runs:
+            if _is_three_axis(run):
+                rates.append(_u24(run["rate"]))
+                accels.append(_u24(run["accel"]))
+            else:  # not expected in one stream: x carries the rate code, the rest 0
+                xyz = np.zeros((run.shape[0], 3), dtype=np.int64)
+                xyz[:, 0] = _u24(run["rate"])
+                rates.append(xyz)
+                accels.append(np.zeros((run.shape[0], 3), dtype=np.int64))
+        common = ("seq", "t_us", "temp", "status", "encoder")
+        parts = [{name: run[name] for name in common} for run in runs]
+        seq = np.concatenate([p["seq"] for p in parts]).astype(np.int64)
+        t_us = np.concatenate([p["t_us"] for p in parts]).astype(np.int64)
+        rate_xyz = np.concatenate(rates)
+        lost = self._count_lost(seq)
+        time_us = self._unwrap_time(t_us)
+        self.frames_ok += seq.size
+        self.frames_lost += lost
+        return ParseResult(
+            seq=seq,
+            time_s=time_us.astype(np.float64) * 1e-6,
+            rate_code=rate_xyz[:, 0].copy(),
+            temp_code=np.concatenate([_u24(p["temp"]) for p in parts]),
+            status=np.concatenate([p["status"] for p in parts]).astype(np.int64),
+            encoder=np.concatenate([p["encoder"] for p in parts]).astype(np.int64),
+            replies=replies,
+            frames_lost=lost,
+            frames_corrupted=corrupted,
+            bytes_discarded=discarded,
+            rate_code_xyz=rate_xyz,
+            accel_code_xyz=np.concatenate(accels),
+        )
+
     @staticmethod
     def _sample_run(buf: bytearray, start: int, n: int) -> tuple[NDArray[np.void], int] | None:
         """The longest run of intact sample frames of one layout at `start` (a copy, in the
-        current layout: an older firmware's frames get encoder 0) and its frame size, or None.
+        current layout: an older firmware's frames get encoder 0; three-axis frames in their
+        own) and its frame size, or None.
         """
-        dtype = _SAMPLE_DTYPES.get(buf[start + 3])
+        if buf[start + 2] == _TYPE_SAMPLE3:
+            dtype = _SAMPLE3_DTYPE if buf[start + 3] == SAMPLE3_PAYLOAD_SIZE else None
+        else:
+            dtype = _SAMPLE_DTYPES.get(buf[start + 3])
         if dtype is None:
             return None
         size = dtype.itemsize
@@ -453,7 +600,7 @@ class FrameParser:
         frames = np.frombuffer(chunk, dtype=dtype)
         header_ok = (
             (frames["sync"] == _SYNC_WORD)
-            & (frames["type"] == _TYPE_SAMPLE)
+            & (frames["type"] == (_TYPE_SAMPLE3 if dtype is _SAMPLE3_DTYPE else _TYPE_SAMPLE))
             & (frames["len"] == size - HEADER_SIZE - CRC_SIZE)
         )
         good = count if bool(header_ok.all()) else int(np.argmin(header_ok))
@@ -466,7 +613,7 @@ class FrameParser:
             if good == 0:
                 return None
         frames = frames[:good]
-        if dtype is not _SAMPLE_DTYPE:
+        if dtype is _LEGACY_SAMPLE_DTYPE:
             current = np.zeros(good, dtype=_SAMPLE_DTYPE)  # encoder 0
             for name in dtype.names or ():
                 current[name] = frames[name]

@@ -30,6 +30,10 @@ ADIS16130_RATE_COUNTS_PER_DPS = 23_488.0
 ADIS16130_TEMP_ZERO_CODE = 8_036_283
 ADIS16130_TEMP_COUNTS_PER_C = 14_093.0
 
+# the simulated three-axis part's accelerometer: 24-bit offset binary, +-8.5 g
+ACCEL_ZERO_CODE = 8_388_608
+ACCEL_COUNTS_PER_MPS2 = 100_000.0
+
 _SCALE_MIN = 1e-3  # counts per unit: below this a code step is > 1000 deg/s (or C)
 _SCALE_MAX = 1e9
 
@@ -68,8 +72,19 @@ class CodeFormat(BaseModel):
     temp_counts_per_c: float = Field(
         ADIS16130_TEMP_COUNTS_PER_C, description="temperature code counts per C"
     )
+    # three-axis parts' accelerometer codes (single-axis parts have none; unused there)
+    accel_width_bits: int = Field(
+        CODE_FIELD_BITS, ge=8, le=CODE_FIELD_BITS, description="bits of the accelerometer code"
+    )
+    accel_signed: bool = Field(False, description="accelerometer code is two's complement")
+    accel_zero_code: int = Field(
+        ACCEL_ZERO_CODE, description="accelerometer code at 0 m/s^2"
+    )
+    accel_counts_per_mps2: float = Field(
+        ACCEL_COUNTS_PER_MPS2, description="accelerometer code counts per m/s^2"
+    )
 
-    @field_validator("rate_counts_per_dps", "temp_counts_per_c")
+    @field_validator("rate_counts_per_dps", "temp_counts_per_c", "accel_counts_per_mps2")
     @classmethod
     def _scale(cls, value: float) -> float:
         if not _SCALE_MIN <= abs(value) <= _SCALE_MAX:
@@ -84,6 +99,7 @@ class CodeFormat(BaseModel):
         for name, zero, width, signed in (
             ("rate_zero_code", self.rate_zero_code, self.rate_width_bits, self.rate_signed),
             ("temp_zero_code", self.temp_zero_code, self.temp_width_bits, self.temp_signed),
+            ("accel_zero_code", self.accel_zero_code, self.accel_width_bits, self.accel_signed),
         ):
             low, high = _range(width, signed)
             if not low <= zero <= high:
@@ -137,6 +153,20 @@ class CodeFormat(BaseModel):
             + self.temp_zero_code,
             self.temp_width_bits,
             self.temp_signed,
+        )
+
+    def accel_code_to_mps2(self, code: ArrayLike) -> NDArray[np.float64]:
+        """Wire accelerometer codes (any shape, e.g. (n, 3)) to m/s^2."""
+        value = _value(code, self.accel_width_bits, self.accel_signed)
+        return (value - self.accel_zero_code) / self.accel_counts_per_mps2
+
+    def accel_mps2_to_code(self, accel_mps2: ArrayLike) -> NDArray[np.int64]:
+        """m/s^2 to wire accelerometer codes, rounded and clipped at the code's rails."""
+        return self._to_code(
+            np.asarray(accel_mps2, dtype=np.float64) * self.accel_counts_per_mps2
+            + self.accel_zero_code,
+            self.accel_width_bits,
+            self.accel_signed,
         )
 
     def rate_code_at_rail(self, code: ArrayLike) -> NDArray[np.bool_]:

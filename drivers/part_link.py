@@ -33,6 +33,8 @@ from drivers.errors import (
     StreamCorrupted,
 )
 from drivers.fixture_protocol import (
+    CAL3_FIELDS,
+    CAL3_SIZES,
     CAL_KEYS,
     CAL_KEYS_HIGHER_ORDER,
     OUTPUT_RATES_HZ,
@@ -40,7 +42,13 @@ from drivers.fixture_protocol import (
     FrameParser,
     ReplyError,
 )
-from drivers.protocols import CalibrationRegisters, InstrumentIdentity, LinkStats, SampleBlock
+from drivers.protocols import (
+    CalibrationRegisters,
+    CalibrationRegisters3,
+    InstrumentIdentity,
+    LinkStats,
+    SampleBlock,
+)
 from drivers.scpi import SerialLike, open_serial
 
 log = logging.getLogger(__name__)
@@ -66,6 +74,9 @@ CAL_FIELDS_HIGHER_ORDER = {
     "scale_tc3": "scale_tc3_per_c3",
 }
 assert tuple(CAL_FIELDS_HIGHER_ORDER) == CAL_KEYS_HIGHER_ORDER
+# CAL3 write lines: each under the fixture's 250-character line limit at 9 significant digits
+_CAL3_WRITE_GROUPS = (("bias", "bias_tc", "bias_vc", "t0", "v0"), ("matrix",), ("gsens",),
+                      ("scale_tc", "scale_vc"))
 # The reader pauses between reads so frames arrive in batches (the parser's cost is mostly
 # per call). A pty buffers only about 4 KB, so the pause is sized from the measured byte
 # rate to let no more than _PAUSE_FILL_BYTES pile up: at 100k frames/s (2.5 MB/s of 25-byte
@@ -126,6 +137,7 @@ class _Pending:
 
     def __init__(self) -> None:
         self.chunks: list[tuple[np.ndarray, ...]] = []
+        self.xyz_chunks: list[tuple[np.ndarray, np.ndarray]] = []  # three-axis frames
         self.lost = self.corrupted = self.discarded = 0
 
 
@@ -253,6 +265,8 @@ class SerialPartLink:
                         result.encoder,
                     )
                 )
+                if result.rate_code_xyz is not None and result.accel_code_xyz is not None:
+                    p.xyz_chunks.append((result.rate_code_xyz, result.accel_code_xyz))
                 self._last_frame_s = self._clock.now_s()
             p.lost += result.frames_lost
             p.corrupted += result.frames_corrupted
@@ -456,6 +470,86 @@ class SerialPartLink:
                 instrument=self.name,
             ) from None
 
+    # ------------------------------------------------------------ three-axis parts
+
+    def axes(self) -> int:
+        """The part's rate axes, 1 or 3 (`AXES?`; a fixture whose firmware does not know the
+        command has single-axis parts: 1)."""
+        try:
+            reply = self.command(Command.AXES).strip()
+        except FixtureRefused as exc:
+            if exc.code == ReplyError.UNKNOWN_COMMAND:
+                return 1
+            raise
+        if reply not in ("1", "3"):
+            raise ProtocolError(f"AXES? answered {reply!r}, not 1 or 3", instrument=self.name)
+        return int(reply)
+
+    def read_calibration3(self) -> CalibrationRegisters3:
+        """A three-axis part's registers (one `CAL3? <key>` each)."""
+        values: dict[str, object] = {}
+        for key, size in CAL3_SIZES.items():
+            numbers = self._cal3_read(key, size)
+            values[CAL3_FIELDS[key]] = (
+                numbers[0] if size == 1 else np.reshape(numbers, (3, 3)) if size == 9 else numbers
+            )
+        return CalibrationRegisters3(**values)  # type: ignore[arg-type]
+
+    def _cal3_command(self, command: str) -> str:
+        """A CAL3 command; a part without three-axis registers (ERR 4, or ERR 2 from older
+        fixture firmware) is reported as what it is."""
+        try:
+            return self.command(command)
+        except FixtureRefused as exc:
+            if exc.code not in (ReplyError.BAD_REGISTER, ReplyError.UNKNOWN_COMMAND):
+                raise
+            raise FixtureRefused(
+                f"the part in the {self.name} has no three-axis registers ({exc}): it is not "
+                "a three-axis part (check the product file's axes and the part seated)",
+                code=exc.code,
+                instrument=self.name,
+            ) from None
+
+    def _cal3_read(self, key: str, size: int) -> list[float]:
+        command = Command.CAL3_READ.format(key=key)
+        reply = self._cal3_command(command).strip()
+        name, sep, text = reply.partition("=")
+        try:
+            numbers = [float(v) for v in text.split(",")] if sep and name == key else []
+        except ValueError:
+            numbers = []
+        if len(numbers) != size or not all(math.isfinite(v) for v in numbers):
+            raise ProtocolError(
+                f"{command!r} answered {reply!r}, not '{key}=' and {size} finite numbers",
+                instrument=self.name,
+            )
+        return numbers
+
+    def write_calibration3(self, registers: CalibrationRegisters3) -> None:
+        """Write a three-axis part's registers (a few `CAL3` lines), read them back, compare."""
+        wanted = {key: _flat(getattr(registers, f)) for key, f in CAL3_FIELDS.items()}
+        bad = [k for k, v in wanted.items() if not all(math.isfinite(x) for x in v)]
+        if bad:
+            raise ValueError(f"calibration values must be finite: {', '.join(bad)}")
+        for group in _CAL3_WRITE_GROUPS:
+            assignments = " ".join(
+                f"{k}=" + ",".join(f"{v:.9g}" for v in wanted[k]) for k in group
+            )
+            self._cal3_command(Command.CAL3_WRITE.format(assignments=assignments))
+        back = self.read_calibration3()
+        diffs = []
+        for key, field_name in CAL3_FIELDS.items():
+            got = _flat(getattr(back, field_name))
+            for i, (w, g) in enumerate(zip(wanted[key], got, strict=True)):
+                if not math.isclose(g, w, rel_tol=_CAL_TOLERANCE_REL, abs_tol=_CAL_TOLERANCE_ABS):
+                    diffs.append(f"{key}[{i}] wrote {w:.9g} read {g:.9g}")
+        if diffs:
+            raise InstrumentError(
+                f"the part in the {self.name} did not keep its calibration ({'; '.join(diffs)}): "
+                "the write failed; retry once, then reject the part",
+                instrument=self.name,
+            )
+
     # ------------------------------------------------------------ streaming
 
     def start_stream(self) -> None:
@@ -499,7 +593,7 @@ class SerialPartLink:
             cols = [np.concatenate(c) if len(c) > 1 else c[0] for c in zip(*p.chunks, strict=True)]
             block = SampleBlock(cols[0], cols[1], cols[2], cols[3], cols[4], frames_lost=p.lost,
                                 frames_corrupted=p.corrupted, bytes_discarded=p.discarded,
-                                encoder_counts=cols[5])
+                                encoder_counts=cols[5], **_xyz_columns(p, cols[0].size))
         return block
 
     def read_samples(self, max_wait_s: float = 0.0) -> SampleBlock:
@@ -550,6 +644,23 @@ class SerialPartLink:
             self._port.close()
         except OSError as exc:
             log.warning("closing the %s: %s", self.name, exc)
+
+
+def _flat(value: object) -> list[float]:
+    """A register's values as CAL3 lists them: a number, a vector, a matrix row-major."""
+    return [float(v) for v in np.ravel(np.asarray(value, dtype=np.float64))]
+
+
+def _xyz_columns(p: _Pending, n: int) -> dict[str, np.ndarray]:
+    """The block's three-axis columns when every frame in it was a three-axis one."""
+    if not p.xyz_chunks or sum(c[0].shape[0] for c in p.xyz_chunks) != n:
+        return {}
+    rate = [c[0] for c in p.xyz_chunks]
+    accel = [c[1] for c in p.xyz_chunks]
+    return {
+        "rate_code_xyz": rate[0] if len(rate) == 1 else np.concatenate(rate),
+        "accel_code_xyz": accel[0] if len(accel) == 1 else np.concatenate(accel),
+    }
 
 
 # ---------------------------------------------------------------- configuration (part.fixture)

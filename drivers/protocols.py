@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntFlag
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -320,6 +320,10 @@ class SampleBlock:
     frames_corrupted: int = 0
     bytes_discarded: int = 0
     encoder_counts: NDArray[np.int64] | None = None
+    # three-axis frames only (None from single-axis ones): gyro and accelerometer codes per
+    # axis, (n, 3) columns x, y, z; `rate_code` is then the x column (rate_code_xyz[:, 0])
+    rate_code_xyz: NDArray[np.int64] | None = None
+    accel_code_xyz: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return int(self.seq.size)
@@ -436,3 +440,102 @@ class Watched(Protocol):
     instrument reports a fault (e-stop, interlock, chamber FAULT, a stalled heartbeat)."""
 
     def watchdog_check(self) -> None: ...
+
+
+# ---------------------------------------------------------------- three-axis parts
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+_ZERO3: Vec3 = (0.0, 0.0, 0.0)
+_IDENTITY3: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+_ZERO33: Mat3 = (_ZERO3, _ZERO3, _ZERO3)
+
+
+def _vec3(value: object, name: str) -> Vec3:
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3,):
+        raise ValueError(f"{name} must be 3 numbers (x, y, z), got shape {a.shape}")
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def _mat3(value: object, name: str) -> Mat3:
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3, 3):
+        raise ValueError(f"{name} must be 3 x 3 numbers (rows x, y, z), got shape {a.shape}")
+    return (_vec3(a[0], name), _vec3(a[1], name), _vec3(a[2], name))
+
+
+@dataclass(frozen=True)
+class CalibrationRegisters3:
+    """A three-axis part's calibration registers, in engineering units (part frame x, y, z).
+
+    With raw the uncompensated output (deg/s, 3-vector), a the accelerometer's specific force
+    (m/s^2, 3-vector), T the die temperature and V the supply, dT = T - t0_c, dV = V - v0_v,
+    the part's compensated output is
+
+        w_hat = D^-1 M (raw - b - G a)
+        b = bias_dps + bias_tc_dps_per_c dT + bias_vc_dps_per_v dV        (per axis)
+        D = diag(1 + scale_tc_per_c dT + scale_vc_per_v dV)               (per axis)
+
+    M = `matrix` (scale and misalignment, rows are output axes), G = `g_sensitivity_dps_per_mps2`
+    (deg/s per m/s^2, rows output axes, columns the accelerometer axes). Erased: zeros, M the
+    identity (the raw output passes through). Fields are tuples (hashable, comparable); the
+    constructor accepts any array-like of the right shape.
+    """
+
+    bias_dps: Vec3 = _ZERO3
+    matrix: Mat3 = _IDENTITY3
+    g_sensitivity_dps_per_mps2: Mat3 = _ZERO33
+    bias_tc_dps_per_c: Vec3 = _ZERO3
+    bias_vc_dps_per_v: Vec3 = _ZERO3
+    scale_tc_per_c: Vec3 = _ZERO3
+    scale_vc_per_v: Vec3 = _ZERO3
+    t0_c: float = 25.0
+    v0_v: float = 5.0
+
+    VECTOR_FIELDS: ClassVar[tuple[str, ...]] = (
+        "bias_dps", "bias_tc_dps_per_c", "bias_vc_dps_per_v", "scale_tc_per_c", "scale_vc_per_v"
+    )
+    MATRIX_FIELDS: ClassVar[tuple[str, ...]] = ("matrix", "g_sensitivity_dps_per_mps2")
+
+    def __post_init__(self) -> None:
+        for name in self.VECTOR_FIELDS:
+            object.__setattr__(self, name, _vec3(getattr(self, name), name))
+        for name in self.MATRIX_FIELDS:
+            object.__setattr__(self, name, _mat3(getattr(self, name), name))
+        object.__setattr__(self, "t0_c", float(self.t0_c))
+        object.__setattr__(self, "v0_v", float(self.v0_v))
+
+    def compensate(
+        self,
+        raw_dps: NDArray[np.float64],
+        accel_mps2: NDArray[np.float64],
+        temp_c: NDArray[np.float64] | float,
+        supply_v: NDArray[np.float64] | float,
+    ) -> NDArray[np.float64]:
+        """w_hat (n, 3) deg/s from raw (n, 3) deg/s, accel (n, 3) m/s^2, temp and supply
+        (scalars or (n,)): the formula above, as the part applies it."""
+        raw = np.atleast_2d(np.asarray(raw_dps, dtype=np.float64))
+        acc = np.atleast_2d(np.asarray(accel_mps2, dtype=np.float64))
+        d_t = (np.asarray(temp_c, dtype=np.float64) - self.t0_c).reshape(-1, 1)
+        d_v = (np.asarray(supply_v, dtype=np.float64) - self.v0_v).reshape(-1, 1)
+        bias = (np.asarray(self.bias_dps) + np.asarray(self.bias_tc_dps_per_c) * d_t
+                + np.asarray(self.bias_vc_dps_per_v) * d_v)
+        scale = 1.0 + np.asarray(self.scale_tc_per_c) * d_t + np.asarray(self.scale_vc_per_v) * d_v
+        corrected = raw - bias - acc @ np.asarray(self.g_sensitivity_dps_per_mps2).T
+        return np.asarray((corrected @ np.asarray(self.matrix).T) / scale, dtype=np.float64)
+
+
+@runtime_checkable
+class CalibrationStore3(Protocol):
+    """Optional capability of a part link whose part may have three axes."""
+
+    def axes(self) -> int:
+        """1 or 3: the part's rate axes (from the fixture's identity)."""
+        ...
+
+    def read_calibration3(self) -> CalibrationRegisters3: ...
+
+    def write_calibration3(self, registers: CalibrationRegisters3) -> None:
+        """Write the three-axis registers, read them back and compare (raises on mismatch)."""
+        ...

@@ -28,6 +28,8 @@ class ProgressEvent:
     remaining_s: float | None = None  # station seconds, estimated
     message: str = ""
     sockets: dict[int, str] = field(default_factory=dict)  # socket -> state or verdict
+    # a reorientation prompt's face that must point up ("+x" .. "-z"); None otherwise
+    orientation: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

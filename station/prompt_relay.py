@@ -45,6 +45,8 @@ class PromptRelay:
                 "sockets": {str(k): v for k, v in event.sockets.items()},
                 "step": event.step,
                 "condition": event.condition,
+                # a reorientation prompt's face ("+x" .. "-z"); absent from other prompts
+                **({"orientation": event.orientation} if event.orientation else {}),
                 # when it was shown, on the machine's monotonic clock (the bench's clock)
                 "monotonic_s": time.monotonic(),
             }

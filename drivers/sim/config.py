@@ -69,6 +69,50 @@ Tau = Annotated[float, Field(gt=0.0, le=ONE_DAY_S * 10)]
 Temp = Annotated[float, Field(ge=TEMP_LOW_C, le=TEMP_HIGH_C)]
 
 
+Vec3Spec = tuple[Coefficient, Coefficient, Coefficient]
+Mat3Spec = tuple[Vec3Spec, Vec3Spec, Vec3Spec]
+
+
+class ThreeAxisSpec(_Model):
+    """A three-axis part's own truth (drivers/sim/gyro3.py); any value left out is drawn from
+    the population with the spreads below, deterministically per serial number. Vectors are
+    x, y, z; matrices rows x, y, z. The raw output is S w + b + G a with S = M^-1 D (the part
+    applies the correction of docs/fixture-protocol.md section 7)."""
+
+    bias_dps: Vec3Spec | None = None
+    matrix: Mat3Spec | None = Field(
+        default=None, description="M, the correction matrix (scale and misalignment)"
+    )
+    g_sensitivity_dps_per_mps2: Mat3Spec | None = None
+    bias_temp_coeff_dps_per_c: Vec3Spec | None = None
+    bias_supply_coeff_dps_per_v: Vec3Spec | None = None
+    scale_temp_coeff_per_c: Vec3Spec | None = None
+    scale_supply_coeff_per_v: Vec3Spec | None = None
+    # population spreads (1 sigma) for the values left out
+    bias_sigma_dps: float = Field(default=1.0, ge=0.0, le=100.0)
+    scale_error_sigma: float = Field(default=0.01, ge=0.0, le=0.2, description="M's diagonal")
+    misalignment_sigma: float = Field(
+        default=0.004, ge=0.0, le=0.1, description="M's off-diagonal terms (0.4 %: 0.1-1 %)"
+    )
+    g_sensitivity_sigma_dps_per_mps2: float = Field(default=0.01, ge=0.0, le=1.0)
+    accel_noise_mps2: float = Field(
+        default=0.003, ge=0.0, le=1.0, description="accelerometer white noise per sample, 1 sigma"
+    )
+
+    @field_validator("matrix")
+    @classmethod
+    def _usable_matrix(cls, m: Mat3Spec | None) -> Mat3Spec | None:
+        if m is None:
+            return m
+        for i, row in enumerate(m):
+            if not 0.5 < row[i] < 2.0:
+                raise ValueError(f"matrix[{i}][{i}] must be between 0.5 and 2 (a scale), "
+                                 f"got {row[i]!r}")
+            if any(abs(v) > 0.2 for j, v in enumerate(row) if j != i):
+                raise ValueError(f"matrix row {i}: misalignment terms must be within +-0.2")
+        return m
+
+
 class PartSpec(_Model):
     """One loaded socket's part; any parameter left as None is drawn from the population."""
 
@@ -96,6 +140,10 @@ class PartSpec(_Model):
     bias_temp_coeff3_dps_per_c3: Coefficient | None = None
     scale_temp_coeff2_per_c2: Coefficient | None = None
     scale_temp_coeff3_per_c3: Coefficient | None = None
+    # Appended (issue 18): a three-axis part (gyro x, y, z and an accelerometer) in a cube on
+    # the table; without the block the part is single-axis as before. `three_axis: {}` draws
+    # every three-axis value from the population.
+    three_axis: ThreeAxisSpec | None = None
 
     @field_validator("effects")
     @classmethod
@@ -285,6 +333,30 @@ class HandConfig(_Model):
         return self
 
 
+class CubeConfig(_Model):
+    """The cube a three-axis part sits in on the table, and the operator who turns it: on a
+    prompt naming a face the operator reacts, then turns the socket's cube in a few seconds
+    so that face points up (the table's axis)."""
+
+    initial_face: Literal["+x", "-x", "+y", "-y", "+z", "-z"] = "+z"
+    responds: bool = Field(True, description="false: the operator never turns the cube")
+    reaction_min_s: float = Field(default=0.6, ge=0.0, le=60.0)
+    reaction_max_s: float = Field(default=1.5, ge=0.0, le=60.0)
+    turn_min_s: float = Field(default=2.0, gt=0.1, le=60.0, description="one reorientation, s")
+    turn_max_s: float = Field(default=4.0, gt=0.1, le=60.0)
+    wrong_face_probability: float = Field(
+        default=0.0, ge=0.0, le=1.0, description="share of turns to a wrong face (a slip)"
+    )
+
+    @model_validator(mode="after")
+    def _ranges(self) -> CubeConfig:
+        if self.reaction_min_s > self.reaction_max_s:
+            raise ValueError("reaction_min_s must not exceed reaction_max_s")
+        if self.turn_min_s > self.turn_max_s:
+            raise ValueError("turn_min_s must not exceed turn_max_s")
+        return self
+
+
 class SimConfig(_Model):
     speed: float = Field(
         default=1.0,
@@ -304,6 +376,9 @@ class SimConfig(_Model):
     )
     hand: HandConfig = Field(
         default_factory=HandConfig, description="the operator's hand at a hand-turned fixture"
+    )
+    cube: CubeConfig = Field(
+        default_factory=CubeConfig, description="three-axis parts' cubes and their operator"
     )
 
     @model_validator(mode="after")

@@ -16,7 +16,10 @@ import numpy as np
 from drivers import fixture_protocol as fp
 from drivers.part_codes import ADIS16130
 from drivers.protocols import CalibrationRegisters
+from drivers.sim import fixture3
+from drivers.sim.cube import Cube
 from drivers.sim.gyro import PartModel
+from drivers.sim.gyro3 import PartModel3
 from drivers.sim.hand import HandFixture
 
 if TYPE_CHECKING:
@@ -79,6 +82,8 @@ class FixtureSocket:
         self.rng = np.random.default_rng([socket, world.config.seed, 77])
         # the fixture turns by hand between its stops (on top of the table, if any)
         self.hand = HandFixture(world.config.hand, stop_angle_deg, world.config.seed, socket)
+        # a three-axis part sits in a cube the operator turns face by face (issue 18)
+        self.cube = Cube(world.config.cube, world.config.seed, socket)
 
     # ------------------------------------------------------------ state
 
@@ -91,6 +96,11 @@ class FixtureSocket:
     def angle_deg(self, t_s: Any) -> Any:
         """The part's angle about its sensitive axis: the table's plus the hand fixture's."""
         return self.world.table.angle_deg(t_s) + self.hand.angle_deg(t_s)
+
+    @property
+    def frame_size(self) -> int:
+        """Bytes of one sample frame this socket sends (a three-axis part's are longer)."""
+        return fp.SAMPLE3_FRAME_SIZE if isinstance(self.part, PartModel3) else fp.SAMPLE_FRAME_SIZE
 
     def fixture_time_us(self, t_s: float) -> int:
         return int(round((t_s + self.clock_offset_s) * 1e6))
@@ -120,6 +130,9 @@ class FixtureSocket:
             self.streaming = False
             return "OK"
         part_error = self._part_error()
+        three_axis = fixture3.answer(self, text, part_error)  # AXES?, CAL3?, CAL3
+        if three_axis is not None:
+            return three_axis
         if upper == fp.Command.PART_SERIAL:
             return part_error or f"OK {self.part.params.serial}"  # type: ignore[union-attr]
         if upper.startswith("ODR"):
@@ -228,6 +241,9 @@ class FixtureSocket:
         start = np.concatenate(([self._last_angle_deg], angle[:-1]))
         rate = (angle - start) / dt
         self._last_angle_deg = float(angle[-1])
+        if isinstance(part, PartModel3):  # three-axis frames (drivers/sim/fixture3.py)
+            frames3 = fixture3.produce(self, part, times, rate, table_angle, supply_v, dt)
+            return self._apply_stream_faults(frames3, fp.SAMPLE3_FRAME_SIZE)
         raw, die = part.raw_output_dps(times, rate, angle, supply_v, dt)
         status = np.zeros(k.size, dtype=np.int64)
         encoder = None
@@ -257,8 +273,7 @@ class FixtureSocket:
         self.frames_sent += k.size
         return self._apply_stream_faults(frames)
 
-    def _apply_stream_faults(self, frames: bytes) -> bytes:
-        size = fp.SAMPLE_FRAME_SIZE
+    def _apply_stream_faults(self, frames: bytes, size: int = fp.SAMPLE_FRAME_SIZE) -> bytes:
         if self.drop_frame_rate > 0:
             n = len(frames) // size
             keep = self.rng.random(n) >= self.drop_frame_rate
@@ -295,6 +310,8 @@ class FixtureSocket:
                 "drop_frame_rate": self.drop_frame_rate,
             },
         }
+        if isinstance(self.part, PartModel3):
+            out["cube"] = self.cube.truth(self.world.now_s())
         if self.part is not None:
             out.update(self.part.truth())
         else:

@@ -10,11 +10,13 @@ instruments, only what the screen says. One line per event:
      "sockets": {"1": "PROMPT"}}
 
 On a prompt the operator turns the fixtures of the sockets named, one after another (one
-pair of hands); `prompt_done` needs no action. Nothing is answered. A line may carry
-`monotonic_s`, the machine's monotonic clock when the station showed the prompt: the
-operator's reaction counts from then (a busy bench process reads the line late; a real
-operator would not see the screen late), but a move never starts before the world's
-present, whose samples are already sent.
+pair of hands); `prompt_done` needs no action. A prompt that carries `orientation` (a face,
+"+x" .. "-z") asks for the three-axis parts' cubes to be turned so that face points up
+(drivers/sim/cube.py): the operator turns each named socket's cube instead. Nothing is
+answered. A line may carry `monotonic_s`, the machine's monotonic clock when the station
+showed the prompt: the operator's reaction counts from then (a busy bench process reads the
+line late; a real operator would not see the screen late), but a move never starts before
+the world's present, whose samples are already sent.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import json
 import logging
 from typing import Any
 
+from drivers.orientation import normalise_face
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -97,6 +100,10 @@ class OperatorEyes:
         del self.seen[:-KEEP_PROMPTS]
         if event["kind"] != "prompt":
             return
+        face = _face(event.get("orientation"))
+        if face is not None:
+            self._turn_cubes(sockets, face, t, now)
+            return
         for index in sockets:  # one pair of hands: one fixture after another
             sock = self.world.sockets.get(index)
             if sock is None:
@@ -104,6 +111,16 @@ class OperatorEyes:
             move = sock.hand.on_prompt(t, earliest_s=now)
             if move is not None:
                 t = max(t, move.end_s)
+
+    def _turn_cubes(self, sockets: list[int], face: str, t: float, now: float) -> None:
+        """Turn each named socket's cube so `face` points up, one after another."""
+        for index in sockets:
+            sock = self.world.sockets.get(index)
+            if sock is None:
+                continue
+            turn = sock.cube.on_prompt(t, face, earliest_s=now)
+            if turn is not None:
+                t = max(t, turn.end_s)
 
     def _shown_at(self, monotonic_s: Any, now: float) -> float:
         """World time the prompt appeared on the screen: the station stamps it with the
@@ -116,6 +133,17 @@ class OperatorEyes:
 
     def truth(self) -> list[dict[str, Any]]:
         return list(self.seen)
+
+
+def _face(value: Any) -> str | None:
+    """The prompt's orientation as a face name, None when absent or not a face."""
+    if not isinstance(value, str):
+        return None
+    try:
+        return normalise_face(value)
+    except ValueError:
+        log.info("operator: a prompt named an unknown orientation %r", value[:20])
+        return None
 
 
 def _sockets(value: Any) -> list[int]:

@@ -16,7 +16,6 @@ import os
 import tty
 from collections.abc import Callable
 
-from drivers.fixture_protocol import SAMPLE_FRAME_SIZE
 from drivers.sim.fixture import FixtureSocket
 from drivers.sim.world import World
 
@@ -144,8 +143,9 @@ class FixtureTwin:
             return
         room = self.fifo_bytes - self.port.pending_bytes
         if len(frames) > room:
-            keep = max(0, room // SAMPLE_FRAME_SIZE) * SAMPLE_FRAME_SIZE
-            self.socket.frames_overflowed += (len(frames) - keep) // SAMPLE_FRAME_SIZE
+            size = self.socket.frame_size
+            keep = max(0, room // size) * size
+            self.socket.frames_overflowed += (len(frames) - keep) // size
             frames = frames[:keep]
         self.port.write(frames)
         self.fifo_peak_bytes = max(self.fifo_peak_bytes, self.port.pending_bytes)

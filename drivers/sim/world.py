@@ -18,6 +18,7 @@ from drivers.sim.chamber import ChamberModel
 from drivers.sim.config import PartSpec, SimConfig
 from drivers.sim.fixture import FixtureSocket
 from drivers.sim.gyro import PartModel
+from drivers.sim.gyro3 import PartModel3, resolve_three_axis
 from drivers.sim.population import resolve_part
 from drivers.sim.supply import SupplyModel
 from drivers.sim.table import TableModel
@@ -114,9 +115,17 @@ class World:
     def load_part(self, spec: PartSpec) -> FixtureSocket:
         sock = self.socket(spec.socket)
         t = self.advance()
-        sock.part = PartModel(
-            resolve_part(spec), self.config.part_physics, self.config.seed, t, self.chamber.air_c
-        )
+        if spec.three_axis is None:
+            sock.part = PartModel(
+                resolve_part(spec), self.config.part_physics, self.config.seed, t,
+                self.chamber.air_c,
+            )
+        else:  # a three-axis part in its cube (drivers/sim/gyro3.py)
+            three = resolve_three_axis(spec.serial, spec.three_axis)
+            sock.part = PartModel3(
+                resolve_part(spec), three, self.config.part_physics, self.config.seed, t,
+                self.chamber.air_c,
+            )
         sock.streaming = False
         sock.absent = False
         self.advance()
