@@ -27,7 +27,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-DEFAULT_SPEED = 100.0
+# None: the bench runs in lockstep with the station's clock (station time is physics time),
+# so the machine's load cannot shift the twins' windows against the part's physics; a speed
+# factor runs it free (station seconds per wall second)
+DEFAULT_SPEED: float | None = None
 TWINS = ("before", "after")
 
 
@@ -88,7 +91,7 @@ def _check_entry(entry: dict[str, Any], model_name: str) -> None:
 
 
 def run_twin(
-    entry: dict[str, Any], procedure: Path, out: Path, speed: float
+    entry: dict[str, Any], procedure: Path, out: Path, speed: float | None
 ) -> tuple[Path, str]:
     """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
     from procedures.record import read_record
@@ -117,7 +120,7 @@ def simulate(
     out: Path,
     *,
     procedure: Path | None = None,
-    speed: float = DEFAULT_SPEED,
+    speed: float | None = DEFAULT_SPEED,
     say: Callable[[str], None] = lambda _line: None,
 ) -> tuple[SimulationComparison, dict[str, Any]]:
     """Run both twins and compare; returns the comparison and the JSON detail (twin configs,
