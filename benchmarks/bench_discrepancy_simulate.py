@@ -106,13 +106,19 @@ def main() -> None:
     args = ap.parse_args()
     ratios = []
     for serial in args.serials.split(","):
-        if args.keep:
-            work = args.keep / serial
-            work.mkdir(parents=True, exist_ok=True)
-            ratios.append(one_part(serial, args.amplitude, args.sim_speed, work))
-        else:
-            with tempfile.TemporaryDirectory() as tmp:
-                ratios.append(one_part(serial, args.amplitude, args.sim_speed, Path(tmp)))
+        try:
+            if args.keep:
+                work = args.keep / serial
+                work.mkdir(parents=True, exist_ok=True)
+                ratios.append(one_part(serial, args.amplitude, args.sim_speed, work))
+            else:
+                with tempfile.TemporaryDirectory() as tmp:
+                    ratios.append(one_part(serial, args.amplitude, args.sim_speed, Path(tmp)))
+        except (OSError, RuntimeError, ValueError, KeyError) as exc:  # e.g. a bench that
+            # could not start on a loaded machine: that part is left out, the others count
+            print(f"{serial}: left out ({type(exc).__name__}: {exc})", flush=True)
+    if not ratios:
+        return
     after = np.array([r["after"] for r in ratios])
     before = np.array([r["before"] for r in ratios])
     mode = "lockstep" if args.sim_speed is None else f"speed {args.sim_speed:g}"
