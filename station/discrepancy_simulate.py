@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 # factor runs it free (station seconds per wall second)
 DEFAULT_SPEED: float | None = None
 TWINS = ("before", "after")
+BENCH_START_ATTEMPTS = 3  # a bench slow to write its state file is started again
 
 
 def record_procedure(run_folder: Path, override: Path | None) -> tuple[Path, str | None]:
@@ -95,14 +96,25 @@ def run_twin(
     entry: dict[str, Any], procedure: Path, out: Path, speed: float | None
 ) -> tuple[Path, str]:
     """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
+    from drivers.sim.launcher import BenchStartError
     from procedures.record import read_record
     from station.uut import run_simulated
 
-    try:
-        result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed)
-    except Exception as exc:  # the bench or the station could not run the twin
-        log.exception("twin run failed")
-        raise UserError(f"the twin run on the simulated bench failed: {exc}") from exc
+    for attempt in range(1, BENCH_START_ATTEMPTS + 1):
+        try:
+            result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed)
+            break
+        except BenchStartError as exc:  # slow to start on a loaded machine: start it again
+            if attempt == BENCH_START_ATTEMPTS:
+                raise UserError(
+                    f"the simulated bench for the twin run did not start in "
+                    f"{BENCH_START_ATTEMPTS} attempts ({exc}); is the machine overloaded?"
+                ) from exc
+            log.warning("the bench did not start (%s); starting it again (%d of %d)", exc,
+                        attempt + 1, BENCH_START_ATTEMPTS)
+        except Exception as exc:  # the bench or the station could not run the twin
+            log.exception("twin run failed")
+            raise UserError(f"the twin run on the simulated bench failed: {exc}") from exc
     folder = result.folders.get(int(entry["socket"]))
     if folder is None:
         raise UserError(f"the twin run on the simulated bench left no run folder in {out}")
