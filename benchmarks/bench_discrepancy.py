@@ -12,11 +12,12 @@ chi^2 = 25). And the time the workflow takes on a full-length run.
                                             [--station-run] [--simulate] [--sim-speed X]
 
 Library term kinds (effects outside the catalog, synth_gyro.BEYOND_CATALOG, RAMPED profile:
-SHORT with a 0.2 C/s chamber ramp, `first_order` on a realistic part): "named" is a library
-term named first with the kind's base variables; its 5-sigma magnitude comes from the
-generator's own signature (the same seed with and without the effect). `--null-trials`: the
-false-alarm rate with the library on (anything named or not separable on a part with no
-hidden effect, RAMPED profile).
+SHORT with a 0.2 C/s chamber ramp; RAMPED3, plateaus at three temperatures, for the scale
+quadratic in temperature: synth_gyro.PROFILE_FOR_KIND; `first_order` on a realistic part):
+"named" is a library term named first with the kind's base variables; its 5-sigma magnitude
+comes from the generator's own signature (the same seed with and without the effect).
+`--null-trials`: the false-alarm rate with the library on (anything named or not separable
+on a part with no hidden effect, RAMPED profile).
 
 Time per run on a full run folder: `--run-folder DIR`, or `--station-run` (a full run of the
 default procedure made on the simulated bench first); with `--simulate`, also the time of
@@ -49,6 +50,7 @@ from synth_gyro import (  # noqa: E402
     BEYOND_CATALOG,
     FIRST_ORDER_EFFECTS,
     FIRST_ORDER_REALISTIC,
+    PROFILE_FOR_KIND,
     RAMPED,
     REALISTIC_EFFECTS,
     SHORT,
@@ -161,7 +163,8 @@ def timing(profile: Profile, repeats: int = 2) -> float:
 def library_named(kind: str, magnitude: float, seed: int) -> bool:
     name = next(iter(BEYOND_CATALOG[kind][1]))
     part = realistic_part().with_effect(kind, **{name: magnitude})
-    res = run_discrepancy(as_trajectory(generate(part, seed, RAMPED)), first_order_model())
+    res = run_discrepancy(as_trajectory(generate(part, seed, PROFILE_FOR_KIND[kind])),
+                          first_order_model())
     return bool(res.iterations) and res.iterations[0].effect.startswith("lib_") and (
         set(res.iterations[0].regressors) == BEYOND_CATALOG[kind][0])
 
@@ -170,8 +173,9 @@ def library_five_sigma(kind: str, seed: int) -> float:
     """Magnitude of a generator-side kind whose signature (same seed with minus without the
     effect), after projecting out first_order, has chi^2 = 25 on the record's noise."""
     name, m0 = next(iter(BEYOND_CATALOG[kind][1].items()))
-    plain = as_trajectory(generate(realistic_part(), seed, RAMPED))
-    with_fx = generate(realistic_part().with_effect(kind), seed, RAMPED)
+    profile = PROFILE_FOR_KIND[kind]
+    plain = as_trajectory(generate(realistic_part(), seed, profile))
+    with_fx = generate(realistic_part().with_effect(kind), seed, profile)
     blocks = make_blocks(plain)
     start = first_order_model()
     fitter = Fitter(plain, blocks, measure_record_noise(plain, blocks, start)[0])
@@ -186,7 +190,8 @@ def library_five_sigma(kind: str, seed: int) -> float:
 
 
 def library_table(kinds: list[str], trials: int) -> None:
-    print(f"\nlibrary term kinds, {trials} trials per magnitude, RAMPED profile, first_order")
+    print(f"\nlibrary term kinds, {trials} trials per magnitude, RAMPED profile (RAMPED3, "
+          "plateaus at three temperatures, for scale_temperature_quadratic), first_order")
     print(f"{'kind':28s} {'param':20s} {'95% named':>10s} {'5 sigma':>10s} {'ratio':>6s}")
     for kind in kinds:
         name, m0 = next(iter(BEYOND_CATALOG[kind][1].items()))

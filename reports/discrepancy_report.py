@@ -195,7 +195,8 @@ def simulation_story(sim: SimulationComparison) -> list[Any]:
         Paragraph(
             f"The run's procedure was run on the simulated bench with the starting model and "
             f"with the extended model as the part. Simulation gap (duration-weighted RMS over "
-            f"{len(sim.keys)} windows of measured minus simulated window mean): "
+            f"{len(sim.keys)} window pieces, windows cut to at most 10 s, of measured minus "
+            f"simulated mean): "
             f"<b>{sim.gap_before_dps:.4g} deg/s</b> with the starting model "
             f"({sim.gap_before_dps / f:.2f} x the noise floor), <b>{sim.gap_after_dps:.4g} "
             f"deg/s</b> with the extended model ({sim.gap_after_dps / f:.2f} x); noise floor "

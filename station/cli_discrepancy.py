@@ -106,8 +106,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="X",
-        help="with --simulate: simulated bench speed, station seconds per wall second "
-        "(default 100)",
+        help="with --simulate: run the simulated bench free at this speed, station seconds "
+        "per wall second (default: in lockstep with the station's clock, which the "
+        "machine's load cannot disturb)",
     )
     p.set_defaults(handler=handler)
 
@@ -355,7 +356,7 @@ def _simulate(
         result,
         out,
         procedure=args.procedure,
-        speed=DEFAULT_SPEED if args.sim_speed is None else args.sim_speed,
+        speed=DEFAULT_SPEED if args.sim_speed is None else float(args.sim_speed),
         say=lambda line: print(line, file=console),
     )
 
@@ -411,7 +412,7 @@ def _print_summary(
             f"the twin ({simulation.gap_before_dps / f:.2f} x floor), "
             f"{simulation.gap_after_dps:.4g} deg/s with the extended model "
             f"({simulation.gap_after_dps / f:.2f} x floor); noise floor {f:.4g} deg/s over "
-            f"{len(simulation.keys)} windows"
+            f"{len(simulation.keys)} window pieces (windows cut to at most 10 s)"
         )
     say(f"out: {out}")
     say(f"json: {json_path if json_path is not None else 'stdout'}")

@@ -3,8 +3,9 @@
 The starting model (fitted to the run) and the extended model each become a simulated part
 (procedures/model/twin.py `part_entry`); their sim configs are written next to the report
 (`twin_before.yaml`, `twin_after.yaml`), the procedure the run's record names runs on a
-freshly started simulated bench with each (one part, the procedure's conditions), and the
-measured run is compared window by window with both twin runs (`twin.compare`).
+freshly started simulated bench with each (one part, the procedure's conditions; in lockstep
+with the station's clock unless a speed is given), and the measured run is compared window
+piece by window piece with both twin runs (`twin.compare`).
 """
 
 from __future__ import annotations
@@ -27,8 +28,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-DEFAULT_SPEED = 100.0
+# None: the bench runs in lockstep with the station's clock (station time is physics time),
+# so the machine's load cannot shift the twins' windows against the part's physics; a speed
+# factor runs it free (station seconds per wall second)
+DEFAULT_SPEED: float | None = None
 TWINS = ("before", "after")
+BENCH_START_ATTEMPTS = 3  # a bench slow to write its state file is started again
 
 
 def record_procedure(run_folder: Path, override: Path | None) -> tuple[Path, str | None]:
@@ -88,17 +93,28 @@ def _check_entry(entry: dict[str, Any], model_name: str) -> None:
 
 
 def run_twin(
-    entry: dict[str, Any], procedure: Path, out: Path, speed: float
+    entry: dict[str, Any], procedure: Path, out: Path, speed: float | None
 ) -> tuple[Path, str]:
     """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
+    from drivers.sim.launcher import BenchStartError
     from procedures.record import read_record
     from station.uut import run_simulated
 
-    try:
-        result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed)
-    except Exception as exc:  # the bench or the station could not run the twin
-        log.exception("twin run failed")
-        raise UserError(f"the twin run on the simulated bench failed: {exc}") from exc
+    for attempt in range(1, BENCH_START_ATTEMPTS + 1):
+        try:
+            result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed)
+            break
+        except BenchStartError as exc:  # slow to start on a loaded machine: start it again
+            if attempt == BENCH_START_ATTEMPTS:
+                raise UserError(
+                    f"the simulated bench for the twin run did not start in "
+                    f"{BENCH_START_ATTEMPTS} attempts ({exc}); is the machine overloaded?"
+                ) from exc
+            log.warning("the bench did not start (%s); starting it again (%d of %d)", exc,
+                        attempt + 1, BENCH_START_ATTEMPTS)
+        except Exception as exc:  # the bench or the station could not run the twin
+            log.exception("twin run failed")
+            raise UserError(f"the twin run on the simulated bench failed: {exc}") from exc
     folder = result.folders.get(int(entry["socket"]))
     if folder is None:
         raise UserError(f"the twin run on the simulated bench left no run folder in {out}")
@@ -117,7 +133,7 @@ def simulate(
     out: Path,
     *,
     procedure: Path | None = None,
-    speed: float = DEFAULT_SPEED,
+    speed: float | None = DEFAULT_SPEED,
     say: Callable[[str], None] = lambda _line: None,
 ) -> tuple[SimulationComparison, dict[str, Any]]:
     """Run both twins and compare; returns the comparison and the JSON detail (twin configs,

@@ -25,6 +25,7 @@ from procedures.model.trajectory import FloatArray, Trajectory
 
 PROFILE_GRID_POINTS = 12
 LAG_CACHE_ENTRIES = 600  # lagged block columns kept (term, time constants, lag tau)
+SAMPLE_CACHE_VALUES = 8_000_000  # per-sample column values kept for the lag (64 MB)
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,11 @@ class Fitter:
         self.y_white = self._whiten(self.y_block)
         self._cache: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
         self._lag_cache: dict[tuple[object, ...], FloatArray] = {}
+        # whitening is linear and acts column by column: each term's whitened block columns
+        # are kept beside its block columns, so a solve whitens only what it has not seen
+        # (a candidate's own columns) instead of the whole design (n^2 per column, once)
+        self._white_cache: dict[tuple[object, ...], FloatArray] = {}
+        self._sample_cache: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
         self._basis: tuple[tuple[object, ...], FloatArray] | None = None  # last base's Q
 
     def _whiten(self, x: FloatArray) -> FloatArray:
@@ -114,6 +120,34 @@ class Fitter:
             self._cache[key] = self.blocks.mean(self._sample_columns(effect_id, nl))
         return self._cache[key]
 
+    def _white_block_columns(self, effect_id: str, nl: Mapping[str, float]) -> FloatArray:
+        key = (effect_id, tuple(sorted(nl.values())))
+        return self._white_columns(key, self._block_columns(effect_id, nl))
+
+    def _white_columns(self, key: tuple[object, ...], block_cols: FloatArray) -> FloatArray:
+        """The whitened block columns of one term (cached under the term's cache key)."""
+        white = self._white_cache.get(key)
+        if white is None:
+            if len(self._white_cache) > LAG_CACHE_ENTRIES + len(self._cache):
+                self._white_cache.clear()
+            white = self._whiten(block_cols)
+            self._white_cache[key] = white
+        return white
+
+    def _kept_sample_columns(self, effect_id: str, nl: Mapping[str, float]) -> FloatArray:
+        """Per-sample columns of a term, kept while the lag is profiled (every trial time
+        constant filters the same columns again); bounded to SAMPLE_CACHE_VALUES values."""
+        key = (effect_id, tuple(sorted(nl.values())))
+        cols = self._sample_cache.get(key)
+        if cols is None:
+            cols = self._sample_columns(effect_id, nl)
+            if sum(c.size for c in self._sample_cache.values()) + cols.size > (
+                SAMPLE_CACHE_VALUES
+            ):
+                self._sample_cache.clear()
+            self._sample_cache[key] = cols
+        return cols
+
     def _lagged_block_columns(
         self, terms: list[str], structure: Mapping[str, Mapping[str, float]], tau_s: float
     ) -> list[FloatArray]:
@@ -126,7 +160,7 @@ class Fitter:
         if todo:
             if len(self._lag_cache) > LAG_CACHE_ENTRIES:
                 self._lag_cache.clear()
-            cols = [self._sample_columns(e, structure.get(e, {})) for e, _ in todo]
+            cols = [self._kept_sample_columns(e, structure.get(e, {})) for e, _ in todo]
             filtered = self.blocks.mean(
                 lag_filter(np.concatenate(cols, axis=1), self.traj.time_s, tau_s)
             )
@@ -142,15 +176,21 @@ class Fitter:
         lag = structure.get("sensor_lag")
         layout = []
         first = 0
+        keys: list[tuple[object, ...]]
         if lag is None:
+            keys = [(e, tuple(sorted(structure.get(e, {}).values()))) for e in terms]
             blocks_cols = [self._block_columns(e, structure.get(e, {})) for e in terms]
         else:
-            blocks_cols = self._lagged_block_columns(terms, structure, float(lag["tau_s"]))
+            tau_s = float(lag["tau_s"])
+            keys = [(e, tuple(sorted(structure.get(e, {}).values())), tau_s) for e in terms]
+            blocks_cols = self._lagged_block_columns(terms, structure, tau_s)
         for e, c in zip(terms, blocks_cols, strict=True):
             layout.append((e, first, c.shape[1]))
             first += c.shape[1]
         x_block = np.concatenate(blocks_cols, axis=1)
-        x_white = self._whiten(x_block)
+        x_white = np.concatenate(
+            [self._white_columns(k, c) for k, c in zip(keys, blocks_cols, strict=True)], axis=1
+        )
         theta = np.asarray(np.linalg.lstsq(x_white, self.y_white, rcond=None)[0], dtype=float)
         fitted = x_white @ theta
         chi2 = float(np.sum((self.y_white - fitted) ** 2))
@@ -179,12 +219,11 @@ class Fitter:
         terms = [e for e in ["bias", "scale", *base] if e != "sensor_lag"]
         key = tuple((e, tuple(sorted(base.get(e, {}).items()))) for e in terms)
         if self._basis is None or self._basis[0] != key:
-            xb = self._whiten(
-                np.concatenate([self._block_columns(e, base.get(e, {})) for e in terms], axis=1)
-            )
+            xb = np.concatenate([self._white_block_columns(e, base.get(e, {})) for e in terms],
+                                axis=1)
             self._basis = (key, np.linalg.qr(xb)[0])
         q = self._basis[1]
-        xc = self._whiten(self._block_columns(effect_id, nl))
+        xc = self._white_block_columns(effect_id, nl)
         resid = xc - q @ (q.T @ xc)
         norms = np.maximum(np.linalg.norm(xc, axis=0), 1e-300)
         return float(np.min(np.linalg.norm(resid, axis=0) / norms))

@@ -15,8 +15,20 @@ from scipy.signal import lfilter
 FloatArray = NDArray[np.float64]
 
 
+_last_runs: list[tuple[FloatArray, list[tuple[int, int]]]] = []  # the last record's
+
+
 def contiguous_runs(time_s: FloatArray) -> list[tuple[int, int]]:
-    """Index ranges [start, stop) of runs of regularly sampled data."""
+    """Index ranges [start, stop) of runs of regularly sampled data (the last array's kept:
+    the lag filter asks again for every trial time constant)."""
+    if _last_runs and _last_runs[0][0] is time_s:
+        return list(_last_runs[0][1])
+    runs = _contiguous_runs(time_s)
+    _last_runs[:] = [(time_s, runs)]
+    return list(runs)
+
+
+def _contiguous_runs(time_s: FloatArray) -> list[tuple[int, int]]:
     dt = np.diff(time_s)
     if dt.size == 0:
         return [(0, time_s.size)]
@@ -40,7 +52,7 @@ def lag_filter(values: FloatArray, time_s: FloatArray, tau_s: float) -> FloatArr
         if b - a < 2:
             out[a:b] = seg
             continue
-        dt = float(np.median(np.diff(time_s[a:b])))
+        dt = _median_step(time_s, a, b)
         alpha = float(np.exp(-dt / tau_s))
         g = (tau_s / dt) * (1.0 - alpha)
         b0 = 1.0 - g
@@ -52,3 +64,16 @@ def lag_filter(values: FloatArray, time_s: FloatArray, tau_s: float) -> FloatArr
         zi = np.multiply.outer(np.array([zi_unit]), seg[0])
         out[a:b], _ = lfilter(num, den, seg, axis=0, zi=zi)
     return out
+
+
+_last_steps: list[tuple[FloatArray, dict[tuple[int, int], float]]] = []
+
+
+def _median_step(time_s: FloatArray, a: int, b: int) -> float:
+    """Median sample step of time_s[a:b] (kept per run of the last array)."""
+    if not (_last_steps and _last_steps[0][0] is time_s):
+        _last_steps[:] = [(time_s, {})]
+    steps = _last_steps[0][1]
+    if (a, b) not in steps:
+        steps[(a, b)] = float(np.median(np.diff(time_s[a:b])))
+    return steps[(a, b)]

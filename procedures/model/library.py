@@ -240,16 +240,28 @@ def _temperature_rate(traj: Trajectory) -> FloatArray:
     return out
 
 
+_last_factors: list[tuple[Trajectory, dict[str, FloatArray]]] = []  # the last record's
+
+
 def _factor_values(tok: str, traj: Trajectory) -> FloatArray:
+    """A factor's per-sample values; each computed once per record (the last one's kept)."""
+    if not (_last_factors and _last_factors[0][0] is traj):
+        _last_factors[:] = [(traj, {})]
+    cache = _last_factors[0][1]
+    if tok not in cache:
+        cache[tok] = _compute_factor(tok, traj)
+    return cache[tok]
+
+
+def _compute_factor(tok: str, traj: Trajectory) -> FloatArray:
     w = traj.ref_rate_dps
     if tok.startswith("exp"):
         return np.exp(-traj.time_since_power_on_s / float(tok[3:-1]))
-    values: dict[str, FloatArray | None] = {
-        "w": w, "dT": traj.dtemp_c, "dV": traj.dsupply_v, "sgnw": np.sign(w),
-        "absw": np.abs(w), "dTdt": None,
-    }
-    v = values[tok]
-    return temperature_rate_c_per_s(traj) if v is None else v
+    if tok == "dTdt":
+        return temperature_rate_c_per_s(traj)
+    compute = {"w": lambda: w, "dT": lambda: traj.dtemp_c, "dV": lambda: traj.dsupply_v,
+               "sgnw": lambda: np.sign(w), "absw": lambda: np.abs(w)}
+    return compute[tok]()
 
 
 def columns(effect_id: str, traj: Trajectory) -> FloatArray:

@@ -8,12 +8,16 @@ generic_terms.py). The twin is quiet (its white noise 1 % of the measured one, n
 wander), so a comparison with it shows the model's error, not the twin's noise.
 
 `compare` is the comparison measurement-vs-simulation: the analysed windows of the measured
-run (static, plateau, stop_static) are matched to the twin run's windows of the same
-condition, kind and order; the **simulation gap** is the duration-weighted RMS over the
-matched windows of (measured window mean - simulated window mean), in deg/s,
+run (static, plateau, stop_static), cut into pieces of at most `MAX_PIECE_S` from each
+window's start as the workflow cuts its blocks, are matched to the twin run's pieces of the
+same condition, kind, order and piece number; the **simulation gap** is the
+duration-weighted RMS over the matched pieces of (measured mean - simulated mean), in deg/s,
 `sqrt(sum T_w d_w^2 / sum T_w)`; its noise floor is the same RMS of what the measured noise
-model alone leaves in a window mean about the record mean (NoiseModel.floor_per_block_dps
-with the windows as blocks). Pure functions: no I/O.
+model alone leaves in a piece mean about the record mean (NoiseModel.floor_per_block_dps
+with the pieces as blocks). Without the cut, a thermal stabilisation window of several
+hundred seconds weighed as much as all the other windows together, so the gap rested on a
+handful of window means (about 5 effective windows of 52) and a model that is right could
+land at twice the floor by chance. Pure functions: no I/O.
 """
 
 from __future__ import annotations
@@ -42,8 +46,10 @@ COMPARED_KINDS = ("static", "plateau", "stop_static")
 MAX_RATE_MISMATCH_DPS = 1.0  # matched windows must be at the same table rate
 MAX_ANGLE_MISMATCH_DEG = 5.0  # and, at rest, the same table angle
 MIN_WINDOW_SAMPLES = 3
+MAX_PIECE_S = 10.0  # windows are compared in pieces of at most this (the workflow's blocks)
 
-WindowKey = tuple[str, str, int]  # (condition, kind, ordinal within condition and kind)
+# (condition, kind, ordinal within condition and kind, piece within the window)
+WindowKey = tuple[str, str, int, int]
 
 
 def part_entry(
@@ -91,13 +97,25 @@ class Windows:
     center_s: FloatArray
 
 
+def _pieces(a: int, b: int, per_piece: int) -> list[tuple[int, int]]:
+    """[a, b) cut into pieces of `per_piece` samples from its start; a last piece shorter
+    than half that joins the one before."""
+    edges = list(range(a, b, per_piece)) + [b]
+    if len(edges) > 2 and edges[-1] - edges[-2] < per_piece / 2:
+        del edges[-2]
+    return list(zip(edges[:-1], edges[1:], strict=True))
+
+
 def windows_of(traj: Trajectory) -> Windows:
-    """Every analysed window of a compared kind with enough samples, keyed by (condition,
-    kind, ordinal) so the same window of another run of the same procedure can be found."""
+    """Every analysed window of a compared kind with enough samples, cut into pieces of at
+    most MAX_PIECE_S, keyed by (condition, kind, ordinal, piece) so the same piece of the
+    same window of another run of the same procedure can be found."""
     seen: dict[tuple[str, str], int] = defaultdict(int)
     keys: list[WindowKey] = []
     starts: list[int] = []
     stops: list[int] = []
+    step = float(np.median(np.diff(traj.time_s)))
+    per_piece = max(int(round(MAX_PIECE_S / step)), MIN_WINDOW_SAMPLES)
     for seg in traj.segments:
         if seg.kind not in COMPARED_KINDS:
             continue
@@ -107,15 +125,15 @@ def windows_of(traj: Trajectory) -> Windows:
         b = int(np.searchsorted(traj.time_s, seg.end_s, side="left"))
         if b - a < MIN_WINDOW_SAMPLES:
             continue
-        keys.append((seg.condition, seg.kind, ordinal))
-        starts.append(a)
-        stops.append(b)
+        for piece, (pa, pb) in enumerate(_pieces(a, b, per_piece)):
+            keys.append((seg.condition, seg.kind, ordinal, piece))
+            starts.append(pa)
+            stops.append(pb)
     start = np.asarray(starts, dtype=np.int64)
     stop = np.asarray(stops, dtype=np.int64)
     if not keys:
         empty = np.zeros(0)
         return Windows((), start, stop, empty, empty, empty, empty, empty)
-    step = float(np.median(np.diff(traj.time_s)))
     t0 = traj.time_s[start]
     t1 = traj.time_s[stop - 1] + step
     ang = np.deg2rad(traj.ref_angle_deg)
@@ -171,6 +189,7 @@ class SimulationComparison:
                     "condition": k[0],
                     "kind": k[1],
                     "ordinal": k[2],
+                    "piece": k[3],
                     "duration_s": float(d),
                     "residual_before_dps": float(rb),
                     "residual_after_dps": float(ra),
@@ -248,9 +267,9 @@ def compare(
     notes = []
     if len(keys) < len(meas.keys):
         notes.append(
-            f"{len(meas.keys) - len(keys)} of {len(meas.keys)} measured windows have no "
-            "matching window in both twin runs (a retry, or a step the twin ran differently) "
-            "and are not compared"
+            f"{len(meas.keys) - len(keys)} of {len(meas.keys)} measured window pieces have no "
+            "matching piece in both twin runs (a retry, a step the twin ran differently, or a "
+            "window the twin held for a shorter time) and are not compared"
         )
     return SimulationComparison(
         keys=keys,

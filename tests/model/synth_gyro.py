@@ -261,3 +261,15 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
 # behind), so temperature-rate effects and intermediate temperatures are seen.
 RAMPED = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0, stabilise_s=40.0,
                  rate_hz=50.0, thermal_ramp_c_per_s=0.2)
+# RAMPED with rate plateaus at a third temperature. At two temperatures w dT^2 is exactly
+# a w + b w dT on the plateaus: only the die's settling tail in the hot condition is left to
+# show a scale quadratic in temperature, and there dT moves with d(dT)/dt, the time since
+# power-on and the supply order, so its look-alikes fit as well (not separable). A third
+# temperature is what tells a curvature in temperature from a slope.
+RAMPED3 = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0, stabilise_s=40.0,
+                  rate_hz=50.0, thermal_ramp_c_per_s=0.2, temperatures_c=(25.0, 40.0, 55.0))
+# the profile on which each kind outside the catalog is tested and benchmarked
+PROFILE_FOR_KIND: dict[str, Profile] = {
+    **{kind: RAMPED for kind in BEYOND_CATALOG},
+    "scale_temperature_quadratic": RAMPED3,
+}

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 from helpers_model import as_trajectory
-from synth_gyro import BEYOND_CATALOG, RAMPED, generate, realistic_part
+from synth_gyro import BEYOND_CATALOG, RAMPED, RAMPED3, generate, realistic_part
 
 from procedures.model import effects as fx
 from procedures.model import library
@@ -20,7 +20,7 @@ from procedures.model.model_io import load_model, save_model
 from procedures.model.output import result_to_json
 
 # kinds the RAMPED profile can show (its plateaus sit at two temperatures, so a scale
-# quadratic in temperature is spanned by scale_temperature there and is left out)
+# quadratic in temperature is not separable there from its look-alikes: tested on RAMPED3)
 KINDS = ["bias_temperature_quadratic", "bias_temperature_rate", "bias_angle_2nd",
          "scale_temperature_supply", "bias_rate_sign"]
 SEED = 21
@@ -79,6 +79,25 @@ def test_effect_outside_catalog_named_first_with_its_regressors(kind: str, witho
     assert res.gap_final_dps <= 1.5 * floor_without
     assert "g_sensitivity_tilt" not in res.effects_added
     assert not res.unexplained_remains
+
+
+def test_scale_quadratic_in_temperature_is_named_with_plateaus_at_three_temperatures(
+) -> None:
+    """On RAMPED3 (plateaus at 25, 40 and 55 C) a scale quadratic in temperature is named
+    lib_w_dT2, with the gap and floor held to the same record's without it."""
+    kind = "scale_temperature_quadratic"
+    plain = run_discrepancy(as_trajectory(generate(realistic_part(), SEED, RAMPED3)),
+                            first_order_model())
+    assert plain.effects_added == []
+    part = realistic_part().with_effect(kind)
+    res = run_discrepancy(as_trajectory(generate(part, SEED, RAMPED3)), first_order_model())
+    assert res.effects_added[:1] == ["lib_w_dT2"], (res.effects_added, res.not_separable)
+    assert set(res.iterations[0].regressors) == BEYOND_CATALOG[kind][0]
+    assert res.final_model.effects["lib_w_dT2"]["coeff"] == pytest.approx(
+        BEYOND_CATALOG[kind][1]["c_per_c2"], rel=0.3)  # coeff = scale x c, scale ~ 1
+    assert res.noise_floor_dps <= 1.5 * plain.noise_floor_dps
+    assert res.gap_initial_dps > 1.5 * plain.noise_floor_dps
+    assert res.gap_final_dps <= 1.5 * plain.noise_floor_dps
 
 
 def test_twice_the_table_angle_is_not_named_tilt() -> None:

@@ -80,3 +80,23 @@ def test_record_procedure_notes_a_changed_file(run_folder: Path, tmp_path: Path)
         write_record(run_folder, rec)
     with pytest.raises(UserError, match="not there any more"):
         record_procedure(run_folder, None)
+
+
+def test_a_bench_slow_to_start_is_started_again_then_refused_in_one_line(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """On a loaded machine a bench can take longer than the launcher waits for its state
+    file: the twin run starts it again (3 attempts in all), then says what happened."""
+    from drivers.sim.launcher import BenchStartError
+    from station import discrepancy_simulate, uut
+
+    calls = []
+
+    def slow_bench(*_args: object, **_kwargs: object) -> None:
+        calls.append(1)
+        raise BenchStartError("the bench wrote no state file within 20 s")
+
+    monkeypatch.setattr(uut, "run_simulated", slow_bench)
+    with pytest.raises(UserError, match="did not start in 3 attempts"):
+        discrepancy_simulate.run_twin({"socket": 1}, PROCEDURE, tmp_path, None)
+    assert len(calls) == discrepancy_simulate.BENCH_START_ATTEMPTS == 3

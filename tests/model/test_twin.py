@@ -122,10 +122,28 @@ def test_windows_the_twin_does_not_hold_or_holds_elsewhere_are_not_compared() ->
     twin = _traj(plan=moved, gap_s=7.0)  # its own timing: windows still match by key
     cmp = compare(measured, twin, twin, _white(0.001))
     keys = set(cmp.keys)
-    assert ("T35", "stop_static", 0) not in keys
-    assert ("T25", "static", 1) not in keys  # at 45 deg in the twin, 90 deg measured
+    assert ("T35", "stop_static", 0, 0) not in keys
+    assert ("T25", "static", 1, 0) not in keys  # at 45 deg in the twin, 90 deg measured
     assert len(keys) == len(PLAN) - 2
-    assert "2 of 7 measured windows" in cmp.notes[0]
+    assert "2 of 7 measured window pieces" in cmp.notes[0]
+
+
+def test_long_windows_are_compared_in_pieces_matched_from_their_start() -> None:
+    """A 93 s stabilisation window counts as nine pieces of ~10 s (the last 3 s join the
+    ninth), not as one mean that outweighs every other window; a twin that held the window
+    for 41 s matches only its first four pieces."""
+    plan = [("T25", "static", 93.0, 0.0, 0.0), ("T25", "plateau", 5.0, 50.0, 0.0)]
+    measured = _traj(plan=plan)
+    w = windows_of(measured)
+    assert [k[3] for k in w.keys if k[1] == "static"] == list(range(9))
+    assert w.duration_s[8] == pytest.approx(13.0, abs=0.1)
+    assert np.all(w.duration_s[:8] == pytest.approx(10.0, abs=0.1))
+    twin = _traj(plan=[("T25", "static", 41.0, 0.0, 0.0), plan[1]])
+    cmp = compare(measured, twin, twin, _white(0.001))
+    assert [k for k in cmp.keys if k[1] == "static"] == [("T25", "static", 0, i)
+                                                         for i in range(4)]
+    assert ("T25", "plateau", 0, 0) in cmp.keys
+    assert "5 of 10 measured window pieces" in cmp.notes[0]
 
 
 def test_no_common_window_is_an_error_that_says_why() -> None:
