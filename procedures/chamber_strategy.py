@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 STEP_S = 5.0  # model time step: the air and die time constants are a minute and more
 
@@ -173,3 +174,166 @@ def learn_die_tau_s(
     if not sxy > 0:
         return prior_tau_s
     return sxx / sxy
+
+
+# ---------------------------------------------------------------- several dies, self-heating
+
+MAX_REPRESENTATIVE_DIES = 6  # the extremes govern: the slowest settles last, the fastest peaks
+
+
+@dataclass(frozen=True)
+class DieState:
+    """One part's die as its own sensor sees it: the reading includes the self-heating, which
+    moves towards `heat_final_c` (the heating at the new supply) with `heat_tau_s`."""
+
+    die_c: float  # the sensor's reading now
+    tau_s: float  # the die's lag behind the air (learned from this part's own readings)
+    heat_c: float = 0.0  # the self-heating part of the reading now
+    heat_final_c: float = 0.0  # the self-heating it tends to at the present supply
+    heat_tau_s: float = 90.0
+
+    def final_c(self, target_c: float) -> float:
+        """Where the reading ends with the air at `target_c`."""
+        return target_c + self.heat_final_c
+
+    def heat_at(self, time_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        decay = np.exp(-time_s / self.heat_tau_s)
+        return self.heat_final_c + (self.heat_c - self.heat_final_c) * decay
+
+
+def _lag(x: NDArray[np.float64], k: float, y0: NDArray[np.float64] | float) -> NDArray[np.float64]:
+    """y[i+1] = y[i] + (mean(x[i], x[i+1]) - y[i]) * k along the last axis, y[0] = y0: a
+    first-order lag driven by a piecewise-linear input (exact for the bench's chamber step)."""
+    y0_arr = np.broadcast_to(np.asarray(y0, dtype=np.float64), x.shape[:-1])
+    zi = (y0_arr - 0.5 * k * x[..., 0])[..., None]
+    out, _ = lfilter([0.5 * k, 0.5 * k], [1.0, -(1.0 - k)], x, axis=-1, zi=zi)
+    return np.asarray(out, dtype=np.float64)
+
+
+def ramped_profiles(
+    model: ThermalModel,
+    ramped_c: float,
+    target_c: float,
+    overshoot_c: NDArray[np.float64],
+    hold_s: NDArray[np.float64],
+    t: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """The chamber's ramped setpoint for each (overshoot, hold) profile at times `t`."""
+    max_move = model.ramp_c_per_min / 60.0 * STEP_S
+    out = np.empty((overshoot_c.size, t.size))
+    r = np.full(overshoot_c.size, ramped_c)
+    for i in range(t.size):
+        out[:, i] = r
+        sp = target_c + np.where(t[i] < hold_s, overshoot_c, 0.0)
+        r = r + np.clip(sp - r, -max_move, max_move)
+    return out
+
+
+def settled_from_s(
+    t: NDArray[np.float64], reading: NDArray[np.float64], final_c: float, band_c: float,
+    slope_c_per_min: float,
+) -> NDArray[np.float64]:
+    """Per row, the first time after which the reading stays within band_c / 2 of its final
+    value and moves no faster than the slope limit (a window anywhere after it then meets the
+    stability criterion); inf when not within the horizon."""
+    rate = np.abs(np.diff(reading, axis=-1)) / STEP_S * 60.0
+    rate = np.concatenate([rate, rate[..., -1:]], axis=-1)
+    outside = (np.abs(reading - final_c) > 0.5 * band_c) | (rate > slope_c_per_min)
+    return settle_times_s(t, np.where(outside, 1.0, 0.0), 0.0, 0.5)
+
+
+def representative_dies(dies: list[DieState], target_c: float) -> list[DieState]:
+    """At most MAX_REPRESENTATIVE_DIES dies that bound the rest: the extremes of lag, of
+    distance to go and of self-heating still to come."""
+    if len(dies) <= MAX_REPRESENTATIVE_DIES:
+        return list(dies)
+    keys = (
+        lambda d: d.tau_s,
+        lambda d: d.final_c(target_c) - d.die_c,
+        lambda d: d.heat_final_c - d.heat_c,
+    )
+    picked: dict[int, DieState] = {}
+    for key in keys:
+        ranked = sorted(range(len(dies)), key=lambda i: key(dies[i]))
+        picked[ranked[0]] = dies[ranked[0]]
+        picked[ranked[-1]] = dies[ranked[-1]]
+    return list(picked.values())
+
+
+def _direction(dies: list[DieState], target_c: float) -> float:
+    worst = max(dies, key=lambda d: abs(d.final_c(target_c) - d.die_c))
+    return 1.0 if worst.final_c(target_c) >= worst.die_c else -1.0
+
+
+def plan_profile(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    ramped_c: float,
+    dies: list[DieState],
+    target_c: float,
+    band_c: float,
+    slope_c_per_min: float,
+    max_hold_s: float | None = None,
+) -> SetpointPlan:
+    """The overshoot and hold that bring the slowest of several dies (each with its own lag
+    and self-heating) into its stability band soonest, no die beyond the part's limits and
+    no setpoint beyond the chamber's; a coarse grid, then a fine one around its best."""
+    if not dies:
+        raise ValueError("no dies to plan for")
+    if not (model.air_tau_s > 0 and model.ramp_c_per_min > 0 and all(d.tau_s > 0 for d in dies)):
+        raise ValueError("the thermal model's time constants and ramp rate must be positive")
+    if not limits.setpoint_low_c <= target_c <= limits.setpoint_high_c:
+        raise ValueError(
+            f"target {target_c:g} C is outside the chamber's setpoint limits "
+            f"{limits.setpoint_low_c:g}..{limits.setpoint_high_c:g} C"
+        )
+    reps = representative_dies(dies, target_c)
+    sign = _direction(reps, target_c)
+    room = (limits.setpoint_high_c - target_c) if sign > 0 else (target_c - limits.setpoint_low_c)
+    max_over = max(0.0, min(limits.max_overshoot_c, room))
+    slowest_s = max(d.tau_s for d in reps)
+    travel_s = (abs(target_c - ramped_c) + max_over) / model.ramp_c_per_min * 60.0
+    horizon_s = travel_s + 8.0 * slowest_s + 4.0 * model.air_tau_s
+    hold_cap_s = max_hold_s if max_hold_s is not None else 4.0 * slowest_s + travel_s
+    t = np.arange(int(math.ceil(horizon_s / STEP_S)) + 1, dtype=np.float64) * STEP_S
+
+    def evaluate(overs: NDArray[np.float64], holds: NDArray[np.float64]) -> tuple[
+        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+    ]:
+        o, h = (g.ravel() for g in np.meshgrid(sign * overs, holds))
+        ramped = ramped_profiles(model, ramped_c, target_c, o, h, t)
+        air = _lag(ramped, 1.0 - math.exp(-STEP_S / model.air_tau_s), air_c)
+        settle = np.zeros(o.size)
+        hi = np.full(o.size, -math.inf)
+        lo = np.full(o.size, math.inf)
+        for d in reps:
+            die = _lag(air, 1.0 - math.exp(-STEP_S / d.tau_s), d.die_c - d.heat_c) + d.heat_at(t)
+            settle = np.maximum(
+                settle, settled_from_s(t, die, d.final_c(target_c), band_c, slope_c_per_min)
+            )
+            hi, lo = np.maximum(hi, die.max(axis=1)), np.minimum(lo, die.min(axis=1))
+        ok = (hi <= limits.max_part_c) & (lo >= limits.min_part_c)
+        ok |= (o == 0.0) | (h == 0.0)  # straight to target: always allowed
+        peak = hi if sign > 0 else lo
+        return o, h, np.where(ok, settle, math.inf), peak
+
+    def best_of(
+        o: NDArray[np.float64], h: NDArray[np.float64], s: NDArray[np.float64]
+    ) -> int:
+        return int(np.lexsort((h, np.abs(o), s))[0])
+
+    o, h, s, peak = evaluate(
+        np.arange(0.0, max_over + 1e-9, 1.0), np.arange(0.0, hold_cap_s + 1e-9, 30.0)
+    )
+    i = best_of(o, h, s)
+    fine_o = np.clip(np.arange(abs(o[i]) - 1.0, abs(o[i]) + 1.0 + 1e-9, 0.25), 0.0, max_over)
+    fine_h = np.clip(np.arange(h[i] - 30.0, h[i] + 30.0 + 1e-9, 5.0), 0.0, hold_cap_s)
+    o2, h2, s2, peak2 = evaluate(np.unique(fine_o), np.unique(fine_h))
+    j = best_of(o2, h2, s2)
+    if s2[j] > s[i]:
+        o2, h2, s2, peak2, j = o, h, s, peak, i
+    if not math.isfinite(s2[j]) or o2[j] == 0.0 or h2[j] == 0.0:
+        k = int(np.argmin(np.abs(o) + h))  # the straight profile of the coarse grid
+        return SetpointPlan(target_c, 0.0, 0.0, float(s[k]), float(peak[k]))
+    return SetpointPlan(target_c, float(o2[j]), float(h2[j]), float(s2[j]), float(peak2[j]))
