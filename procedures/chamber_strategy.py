@@ -218,28 +218,53 @@ def ramped_profiles(
     hold_s: NDArray[np.float64],
     t: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """The chamber's ramped setpoint for each (overshoot, hold) profile at times `t`."""
-    max_move = model.ramp_c_per_min / 60.0 * STEP_S
-    out = np.empty((overshoot_c.size, t.size))
-    r = np.full(overshoot_c.size, ramped_c)
-    for i in range(t.size):
-        out[:, i] = r
-        sp = target_c + np.where(t[i] < hold_s, overshoot_c, 0.0)
-        r = r + np.clip(sp - r, -max_move, max_move)
-    return out
+    """The chamber's ramped setpoint for each (overshoot, hold) profile at times `t`: towards
+    target + overshoot at the ramp limit until the hold ends, then towards the target."""
+    rate = model.ramp_c_per_min / 60.0
+    o, h = overshoot_c[:, None], hold_s[:, None]
+    first = target_c + o - ramped_c
+    in_hold = np.minimum(t[None, :], h)
+    r = ramped_c + np.sign(first) * np.minimum(rate * in_hold, np.abs(first))
+    at_hold = ramped_c + np.sign(first) * np.minimum(rate * h, np.abs(first))
+    second = target_c - at_hold
+    after = np.maximum(t[None, :] - h, 0.0)
+    moved = at_hold + np.sign(second) * np.minimum(rate * after, np.abs(second))
+    return np.where(t[None, :] < h, r, moved)
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """The thermal step's stability criterion, as the model judges a predicted reading."""
+
+    window_s: float
+    slope_c_per_min: float
+    band_c: float
+    target_c: float | None = None  # with a tolerance: the window's mean within it
+    tolerance_c: float | None = None
 
 
 def settled_from_s(
-    t: NDArray[np.float64], reading: NDArray[np.float64], final_c: float, band_c: float,
-    slope_c_per_min: float,
+    t: NDArray[np.float64], reading: NDArray[np.float64], crit: Criterion
 ) -> NDArray[np.float64]:
-    """Per row, the first time after which the reading stays within band_c / 2 of its final
-    value and moves no faster than the slope limit (a window anywhere after it then meets the
-    stability criterion); inf when not within the horizon."""
-    rate = np.abs(np.diff(reading, axis=-1)) / STEP_S * 60.0
-    rate = np.concatenate([rate, rate[..., -1:]], axis=-1)
-    outside = (np.abs(reading - final_c) > 0.5 * band_c) | (rate > slope_c_per_min)
-    return settle_times_s(t, np.where(outside, 1.0, 0.0), 0.0, 0.5)
+    """Per row, the end of the first window after which every window meets the stability
+    criterion (slope of a straight-line fit, peak-to-peak, optional mean tolerance); windows
+    start at t = 0 (the condition's start); inf when not within the horizon."""
+    m = max(int(round(crit.window_s / STEP_S)), 2)
+    y = np.atleast_2d(reading)
+    if y.shape[-1] <= m:
+        return np.full(y.shape[0], math.inf)
+    win = np.lib.stride_tricks.sliding_window_view(y, m + 1, axis=-1)
+    x = np.arange(m + 1) - m / 2.0
+    slope = win @ (x / float(x @ x)) / STEP_S * 60.0
+    ok = (np.abs(slope) <= crit.slope_c_per_min) & (np.ptp(win, axis=-1) <= crit.band_c)
+    if crit.target_c is not None and crit.tolerance_c is not None:
+        ok &= np.abs(win.mean(axis=-1) - crit.target_c) <= crit.tolerance_c
+    ends = t[m:]
+    bad = ~ok
+    any_bad = bad.any(axis=-1)
+    last = bad.shape[-1] - 1 - np.argmax(bad[:, ::-1], axis=-1)
+    after = np.append(ends, math.inf)[np.minimum(last + 1, ends.size)]
+    return np.where(any_bad, after, ends[0])
 
 
 def representative_dies(dies: list[DieState], target_c: float) -> list[DieState]:
@@ -272,8 +297,7 @@ def plan_profile(
     ramped_c: float,
     dies: list[DieState],
     target_c: float,
-    band_c: float,
-    slope_c_per_min: float,
+    crit: Criterion,
     max_hold_s: float | None = None,
 ) -> SetpointPlan:
     """The overshoot and hold that bring the slowest of several dies (each with its own lag
@@ -294,8 +318,8 @@ def plan_profile(
     max_over = max(0.0, min(limits.max_overshoot_c, room))
     slowest_s = max(d.tau_s for d in reps)
     travel_s = (abs(target_c - ramped_c) + max_over) / model.ramp_c_per_min * 60.0
-    horizon_s = travel_s + 8.0 * slowest_s + 4.0 * model.air_tau_s
-    hold_cap_s = max_hold_s if max_hold_s is not None else 4.0 * slowest_s + travel_s
+    horizon_s = travel_s + 5.0 * slowest_s + 4.0 * model.air_tau_s + crit.window_s
+    hold_cap_s = max_hold_s if max_hold_s is not None else 3.0 * slowest_s + travel_s
     t = np.arange(int(math.ceil(horizon_s / STEP_S)) + 1, dtype=np.float64) * STEP_S
 
     def evaluate(overs: NDArray[np.float64], holds: NDArray[np.float64]) -> tuple[
@@ -309,9 +333,7 @@ def plan_profile(
         lo = np.full(o.size, math.inf)
         for d in reps:
             die = _lag(air, 1.0 - math.exp(-STEP_S / d.tau_s), d.die_c - d.heat_c) + d.heat_at(t)
-            settle = np.maximum(
-                settle, settled_from_s(t, die, d.final_c(target_c), band_c, slope_c_per_min)
-            )
+            settle = np.maximum(settle, settled_from_s(t, die, crit))
             hi, lo = np.maximum(hi, die.max(axis=1)), np.minimum(lo, die.min(axis=1))
         ok = (hi <= limits.max_part_c) & (lo >= limits.min_part_c)
         ok |= (o == 0.0) | (h == 0.0)  # straight to target: always allowed
@@ -337,3 +359,103 @@ def plan_profile(
         k = int(np.argmin(np.abs(o) + h))  # the straight profile of the coarse grid
         return SetpointPlan(target_c, 0.0, 0.0, float(s[k]), float(peak[k]))
     return SetpointPlan(target_c, float(o2[j]), float(h2[j]), float(s2[j]), float(peak2[j]))
+
+
+# ---------------------------------------------------------------- the physics lower bound
+
+BOUND_STEP_S = 10.0  # the bound's time step (the ramp rate is piecewise constant over it)
+
+
+def _lag_matrix(x: NDArray[np.float64], k: float) -> NDArray[np.float64]:
+    """The lag of `_lag` applied to each column of x (rows are time), from zero."""
+    out = np.zeros_like(x)
+    for i in range(1, x.shape[0]):
+        out[i] = out[i - 1] + (0.5 * (x[i - 1] + x[i]) - out[i - 1]) * k
+    return out
+
+
+def settle_bound_s(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    die: DieState,
+    target_c: float,
+    crit: Criterion,
+    horizon_s: float | None = None,
+) -> float:
+    """The soonest any setpoint profile within the chamber's limits (ramp rate, setpoint
+    limits, the part's limits; no overshoot bound) can make the die meet the stability
+    criterion for good, for this die lag and self-heating: the first window end from which a
+    linear programme (ramp rate per step as the variables) is still feasible, by bisection.
+    The chamber starts settled at `air_c`; the profile ends at the target."""
+    from scipy.optimize import linprog
+
+    h = BOUND_STEP_S
+    travel_s = abs(target_c - air_c) / model.ramp_c_per_min * 60.0
+    horizon = horizon_s or travel_s + 4.0 * die.tau_s + 4.0 * model.air_tau_s + crit.window_s
+    n = int(math.ceil(horizon / h))
+    t = np.arange(n + 1) * h
+    ramp = np.vstack([np.zeros(n), np.tril(np.ones((n, n))) * h])  # ramped = air_c + ramp @ u
+    air_m = _lag_matrix(ramp, 1.0 - math.exp(-h / model.air_tau_s))
+    die_m = _lag_matrix(air_m, 1.0 - math.exp(-h / die.tau_s))
+    die0 = air_c + (die.die_c - die.heat_c - air_c) * np.exp(-t / die.tau_s) + die.heat_at(t)
+    final = die.final_c(target_c)
+    m = max(int(round(crit.window_s / h)), 2)
+    x = np.arange(m + 1) - m / 2.0
+    w = x / float(x @ x) / h * 60.0
+    max_rate = model.ramp_c_per_min / 60.0
+
+    def feasible(end: int) -> bool:
+        rows, rhs = [ramp, -ramp, die_m, -die_m], [
+            np.full(n + 1, limits.setpoint_high_c - air_c),
+            np.full(n + 1, air_c - limits.setpoint_low_c),
+            limits.max_part_c - die0,
+            die0 - limits.min_part_c,
+        ]
+        n_win = n + 1 - end
+        extra = 2 * n_win  # a max and a min variable per window: the peak-to-peak
+        blocks = [np.hstack([r, np.zeros((r.shape[0], extra))]) for r in rows]
+        for j, k in enumerate(range(end, n + 1)):
+            sl = slice(k - m, k + 1)
+            s_row, s0 = w @ die_m[sl], float(w @ die0[sl])
+            slope = np.hstack([s_row, np.zeros(extra)])[None]
+            blocks += [slope, -slope]
+            rhs += [np.array([crit.slope_c_per_min - s0]), np.array([crit.slope_c_per_min + s0])]
+            hi = np.zeros((m + 1, extra))
+            hi[:, 2 * j] = -1.0
+            lo = np.zeros((m + 1, extra))
+            lo[:, 2 * j + 1] = 1.0
+            blocks += [np.hstack([die_m[sl], hi]), np.hstack([-die_m[sl], lo])]
+            rhs += [-die0[sl], die0[sl]]
+            band = np.zeros((1, n + extra))
+            band[0, n + 2 * j], band[0, n + 2 * j + 1] = 1.0, -1.0
+            blocks.append(band)
+            rhs.append(np.array([crit.band_c]))
+        a_eq = np.hstack([ramp[-1:], np.zeros((1, extra))])  # the profile ends at the target
+        end_die = np.hstack([die_m[-1:], np.zeros((1, extra))])
+        blocks += [end_die, -end_die]
+        half = crit.band_c / 2
+        rhs += [np.array([final + half - die0[-1]]), np.array([die0[-1] - final + half])]
+        res = linprog(
+            np.zeros(n + extra),
+            A_ub=np.vstack(blocks),
+            b_ub=np.concatenate(rhs),
+            A_eq=a_eq,
+            b_eq=[target_c - air_c],
+            bounds=[(-max_rate, max_rate)] * n + [(None, None)] * extra,
+            method="highs",
+        )
+        return bool(res.status == 0)
+
+    low, high = m, n - 1
+    if feasible(low):
+        return float(t[low])
+    if not feasible(high):
+        return math.inf
+    while high - low > 1:
+        mid = (low + high) // 2
+        if feasible(mid):
+            high = mid
+        else:
+            low = mid
+    return float(t[high])

@@ -19,6 +19,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from procedures.chamber_strategy import (
+    Criterion,
     DieState,
     SetpointPlan,
     ThermalLimits,
@@ -41,8 +42,7 @@ class ControlSettings:
     """Everything the controller needs from the procedure, the product and the chamber."""
 
     target_c: float
-    band_c: float
-    slope_c_per_min: float
+    criterion: Criterion
     model: ThermalModel
     limits: ThermalLimits
     die_tau_prior_s: float
@@ -192,7 +192,7 @@ class FastestController:
             return
         self.plan = plan_profile(
             self.cfg.model, self.cfg.limits, air_c, self.ramped_c, dies, self.cfg.target_c,
-            self.cfg.band_c, self.cfg.slope_c_per_min,
+            self.cfg.criterion,
         )
         self.plan_at_s = now_s
         self.replans += 1

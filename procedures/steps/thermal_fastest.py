@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.errors import InstrumentError, SetpointOutOfRange
-from procedures.chamber_strategy import ThermalLimits, ThermalModel
+from procedures.chamber_strategy import Criterion, ThermalLimits, ThermalModel
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.thermal_control import ControlSettings, FastestController
@@ -59,8 +59,13 @@ def control_settings(ctx: RunContext, step: Stabilise) -> ControlSettings:
     settings = step.settings
     return ControlSettings(
         target_c=target.temperature_c,
-        band_c=settings.band_c,
-        slope_c_per_min=settings.slope_c_per_min,
+        criterion=Criterion(
+            window_s=settings.window_s,
+            slope_c_per_min=settings.slope_c_per_min,
+            band_c=settings.band_c,
+            target_c=target.temperature_c,
+            tolerance_c=settings.target_tolerance_c,
+        ),
         model=model,
         limits=limits,
         die_tau_prior_s=product.die_tau_s,
