@@ -366,12 +366,24 @@ def plan_profile(
 BOUND_STEP_S = 10.0  # the bound's time step (the ramp rate is piecewise constant over it)
 
 
-def _lag_matrix(x: NDArray[np.float64], k: float) -> NDArray[np.float64]:
-    """The lag of `_lag` applied to each column of x (rows are time), from zero."""
-    out = np.zeros_like(x)
-    for i in range(1, x.shape[0]):
-        out[i] = out[i - 1] + (0.5 * (x[i - 1] + x[i]) - out[i - 1]) * k
-    return out
+class _Rows:
+    """Sparse constraint rows collected as (row, column, value) triples."""
+
+    def __init__(self) -> None:
+        self.r: list[int] = []
+        self.c: list[int] = []
+        self.v: list[float] = []
+        self.low: list[float] = []
+        self.high: list[float] = []
+
+    def add(self, terms: list[tuple[int, float]], low: float, high: float) -> None:
+        row = len(self.low)
+        for col, val in terms:
+            self.r.append(row)
+            self.c.append(col)
+            self.v.append(val)
+        self.low.append(low)
+        self.high.append(high)
 
 
 def settle_bound_s(
@@ -386,64 +398,70 @@ def settle_bound_s(
     """The soonest any setpoint profile within the chamber's limits (ramp rate, setpoint
     limits, the part's limits; no overshoot bound) can make the die meet the stability
     criterion for good, for this die lag and self-heating: the first window end from which a
-    linear programme (ramp rate per step as the variables) is still feasible, by bisection.
-    The chamber starts settled at `air_c`; the profile ends at the target."""
+    linear programme (the ramp rate of each time step free within the ramp limit; the
+    ramped setpoint, the air and the die as state variables) is still feasible, by
+    bisection. The chamber starts settled at `air_c`; the profile ends at the target."""
     from scipy.optimize import linprog
+    from scipy.sparse import coo_matrix
 
     h = BOUND_STEP_S
     travel_s = abs(target_c - air_c) / model.ramp_c_per_min * 60.0
     horizon = horizon_s or travel_s + 4.0 * die.tau_s + 4.0 * model.air_tau_s + crit.window_s
     n = int(math.ceil(horizon / h))
-    t = np.arange(n + 1) * h
-    ramp = np.vstack([np.zeros(n), np.tril(np.ones((n, n))) * h])  # ramped = air_c + ramp @ u
-    air_m = _lag_matrix(ramp, 1.0 - math.exp(-h / model.air_tau_s))
-    die_m = _lag_matrix(air_m, 1.0 - math.exp(-h / die.tau_s))
-    die0 = air_c + (die.die_c - die.heat_c - air_c) * np.exp(-t / die.tau_s) + die.heat_at(t)
-    final = die.final_c(target_c)
+    t = np.arange(n + 1, dtype=np.float64) * h
+    heat = die.heat_at(t)
     m = max(int(round(crit.window_s / h)), 2)
     x = np.arange(m + 1) - m / 2.0
     w = x / float(x @ x) / h * 60.0
-    max_rate = model.ramp_c_per_min / 60.0
+    ka = 1.0 - math.exp(-h / model.air_tau_s)
+    kd = 1.0 - math.exp(-h / die.tau_s)
+    final = die.final_c(target_c)
+    u0, r0, a0, d0 = 0, n, 2 * n + 1, 3 * n + 2  # variable blocks: u, ramped, air, die
+    n_state = 4 * n + 3
 
     def feasible(end: int) -> bool:
-        rows, rhs = [ramp, -ramp, die_m, -die_m], [
-            np.full(n + 1, limits.setpoint_high_c - air_c),
-            np.full(n + 1, air_c - limits.setpoint_low_c),
-            limits.max_part_c - die0,
-            die0 - limits.min_part_c,
-        ]
         n_win = n + 1 - end
-        extra = 2 * n_win  # a max and a min variable per window: the peak-to-peak
-        blocks = [np.hstack([r, np.zeros((r.shape[0], extra))]) for r in rows]
+        hi0, lo0 = n_state, n_state + n_win  # each window's max and min
+        eq = _Rows()
+        eq.add([(r0, 1.0)], air_c, air_c)
+        eq.add([(a0, 1.0)], air_c, air_c)
+        eq.add([(d0, 1.0)], die.die_c - die.heat_c, die.die_c - die.heat_c)
+        for i in range(n):
+            eq.add([(r0 + i + 1, 1.0), (r0 + i, -1.0), (u0 + i, -h)], 0.0, 0.0)
+            eq.add([(a0 + i + 1, 1.0), (a0 + i, -(1.0 - ka)), (r0 + i, -ka / 2),
+                    (r0 + i + 1, -ka / 2)], 0.0, 0.0)
+            eq.add([(d0 + i + 1, 1.0), (d0 + i, -(1.0 - kd)), (a0 + i, -kd / 2),
+                    (a0 + i + 1, -kd / 2)], 0.0, 0.0)
+        eq.add([(r0 + n, 1.0)], target_c, target_c)  # the profile ends at the target
+        ub = _Rows()
         for j, k in enumerate(range(end, n + 1)):
-            sl = slice(k - m, k + 1)
-            s_row, s0 = w @ die_m[sl], float(w @ die0[sl])
-            slope = np.hstack([s_row, np.zeros(extra)])[None]
-            blocks += [slope, -slope]
-            rhs += [np.array([crit.slope_c_per_min - s0]), np.array([crit.slope_c_per_min + s0])]
-            hi = np.zeros((m + 1, extra))
-            hi[:, 2 * j] = -1.0
-            lo = np.zeros((m + 1, extra))
-            lo[:, 2 * j + 1] = 1.0
-            blocks += [np.hstack([die_m[sl], hi]), np.hstack([-die_m[sl], lo])]
-            rhs += [-die0[sl], die0[sl]]
-            band = np.zeros((1, n + extra))
-            band[0, n + 2 * j], band[0, n + 2 * j + 1] = 1.0, -1.0
-            blocks.append(band)
-            rhs.append(np.array([crit.band_c]))
-        a_eq = np.hstack([ramp[-1:], np.zeros((1, extra))])  # the profile ends at the target
-        end_die = np.hstack([die_m[-1:], np.zeros((1, extra))])
-        blocks += [end_die, -end_die]
+            cols = range(k - m, k + 1)
+            s0 = float(w @ heat[k - m : k + 1])
+            terms = [(d0 + c, float(wc)) for c, wc in zip(cols, w, strict=True)]
+            ub.add(terms, -math.inf, crit.slope_c_per_min - s0)
+            ub.add([(c, -v) for c, v in terms], -math.inf, crit.slope_c_per_min + s0)
+            for c in cols:
+                ub.add([(d0 + c, 1.0), (hi0 + j, -1.0)], -math.inf, -heat[c])
+                ub.add([(lo0 + j, 1.0), (d0 + c, -1.0)], -math.inf, heat[c])
+            ub.add([(hi0 + j, 1.0), (lo0 + j, -1.0)], -math.inf, crit.band_c)
+        n_var = n_state + 2 * n_win
+        bounds: list[tuple[float | None, float | None]] = [(None, None)] * n_var
+        rate = model.ramp_c_per_min / 60.0
+        for i in range(n):
+            bounds[u0 + i] = (-rate, rate)
+        for i in range(n + 1):
+            bounds[r0 + i] = (limits.setpoint_low_c, limits.setpoint_high_c)
+            bounds[d0 + i] = (limits.min_part_c - heat[i], limits.max_part_c - heat[i])
         half = crit.band_c / 2
-        rhs += [np.array([final + half - die0[-1]]), np.array([die0[-1] - final + half])]
+        bounds[d0 + n] = (
+            max(final - half, limits.min_part_c) - heat[n],
+            min(final + half, limits.max_part_c) - heat[n],
+        )
+        a_eq = coo_matrix((eq.v, (eq.r, eq.c)), shape=(len(eq.low), n_var)).tocsr()
+        a_ub = coo_matrix((ub.v, (ub.r, ub.c)), shape=(len(ub.high), n_var)).tocsr()
         res = linprog(
-            np.zeros(n + extra),
-            A_ub=np.vstack(blocks),
-            b_ub=np.concatenate(rhs),
-            A_eq=a_eq,
-            b_eq=[target_c - air_c],
-            bounds=[(-max_rate, max_rate)] * n + [(None, None)] * extra,
-            method="highs",
+            np.zeros(n_var), A_ub=a_ub, b_ub=np.array(ub.high), A_eq=a_eq,
+            b_eq=np.array(eq.low), bounds=bounds, method="highs",
         )
         return bool(res.status == 0)
 

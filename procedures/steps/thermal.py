@@ -100,7 +100,9 @@ class ThermalSettings(StepSettings):
 class Stabilise(StepType[ThermalSettings]):
     """Set the condition (chamber setpoint, supply level) and wait for every die to settle.
 
-    Inside `for_each: condition` (the condition comes from the loop)."""
+    Inside `for_each: condition` (the condition comes from the loop). With the procedure's
+    `chamber.strategy: fastest` the chamber follows a planned overshoot profile (see "Thermal
+    strategy" above) and is at the target when measurement starts."""
 
     type_name = "thermal"
     Settings = ThermalSettings
@@ -159,9 +161,11 @@ class Stabilise(StepType[ThermalSettings]):
         self._control = FastestController(chamber, control_settings(ctx, self))
         try:
             self._control.start(ctx.wait.clock.now_s(), air_c, chamber.read_setpoint(), start)
-        finally:
             if not chamber.is_running():
                 chamber.run()
+        except BaseException:
+            leave_at_target(self._control)  # never left at an overshoot, even from setup
+            raise
 
     def _mark_condition(self, ctx: RunContext) -> None:
         for part in ctx.parts.alive():
@@ -191,8 +195,9 @@ class Stabilise(StepType[ThermalSettings]):
         try:
             self._main(ctx)
         finally:
-            if getattr(self, "_control", None) is not None:
-                leave_at_target(self._control)
+            control = getattr(self, "_control", None)
+            if control is not None:
+                leave_at_target(control)
 
     def _main(self, ctx: RunContext) -> None:
         st, cfg = self.settings, ctx.procedure.chamber
