@@ -98,10 +98,14 @@ def thermal_bound_s(proc_path: Path, records: list[RunRecord], ambient_c: float 
     proc, _ = load_procedure(proc_path)
     product, _ = load_product((proc_path.parent / str(proc.product)).resolve())
     thermal = proc.settings_of("thermal")
+    # the lag learned where the die was driven (the temperature change), the slowest part's
     taus = [
-        v.get("die_tau_s") for r in records for v in r.analysis.get("stability", {}).values()
+        v["die_tau_s"]
+        for r in records
+        for v in r.analysis.get("stability", {}).values()
+        if v.get("die_tau_s") and v.get("overshoot_c")
     ]
-    tau_s = max((x for x in taus if x), default=product.die_tau_s)
+    tau_s = max(taus, default=product.die_tau_s)
     model = ThermalModel(
         air_tau_s=proc.chamber.air_tau_s,
         die_tau_s=tau_s,

@@ -31,6 +31,8 @@ from procedures.chamber_strategy import (
 log = logging.getLogger(__name__)
 
 SETPOINT_RESOLUTION_C = 0.1  # the chamber's setpoint register holds tenths
+MIN_LEARN_C2 = 100.0  # sum of (air - die)^2 over the readings before a lag is learned
+TAU_RANGE = 3.0  # a learned lag stays within 1/3..3 times the product's value
 
 
 class SetpointChamber(Protocol):
@@ -174,7 +176,11 @@ class FastestController:
             heat = np.array([self._heat_at(part, x - t0) for x in t])
             die = np.asarray(part.reading_c) - heat
             air_at = np.interp(t, air_t, air)
-            part.tau_s = learn_die_tau_s(t, air_at, die, self.cfg.die_tau_prior_s)
+            if float(np.sum((air_at - die) ** 2)) < MIN_LEARN_C2:
+                continue  # the die has not been driven enough to tell its lag
+            learned = learn_die_tau_s(t, air_at, die, self.cfg.die_tau_prior_s)
+            prior = self.cfg.die_tau_prior_s
+            part.tau_s = min(max(learned, prior / TAU_RANGE), prior * TAU_RANGE)
 
     def _replan(self, now_s: float, air_c: float) -> None:
         t0 = self.air_time_s[0]
