@@ -33,8 +33,8 @@ def test_fastest_settles_sooner_than_setpoint_on_the_bench(tmp_path: Path) -> No
     straight_proc = tmp_path / "setpoint.yaml"
     straight_proc.write_text(yaml.safe_dump(data))
 
-    fast = run(PROC, tmp_path / "fast")["T35_V5"]
-    straight = run(straight_proc, tmp_path / "straight")["T35_V5"]
+    fast = run(PROC, tmp_path / "fast")["T35_V5.25"]
+    straight = run(straight_proc, tmp_path / "straight")["T35_V5.25"]
     assert "strategy" not in straight  # setpoint records are as they were
     assert fast["strategy"] == "fastest" and fast["overshoot_c"] > 0.0
     assert fast["time_to_stability_s"] < 0.8 * straight["time_to_stability_s"]
