@@ -394,13 +394,17 @@ def settle_bound_s(
     target_c: float,
     crit: Criterion,
     horizon_s: float | None = None,
+    near_final: bool = False,
 ) -> float:
     """The soonest any setpoint profile within the chamber's limits (ramp rate, setpoint
     limits, the part's limits; no overshoot bound) can make the die meet the stability
     criterion for good, for this die lag and self-heating: the first window end from which a
     linear programme (the ramp rate of each time step free within the ramp limit; the
     ramped setpoint, the air and the die as state variables) is still feasible, by
-    bisection. The chamber starts settled at `air_c`; the profile ends at the target."""
+    bisection. The chamber starts settled at `air_c`; the profile ends at the target.
+    The criterion alone lets the reading creep at up to the slope limit for good (a profile
+    may hold the self-heating's rise off with the air, then creep); `near_final` also asks
+    the reading to stay within band_c / 2 of its final value from the first window's end."""
     from scipy.optimize import linprog
     from scipy.sparse import coo_matrix
 
@@ -444,6 +448,9 @@ def settle_bound_s(
                 ub.add([(d0 + c, 1.0), (hi0 + j, -1.0)], -math.inf, -heat[c])
                 ub.add([(lo0 + j, 1.0), (d0 + c, -1.0)], -math.inf, heat[c])
             ub.add([(hi0 + j, 1.0), (lo0 + j, -1.0)], -math.inf, crit.band_c)
+            if near_final:
+                ub.add([(d0 + k, 1.0)], -math.inf, final + crit.band_c / 2 - heat[k])
+                ub.add([(d0 + k, -1.0)], -math.inf, -(final - crit.band_c / 2 - heat[k]))
         n_var = n_state + 2 * n_win
         bounds: list[tuple[float | None, float | None]] = [(None, None)] * n_var
         rate = model.ramp_c_per_min / 60.0

@@ -140,6 +140,9 @@ def test_no_profile_settles_sooner_than_the_bound() -> None:
     bound = settle_bound_s(BENCH, ThermalLimits(max_part_c=85.0), 25.0, HOT, 45.0, CRIT)
     assert 0.0 < bound <= plan.settle_s + 10.0  # 10 s: the bound's coarser time step
     assert plan.settle_s < 1.25 * bound  # and the planned family is near it
+    settled = settle_bound_s(BENCH, ThermalLimits(max_part_c=85.0), 25.0, HOT, 45.0, CRIT,
+                             near_final=True)
+    assert bound <= settled <= plan.settle_s + 10.0  # near the final value: a harder demand
     # the self-heating step of a supply change alone: the chamber can shorten it too
     heat = DieState(die_c=29.5, tau_s=300.0, heat_c=4.5, heat_final_c=5.5)
     heat_bound = settle_bound_s(BENCH, ThermalLimits(), 25.0, heat, 25.0, CRIT)
