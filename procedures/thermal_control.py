@@ -62,6 +62,18 @@ class _Part:
     reading_c: list[float] = field(default_factory=list)
 
 
+def heat_before_change(
+    reading_c: float, air_c: float, supply_old_v: float, supply_new_v: float,
+    power_new_w: float, c_per_w: float | None,
+) -> float:
+    """The self-heating in a reading taken just after a supply change: the product's C/W
+    times the power drawn at the old supply (power scales with V^2); without C/W, or at the
+    first condition (no old supply), the reading's excess over the air."""
+    if c_per_w is None or supply_old_v <= 0 or supply_new_v <= 0:
+        return reading_c - air_c
+    return c_per_w * max(power_new_w, 0.0) * (supply_old_v / supply_new_v) ** 2
+
+
 def heat_after_change(
     heat_now_c: float, supply_old_v: float, supply_new_v: float, power_new_w: float,
     c_per_w: float | None,
@@ -95,13 +107,13 @@ class FastestController:
     # ------------------------------------------------------------ start, tick, finish
 
     def start(
-        self, now_s: float, air_c: float, setpoint_c: float, parts: dict[int, tuple[float, float]]
+        self, now_s: float, air_c: float, setpoint_c: float,
+        parts: dict[int, tuple[float, float, float]],
     ) -> None:
-        """Plan and command the first setpoint. `parts`: socket -> (reading, heat final) C;
-        the die is taken to sit at the air at the start, the rest of its reading is heating."""
+        """Plan and command the first setpoint. `parts`: socket -> (reading, self-heating
+        now, self-heating at the new supply) C; the rest of the reading is the die's lag."""
         self.ramped_c = setpoint_c if abs(air_c - setpoint_c) < 1.0 else air_c
-        for socket, (reading_c, heat_final_c) in parts.items():
-            heat0 = reading_c - air_c
+        for socket, (reading_c, heat0, heat_final_c) in parts.items():
             self.parts[socket] = _Part(reading_c, heat0, heat_final_c, self.cfg.die_tau_prior_s)
         self.last_s = now_s
         self._observe(now_s, air_c, {s: p.die0_c for s, p in self.parts.items()})

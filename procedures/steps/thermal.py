@@ -29,7 +29,11 @@ from procedures.steps.thermal_fastest import (
     latest_reading_c,
     leave_at_target,
 )
-from procedures.thermal_control import FastestController, heat_after_change
+from procedures.thermal_control import (
+    FastestController,
+    heat_after_change,
+    heat_before_change,
+)
 
 
 @dataclass(frozen=True)
@@ -151,13 +155,13 @@ class Stabilise(StepType[ThermalSettings]):
         self._mark_condition(ctx)
         power_w = volts * amps / max(len(alive), 1)
         heat_c_per_w = ctx.product.self_heating_c_per_w
-        start: dict[int, tuple[float, float]] = {}
+        start: dict[int, tuple[float, float, float]] = {}
+        new_v = self.target.supply_v
         for part in alive:
             reading_c = latest_reading_c(part, ctx.clock.now_s())
-            heat_final = heat_after_change(
-                reading_c - air_c, old_v, self.target.supply_v, power_w, heat_c_per_w
-            )
-            start[part.socket] = (reading_c, heat_final)
+            heat_now = heat_before_change(reading_c, air_c, old_v, new_v, power_w, heat_c_per_w)
+            heat_final = heat_after_change(heat_now, old_v, new_v, power_w, heat_c_per_w)
+            start[part.socket] = (reading_c, heat_now, heat_final)
         self._control = FastestController(chamber, control_settings(ctx, self))
         try:
             self._control.start(ctx.wait.clock.now_s(), air_c, chamber.read_setpoint(), start)
