@@ -103,6 +103,7 @@ class FastestController:
         self.commanded_c: float | None = None
         self.last_s = 0.0
         self.replans = 0
+        self.direction = 1.0
 
     # ------------------------------------------------------------ start, tick, finish
 
@@ -113,6 +114,7 @@ class FastestController:
         """Plan and command the first setpoint. `parts`: socket -> (reading, self-heating
         now, self-heating at the new supply) C; the rest of the reading is the die's lag."""
         self.ramped_c = setpoint_c if abs(air_c - setpoint_c) < 1.0 else air_c
+        self.direction = 1.0 if self.cfg.target_c >= air_c else -1.0  # the air's way to go
         for socket, (reading_c, heat0, heat_final_c) in parts.items():
             self.parts[socket] = _Part(reading_c, heat0, heat_final_c, self.cfg.die_tau_prior_s)
         self.last_s = now_s

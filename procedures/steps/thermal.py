@@ -190,10 +190,9 @@ class Stabilise(StepType[ThermalSettings]):
         """The air at the target (setpoint), or at or past it on the way (fastest: the
         profile may hold the air beyond the target)."""
         error = air_c - self.target.temperature_c
-        if self._control is None or self._control.plan is None:
+        if self._control is None:
             return abs(error) <= band_c
-        sign = 1.0 if self._control.plan.overshoot_c >= 0 else -1.0
-        return abs(error) <= band_c or error * sign >= 0
+        return abs(error) <= band_c or error * self._control.direction >= 0
 
     def main(self, ctx: RunContext) -> None:
         try:

@@ -105,7 +105,8 @@ class Stream:
         return {"time_s": arr[:, 0], "temp_c": arr[:, 1]}
 
 
-def context(world: World, strategy: str, max_part_c: float | None = 85.0) -> Any:
+def context(world: World, strategy: str, max_part_c: float | None = 85.0,
+            max_overshoot_c: float = 15.0, ramp_c_per_min: float = 5.0) -> Any:
     clock = SimpleNamespace(now_s=lambda: world.now_s)
     parts = [
         SimpleNamespace(socket=i + 1, stream=Stream(world, i), conditions={},
@@ -127,7 +128,10 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0) -> Any
         ),
         parts=SimpleNamespace(alive=lambda: parts, drop=None, require=lambda: None),
         records=SimpleNamespace(segment=lambda *a, **k: None, event=lambda *a, **k: None),
-        procedure=SimpleNamespace(chamber=ChamberConfig(strategy=strategy)),
+        procedure=SimpleNamespace(
+            chamber=ChamberConfig(strategy=strategy, max_overshoot_c=max_overshoot_c,
+                                  ramp_c_per_min=ramp_c_per_min)
+        ),
         product=SimpleNamespace(
             die_tau_s=300.0, max_part_temperature_c=max_part_c, self_heating_c_per_w=40.0,
             self_heating_tau_s=90.0,
@@ -207,3 +211,17 @@ def test_setpoint_strategy_commands_the_target_only() -> None:
     world = warmed([300.0])
     settle(world, "setpoint")
     assert [sp for _, sp in world.writes] == [45.0]
+
+
+def test_cooling_waits_for_the_air_before_judging_the_dies() -> None:
+    world = warmed([300.0])
+    world.air_c = world.ramped_c = world.setpoint_c = 45.0
+    world.die_c = [45.0]
+    # straight down (no overshoot) on a slow ramp: the die barely moves in the first window
+    ctx = context(world, "fastest", max_overshoot_c=0.0, ramp_c_per_min=0.5)
+    s = step(25.0, 5.25, Condition(45.0, 5.25))
+    s.setup(ctx)
+    s.main(ctx)
+    # a die that had not started to move was not taken as stable: it reached the cold side
+    assert world.reading(0) < 25.0 + world.heat_c[0] + 0.6
+    assert world.setpoint_c == 25.0
