@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 
 STEP_S = 5.0  # model time step: the air and die time constants are a minute and more
 
@@ -173,3 +174,313 @@ def learn_die_tau_s(
     if not sxy > 0:
         return prior_tau_s
     return sxx / sxy
+
+
+# ---------------------------------------------------------------- several dies, self-heating
+
+MAX_REPRESENTATIVE_DIES = 6  # the extremes govern: the slowest settles last, the fastest peaks
+
+
+@dataclass(frozen=True)
+class DieState:
+    """One part's die as its own sensor sees it: the reading includes the self-heating, which
+    moves towards `heat_final_c` (the heating at the new supply) with `heat_tau_s`."""
+
+    die_c: float  # the sensor's reading now
+    tau_s: float  # the die's lag behind the air (learned from this part's own readings)
+    heat_c: float = 0.0  # the self-heating part of the reading now
+    heat_final_c: float = 0.0  # the self-heating it tends to at the present supply
+    heat_tau_s: float = 90.0
+
+    def final_c(self, target_c: float) -> float:
+        """Where the reading ends with the air at `target_c`."""
+        return target_c + self.heat_final_c
+
+    def heat_at(self, time_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        decay = np.exp(-time_s / self.heat_tau_s)
+        return self.heat_final_c + (self.heat_c - self.heat_final_c) * decay
+
+
+def _lag(x: NDArray[np.float64], k: float, y0: NDArray[np.float64] | float) -> NDArray[np.float64]:
+    """y[i+1] = y[i] + (mean(x[i], x[i+1]) - y[i]) * k along the last axis, y[0] = y0: a
+    first-order lag driven by a piecewise-linear input (exact for the bench's chamber step)."""
+    y0_arr = np.broadcast_to(np.asarray(y0, dtype=np.float64), x.shape[:-1])
+    zi = (y0_arr - 0.5 * k * x[..., 0])[..., None]
+    out, _ = lfilter([0.5 * k, 0.5 * k], [1.0, -(1.0 - k)], x, axis=-1, zi=zi)
+    return np.asarray(out, dtype=np.float64)
+
+
+def ramped_profiles(
+    model: ThermalModel,
+    ramped_c: float,
+    target_c: float,
+    overshoot_c: NDArray[np.float64],
+    hold_s: NDArray[np.float64],
+    t: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """The chamber's ramped setpoint for each (overshoot, hold) profile at times `t`: towards
+    target + overshoot at the ramp limit until the hold ends, then towards the target."""
+    rate = model.ramp_c_per_min / 60.0
+    o, h = overshoot_c[:, None], hold_s[:, None]
+    first = target_c + o - ramped_c
+    in_hold = np.minimum(t[None, :], h)
+    r = ramped_c + np.sign(first) * np.minimum(rate * in_hold, np.abs(first))
+    at_hold = ramped_c + np.sign(first) * np.minimum(rate * h, np.abs(first))
+    second = target_c - at_hold
+    after = np.maximum(t[None, :] - h, 0.0)
+    moved = at_hold + np.sign(second) * np.minimum(rate * after, np.abs(second))
+    return np.where(t[None, :] < h, r, moved)
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """The thermal step's stability criterion, as the model judges a predicted reading."""
+
+    window_s: float
+    slope_c_per_min: float
+    band_c: float
+    target_c: float | None = None  # with a tolerance: the window's mean within it
+    tolerance_c: float | None = None
+
+
+def settled_from_s(
+    t: NDArray[np.float64], reading: NDArray[np.float64], crit: Criterion
+) -> NDArray[np.float64]:
+    """Per row, the end of the first window after which every window meets the stability
+    criterion (slope of a straight-line fit, peak-to-peak, optional mean tolerance); windows
+    start at t = 0 (the condition's start); inf when not within the horizon."""
+    m = max(int(round(crit.window_s / STEP_S)), 2)
+    y = np.atleast_2d(reading)
+    if y.shape[-1] <= m:
+        return np.full(y.shape[0], math.inf)
+    win = np.lib.stride_tricks.sliding_window_view(y, m + 1, axis=-1)
+    x = np.arange(m + 1) - m / 2.0
+    slope = win @ (x / float(x @ x)) / STEP_S * 60.0
+    ok = (np.abs(slope) <= crit.slope_c_per_min) & (np.ptp(win, axis=-1) <= crit.band_c)
+    if crit.target_c is not None and crit.tolerance_c is not None:
+        ok &= np.abs(win.mean(axis=-1) - crit.target_c) <= crit.tolerance_c
+    ends = t[m:]
+    bad = ~ok
+    any_bad = bad.any(axis=-1)
+    last = bad.shape[-1] - 1 - np.argmax(bad[:, ::-1], axis=-1)
+    after = np.append(ends, math.inf)[np.minimum(last + 1, ends.size)]
+    return np.where(any_bad, after, ends[0])
+
+
+def representative_dies(dies: list[DieState], target_c: float) -> list[DieState]:
+    """At most MAX_REPRESENTATIVE_DIES dies that bound the rest: the extremes of lag, of
+    distance to go and of self-heating still to come."""
+    if len(dies) <= MAX_REPRESENTATIVE_DIES:
+        return list(dies)
+    keys = (
+        lambda d: d.tau_s,
+        lambda d: d.final_c(target_c) - d.die_c,
+        lambda d: d.heat_final_c - d.heat_c,
+    )
+    picked: dict[int, DieState] = {}
+    for key in keys:
+        ranked = sorted(range(len(dies)), key=lambda i: key(dies[i]))
+        picked[ranked[0]] = dies[ranked[0]]
+        picked[ranked[-1]] = dies[ranked[-1]]
+    return list(picked.values())
+
+
+def _direction(dies: list[DieState], target_c: float) -> float:
+    worst = max(dies, key=lambda d: abs(d.final_c(target_c) - d.die_c))
+    return 1.0 if worst.final_c(target_c) >= worst.die_c else -1.0
+
+
+def plan_profile(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    ramped_c: float,
+    dies: list[DieState],
+    target_c: float,
+    crit: Criterion,
+    max_hold_s: float | None = None,
+) -> SetpointPlan:
+    """The overshoot and hold that bring the slowest of several dies (each with its own lag
+    and self-heating) into its stability band soonest, no die beyond the part's limits and
+    no setpoint beyond the chamber's; a coarse grid, then a fine one around its best."""
+    if not dies:
+        raise ValueError("no dies to plan for")
+    if not (model.air_tau_s > 0 and model.ramp_c_per_min > 0 and all(d.tau_s > 0 for d in dies)):
+        raise ValueError("the thermal model's time constants and ramp rate must be positive")
+    if not limits.setpoint_low_c <= target_c <= limits.setpoint_high_c:
+        raise ValueError(
+            f"target {target_c:g} C is outside the chamber's setpoint limits "
+            f"{limits.setpoint_low_c:g}..{limits.setpoint_high_c:g} C"
+        )
+    reps = representative_dies(dies, target_c)
+    sign = _direction(reps, target_c)
+    room = (limits.setpoint_high_c - target_c) if sign > 0 else (target_c - limits.setpoint_low_c)
+    max_over = max(0.0, min(limits.max_overshoot_c, room))
+    slowest_s = max(d.tau_s for d in reps)
+    travel_s = (abs(target_c - ramped_c) + max_over) / model.ramp_c_per_min * 60.0
+    horizon_s = travel_s + 5.0 * slowest_s + 4.0 * model.air_tau_s + crit.window_s
+    hold_cap_s = max_hold_s if max_hold_s is not None else 3.0 * slowest_s + travel_s
+    t = np.arange(int(math.ceil(horizon_s / STEP_S)) + 1, dtype=np.float64) * STEP_S
+
+    def evaluate(overs: NDArray[np.float64], holds: NDArray[np.float64]) -> tuple[
+        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+    ]:
+        o, h = (g.ravel() for g in np.meshgrid(sign * overs, holds))
+        ramped = ramped_profiles(model, ramped_c, target_c, o, h, t)
+        air = _lag(ramped, 1.0 - math.exp(-STEP_S / model.air_tau_s), air_c)
+        settle = np.zeros(o.size)
+        hi = np.full(o.size, -math.inf)
+        lo = np.full(o.size, math.inf)
+        for d in reps:
+            die = _lag(air, 1.0 - math.exp(-STEP_S / d.tau_s), d.die_c - d.heat_c) + d.heat_at(t)
+            settle = np.maximum(settle, settled_from_s(t, die, crit))
+            hi, lo = np.maximum(hi, die.max(axis=1)), np.minimum(lo, die.min(axis=1))
+        ok = (hi <= limits.max_part_c) & (lo >= limits.min_part_c)
+        ok |= (o == 0.0) | (h == 0.0)  # straight to target: always allowed
+        peak = hi if sign > 0 else lo
+        return o, h, np.where(ok, settle, math.inf), peak
+
+    def best_of(
+        o: NDArray[np.float64], h: NDArray[np.float64], s: NDArray[np.float64]
+    ) -> int:
+        return int(np.lexsort((h, np.abs(o), s))[0])
+
+    o, h, s, peak = evaluate(
+        np.arange(0.0, max_over + 1e-9, 1.0), np.arange(0.0, hold_cap_s + 1e-9, 30.0)
+    )
+    i = best_of(o, h, s)
+    fine_o = np.clip(np.arange(abs(o[i]) - 1.0, abs(o[i]) + 1.0 + 1e-9, 0.25), 0.0, max_over)
+    fine_h = np.clip(np.arange(h[i] - 30.0, h[i] + 30.0 + 1e-9, 5.0), 0.0, hold_cap_s)
+    o2, h2, s2, peak2 = evaluate(np.unique(fine_o), np.unique(fine_h))
+    j = best_of(o2, h2, s2)
+    if s2[j] > s[i]:
+        o2, h2, s2, peak2, j = o, h, s, peak, i
+    if not math.isfinite(s2[j]) or o2[j] == 0.0 or h2[j] == 0.0:
+        k = int(np.argmin(np.abs(o) + h))  # the straight profile of the coarse grid
+        return SetpointPlan(target_c, 0.0, 0.0, float(s[k]), float(peak[k]))
+    return SetpointPlan(target_c, float(o2[j]), float(h2[j]), float(s2[j]), float(peak2[j]))
+
+
+# ---------------------------------------------------------------- the physics lower bound
+
+BOUND_STEP_S = 10.0  # the bound's time step (the ramp rate is piecewise constant over it)
+
+
+class _Rows:
+    """Sparse constraint rows collected as (row, column, value) triples."""
+
+    def __init__(self) -> None:
+        self.r: list[int] = []
+        self.c: list[int] = []
+        self.v: list[float] = []
+        self.low: list[float] = []
+        self.high: list[float] = []
+
+    def add(self, terms: list[tuple[int, float]], low: float, high: float) -> None:
+        row = len(self.low)
+        for col, val in terms:
+            self.r.append(row)
+            self.c.append(col)
+            self.v.append(val)
+        self.low.append(low)
+        self.high.append(high)
+
+
+def settle_bound_s(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    die: DieState,
+    target_c: float,
+    crit: Criterion,
+    horizon_s: float | None = None,
+    near_final: bool = False,
+) -> float:
+    """The soonest any setpoint profile within the chamber's limits (ramp rate, setpoint
+    limits, the part's limits; no overshoot bound) can make the die meet the stability
+    criterion for good, for this die lag and self-heating: the first window end from which a
+    linear programme (the ramp rate of each time step free within the ramp limit; the
+    ramped setpoint, the air and the die as state variables) is still feasible, by
+    bisection. The chamber starts settled at `air_c`; the profile ends at the target.
+    The criterion alone lets the reading creep at up to the slope limit for good (a profile
+    may hold the self-heating's rise off with the air, then creep); `near_final` also asks
+    the reading to stay within band_c / 2 of its final value from the first window's end."""
+    from scipy.optimize import linprog
+    from scipy.sparse import coo_matrix
+
+    h = BOUND_STEP_S
+    travel_s = abs(target_c - air_c) / model.ramp_c_per_min * 60.0
+    horizon = horizon_s or travel_s + 4.0 * die.tau_s + 4.0 * model.air_tau_s + crit.window_s
+    n = int(math.ceil(horizon / h))
+    t = np.arange(n + 1, dtype=np.float64) * h
+    heat = die.heat_at(t)
+    m = max(int(round(crit.window_s / h)), 2)
+    x = np.arange(m + 1) - m / 2.0
+    w = x / float(x @ x) / h * 60.0
+    ka = 1.0 - math.exp(-h / model.air_tau_s)
+    kd = 1.0 - math.exp(-h / die.tau_s)
+    final = die.final_c(target_c)
+    u0, r0, a0, d0 = 0, n, 2 * n + 1, 3 * n + 2  # variable blocks: u, ramped, air, die
+    n_state = 4 * n + 3
+
+    def feasible(end: int) -> bool:
+        n_win = n + 1 - end
+        hi0, lo0 = n_state, n_state + n_win  # each window's max and min
+        eq = _Rows()
+        eq.add([(r0, 1.0)], air_c, air_c)
+        eq.add([(a0, 1.0)], air_c, air_c)
+        eq.add([(d0, 1.0)], die.die_c - die.heat_c, die.die_c - die.heat_c)
+        for i in range(n):
+            eq.add([(r0 + i + 1, 1.0), (r0 + i, -1.0), (u0 + i, -h)], 0.0, 0.0)
+            eq.add([(a0 + i + 1, 1.0), (a0 + i, -(1.0 - ka)), (r0 + i, -ka / 2),
+                    (r0 + i + 1, -ka / 2)], 0.0, 0.0)
+            eq.add([(d0 + i + 1, 1.0), (d0 + i, -(1.0 - kd)), (a0 + i, -kd / 2),
+                    (a0 + i + 1, -kd / 2)], 0.0, 0.0)
+        eq.add([(r0 + n, 1.0)], target_c, target_c)  # the profile ends at the target
+        ub = _Rows()
+        for j, k in enumerate(range(end, n + 1)):
+            cols = range(k - m, k + 1)
+            s0 = float(w @ heat[k - m : k + 1])
+            terms = [(d0 + c, float(wc)) for c, wc in zip(cols, w, strict=True)]
+            ub.add(terms, -math.inf, crit.slope_c_per_min - s0)
+            ub.add([(c, -v) for c, v in terms], -math.inf, crit.slope_c_per_min + s0)
+            for c in cols:
+                ub.add([(d0 + c, 1.0), (hi0 + j, -1.0)], -math.inf, -heat[c])
+                ub.add([(lo0 + j, 1.0), (d0 + c, -1.0)], -math.inf, heat[c])
+            ub.add([(hi0 + j, 1.0), (lo0 + j, -1.0)], -math.inf, crit.band_c)
+            if near_final:
+                ub.add([(d0 + k, 1.0)], -math.inf, final + crit.band_c / 2 - heat[k])
+                ub.add([(d0 + k, -1.0)], -math.inf, -(final - crit.band_c / 2 - heat[k]))
+        n_var = n_state + 2 * n_win
+        bounds: list[tuple[float | None, float | None]] = [(None, None)] * n_var
+        rate = model.ramp_c_per_min / 60.0
+        for i in range(n):
+            bounds[u0 + i] = (-rate, rate)
+        for i in range(n + 1):
+            bounds[r0 + i] = (limits.setpoint_low_c, limits.setpoint_high_c)
+            bounds[d0 + i] = (limits.min_part_c - heat[i], limits.max_part_c - heat[i])
+        half = crit.band_c / 2
+        bounds[d0 + n] = (
+            max(final - half, limits.min_part_c) - heat[n],
+            min(final + half, limits.max_part_c) - heat[n],
+        )
+        a_eq = coo_matrix((eq.v, (eq.r, eq.c)), shape=(len(eq.low), n_var)).tocsr()
+        a_ub = coo_matrix((ub.v, (ub.r, ub.c)), shape=(len(ub.high), n_var)).tocsr()
+        res = linprog(
+            np.zeros(n_var), A_ub=a_ub, b_ub=np.array(ub.high), A_eq=a_eq,
+            b_eq=np.array(eq.low), bounds=bounds, method="highs",
+        )
+        return bool(res.status == 0)
+
+    low, high = m, n - 1
+    if feasible(low):
+        return float(t[low])
+    if not feasible(high):
+        return math.inf
+    while high - low > 1:
+        mid = (low + high) // 2
+        if feasible(mid):
+            high = mid
+        else:
+            low = mid
+    return float(t[high])

@@ -264,6 +264,22 @@ class ProductConfig(_Strict):
         default_factory=CalibrationStorage,
         description="what the part's calibration registers hold (fit_orders)",
     )
+    die_tau_s: float = Field(
+        300.0, gt=0, le=1e4, description="the die's thermal lag behind the chamber air, s: "
+        "the starting value the fastest thermal strategy learns from each part's own sensor"
+    )
+    max_part_temperature_c: ChamberTemp | None = Field(
+        None, description="highest temperature the part may see, C (the fastest thermal "
+        "strategy's overshoot stays below it); default: the chamber's limits only"
+    )
+    self_heating_c_per_w: float | None = Field(
+        None, ge=0, le=1e4, description="die temperature rise per watt the part draws, C/W "
+        "(the fastest strategy predicts the step at a supply change); default: scaled from "
+        "the rise seen at the previous supply"
+    )
+    self_heating_tau_s: float = Field(
+        90.0, gt=0, le=1e4, description="time constant of the self-heating, s"
+    )
 
     @property
     def supply_limits_v(self) -> tuple[float, float]:
@@ -326,6 +342,29 @@ class ChamberConfig(_Strict):
     )
     setpoint_band_c: float = Field(0.5, gt=0, le=50, description="air within this of setpoint")
     setpoint_timeout_s: Seconds = Field(3600.0, gt=0, description="time allowed to reach setpoint")
+    strategy: Literal["setpoint", "fastest"] = Field(
+        "setpoint",
+        description="setpoint: the chamber goes straight to each temperature; fastest: a "
+        "planned setpoint profile (a bounded overshoot held, then the target), re-planned from "
+        "each part's own sensor, so the slowest die settles soonest",
+    )
+    max_overshoot_c: float = Field(
+        15.0, ge=0, le=50, description="fastest: largest setpoint overshoot beyond the target"
+    )
+    air_tau_s: Seconds = Field(
+        60.0, gt=0, description="fastest: the chamber air's lag behind its ramped setpoint"
+    )
+    replan_interval_s: Seconds = Field(
+        60.0, gt=0, description="fastest: how often the profile is planned again from the readings"
+    )
+
+    @model_validator(mode="after")
+    def _fastest_needs_a_ramp(self) -> ChamberConfig:
+        if self.strategy == "fastest" and self.ramp_c_per_min <= 0:
+            raise ValueError(
+                "strategy 'fastest' plans with the chamber's ramp rate: give ramp_c_per_min > 0"
+            )
+        return self
 
 
 

@@ -24,6 +24,16 @@ from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import ConditionResult
 from procedures.steps.registry import StepSettings, StepType
+from procedures.steps.thermal_fastest import (
+    control_settings,
+    latest_reading_c,
+    leave_at_target,
+)
+from procedures.thermal_control import (
+    FastestController,
+    heat_after_change,
+    heat_before_change,
+)
 
 
 @dataclass(frozen=True)
@@ -94,7 +104,9 @@ class ThermalSettings(StepSettings):
 class Stabilise(StepType[ThermalSettings]):
     """Set the condition (chamber setpoint, supply level) and wait for every die to settle.
 
-    Inside `for_each: condition` (the condition comes from the loop)."""
+    Inside `for_each: condition` (the condition comes from the loop). With the procedure's
+    `chamber.strategy: fastest` the chamber follows a planned overshoot profile (see "Thermal
+    strategy" above) and is at the target when measurement starts."""
 
     type_name = "thermal"
     Settings = ThermalSettings
@@ -113,6 +125,10 @@ class Stabilise(StepType[ThermalSettings]):
         return st.window_s + st.check_interval_s
 
     def setup(self, ctx: RunContext) -> None:
+        self._control: FastestController | None = None
+        if ctx.procedure.chamber.strategy == "fastest":
+            self._setup_fastest(ctx)
+            return
         chamber, cfg = ctx.instruments.chamber, ctx.procedure.chamber
         if abs(chamber.read_setpoint() - self.target.temperature_c) > 0.05:
             chamber.set_ramp_rate(cfg.ramp_c_per_min)
@@ -127,13 +143,73 @@ class Stabilise(StepType[ThermalSettings]):
                 supply_v=self.target.supply_v,
             )
 
+    def _setup_fastest(self, ctx: RunContext) -> None:
+        """The supply first (its self-heating step is part of the plan), then the plan."""
+        chamber = ctx.instruments.chamber
+        chamber.set_ramp_rate(ctx.procedure.chamber.ramp_c_per_min)
+        previous = self.place.previous
+        old_v = previous.supply_v if previous is not None else 0.0
+        ctx.instruments.set_supply_voltage(self.target.supply_v)
+        air_c, volts, amps = ctx.instruments.log_environment()
+        alive = ctx.parts.alive()
+        self._mark_condition(ctx)
+        power_w = volts * amps / max(len(alive), 1)
+        heat_c_per_w = ctx.product.self_heating_c_per_w
+        start: dict[int, tuple[float, float, float]] = {}
+        new_v = self.target.supply_v
+        for part in alive:
+            reading_c = latest_reading_c(part, ctx.clock.now_s())
+            heat_now = heat_before_change(reading_c, air_c, old_v, new_v, power_w, heat_c_per_w)
+            heat_final = heat_after_change(heat_now, old_v, new_v, power_w, heat_c_per_w)
+            start[part.socket] = (reading_c, heat_now, heat_final)
+        self._control = FastestController(chamber, control_settings(ctx, self))
+        try:
+            self._control.start(ctx.wait.clock.now_s(), air_c, chamber.read_setpoint(), start)
+            if not chamber.is_running():
+                chamber.run()
+        except BaseException:
+            leave_at_target(self._control)  # never left at an overshoot, even from setup
+            raise
+
+    def _mark_condition(self, ctx: RunContext) -> None:
+        for part in ctx.parts.alive():
+            part.conditions[self.condition] = ConditionResult(
+                name=self.condition,
+                temperature_c=self.target.temperature_c,
+                supply_v=self.target.supply_v,
+            )
+
+    def _tick(self, ctx: RunContext, air_c: float) -> None:
+        if self._control is None:
+            return
+        now = ctx.clock.now_s()
+        readings = {p.socket: latest_reading_c(p, now) for p in ctx.parts.alive()}
+        self._control.tick(ctx.wait.clock.now_s(), air_c, readings)
+
+    def _air_arrived(self, air_c: float, band_c: float) -> bool:
+        """The air at the target (setpoint), or at or past it on the way (fastest: the
+        profile may hold the air beyond the target)."""
+        error = air_c - self.target.temperature_c
+        if self._control is None:
+            return abs(error) <= band_c
+        return abs(error) <= band_c or error * self._control.direction >= 0
+
     def main(self, ctx: RunContext) -> None:
+        try:
+            self._main(ctx)
+        finally:
+            control = getattr(self, "_control", None)
+            if control is not None:
+                leave_at_target(control)
+
+    def _main(self, ctx: RunContext) -> None:
         st, cfg = self.settings, ctx.procedure.chamber
         start = ctx.wait.clock.now_s()
         # 1. the air first: a die that has not started to move is not stable
         while True:
             air, _, _ = ctx.instruments.log_environment()
-            if abs(air - self.target.temperature_c) <= cfg.setpoint_band_c:
+            self._tick(ctx, air)
+            if self._air_arrived(air, cfg.setpoint_band_c):
                 break
             if ctx.wait.clock.now_s() - start > cfg.setpoint_timeout_s:
                 raise ChamberSetpointNotReached(
@@ -149,7 +225,8 @@ class Stabilise(StepType[ThermalSettings]):
         verdicts: dict[int, StabilityVerdict] = {}
         while True:
             ctx.wait.sleep(st.check_interval_s)
-            _, volts, amps = ctx.instruments.log_environment()
+            air, volts, amps = ctx.instruments.log_environment()
+            self._tick(ctx, air)
             for part in ctx.parts.alive():
                 if part.socket in stable_at:
                     continue
@@ -192,6 +269,8 @@ class Stabilise(StepType[ThermalSettings]):
                         )
                 ctx.parts.require()
                 break
+        if self._control is not None:
+            self._control.finish()  # measure at the target, never at an overshoot
         end = ctx.wait.clock.now_s()
         for part in ctx.parts.alive():
             v = verdicts[part.socket]
@@ -226,4 +305,8 @@ class Stabilise(StepType[ThermalSettings]):
                 "condition_set_station_s": start,
                 "measurement_start_station_s": end,
             }
+            if self._control is not None:
+                part.record.analysis["stability"][self.condition].update(
+                    self._control.summary(part.socket)
+                )
         ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")

@@ -71,3 +71,81 @@ def test_no_movement_keeps_the_prior() -> None:
     t = np.arange(0.0, 100.0, 5.0)
     flat = np.full(t.size, 25.0)
     assert learn_die_tau_s(t, flat, flat, prior_tau_s=300.0) == 300.0
+
+
+# ---------------------------------------------------------------- several dies, the bound
+
+from procedures.chamber_strategy import (  # noqa: E402
+    Criterion,
+    DieState,
+    plan_profile,
+    ramped_profiles,
+    settle_bound_s,
+    settled_from_s,
+)
+
+CRIT = Criterion(window_s=60.0, slope_c_per_min=0.1, band_c=0.2)
+HOT = DieState(die_c=30.5, tau_s=300.0, heat_c=5.5, heat_final_c=5.5)  # powered, settled at 25
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_profile_never_leaves_the_chamber_or_part_limits(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    target = float(rng.uniform(-20.0, 80.0))
+    start = float(rng.uniform(-20.0, 80.0))
+    high = target + float(rng.uniform(0.0, 8.0))
+    low = target - float(rng.uniform(0.0, 8.0))
+    limits = ThermalLimits(setpoint_low_c=low, setpoint_high_c=high, max_overshoot_c=15.0,
+                           max_part_c=high + 5.0, min_part_c=low - 5.0)
+    dies = [DieState(start + 4.0, float(tau), 4.0, 4.0) for tau in rng.uniform(150, 450, 3)]
+    plan = plan_profile(BENCH, limits, start, start, dies, target, CRIT)
+    for elapsed in np.arange(0.0, plan.hold_s + 60.0, 5.0):
+        assert low - 1e-9 <= plan.setpoint_at(float(elapsed)) <= high + 1e-9
+    assert plan.hold_s >= 0.0 and abs(plan.overshoot_c) <= 15.0
+    if plan.overshoot_c:  # a planned profile keeps every die inside the part's limits
+        assert low - 5.0 - 1e-9 <= plan.die_peak_c <= high + 5.0 + 1e-9
+
+
+def test_the_slowest_die_governs_the_plan() -> None:
+    limits = ThermalLimits(max_overshoot_c=15.0, max_part_c=85.0)
+    one = plan_profile(BENCH, limits, 25.0, 25.0, [HOT], 45.0, CRIT)
+    slow = DieState(30.5, 420.0, 5.5, 5.5)
+    both = plan_profile(BENCH, limits, 25.0, 25.0, [HOT, slow], 45.0, CRIT)
+    alone = plan_profile(BENCH, limits, 25.0, 25.0, [slow], 45.0, CRIT)
+    assert both.settle_s >= max(one.settle_s, alone.settle_s) - 1e-9
+    straight = plan_profile(BENCH, ThermalLimits(max_overshoot_c=0.0), 25.0, 25.0, [HOT, slow],
+                            45.0, CRIT)
+    assert both.settle_s < straight.settle_s
+
+
+def test_the_ramp_limit_shapes_every_profile() -> None:
+    t = np.arange(0.0, 1200.0, 5.0)
+    r = ramped_profiles(BENCH, 25.0, 45.0, np.array([10.0, 0.0]), np.array([300.0, 0.0]), t)
+    assert np.all(np.abs(np.diff(r, axis=1)) <= 5.0 / 60.0 * 5.0 + 1e-9)
+    assert r[0].max() == pytest.approx(25.0 + 5.0 * 300.0 / 60.0)  # 300 s at 5 C/min
+    assert r[0, -1] == r[1, -1] == 45.0
+
+
+def test_the_criterion_as_the_model_judges_it() -> None:
+    t = np.arange(0.0, 600.0, 5.0)
+    flat = np.full(t.size, 40.0)
+    assert settled_from_s(t, flat, CRIT)[0] == 60.0  # the first full window
+    creeping = 40.0 + 0.2 / 60.0 * t  # 0.2 C/min: never stable
+    assert settled_from_s(t, creeping, CRIT)[0] == np.inf
+
+
+def test_no_profile_settles_sooner_than_the_bound() -> None:
+    limits = ThermalLimits(max_overshoot_c=15.0, max_part_c=85.0)
+    plan = plan_profile(BENCH, limits, 25.0, 25.0, [HOT], 45.0, CRIT)
+    bound = settle_bound_s(BENCH, ThermalLimits(max_part_c=85.0), 25.0, HOT, 45.0, CRIT)
+    assert 0.0 < bound <= plan.settle_s + 10.0  # 10 s: the bound's coarser time step
+    assert plan.settle_s < 1.25 * bound  # and the planned family is near it
+    settled = settle_bound_s(BENCH, ThermalLimits(max_part_c=85.0), 25.0, HOT, 45.0, CRIT,
+                             near_final=True)
+    assert bound <= settled <= plan.settle_s + 10.0  # near the final value: a harder demand
+    # the self-heating step of a supply change alone: the chamber can shorten it too
+    heat = DieState(die_c=29.5, tau_s=300.0, heat_c=4.5, heat_final_c=5.5)
+    heat_bound = settle_bound_s(BENCH, ThermalLimits(), 25.0, heat, 25.0, CRIT)
+    heat_straight = plan_profile(BENCH, ThermalLimits(max_overshoot_c=0.0), 25.0, 25.0, [heat],
+                                 25.0, CRIT)
+    assert 0.0 < heat_bound < heat_straight.settle_s

@@ -1,0 +1,234 @@
+"""The `fastest` thermal strategy at run time: plan, command, learn, re-plan.
+
+At a condition's start the controller plans a setpoint profile (procedures/chamber_strategy.py:
+a bounded overshoot held, then the target) for every part's die, each with its own lag and
+self-heating, and commands it. Every check it advances its estimate of the chamber's ramped
+setpoint, records the air and each part's own reading, and every `replan_interval_s` learns
+each die's lag from those readings and plans again from where things are. The self-heating
+step of a supply change is predicted with the product's C/W (or scaled from the rise at the
+previous supply). `finish` commands the target: the chamber is never left at an overshoot.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from procedures.chamber_strategy import (
+    Criterion,
+    DieState,
+    SetpointPlan,
+    ThermalLimits,
+    ThermalModel,
+    learn_die_tau_s,
+    plan_profile,
+)
+
+log = logging.getLogger(__name__)
+
+SETPOINT_RESOLUTION_C = 0.1  # the chamber's setpoint register holds tenths
+MIN_LEARN_C2 = 100.0  # sum of (air - die)^2 over the readings before a lag is learned
+TAU_RANGE = 3.0  # a learned lag stays within 1/3..3 times the product's value
+
+
+class SetpointChamber(Protocol):
+    def set_setpoint(self, temp_c: float) -> None: ...
+
+
+@dataclass(frozen=True)
+class ControlSettings:
+    """Everything the controller needs from the procedure, the product and the chamber."""
+
+    target_c: float
+    criterion: Criterion
+    model: ThermalModel
+    limits: ThermalLimits
+    die_tau_prior_s: float
+    heat_tau_s: float
+    replan_interval_s: float
+
+
+@dataclass
+class _Part:
+    die0_c: float  # reading at the start
+    heat0_c: float  # self-heating part of it at the start
+    heat_final_c: float
+    tau_s: float
+    time_s: list[float] = field(default_factory=list)
+    reading_c: list[float] = field(default_factory=list)
+
+
+def heat_before_change(
+    reading_c: float, air_c: float, supply_old_v: float, supply_new_v: float,
+    power_new_w: float, c_per_w: float | None,
+) -> float:
+    """The self-heating in a reading taken just after a supply change: the product's C/W
+    times the power drawn at the old supply (power scales with V^2); without C/W, or at the
+    first condition (no old supply), the reading's excess over the air."""
+    if c_per_w is None or supply_old_v <= 0 or supply_new_v <= 0:
+        return reading_c - air_c
+    return c_per_w * max(power_new_w, 0.0) * (supply_old_v / supply_new_v) ** 2
+
+
+def heat_after_change(
+    heat_now_c: float, supply_old_v: float, supply_new_v: float, power_new_w: float,
+    c_per_w: float | None,
+) -> float:
+    """The self-heating a part tends to at the new supply: the product's C/W times the power
+    it draws, or (no C/W given) the present heating scaled by the power ratio (V^2)."""
+    if c_per_w is not None:
+        return c_per_w * max(power_new_w, 0.0)
+    if supply_old_v <= 0:
+        return heat_now_c
+    return heat_now_c * (supply_new_v / supply_old_v) ** 2
+
+
+class FastestController:
+    """Drives the chamber through planned profiles for one condition."""
+
+    def __init__(self, chamber: SetpointChamber, settings: ControlSettings) -> None:
+        self.chamber = chamber
+        self.cfg = settings
+        self.parts: dict[int, _Part] = {}
+        self.air_time_s: list[float] = []
+        self.air_c: list[float] = []
+        self.plan: SetpointPlan | None = None
+        self.first_plan: SetpointPlan | None = None
+        self.plan_at_s = 0.0
+        self.ramped_c = settings.target_c
+        self.commanded_c: float | None = None
+        self.last_s = 0.0
+        self.replans = 0
+        self.direction = 1.0
+
+    # ------------------------------------------------------------ start, tick, finish
+
+    def start(
+        self, now_s: float, air_c: float, setpoint_c: float,
+        parts: dict[int, tuple[float, float, float]],
+    ) -> None:
+        """Plan and command the first setpoint. `parts`: socket -> (reading, self-heating
+        now, self-heating at the new supply) C; the rest of the reading is the die's lag."""
+        self.ramped_c = setpoint_c if abs(air_c - setpoint_c) < 1.0 else air_c
+        self.direction = 1.0 if self.cfg.target_c >= air_c else -1.0  # the air's way to go
+        for socket, (reading_c, heat0, heat_final_c) in parts.items():
+            self.parts[socket] = _Part(reading_c, heat0, heat_final_c, self.cfg.die_tau_prior_s)
+        self.last_s = now_s
+        self._observe(now_s, air_c, {s: p.die0_c for s, p in self.parts.items()})
+        self._replan(now_s, air_c)
+        self.first_plan = self.plan
+        self._command(now_s)
+
+    def tick(self, now_s: float, air_c: float, readings: dict[int, float]) -> None:
+        """One check: follow the ramp, keep the readings, re-plan when due, command."""
+        self._advance_ramp(now_s)
+        self._observe(now_s, air_c, readings)
+        for socket in list(self.parts):
+            if socket not in readings:
+                del self.parts[socket]  # dropped or stable parts no longer govern
+        due = now_s - self.plan_at_s >= self.cfg.replan_interval_s
+        if due and self.parts and self._in_overshoot(now_s):
+            self._learn()
+            self._replan(now_s, air_c)
+        self._command(now_s)
+
+    def finish(self) -> None:
+        """Command the target (every exit path: the chamber never stays at an overshoot)."""
+        if self.commanded_c is None or abs(self.commanded_c - self.cfg.target_c) > 1e-9:
+            self.chamber.set_setpoint(self.cfg.target_c)
+            self.commanded_c = self.cfg.target_c
+
+    def summary(self, socket: int) -> dict[str, Any]:
+        """What the record keeps of the strategy for one part."""
+        plan = self.first_plan
+        part = self.parts.get(socket)
+        return {
+            "strategy": "fastest",
+            "die_tau_s": part.tau_s if part else None,
+            "overshoot_c": plan.overshoot_c if plan else 0.0,
+            "hold_s": plan.hold_s if plan else 0.0,
+            "predicted_settle_s": plan.settle_s if plan else None,
+            "replans": self.replans,
+        }
+
+    # ------------------------------------------------------------ internals
+
+    def _advance_ramp(self, now_s: float) -> None:
+        dt = max(now_s - self.last_s, 0.0)
+        self.last_s = now_s
+        if self.commanded_c is None:
+            return
+        step = self.cfg.model.ramp_c_per_min / 60.0 * dt
+        self.ramped_c += max(-step, min(step, self.commanded_c - self.ramped_c))
+
+    def _observe(self, now_s: float, air_c: float, readings: dict[int, float]) -> None:
+        self.air_time_s.append(now_s)
+        self.air_c.append(air_c)
+        for socket, reading in readings.items():
+            part = self.parts.get(socket)
+            if part is not None and math.isfinite(reading):
+                part.time_s.append(now_s)
+                part.reading_c.append(reading)
+
+    def _heat_at(self, part: _Part, elapsed_s: float) -> float:
+        decay = math.exp(-elapsed_s / self.cfg.heat_tau_s)
+        return part.heat_final_c + (part.heat0_c - part.heat_final_c) * decay
+
+    def _learn(self) -> None:
+        """Each die's lag from its own readings (the self-heating model taken out)."""
+        air_t = np.asarray(self.air_time_s)
+        air = np.asarray(self.air_c)
+        t0 = air_t[0]
+        for part in self.parts.values():
+            t = np.asarray(part.time_s)
+            if t.size < 3:
+                continue
+            heat = np.array([self._heat_at(part, x - t0) for x in t])
+            die = np.asarray(part.reading_c) - heat
+            air_at = np.interp(t, air_t, air)
+            if float(np.sum((air_at - die) ** 2)) < MIN_LEARN_C2:
+                continue  # the die has not been driven enough to tell its lag
+            learned = learn_die_tau_s(t, air_at, die, self.cfg.die_tau_prior_s)
+            prior = self.cfg.die_tau_prior_s
+            part.tau_s = min(max(learned, prior / TAU_RANGE), prior * TAU_RANGE)
+
+    def _replan(self, now_s: float, air_c: float) -> None:
+        t0 = self.air_time_s[0]
+        dies = [
+            DieState(
+                die_c=p.reading_c[-1] if p.reading_c else p.die0_c,
+                tau_s=p.tau_s,
+                heat_c=self._heat_at(p, now_s - t0),
+                heat_final_c=p.heat_final_c,
+                heat_tau_s=self.cfg.heat_tau_s,
+            )
+            for p in self.parts.values()
+        ]
+        if not dies:
+            return
+        self.plan = plan_profile(
+            self.cfg.model, self.cfg.limits, air_c, self.ramped_c, dies, self.cfg.target_c,
+            self.cfg.criterion,
+        )
+        self.plan_at_s = now_s
+        self.replans += 1
+        log.debug("thermal plan at %.0f s: %s", now_s, self.plan)
+
+    def _in_overshoot(self, now_s: float) -> bool:
+        return self.plan is not None and now_s - self.plan_at_s < self.plan.hold_s
+
+    def _command(self, now_s: float) -> None:
+        if self.plan is None:
+            wanted = self.cfg.target_c
+        else:
+            wanted = self.plan.setpoint_at(now_s - self.plan_at_s)
+        low = self.cfg.limits.setpoint_low_c
+        high = self.cfg.limits.setpoint_high_c
+        wanted = min(max(wanted, low), high)
+        if self.commanded_c is None or abs(wanted - self.commanded_c) >= SETPOINT_RESOLUTION_C / 2:
+            self.chamber.set_setpoint(wanted)
+            self.commanded_c = wanted

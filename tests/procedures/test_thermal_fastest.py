@@ -1,0 +1,227 @@
+"""The thermal step with chamber.strategy: fastest, in an in-process world on a simulated
+clock (no sleeps): it settles every die sooner than `setpoint` under the unchanged criterion,
+never commands beyond the chamber's limits nor lets a die past the product's maximum, and
+leaves the chamber at the target on every exit path (also when aborted mid-overshoot)."""
+
+from __future__ import annotations
+
+import bisect
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from drivers.errors import SetpointOutOfRange
+from procedures.conditions import Condition
+from procedures.config import ChamberConfig
+from procedures.run_context import Aborted
+from procedures.steps.registry import Place
+from procedures.steps.thermal import Stabilise, ThermalSettings
+
+SAMPLE_S = 0.5
+
+
+class World:
+    """A ramp-limited chamber, its air, and dies that lag the air and heat themselves."""
+
+    def __init__(self, die_taus_s: list[float], heat_c_per_w: float = 40.0,
+                 limits_c: tuple[float, float] = (-40.0, 125.0)) -> None:
+        self.now_s = 0.0
+        self.setpoint_c = 25.0
+        self.ramp_c_per_min = 0.0
+        self.ramped_c = self.air_c = 25.0
+        self.running = True
+        self.limits_c = limits_c
+        self.writes: list[tuple[float, float]] = []
+        self.taus = die_taus_s
+        self.die_c = [25.0] * len(die_taus_s)
+        self.heat_c = [0.0] * len(die_taus_s)
+        self.heat_c_per_w = heat_c_per_w
+        self.power_w = 0.11
+        self.samples: list[list[tuple[float, float]]] = [[] for _ in die_taus_s]
+        self.abort_at_s = math.inf
+
+    # the chamber's driver surface
+    def read_setpoint(self) -> float:
+        return self.setpoint_c
+
+    def set_setpoint(self, temp_c: float) -> None:
+        if not self.limits_c[0] <= temp_c <= self.limits_c[1]:
+            raise SetpointOutOfRange(f"{temp_c} C outside the limits", instrument="chamber")
+        self.setpoint_c = temp_c
+        self.writes.append((self.now_s, temp_c))
+
+    def set_ramp_rate(self, c_per_min: float) -> None:
+        self.ramp_c_per_min = c_per_min
+
+    def setpoint_limits(self) -> tuple[float, float]:
+        return self.limits_c
+
+    def is_running(self) -> bool:
+        return self.running
+
+    def run(self) -> None:
+        self.running = True
+
+    def read_temperature(self) -> float:
+        return self.air_c
+
+    # physics
+    def reading(self, i: int) -> float:
+        return self.die_c[i] + self.heat_c[i]
+
+    def advance(self, dt_s: float) -> None:
+        end = self.now_s + dt_s
+        while self.now_s < end - 1e-9:
+            if self.now_s >= self.abort_at_s:
+                raise Aborted("operator abort")
+            h = min(SAMPLE_S, end - self.now_s)
+            move = self.ramp_c_per_min / 60.0 * h
+            self.ramped_c += max(-move, min(move, self.setpoint_c - self.ramped_c))
+            self.air_c += (self.ramped_c - self.air_c) * (1 - math.exp(-h / 60.0))
+            for i, tau in enumerate(self.taus):
+                self.die_c[i] += (self.air_c - self.die_c[i]) * (1 - math.exp(-h / tau))
+                target = self.heat_c_per_w * self.power_w
+                self.heat_c[i] += (target - self.heat_c[i]) * (1 - math.exp(-h / 90.0))
+            self.now_s += h
+            for i in range(len(self.taus)):
+                self.samples[i].append((self.now_s, self.reading(i)))
+
+
+class Stream:
+    def __init__(self, world: World, index: int) -> None:
+        self.world, self.index = world, index
+
+    def fixture_time(self, station_time_s: float) -> float:
+        return station_time_s
+
+    def window(self, start_s: float, end_s: float) -> dict[str, Any]:
+        rows = self.world.samples[self.index]
+        i0 = bisect.bisect_left(rows, (start_s, -math.inf))
+        i1 = bisect.bisect_left(rows, (end_s, -math.inf))
+        arr = np.array(rows[i0:i1], dtype=np.float64).reshape(-1, 2)
+        return {"time_s": arr[:, 0], "temp_c": arr[:, 1]}
+
+
+def context(world: World, strategy: str, max_part_c: float | None = 85.0,
+            max_overshoot_c: float = 15.0, ramp_c_per_min: float = 5.0) -> Any:
+    clock = SimpleNamespace(now_s=lambda: world.now_s)
+    parts = [
+        SimpleNamespace(socket=i + 1, stream=Stream(world, i), conditions={},
+                        record=SimpleNamespace(analysis={}))
+        for i in range(len(world.taus))
+    ]
+
+    def set_supply(volts: float) -> None:
+        world.power_w = volts * volts * 0.025 / 5.0
+        world.advance(0.2)
+
+    return SimpleNamespace(
+        clock=clock,
+        wait=SimpleNamespace(clock=clock, sleep=world.advance),
+        instruments=SimpleNamespace(
+            chamber=world,
+            log_environment=lambda: (world.air_c, 5.0, 0.025 * len(parts)),
+            set_supply_voltage=set_supply,
+        ),
+        parts=SimpleNamespace(alive=lambda: parts, drop=None, require=lambda: None),
+        records=SimpleNamespace(segment=lambda *a, **k: None, event=lambda *a, **k: None),
+        procedure=SimpleNamespace(
+            chamber=ChamberConfig(strategy=strategy, max_overshoot_c=max_overshoot_c,
+                                  ramp_c_per_min=ramp_c_per_min)
+        ),
+        product=SimpleNamespace(
+            die_tau_s=300.0, max_part_temperature_c=max_part_c, self_heating_c_per_w=40.0,
+            self_heating_tau_s=90.0,
+        ),
+    )
+
+
+def step(temp_c: float, supply_v: float, previous: Condition | None) -> Stabilise:
+    settings = ThermalSettings(window_s=60, slope_c_per_min=0.1, band_c=0.2)
+    return Stabilise(settings, Place(condition=Condition(temp_c, supply_v), previous=previous))
+
+
+def settle(world: World, strategy: str, temp_c: float = 45.0, **kw: Any) -> float:
+    ctx = context(world, strategy, **kw)
+    s = step(temp_c, 5.25, Condition(25.0, 5.25))
+    start = world.now_s
+    s.setup(ctx)
+    s.main(ctx)
+    return world.now_s - start
+
+
+def warmed(taus: list[float]) -> World:
+    """Parts powered at 5.25 V and settled at 25 C."""
+    world = World(taus)
+    world.power_w = 5.25 * 5.25 * 0.025 / 5.0
+    world.heat_c = [40.0 * world.power_w] * len(taus)
+    return world
+
+
+@pytest.mark.parametrize("taus", [[300.0], [240.0, 300.0, 360.0]])
+def test_fastest_settles_every_die_sooner_than_setpoint(taus: list[float]) -> None:
+    straight = settle(warmed(taus), "setpoint")
+    world = warmed(taus)
+    fast = settle(world, "fastest")
+    assert fast < 0.8 * straight  # the slowest die governs: with a spread of lags it gains less
+    assert max(sp for _, sp in world.writes) > 45.0  # it did overshoot
+    assert world.setpoint_c == 45.0  # and measures at the target
+    # the unchanged criterion judged every die on its own reading: all near their final value
+    for i in range(len(taus)):
+        assert abs(world.reading(i) - (45.0 + world.heat_c[i])) < 0.6
+
+
+def test_never_beyond_the_limits_nor_the_part_maximum() -> None:
+    world = warmed([300.0, 200.0])
+    world.limits_c = (-40.0, 60.0)
+    settle(world, "fastest", max_part_c=52.0)
+    writes = [sp for _, sp in world.writes]
+    assert max(writes) > 45.0 and all(sp <= 52.0 for sp in writes)  # chamber's and part's
+    # the die's own reading (self-heating included: 50.5 C at the target) stays below 52 C
+    assert max(r for s in world.samples for _, r in s) <= 52.0 + 0.05
+    assert world.setpoint_c == 45.0
+
+    world = warmed([300.0])
+    world.limits_c = (-40.0, 47.0)  # the chamber's own limit is the lower one here
+    settle(world, "fastest", max_part_c=85.0)
+    assert max(sp for _, sp in world.writes) <= 47.0
+
+
+def test_a_target_beyond_the_part_maximum_is_refused_with_the_setting_to_check() -> None:
+    world = warmed([300.0])
+    with pytest.raises(SetpointOutOfRange, match="max_part_temperature_c"):
+        settle(world, "fastest", max_part_c=40.0)
+    assert world.setpoint_c == 25.0  # nothing was commanded
+
+
+def test_an_abort_during_the_overshoot_leaves_the_chamber_at_the_target() -> None:
+    world = warmed([300.0])
+    world.abort_at_s = 120.0  # the plan holds the overshoot for minutes
+    with pytest.raises(Aborted):
+        settle(world, "fastest")
+    overshoot = [sp for t, sp in world.writes if t < 120.0]
+    assert overshoot and max(overshoot) > 45.0
+    assert world.setpoint_c == 45.0 and world.writes[-1][1] == 45.0
+
+
+def test_setpoint_strategy_commands_the_target_only() -> None:
+    world = warmed([300.0])
+    settle(world, "setpoint")
+    assert [sp for _, sp in world.writes] == [45.0]
+
+
+def test_cooling_waits_for_the_air_before_judging_the_dies() -> None:
+    world = warmed([300.0])
+    world.air_c = world.ramped_c = world.setpoint_c = 45.0
+    world.die_c = [45.0]
+    # straight down (no overshoot) on a slow ramp: the die barely moves in the first window
+    ctx = context(world, "fastest", max_overshoot_c=0.0, ramp_c_per_min=0.5)
+    s = step(25.0, 5.25, Condition(45.0, 5.25))
+    s.setup(ctx)
+    s.main(ctx)
+    # a die that had not started to move was not taken as stable: it reached the cold side
+    assert world.reading(0) < 25.0 + world.heat_c[0] + 0.6
+    assert world.setpoint_c == 25.0
