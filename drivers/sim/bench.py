@@ -161,8 +161,15 @@ class Bench:
     def _flush_samples(self, t_s: float) -> None:
         """Send every sample due before a motion command, so none is computed with the new
         motion profile (the tick loop runs every few wall ms, seconds of world time at 100x)."""
-        for fixture in self.fixtures.values():
-            fixture.tick(t_s)
+        self._tick_fixtures(t_s)
+
+    def _tick_fixtures(self, t_s: float) -> None:
+        """Send every socket's sample frames due up to `t_s` (the table's angle evaluated
+        once for all of them)."""
+        for index, frames in self.world.produce_all(t_s).items():
+            fixture = self.fixtures.get(index)
+            if fixture is not None:
+                fixture.send_samples(frames)
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -201,8 +208,7 @@ class Bench:
             return  # the world moves only when the station's clock asks (cmd advance)
         while True:
             t = self.world.advance()
-            for fixture in self.fixtures.values():
-                fixture.tick(t)
+            self._tick_fixtures(t)
             self.ticks += 1
             streaming = any(f.socket.streaming for f in self.fixtures.values())
             await asyncio.sleep(TICK_WALL_S if streaming else IDLE_TICK_WALL_S)
@@ -259,11 +265,11 @@ class Bench:
             )
         to_s = _number(req, "to_s", 0.0, 0.0, 1e9)
         t = self.world.advance_to(to_s)
+        sent = {index: f.socket.frames_sent for index, f in self.fixtures.items()}
+        self._tick_fixtures(t)
         last_seq: dict[str, int] = {}
         for index, fixture in self.fixtures.items():
-            sent = fixture.socket.frames_sent
-            fixture.tick(t)
-            if fixture.socket.frames_sent > sent:
+            if fixture.socket.frames_sent > sent[index]:
                 last_seq[str(index)] = (fixture.socket.seq - 1) % SEQ_MODULO
         return {"time_s": t, "seq": last_seq}
 
