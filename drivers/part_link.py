@@ -227,7 +227,10 @@ class SerialPartLink:
                 if now - window_t0 >= _RATE_WINDOW_S:
                     pause_s = _pause_for(window_bytes / (now - window_t0), self._batch_s)
                     window_t0, window_bytes = now, 0
-                if pause_s > 0 and len(data) < _PAUSE_FILL_BYTES:
+                # in lockstep the bench sends an interval's frames at once and waits for the
+                # station to read them: a pause would only delay the station's next step
+                lockstep = getattr(self._clock, "lockstep", False)
+                if pause_s > 0 and len(data) < _PAUSE_FILL_BYTES and not lockstep:
                     time.sleep(pause_s)
         except Exception as exc:  # noqa: BLE001 - reported to the caller by _check_reader
             if not self._stop.is_set():
