@@ -114,7 +114,7 @@ def launch_bench(
     speed: float | None = None,
     *,
     sockets: int | None = None,
-    start_timeout_s: float = 20.0,
+    start_timeout_s: float = 60.0,  # a bound, not a wait: a 2-core machine under load
     stop_timeout_s: float = 10.0,
     extra_args: tuple[str, ...] = (),
     lockstep: bool = False,
