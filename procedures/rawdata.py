@@ -110,13 +110,20 @@ class RawDataWriter:
         self._file.attrs["format"] = FORMAT
         for key, value in attrs.items():
             self._file.attrs[key] = value
+        # the datasets by group and column, looked up once (h5py's lookups cost more than
+        # writing a batch of rows)
+        self._datasets: dict[str, dict[str, Any]] = {}
+        self._rows: dict[str, int] = {}  # rows written per group (every column alike)
         for group_name, columns in GROUPS.items():
             group = self._file.create_group(group_name)
+            self._datasets[group_name] = {}
+            self._rows[group_name] = 0
             for column, (dtype, units) in columns.items():
                 ds = group.create_dataset(
                     column, shape=(0,), maxshape=(None,), dtype=dtype, chunks=(4096,)
                 )
                 ds.attrs["units"] = units
+                self._datasets[group_name][column] = ds
         self._file.swmr_mode = True
         self._file.flush()
 
@@ -141,15 +148,16 @@ class RawDataWriter:
         (n,) = lengths
         if n == 0:
             return
-        g = self._file[group]
+        datasets = self._datasets[group]
+        old = self._rows[group]
         for column, values in arrays.items():
-            ds = g[column]
-            old = ds.shape[0]
+            ds = datasets[column]
             ds.resize((old + n,))
             if expected[column][0] is _STR:
-                ds[old:] = [str(v) for v in values]
+                ds[old : old + n] = [str(v) for v in values]
             else:
-                ds[old:] = values
+                ds[old : old + n] = values
+        self._rows[group] = old + n
         self._file.flush()
 
     def read_window(

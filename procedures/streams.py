@@ -48,9 +48,11 @@ _COLUMNS = (
     "encoder_counts",
 )
 _DTYPES = {c: np.float64 for c in ("time_s", "rate_dps", "temp_c", "station_time_s")}
-_FLUSH_SAMPLES = 2000
+# samples a part gathers before they are appended to raw.h5 (each append costs the same
+# few ms of HDF5 bookkeeping whatever its size); at most _FLUSH_WALL_S apart anyway
+_FLUSH_SAMPLES = 8192
 FIXTURE_WRAP_S = (1 << 32) * 1e-6  # the fixture's u32 microsecond timestamp
-_FLUSH_WALL_S = 0.5
+_FLUSH_WALL_S = 5.0  # a killed run loses at most this much wall time of samples
 # samples kept in memory per part (between this and twice this): 65 s at 1 kHz, 9 MB
 KEEP_SAMPLES = 1 << 16
 CATCH_UP_WALL_S = 0.5  # lockstep: longest wall wait for an interval's frames
@@ -339,12 +341,15 @@ class Acquisition:
         self.close()
 
     def _run(self) -> None:
+        # in lockstep every clock step catches up itself (catch_up): this thread only drains
+        # what arrives between steps, so it need not look as often
+        idle_s = self.poll_wall_s * (10 if self._lockstep_clocks() else 1)
         while not self._stop.is_set():
             got = 0
             for stream in list(self.streams.values()):
                 got += stream.poll()
             if not got:
-                self._stop.wait(self.poll_wall_s)
+                self._stop.wait(idle_s)
 
     def close(self) -> None:
         for clock in self._lockstep_clocks():

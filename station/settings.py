@@ -78,18 +78,41 @@ class InstrumentSettings(BaseModel):
         }
 
 
+MAX_SOCKETS = 64  # a load of 32 sockets is four boards of eight; room for eight boards
+
+
+class FixtureBoard(BaseModel):
+    """One fixture board: its name and its sockets' serial ports (a board of eight sockets
+    brings eight ports, one per socket's microcontroller, docs/fixture-protocol.md)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: ShortName = Field(min_length=1, description="the board's name (label on the line)")
+    ports: dict[int, PathText] = Field(
+        min_length=1,
+        max_length=MAX_SOCKETS,
+        description="socket number (of the whole load) -> serial port on this board",
+    )
+
+
 class FixtureSettings(BaseModel):
     """The part role (key fixture, or part): the fixture's sockets and their ports; other
-    keys are the part driver's settings (baud, timeout_s, ...)."""
+    keys are the part driver's settings (baud, timeout_s, ...). A load on several fixture
+    boards lists them under `boards:`; their ports join `ports`."""
 
     model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False)
 
     driver: PathText | None = Field(None, min_length=1, description=_DRIVER_HELP)
-    sockets: int = Field(1, ge=1, le=16, description="number of part sockets")
+    sockets: int = Field(1, ge=1, le=MAX_SOCKETS, description="number of part sockets")
     ports: dict[int, PathText] = Field(
         default_factory=dict,
-        max_length=16,
+        max_length=MAX_SOCKETS,
         description="socket number -> serial port of its microcontroller",
+    )
+    boards: list[FixtureBoard] = Field(
+        default_factory=list,
+        max_length=8,
+        description="fixture boards, each with its sockets' ports (merged into ports)",
     )
     baud: int = Field(
         115200,
@@ -111,7 +134,9 @@ class FixtureSettings(BaseModel):
         given.update(self.model_extra or {})
         out = {
             k: v for k, v in given.items()
-            if k not in ("driver", "calibration_due", "sockets", "ports", *REFERENCE_KEYS)
+            if k not in (
+                "driver", "calibration_due", "sockets", "ports", "boards", *REFERENCE_KEYS
+            )
         }
         out.update(address=address, socket=socket)
         return out
@@ -119,9 +144,37 @@ class FixtureSettings(BaseModel):
     @field_validator("ports")
     @classmethod
     def _sockets(cls, value: dict[int, str]) -> dict[int, str]:
-        if any(not 1 <= k <= 16 for k in value):
-            raise ValueError("socket numbers are 1..16")
+        if any(not 1 <= k <= MAX_SOCKETS for k in value):
+            raise ValueError(f"socket numbers are 1..{MAX_SOCKETS}")
         return value
+
+    @model_validator(mode="after")
+    def _boards_ports(self) -> FixtureSettings:
+        """Every board's ports join `ports`; a socket on two boards (or on a board and in
+        ports) is refused, and `sockets` covers the highest socket a board names."""
+        if not self.boards:
+            return self
+        ports = dict(self.ports)
+        for board in self.boards:
+            for sock, path in board.ports.items():
+                if not 1 <= sock <= MAX_SOCKETS:
+                    raise ValueError(f"board {board.name}: socket numbers are 1..{MAX_SOCKETS}")
+                if sock in ports:
+                    raise ValueError(
+                        f"socket {sock} is given two ports (board {board.name} and another); "
+                        "give each socket one port"
+                    )
+                ports[sock] = path
+        object.__setattr__(self, "ports", ports)
+        object.__setattr__(self, "sockets", max(self.sockets, max(ports)))
+        return self
+
+    def board_of(self, socket: int) -> str | None:
+        """The name of the board that holds `socket` (None when no board names it)."""
+        for board in self.boards:
+            if socket in board.ports:
+                return board.name
+        return None
 
 
 class Instruments(_Strict):

@@ -816,11 +816,18 @@ def run_simulated(
     from station.settings import load_settings
 
     sockets = max(int(p["socket"]) for p in parts)
+    settings = settings or load_settings()
+    # the procedure's step modules import while the bench process starts (seconds of each)
+    warm = threading.Thread(
+        target=_warm_up, args=(procedure_path or settings.procedure,), daemon=True
+    )
+    warm.start()
     with launch_bench(
         config={"parts": parts}, speed=speed, sockets=sockets, lockstep=speed is None
     ) as bench:
+        warm.join()
         runner = UutRunner(
-            settings or load_settings(),
+            settings,
             procedure_path=procedure_path,
             out=out,
             endpoints=Endpoints.of_bench(bench.endpoints),
@@ -832,3 +839,12 @@ def run_simulated(
         result = runner.run({int(p["socket"]): str(p["serial"]) for p in parts})
         truth = bench.control.truth()
     return result, truth
+
+
+def _warm_up(procedure_path: Path) -> None:
+    """Load the procedure once, for its imports (UutRunner loads it again and reports any
+    error in it)."""
+    try:
+        load_procedure(Path(procedure_path))
+    except Exception:  # noqa: BLE001 - reported by the runner's own load
+        log.debug("warm-up load of %s failed", procedure_path, exc_info=True)

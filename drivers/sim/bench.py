@@ -27,6 +27,7 @@ from drivers.sim.acutrol_twin import AcutrolTwin
 from drivers.sim.config import PartSpec, SimConfig
 from drivers.sim.control import ControlRequestError, ControlServer
 from drivers.sim.espec_twin import EspecP300Twin
+from drivers.sim.fixture_board import FixtureBoardTwin, board_sockets
 from drivers.sim.inclinometer_twin import InclinometerTwin
 from drivers.sim.modbus_twins import ChamberTwin, TableTwin
 from drivers.sim.operator_eyes import OperatorEyes
@@ -148,7 +149,8 @@ class Bench:
         self.supply: Any = twin_class("supply", self.families["supply"])(self.world, host, 0)
         self.control = ControlServer(self.dispatch, host, control_port)
         self.eyes = OperatorEyes(self.world, host)  # the simulated operator reads prompts
-        self.fixtures: dict[int, FixtureTwin] = {}
+        self.fixtures: dict[int, FixtureTwin] = {}  # every board's sockets
+        self.boards: list[FixtureBoardTwin] = []
         self.inclinometers: dict[int, InclinometerTwin] = {}
         if config.instruments.inclinometer != "none":
             self.inclinometers = {
@@ -161,17 +163,27 @@ class Bench:
     def _flush_samples(self, t_s: float) -> None:
         """Send every sample due before a motion command, so none is computed with the new
         motion profile (the tick loop runs every few wall ms, seconds of world time at 100x)."""
-        for fixture in self.fixtures.values():
-            fixture.tick(t_s)
+        self._tick_fixtures(t_s)
+
+    def _tick_fixtures(self, t_s: float) -> None:
+        """Send every socket's sample frames due up to `t_s` (the table's angle evaluated
+        once for all of them)."""
+        frames = self.world.produce_all(t_s)
+        if frames:
+            for board in self.boards:
+                board.send(frames)
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
         await self.table.start()
         await self.chamber.start()
         await self.supply.start()
-        fifo = self.world.config.fixture.fifo_bytes
-        for index, sock in self.world.sockets.items():
-            self.fixtures[index] = FixtureTwin(self.world, sock, loop, fifo)
+        fixture = self.world.config.fixture
+        groups = board_sockets(list(self.world.sockets), fixture.sockets_per_board)
+        for number, sockets in enumerate(groups, start=1):
+            board = FixtureBoardTwin(self.world, number, sockets, loop, fixture.fifo_bytes)
+            self.boards.append(board)
+            self.fixtures.update(board.twins)
         await self.control.start()
         await self.eyes.start()
         for inclinometer in self.inclinometers.values():
@@ -187,6 +199,7 @@ class Bench:
             "chamber": endpoint_of(self.chamber),
             "supply": endpoint_of(self.supply),
             "duts": {str(i): f.port.path for i, f in self.fixtures.items()},
+            "boards": {str(b.number): sorted(b.twins) for b in self.boards},
             "control": self.control.endpoint,
             "operator": self.eyes.endpoint,
             "inclinometers": {str(s): i.endpoint() for s, i in self.inclinometers.items()},
@@ -201,8 +214,7 @@ class Bench:
             return  # the world moves only when the station's clock asks (cmd advance)
         while True:
             t = self.world.advance()
-            for fixture in self.fixtures.values():
-                fixture.tick(t)
+            self._tick_fixtures(t)
             self.ticks += 1
             streaming = any(f.socket.streaming for f in self.fixtures.values())
             await asyncio.sleep(TICK_WALL_S if streaming else IDLE_TICK_WALL_S)
@@ -218,8 +230,8 @@ class Bench:
             await inclinometer.shutdown()
         for twin in (self.table, self.chamber, self.supply):
             await twin.shutdown()
-        for fixture in self.fixtures.values():
-            fixture.close()
+        for board in self.boards:
+            board.close()
 
     # ------------------------------------------------------------ control channel
 
@@ -259,11 +271,11 @@ class Bench:
             )
         to_s = _number(req, "to_s", 0.0, 0.0, 1e9)
         t = self.world.advance_to(to_s)
+        sent = {index: f.socket.frames_sent for index, f in self.fixtures.items()}
+        self._tick_fixtures(t)
         last_seq: dict[str, int] = {}
         for index, fixture in self.fixtures.items():
-            sent = fixture.socket.frames_sent
-            fixture.tick(t)
-            if fixture.socket.frames_sent > sent:
+            if fixture.socket.frames_sent > sent[index]:
                 last_seq[str(index)] = (fixture.socket.seq - 1) % SEQ_MODULO
         return {"time_s": t, "seq": last_seq}
 

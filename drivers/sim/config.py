@@ -245,6 +245,13 @@ class FixtureConfig(_Model):
         description="highest temperature order the part's calibration registers hold: 1 is "
         "the eight first-order registers only (CAL? lists eight; bias_tc2.. are refused)",
     )
+    sockets_per_board: int = Field(
+        default=8,
+        ge=1,
+        le=64,
+        description="sockets on each fixture board: a load of 32 sockets is four boards of "
+        "eight, each board its own twin with one serial port per socket",
+    )
 
 
 class PartPhysicsConfig(_Model):

@@ -12,6 +12,7 @@ from dataclasses import fields, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers import fixture_protocol as fp
 from drivers.part_codes import ADIS16130
@@ -218,16 +219,28 @@ class FixtureSocket:
 
     def produce(self, t_s: float) -> bytes:
         """Sample frames due up to world time `t_s` (empty when not streaming)."""
-        if not self.streaming:
+        times = self.due_times(t_s)
+        if times is None:
             return b""
-        dt = 1.0 / self.odr_hz
+        return self.frames_at(times, self.world.table.angle_deg(times))
+
+    def due_times(self, t_s: float) -> NDArray[np.float64] | None:
+        """The world times of the samples due up to `t_s`, taken as due (None: none due).
+        `frames_at` must then be called with them: `produce` in two halves, so the bench can
+        evaluate the table's angle once for every socket (`World.produce_all`)."""
+        if not self.streaming:
+            return None
         last_k = math.floor((t_s - self._t_start) * self.odr_hz + 1e-9)
         if last_k < self._next_k:
-            return b""
+            return None
         k = np.arange(self._next_k, last_k + 1, dtype=np.int64)
         self._next_k = last_k + 1
-        times = (self._t_start + k * dt).astype(np.float64)
-        table_angle = self.world.table.angle_deg(times)
+        return (self._t_start + k * (1.0 / self.odr_hz)).astype(np.float64)
+
+    def frames_at(self, times: NDArray[np.float64], table_angle: NDArray[np.float64]) -> bytes:
+        """The sample frames at `times` (from `due_times`), the table at `table_angle` then."""
+        dt = 1.0 / self.odr_hz
+        n = times.size
         # the fixture turned by hand adds its angle (nothing to add until the hand moves it)
         angle = table_angle + self.hand.angle_deg(times) if self.hand.moves else table_angle
         if self.part_silent or not self.part_powered():
@@ -245,7 +258,7 @@ class FixtureSocket:
             frames3 = fixture3.produce(self, part, times, rate, table_angle, supply_v, dt)
             return self._apply_stream_faults(frames3, fp.SAMPLE3_FRAME_SIZE)
         raw, die = part.raw_output_dps(times, rate, angle, supply_v, dt)
-        status = np.zeros(k.size, dtype=np.int64)
+        status = np.zeros(n, dtype=np.int64)
         encoder = None
         if self.world.config.fixture.encoder_input:
             encoder = self.world.table.absolute_counts(table_angle)
@@ -259,9 +272,9 @@ class FixtureSocket:
         status[ADIS16130.rate_code_at_rail(rate_code)] |= fp.SampleStatus.SATURATED
         if supply_v < self.world.config.part_physics.supply_low_v:
             status |= fp.SampleStatus.SUPPLY_LOW
-        temp_noise = self.rng.normal(0.0, self.world.config.part_physics.temp_noise_c, k.size)
-        seq = self.seq + np.arange(k.size, dtype=np.int64)
-        self.seq += k.size
+        temp_noise = self.rng.normal(0.0, self.world.config.part_physics.temp_noise_c, n)
+        seq = self.seq + np.arange(n, dtype=np.int64)
+        self.seq += n
         frames = fp.encode_samples(
             seq,
             np.rint((times + self.clock_offset_s) * 1e6).astype(np.int64),
@@ -270,7 +283,7 @@ class FixtureSocket:
             status,
             encoder,
         )
-        self.frames_sent += k.size
+        self.frames_sent += n
         return self._apply_stream_faults(frames)
 
     def _apply_stream_faults(self, frames: bytes, size: int = fp.SAMPLE_FRAME_SIZE) -> bytes:

@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
@@ -247,6 +246,8 @@ class PartModel:
         if state is None or t_s[0] - state[2] > 1.5 * dt_s:
             state = (float(x[0]), float(x[0]), float(t_s[0]) - dt_s)
         x_prev, y_prev, _ = state
+        from scipy.signal import lfilter  # only a part with a sensor lag: seconds of import
+
         y, _ = lfilter([b0, b1], [1.0, -alpha], x, zi=[b1 * x_prev + alpha * y_prev])
         self._lag_state = (float(x[-1]), float(y[-1]), float(t_s[-1]))
         return np.asarray(y, dtype=float)

@@ -114,12 +114,12 @@ def launch_bench(
     speed: float | None = None,
     *,
     sockets: int | None = None,
-    start_timeout_s: float = 20.0,
+    start_timeout_s: float = 60.0,  # a bound, not a wait: a 2-core machine under load
     stop_timeout_s: float = 10.0,
     extra_args: tuple[str, ...] = (),
     lockstep: bool = False,
 ) -> Iterator[BenchHandle]:
-    """Run `python -m station bench` in a subprocess for the duration of the block.
+    """Run `station bench` (python -m station.bench_main) in a subprocess for the block.
 
     `config` is a sim config file path or a mapping (written to a temp YAML file).
     `lockstep`: the world moves only when the station's clock asks (`LockstepClock`).
@@ -127,7 +127,8 @@ def launch_bench(
     with tempfile.TemporaryDirectory(prefix="simbench-") as tmp:
         tmp_dir = Path(tmp)
         state_path = tmp_dir / "state.json"
-        cmd = [sys.executable, "-m", "station", "bench", "--state", str(state_path)]
+        # `station bench` without the other commands' imports (station/bench_main.py)
+        cmd = [sys.executable, "-m", "station.bench_main", "--state", str(state_path)]
         if isinstance(config, Mapping):
             cfg_path = tmp_dir / "sim.yaml"
             cfg_path.write_text(yaml.safe_dump(dict(config)), encoding="utf-8")

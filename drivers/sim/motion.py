@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -77,19 +78,35 @@ class Profile:
     motion_end_s: float  # after this, velocity is constant (zero or the commanded rate)
     bounce: Bounce | None = None
 
+    @cached_property
+    def _starts(self) -> FloatArray:
+        """Each piece's start time (looked up on every evaluation: made once)."""
+        return np.array([p.t0_s for p in self.pieces])
+
     def _index(self, t: FloatArray) -> NDArray[np.intp]:
-        starts = np.array([p.t0_s for p in self.pieces])
+        starts = self._starts
         return np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.pieces) - 1)
 
     def _eval(self, t_s: ArrayLike, velocity: bool) -> FloatArray:
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        return self._eval_pieces(t, velocity, self._piece_index(t))
+
+    def _piece_index(self, t: FloatArray) -> NDArray[np.intp] | int:
+        """The piece of every time in `t`, or one piece's index for all of them (the usual
+        case: the whole batch inside one piece, t sorted)."""
+        if len(self.pieces) == 1:
+            return 0
         idx = self._index(t[[0, -1]]) if t.size else np.zeros(2, dtype=np.intp)
-        if idx[0] == idx[1]:  # the usual case: the whole batch inside one piece (t sorted)
-            piece = self.pieces[int(idx[0])]
+        return int(idx[0]) if idx[0] == idx[1] else self._index(t)
+
+    def _eval_pieces(
+        self, t: FloatArray, velocity: bool, idx: NDArray[np.intp] | int
+    ) -> FloatArray:
+        if isinstance(idx, int):
+            piece = self.pieces[idx]
             out = piece.velocity_dps(t) if velocity else piece.position_deg(t)
         else:
             out = np.empty_like(t)
-            idx = self._index(t)
             for i in np.unique(idx):
                 sel = idx == i
                 piece = self.pieces[int(i)]
@@ -97,6 +114,12 @@ class Profile:
         if self.bounce is not None:
             out += self.bounce.velocity_dps(t) if velocity else self.bounce.position_deg(t)
         return out
+
+    def position_velocity(self, t_s: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(position_deg, velocity_dps) at every time: the pieces looked up once."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        idx = self._piece_index(t)
+        return self._eval_pieces(t, False, idx), self._eval_pieces(t, True, idx)
 
     def position_deg(self, t_s: ArrayLike) -> FloatArray:
         return self._eval(t_s, velocity=False)

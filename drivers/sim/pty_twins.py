@@ -138,6 +138,10 @@ class FixtureTwin:
         """Send the sample frames due up to world time `t_s`."""
         self._send_samples(self.socket.produce(t_s))
 
+    def send_samples(self, frames: bytes) -> None:
+        """Send sample frames the world produced for this socket (`World.produce_all`)."""
+        self._send_samples(frames)
+
     def _send_samples(self, frames: bytes) -> None:
         if not frames:
             return

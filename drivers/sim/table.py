@@ -86,8 +86,7 @@ class TableModel:
     def angle_deg(self, t_s: ArrayLike) -> NDArray[np.float64]:
         """True table angle (deg, continuous), ripple included."""
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-        p = self.profile.position_deg(t)
-        v = self.profile.velocity_dps(t)
+        p, v = self.profile.position_velocity(t)
         w = 2 * math.pi * self.cfg.ripple_hz
         return p + self._ripple_amp(v) / w * np.sin(w * t)
 

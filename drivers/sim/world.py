@@ -12,6 +12,7 @@ import time
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.rate_table_map import Fault
 from drivers.sim.chamber import ChamberModel
@@ -91,6 +92,33 @@ class World:
                 sock.part.step(t, dt, air, supply_v if sock.part_present() else 0.0)
         self._last_t = t
         return t
+
+    def produce_all(self, t_s: float) -> dict[int, bytes]:
+        """Every streaming socket's sample frames due up to `t_s` (sockets with none left
+        out): the same bytes as each socket's `produce(t_s)`, with the table's angle evaluated
+        once, at every socket's sample times together (sorted, so the motion profile finds
+        each time's piece in one search)."""
+        due: list[tuple[FixtureSocket, NDArray[np.float64]]] = []
+        for sock in self.sockets.values():
+            times = sock.due_times(t_s)
+            if times is not None:
+                due.append((sock, times))
+        if not due:
+            return {}
+        if len(due) == 1:
+            sock, times = due[0]
+            return {sock.socket: sock.frames_at(times, self.table.angle_deg(times))}
+        every = np.concatenate([times for _, times in due])
+        order = np.argsort(every, kind="stable")
+        angle = np.empty_like(every)
+        angle[order] = self.table.angle_deg(every[order])
+        out: dict[int, bytes] = {}
+        start = 0
+        for sock, times in due:
+            end = start + times.size
+            out[sock.socket] = sock.frames_at(times, angle[start:end])
+            start = end
+        return out
 
     def _load_siemens(self) -> float:
         g = 0.0

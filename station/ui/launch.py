@@ -163,8 +163,8 @@ def ui_station(
         from drivers.sim.launcher import launch_bench
 
         n = sockets or config_sockets or 1
-        if not 1 <= n <= 16:
-            raise UserError(f"--sockets must be 1..16, got {n}")
+        if not 1 <= n <= 32:  # one 1280 x 800 screen shows up to 32 sockets (8 x 4)
+            raise UserError(f"--sockets must be 1..32, got {n}")
         bench_cm = launch_bench(config=sim_config, speed=speed or DEFAULT_SIM_SPEED, sockets=n)
     with bench_cm as bench:
         endpoints = None
