@@ -180,7 +180,8 @@ def test_csrf_token_missing_or_wrong_is_refused(station: Station) -> None:
     token = client.headers.pop("X-CSRF-Token")
     r = client.post("/api/start", json=START)
     assert r.status_code == 403 and "X-CSRF-Token" in r.json()["error"]
-    r = client.post("/api/start", json=START, headers={"X-CSRF-Token": token[:-1] + "A"})
+    wrong = token[:-1] + ("B" if token.endswith("A") else "A")  # always differs from token
+    r = client.post("/api/start", json=START, headers={"X-CSRF-Token": wrong})
     assert r.status_code == 403
     other = station.client()  # another session's token is not this session's
     foreign_token = other.headers["X-CSRF-Token"]
