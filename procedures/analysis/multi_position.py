@@ -219,7 +219,8 @@ def _check_faces(accel: NDArray[np.float64], spans: dict[str, slice]) -> None:
         norm = float(np.linalg.norm(mean))
         expected = np.zeros(3)
         expected[k // 2] = 1.0 if k % 2 == 0 else -1.0
-        tilt = math.degrees(math.acos(float(np.clip(mean @ expected / norm, -1, 1)))) if norm else 180
+        cos_tilt = float(np.clip(mean @ expected / norm, -1, 1)) if norm else -1.0
+        tilt = math.degrees(math.acos(cos_tilt))
         if tilt > MAX_FACE_TILT_DEG:
             seen = int(np.argmax(np.abs(mean)))
             sign = "+" if mean[seen] > 0 else "-"

@@ -150,8 +150,9 @@ def _rotation(
     k_rest, k_move = int(rest_s * fs), int(rotation_s * fs)
     t = np.arange(k_move) / fs
     theta = math.radians(rotation_deg)
-    rate = (theta / rotation_s) * (1 - np.cos(2 * math.pi * t / rotation_s))  # rad/s
-    phi = (theta / rotation_s) * (t - rotation_s / (2 * math.pi) * np.sin(2 * math.pi * t / rotation_s))
+    cycle = 2 * math.pi * t / rotation_s
+    rate = (theta / rotation_s) * (1 - np.cos(cycle))  # rad/s
+    phi = (theta / rotation_s) * (t - rotation_s / (2 * math.pi) * np.sin(cycle))
     phi_all = np.concatenate([np.zeros(k_rest), phi, np.full(k_rest, theta)])
     rate_all = np.concatenate([np.zeros(k_rest), rate, np.zeros(k_rest)])
     w = np.outer(np.degrees(rate_all), axis)

@@ -120,7 +120,7 @@ def test_swapped_faces_and_wrong_rotation_sign_are_explained() -> None:
     rng = np.random.default_rng(17)
     s = hand_turned_session(rng, random_truth(rng))
     swapped = {**s.sections, "x_p": s.sections["x_a"], "x_a": s.sections["x_p"]}
-    with pytest.raises(AnalysisError, match="section x_p: the accelerometer reads gravity along -x"):
+    with pytest.raises(AnalysisError, match="x_p: the accelerometer reads gravity along -x"):
         analyze_multi_position(s.gyro_dps, swapped, 100.0, accel_mps2=s.accel_mps2)
     with pytest.raises(AnalysisError, match="give the angle as 360 deg"):
         analyze_multi_position(s.gyro_dps, s.sections, 100.0, rotation_deg=-360.0)

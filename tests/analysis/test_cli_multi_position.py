@@ -1,0 +1,164 @@
+"""`station analyze multi-position`: pinned JSON keys, the table, and bad input (exit 2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from station.cli import main
+from tests.analysis.hand_turned import Session, hand_turned_session, random_truth
+
+PINNED = (
+    "gyro_bias_dps",
+    "gyro_matrix",
+    "gyro_g_sensitivity_dps_per_mps2",
+)
+
+
+def _session(seed: int = 30) -> Session:
+    rng = np.random.default_rng(seed)
+    return hand_turned_session(rng, random_truth(rng))
+
+
+def _files(
+    tmp_path: Path, s: Session, *, accel: bool = True, sections: object = None
+) -> tuple[Path, Path]:
+    names = ["gyr_x", "gyr_y", "gyr_z"]
+    cols = [s.gyro_dps]
+    if accel:
+        names += ["acc_x", "acc_y", "acc_z"]
+        cols.append(s.accel_mps2)
+    csv_path = tmp_path / "session.csv"
+    np.savetxt(csv_path, np.column_stack(cols), delimiter=",", header=",".join(names),
+               comments="", fmt="%.10g")
+    sec_path = tmp_path / "sections.json"
+    if sections is None:
+        sections = {k: {"start": a, "end": b} for k, (a, b) in s.sections.items()}
+    sec_path.write_text(json.dumps(sections))
+    return csv_path, sec_path
+
+
+def _run(csv_path: Path, sec_path: Path, *extra: str) -> int:
+    return main(["analyze", "multi-position", str(csv_path), "--sections", str(sec_path),
+                 "--rate-hz", "100", *extra])
+
+
+def test_json_keys_and_values_match_the_truth(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    s = _session()
+    assert _run(*_files(tmp_path, s), "--json") == 0
+    doc = json.loads(capsys.readouterr().out)
+    for key in PINNED:
+        assert key in doc and key + "_uncertainty_k2" in doc
+    b, u_b = np.array(doc["gyro_bias_dps"]), np.array(doc["gyro_bias_dps_uncertainty_k2"])
+    m, u_m = np.array(doc["gyro_matrix"]), np.array(doc["gyro_matrix_uncertainty_k2"])
+    g = np.array(doc["gyro_g_sensitivity_dps_per_mps2"])
+    u_g = np.array(doc["gyro_g_sensitivity_dps_per_mps2_uncertainty_k2"])
+    assert b.shape == (3,) and m.shape == (3, 3) and g.shape == (3, 3)
+    # a handful of 21 values may fall outside k=2 by chance; most must not, and none far
+    z = np.concatenate([
+        (b - s.truth.bias_dps) / u_b,
+        ((m - s.truth.matrix) / u_m).ravel(),
+        ((g - s.truth.g_sensitivity) / u_g).ravel(),
+    ])
+    assert np.mean(np.abs(z) <= 2) >= 0.8 and np.abs(z).max() < 4
+    assert doc["g_sensitivity_estimated"] is True
+    assert doc["uncertainty_coverage"] == "k=2"
+
+
+def test_without_accelerometer_g_keys_are_null_and_it_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    s = _session(31)
+    assert _run(*_files(tmp_path, s, accel=False), "--json") == 0
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert doc["gyro_g_sensitivity_dps_per_mps2"] is None
+    assert doc["gyro_g_sensitivity_dps_per_mps2_uncertainty_k2"] is None
+    assert doc["g_sensitivity_estimated"] is False
+    assert "G is not estimated" in out.err
+    assert np.allclose(doc["gyro_matrix"], s.truth.matrix, atol=5e-4)
+    assert _run(*_files(tmp_path, s, accel=False)) == 0
+    assert "g-sensitivity G: not estimated" in capsys.readouterr().out
+
+
+def test_table_for_people(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    s = _session(32)
+    assert _run(*_files(tmp_path, s)) == 0
+    out = capsys.readouterr().out
+    assert "w_hat = M (raw - b - G a)" in out
+    row = next(ln for ln in out.splitlines() if ln.strip().startswith("x ") and "+/-" in ln)
+    m_xx = float(row.split()[1])
+    assert m_xx == pytest.approx(s.truth.matrix[0, 0], abs=5e-4)
+    assert "G (deg/s per m/s^2)" in out
+
+
+def _corrupt_csv(path: Path, line: int, text: str) -> None:
+    rows = path.read_text().splitlines()
+    rows[line - 1] = text
+    path.write_text("\n".join(rows) + "\n")
+
+
+@pytest.mark.parametrize(
+    ("case", "needle"),
+    [
+        ("missing_section", "section y_rot is missing"),
+        ("unknown_section", "unknown section 'x_rotation'"),
+        ("out_of_range", "section z_a: start"),
+        ("bad_index", "x_p.start"),
+        ("not_json", "not valid JSON"),
+        ("missing_column", "missing column(s) gyr_z"),
+        ("partial_accel", "not acc_z"),
+        ("nan", "line 11, column gyr_y"),
+        ("text", "not a number"),
+        ("units", "check the units"),
+        ("rate", "--rate-hz must be"),
+        ("angle", "--rotation-deg must be"),
+        ("wrong_sign", "give the angle as 360 deg"),
+        ("no_sections_file", "no such file"),
+    ],
+)
+def test_bad_input_exits_2_naming_what_to_fix(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str, needle: str
+) -> None:
+    s = _session(33)
+    spans = {k: {"start": a, "end": b} for k, (a, b) in s.sections.items()}
+    extra: list[str] = []
+    sections: object = spans
+    if case == "missing_section":
+        sections = {k: v for k, v in spans.items() if k != "y_rot"}
+    elif case == "unknown_section":
+        sections = {**spans, "x_rotation": {"start": 0, "end": 10}}
+    elif case == "out_of_range":
+        sections = {**spans, "z_a": {"start": 0, "end": s.gyro_dps.shape[0] + 1}}
+    elif case == "bad_index":
+        sections = {**spans, "x_p": {"start": "ten", "end": 100}}
+    csv_path, sec_path = _files(tmp_path, s, sections=sections)
+    if case == "not_json":
+        sec_path.write_text("{x_p: 1")
+    elif case == "missing_column":
+        _corrupt_csv(csv_path, 1, "gyr_x,gyr_y,gyro_z,acc_x,acc_y,acc_z")
+    elif case == "partial_accel":
+        _corrupt_csv(csv_path, 1, "gyr_x,gyr_y,gyr_z,acc_x,acc_y,temp_c")
+    elif case == "nan":
+        _corrupt_csv(csv_path, 11, "0.1,nan,0.2,0,0,9.8")
+    elif case == "text":
+        _corrupt_csv(csv_path, 11, "0.1,abc,0.2,0,0,9.8")
+    elif case == "units":
+        _corrupt_csv(csv_path, 11, "0.1,0.2,0.3,0,0,98066.5")
+    elif case == "rate":
+        extra = ["--rate-hz", "nan"]
+    elif case == "angle":
+        extra = ["--rotation-deg", "0"]
+    elif case == "wrong_sign":
+        extra = ["--rotation-deg", "-360"]
+    elif case == "no_sections_file":
+        sec_path = tmp_path / "none.json"
+    assert _run(csv_path, sec_path, *extra) == 2
+    err = capsys.readouterr().err
+    assert needle in err
+    assert "Traceback" not in err
