@@ -39,6 +39,7 @@ MAX_ACCEL_MPS2 = 10_000.0  # about 1000 g: beyond any part's range
 MAX_RATE_HZ = 100_000.0
 MAX_ROTATION_DEG = 3600.0
 MAX_INDEX = 10**10
+MAX_SECTIONS_BYTES = 100_000
 
 
 class _Span(BaseModel):
@@ -113,6 +114,11 @@ def check_args(args: argparse.Namespace) -> None:
 def read_sections(path: Path) -> dict[str, tuple[int, int]]:
     """The sections JSON as (start, end) per name; UserError naming what to fix."""
     try:
+        if path.is_file() and path.stat().st_size > MAX_SECTIONS_BYTES:
+            raise UserError(
+                f"{path}: {path.stat().st_size} bytes; a sections file is a few hundred: "
+                "is this the right file?"
+            )
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise UserError(f"{path}: no such file") from None
@@ -158,7 +164,7 @@ def read_session_csv(
     missing = [c for c in GYRO_COLUMNS if c not in header]
     if missing:
         raise UserError(
-            f"{path}: missing column(s) {', '.join(missing)} (found {', '.join(header)}); "
+            f"{path}: missing column(s) {', '.join(missing)} (found {_some(header)}); "
             f"the header row must name {', '.join(GYRO_COLUMNS)}"
         )
     acc_found = [c for c in ACCEL_COLUMNS if c in header]
@@ -171,6 +177,11 @@ def read_session_csv(
     gyro = _columns(path, rows, header, GYRO_COLUMNS, MAX_RATE_DPS)
     accel = _columns(path, rows, header, ACCEL_COLUMNS, MAX_ACCEL_MPS2) if acc_found else None
     return gyro, accel
+
+
+def _some(names: list[str], most: int = 12) -> str:
+    shown = ", ".join(n[:40] for n in names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 def _columns(

@@ -46,6 +46,7 @@ MIN_FACE_SAMPLES = 16
 MIN_ROTATION_SAMPLES = 4
 MAX_FACE_TILT_DEG = 30.0  # a face's gravity further from its axis than this: misnamed section
 MAX_ANGLE_ERROR = 0.5  # |measured / expected - 1| beyond this: wrong sign, section or angle
+MOVING_FACE_RATIO = 5.0  # a face's gyro scatter this many times the faces' median: moving
 WARN_CROSS_AXIS = 0.05  # rotation seen this much on another axis: a wobbly hand rotation
 
 
@@ -145,7 +146,7 @@ def analyze_multi_position(
             f"u_rotation_deg must be from 0 to below |rotation_deg|, got {u_angle!r}"
         )
     spans = check_sections(sections, gyro.shape[0])
-    warnings: list[str] = []
+    warnings = _moving_faces(gyro, spans)
     if accel is not None:
         _check_faces(accel, spans)
     summary, u_summary = _summarise(gyro, accel, spans, fs, angle, u_angle)
@@ -229,6 +230,19 @@ def _check_faces(accel: NDArray[np.float64], spans: dict[str, slice]) -> None:
                 f"({tilt:.0f} deg from the {'+' if k % 2 == 0 else '-'}{AXES[k // 2]} this face "
                 "needs); the section is misnamed or its indices cover another face: fix them"
             )
+
+
+def _moving_faces(gyro: NDArray[np.float64], spans: dict[str, slice]) -> list[str]:
+    """A warning for each face whose gyro scatter is far above the others': not static."""
+    spread = np.array([float(gyro[spans[f]].std(axis=0).max()) for f in FACES])
+    typical = float(np.median(spread))
+    return [
+        f"section {face} is not static: its gyro scatter {spread[k]:.3g} deg/s is "
+        f"{spread[k] / typical:.0f} x the faces' typical {typical:.3g} deg/s; it may hold part "
+        "of a turn: cut it to the time the part lay still"
+        for k, face in enumerate(FACES)
+        if typical > 0 and spread[k] > MOVING_FACE_RATIO * typical
+    ]
 
 
 def _noise_models(

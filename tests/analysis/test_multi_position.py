@@ -182,3 +182,13 @@ def test_agrees_with_imucal_within_the_stated_uncertainty(seed: int) -> None:
     assert np.all(np.abs(b - r.bias_dps) <= r.u_bias_dps_k2)
     assert np.all(np.abs(m - r.matrix) <= r.u_matrix_k2)
     assert np.all(np.abs(g - r.g_sensitivity_dps_per_mps2) <= r.u_g_sensitivity_dps_per_mps2_k2)
+
+
+def test_a_face_holding_part_of_a_turn_is_named_in_a_warning() -> None:
+    rng = np.random.default_rng(18)
+    s = hand_turned_session(rng, random_truth(rng))
+    start, end = s.sections["y_a"]
+    r = analyze_multi_position(s.gyro_dps, {**s.sections, "y_a": (start - 100, end)}, 100.0)
+    assert len(r.warnings) == 1
+    assert "section y_a is not static" in r.warnings[0]
+    assert not _analyse(s).warnings
