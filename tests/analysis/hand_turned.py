@@ -86,7 +86,9 @@ def hand_turned_session(
     gyro_noise_dps: float = 0.05,
     accel_noise_mps2: float = 0.02,
     tilt_deg: float = 1.0,
+    rrw_dps_per_sqrt_s: float = 0.0,
 ) -> Session:
+    """A session; `rrw_dps_per_sqrt_s` adds a bias random walk per axis (correlated noise)."""
     fs = sample_rate_hz
     s_matrix = np.linalg.inv(truth.matrix)
     w_parts: list[NDArray[np.float64]] = []  # true rate, part frame
@@ -131,6 +133,7 @@ def hand_turned_session(
         + truth.bias_dps
         + a_true @ truth.g_sensitivity.T
         + rng.normal(0, gyro_noise_dps, w_true.shape)
+        + np.cumsum(rng.normal(0, rrw_dps_per_sqrt_s / math.sqrt(fs), w_true.shape), axis=0)
     )
     accel = a_true + rng.normal(0, accel_noise_mps2, a_true.shape)
     return Session(gyro, accel, sections, fs, truth, rotation_deg)
