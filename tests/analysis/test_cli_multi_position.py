@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import io
 import json
 from pathlib import Path
 
@@ -18,22 +20,32 @@ PINNED = (
 )
 
 
+@functools.cache
 def _session(seed: int = 30) -> Session:
     rng = np.random.default_rng(seed)
     return hand_turned_session(rng, random_truth(rng))
 
 
-def _files(
-    tmp_path: Path, s: Session, *, accel: bool = True, sections: object = None
-) -> tuple[Path, Path]:
+@functools.cache
+def _csv_text(seed: int, accel: bool) -> str:
+    s = _session(seed)
     names = ["gyr_x", "gyr_y", "gyr_z"]
     cols = [s.gyro_dps]
     if accel:
         names += ["acc_x", "acc_y", "acc_z"]
         cols.append(s.accel_mps2)
-    csv_path = tmp_path / "session.csv"
-    np.savetxt(csv_path, np.column_stack(cols), delimiter=",", header=",".join(names),
+    out = io.StringIO()
+    np.savetxt(out, np.column_stack(cols), delimiter=",", header=",".join(names),
                comments="", fmt="%.10g")
+    return out.getvalue()
+
+
+def _files(
+    tmp_path: Path, seed: int, *, accel: bool = True, sections: object = None
+) -> tuple[Path, Path]:
+    s = _session(seed)
+    csv_path = tmp_path / "session.csv"
+    csv_path.write_text(_csv_text(seed, accel))
     sec_path = tmp_path / "sections.json"
     if sections is None:
         sections = {k: {"start": a, "end": b} for k, (a, b) in s.sections.items()}
@@ -49,8 +61,8 @@ def _run(csv_path: Path, sec_path: Path, *extra: str) -> int:
 def test_json_keys_and_values_match_the_truth(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    s = _session()
-    assert _run(*_files(tmp_path, s), "--json") == 0
+    s = _session(30)
+    assert _run(*_files(tmp_path, 30), "--json") == 0
     doc = json.loads(capsys.readouterr().out)
     for key in PINNED:
         assert key in doc and key + "_uncertainty_k2" in doc
@@ -74,7 +86,7 @@ def test_without_accelerometer_g_keys_are_null_and_it_says_so(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     s = _session(31)
-    assert _run(*_files(tmp_path, s, accel=False), "--json") == 0
+    assert _run(*_files(tmp_path, 31, accel=False), "--json") == 0
     out = capsys.readouterr()
     doc = json.loads(out.out)
     assert doc["gyro_g_sensitivity_dps_per_mps2"] is None
@@ -82,13 +94,13 @@ def test_without_accelerometer_g_keys_are_null_and_it_says_so(
     assert doc["g_sensitivity_estimated"] is False
     assert "G is not estimated" in out.err
     assert np.allclose(doc["gyro_matrix"], s.truth.matrix, atol=5e-4)
-    assert _run(*_files(tmp_path, s, accel=False)) == 0
+    assert _run(*_files(tmp_path, 31, accel=False)) == 0
     assert "g-sensitivity G: not estimated" in capsys.readouterr().out
 
 
 def test_table_for_people(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     s = _session(32)
-    assert _run(*_files(tmp_path, s)) == 0
+    assert _run(*_files(tmp_path, 32)) == 0
     out = capsys.readouterr().out
     assert "w_hat = M (raw - b - G a)" in out
     row = next(ln for ln in out.splitlines() if ln.strip().startswith("x ") and "+/-" in ln)
@@ -137,7 +149,7 @@ def test_bad_input_exits_2_naming_what_to_fix(
         sections = {**spans, "z_a": {"start": 0, "end": s.gyro_dps.shape[0] + 1}}
     elif case == "bad_index":
         sections = {**spans, "x_p": {"start": "ten", "end": 100}}
-    csv_path, sec_path = _files(tmp_path, s, sections=sections)
+    csv_path, sec_path = _files(tmp_path, 33, sections=sections)
     if case == "not_json":
         sec_path.write_text("{x_p: 1")
     elif case == "missing_column":
