@@ -20,7 +20,11 @@ from numpy.typing import NDArray
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from procedures.analysis.multi_position import SECTIONS, analyze_multi_position  # noqa: E402
+from procedures.analysis.multi_position import (  # noqa: E402
+    FACES,
+    SECTIONS,
+    analyze_multi_position,
+)
 from tests.analysis.hand_turned import (  # noqa: E402
     Session,
     hand_turned_session,
@@ -67,6 +71,11 @@ def main() -> None:
                             r.u_g_sensitivity_dps_per_mps2.ravel()])
         true = np.concatenate([truth.bias_dps, truth.matrix.ravel(),
                                truth.g_sensitivity.ravel()])
+        # with a bias random walk the bias is the faces' average of it: what a static
+        # calibration can know, and what the six faces' means estimate
+        walk = np.mean([s.bias_walk_dps[slice(*s.sections[f])].mean(axis=0) for f in FACES],
+                       axis=0)
+        true[0:3] += walk
         z.append((est - true) / u)
         err.append(est - true)
         ref = _imucal(s)

@@ -262,6 +262,9 @@ def result_json(r: MultiPositionResult, warnings: list[str]) -> dict[str, Any]:
         "rotation_deg": r.rotation_deg,
         "sample_rate_hz": r.sample_rate_hz,
         "rotation_integrals_deg": _listed(r.rotation_integrals_deg),
+        "face_pairs_chi2": r.pairs_chi2,
+        "face_pairs_dof": r.pairs_dof,
+        "bias_birge_ratio": r.bias_birge_ratio,
         "warnings": warnings,
     }
 

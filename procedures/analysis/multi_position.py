@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2 as chi2_dist
 
 from procedures.analysis.allan import NoiseModel, fit_noise_model, overlapping_adev
 from procedures.analysis.errors import AnalysisError
@@ -48,6 +49,7 @@ MAX_FACE_TILT_DEG = 30.0  # a face's gravity further from its axis than this: mi
 MAX_ANGLE_ERROR = 0.5  # |measured / expected - 1| beyond this: wrong sign, section or angle
 MOVING_FACE_RATIO = 5.0  # a face's gyro scatter this many times the faces' median: moving
 WARN_CROSS_AXIS = 0.05  # rotation seen this much on another axis: a wobbly hand rotation
+PAIRS_P = 1e-3  # the face pairs disagree on the bias below this chi-square p (as stop_method)
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,11 @@ class MultiPositionResult:
     rotation_deg: float
     sample_rate_hz: float
     warnings: tuple[str, ...]
+    # each pair of opposite faces gives the bias on its own; their spread against their noise:
+    # chi-square on 6 degrees of freedom, and the Birge ratio u(b) was widened by (None: not)
+    pairs_chi2: float | None = None
+    pairs_dof: int = 6
+    bias_birge_ratio: float | None = None
 
     @property
     def u_bias_dps_k2(self) -> NDArray[np.float64]:
@@ -155,9 +162,21 @@ def analyze_multi_position(
     jac = _jacobian(summary, u_summary)
     u_out = np.sqrt(np.einsum("ij,ij->i", jac, jac))
     has_g = estimate.g is not None
+    chi2 = _pairs_chi2(summary, u_summary, estimate)
+    birge = None
+    u_bias = u_out[0:3]
+    if chi2 is not None and chi2_dist.sf(chi2, 6) < PAIRS_P:
+        birge = math.sqrt(chi2 / 6)
+        u_bias = u_bias * birge
+        warnings.append(
+            f"the three pairs of opposite faces disagree on the bias (chi-square {chi2:.3g} on "
+            f"6 degrees of freedom): the bias moved during the session (warm-up, drift) or a "
+            f"face was not still; u(b) is widened by the Birge ratio {birge:.3g}. Warm the part "
+            "up first and record the session without pauses"
+        )
     return MultiPositionResult(
         bias_dps=estimate.b,
-        u_bias_dps=u_out[0:3],
+        u_bias_dps=u_bias,
         matrix=estimate.m,
         u_matrix=u_out[3:12].reshape(3, 3),
         g_sensitivity_dps_per_mps2=estimate.g,
@@ -166,6 +185,8 @@ def analyze_multi_position(
         rotation_deg=angle,
         sample_rate_hz=fs,
         warnings=tuple(warnings),
+        pairs_chi2=chi2,
+        bias_birge_ratio=birge,
     )
 
 
@@ -344,6 +365,17 @@ def _jacobian(value: _Summary, u: _Summary) -> NDArray[np.float64]:
         diff = _solve(value.from_vector(xp)).vector() - _solve(value.from_vector(xm)).vector()
         jac[:, i] = diff / (2 * h) * ux[i]
     return jac
+
+
+def _pairs_chi2(value: _Summary, u: _Summary, estimate: _Estimate) -> float | None:
+    """Chi-square of the bias from each pair of opposite faces about their mean, b."""
+    pair = (value.face_gyro[:, 0::2] + value.face_gyro[:, 1::2]) / 2
+    if estimate.g is not None and value.face_accel is not None:
+        pair = pair - estimate.g @ (value.face_accel[:, 0::2] + value.face_accel[:, 1::2]) / 2
+    u_pair = 0.5 * np.hypot(u.face_gyro[:, 0::2], u.face_gyro[:, 1::2])
+    if not np.all(u_pair > 0):
+        return None  # noise-free data: nothing to judge the spread against
+    return float(np.sum(((pair - estimate.b[:, None]) / u_pair) ** 2))
 
 
 def _check_rotations(

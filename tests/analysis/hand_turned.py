@@ -37,7 +37,8 @@ class Session:
     sample_rate_hz: float
     truth: Truth
     rotation_deg: float
-    extra: dict[str, float] = field(default_factory=dict)
+    # the bias random walk added to each sample (zeros without one), for a time-varying truth
+    bias_walk_dps: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def random_truth(rng: np.random.Generator) -> Truth:
@@ -128,15 +129,16 @@ def hand_turned_session(
 
     w_true = np.concatenate(w_parts)
     a_true = np.concatenate(a_parts)
+    walk = np.cumsum(rng.normal(0, rrw_dps_per_sqrt_s / math.sqrt(fs), w_true.shape), axis=0)
     gyro = (
         w_true @ s_matrix.T
         + truth.bias_dps
         + a_true @ truth.g_sensitivity.T
         + rng.normal(0, gyro_noise_dps, w_true.shape)
-        + np.cumsum(rng.normal(0, rrw_dps_per_sqrt_s / math.sqrt(fs), w_true.shape), axis=0)
+        + walk
     )
     accel = a_true + rng.normal(0, accel_noise_mps2, a_true.shape)
-    return Session(gyro, accel, sections, fs, truth, rotation_deg)
+    return Session(gyro, accel, sections, fs, truth, rotation_deg, walk)
 
 
 def _rotation(

@@ -192,3 +192,24 @@ def test_a_face_holding_part_of_a_turn_is_named_in_a_warning() -> None:
     assert len(r.warnings) == 1
     assert "section y_a is not static" in r.warnings[0]
     assert not _analyse(s).warnings
+
+
+def test_a_bias_that_moves_during_the_session_is_flagged_and_u_b_widened() -> None:
+    """A bias step between the x and y faces (a part still warming up): the three face pairs
+    disagree beyond their noise, a warning says so, u(b) grows by the Birge ratio and then
+    covers the step's effect; a steady session is not flagged."""
+    rng = np.random.default_rng(19)
+    truth = random_truth(rng)
+    s = hand_turned_session(rng, truth)
+    steady = _analyse(s)
+    assert steady.bias_birge_ratio is None and steady.pairs_chi2 is not None
+    assert steady.pairs_chi2 < 30
+    step_at = s.sections["y_p"][0] - 50
+    s.gyro_dps[step_at:] += np.array([0.03, -0.02, 0.01])
+    r = _analyse(s)
+    assert r.bias_birge_ratio is not None and r.bias_birge_ratio > 2
+    assert any("pairs of opposite faces disagree" in w for w in r.warnings)
+    np.testing.assert_allclose(r.u_bias_dps, steady.u_bias_dps * r.bias_birge_ratio, rtol=0.05)
+    # the estimate is the faces' average of the moving bias: b plus 2/3 of the step
+    expected = truth.bias_dps + np.array([0.02, -0.04 / 3, 0.01 * 2 / 3])
+    assert np.all(np.abs(r.bias_dps - expected) <= r.u_bias_dps_k2)
