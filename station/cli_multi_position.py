@@ -40,6 +40,7 @@ MAX_RATE_HZ = 100_000.0
 MAX_ROTATION_DEG = 3600.0
 MAX_INDEX = 10**10
 MAX_SECTIONS_BYTES = 100_000
+KNOWN_NAMES = frozenset((*SECTIONS, "start", "end"))
 
 
 class _Span(BaseModel):
@@ -140,18 +141,27 @@ def read_sections(path: Path) -> dict[str, tuple[int, int]]:
         raise UserError(f"{path}: " + "; ".join(_problems(exc))) from None
 
 
-def _problems(exc: ValidationError) -> list[str]:
-    out = []
+def _problems(exc: ValidationError, most: int = 4) -> list[str]:
+    """One phrase per problem (missing sections together), the user's names quoted safely."""
+    missing, out = [], []
     for err in exc.errors():
-        where = ".".join(str(p) for p in err["loc"])
-        if err["type"] == "missing" and len(err["loc"]) == 1:
-            out.append(f"section {where} is missing (all of {', '.join(SECTIONS)} are needed)")
-        elif err["type"] == "extra_forbidden" and len(err["loc"]) == 1:
-            out.append(f"unknown section {where!r} (the names are {', '.join(SECTIONS)})")
-        elif err["type"] == "model_type" and not err["loc"]:
+        loc = [repr(p)[:40] if isinstance(p, str) and p not in KNOWN_NAMES else str(p)
+               for p in err["loc"]]
+        if err["type"] == "missing" and len(loc) == 1:
+            missing.append(loc[0])
+        elif err["type"] == "extra_forbidden" and len(loc) == 1:
+            out.append(f"unknown section {loc[0]} (the names are {', '.join(SECTIONS)})")
+        elif err["type"] == "model_type" and not loc:
             out.append('the file must hold one object: {"x_p": {"start": 0, "end": 800}, ...}')
         else:
-            out.append(f"{where}: {err['msg']} (each section is {{\"start\": N, \"end\": N}})")
+            out.append(f"{'.'.join(loc)}: {err['msg']}")
+    if missing:
+        out.insert(0, f"section(s) {', '.join(missing)} missing (all of {', '.join(SECTIONS)} "
+                   "are needed)")
+    if len(out) > most:
+        out = [*out[:most], f"and {len(out) - most} more problem(s)"]
+    if any(":" in o and not o.startswith(("section", "unknown", "the file")) for o in out):
+        out.append('each section is {"start": N, "end": N}, end exclusive')
     return out
 
 

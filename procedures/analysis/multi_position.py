@@ -370,9 +370,12 @@ def _jacobian(value: _Summary, u: _Summary) -> NDArray[np.float64]:
 def _pairs_chi2(value: _Summary, u: _Summary, estimate: _Estimate) -> float | None:
     """Chi-square of the bias from each pair of opposite faces about their mean, b."""
     pair = (value.face_gyro[:, 0::2] + value.face_gyro[:, 1::2]) / 2
-    if estimate.g is not None and value.face_accel is not None:
+    var_pair = (u.face_gyro[:, 0::2] ** 2 + u.face_gyro[:, 1::2] ** 2) / 4
+    if estimate.g is not None and value.face_accel is not None and u.face_accel is not None:
         pair = pair - estimate.g @ (value.face_accel[:, 0::2] + value.face_accel[:, 1::2]) / 2
-    u_pair = 0.5 * np.hypot(u.face_gyro[:, 0::2], u.face_gyro[:, 1::2])
+        var_accel = (u.face_accel[:, 0::2] ** 2 + u.face_accel[:, 1::2] ** 2) / 4
+        var_pair = var_pair + estimate.g**2 @ var_accel
+    u_pair = np.sqrt(var_pair)
     if not np.all(u_pair > 0):
         return None  # noise-free data: nothing to judge the spread against
     return float(np.sum(((pair - estimate.b[:, None]) / u_pair) ** 2))

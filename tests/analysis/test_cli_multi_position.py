@@ -9,8 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from station.cli import main
+from station.cli_multi_position import read_sections
+from station.errors import UserError
 from tests.analysis.hand_turned import Session, hand_turned_session, random_truth
 
 PINNED = (
@@ -118,7 +122,7 @@ def _corrupt_csv(path: Path, line: int, text: str) -> None:
 @pytest.mark.parametrize(
     ("case", "needle"),
     [
-        ("missing_section", "section y_rot is missing"),
+        ("missing_section", "section(s) y_rot missing"),
         ("unknown_section", "unknown section 'x_rotation'"),
         ("out_of_range", "section z_a: start"),
         ("bad_index", "x_p.start"),
@@ -174,3 +178,30 @@ def test_bad_input_exits_2_naming_what_to_fix(
     err = capsys.readouterr().err
     assert needle in err
     assert "Traceback" not in err
+
+
+_json_values = st.recursive(
+    st.none() | st.booleans() | st.integers(-10**12, 10**12) | st.floats() | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner,
+                                                                max_size=4),
+    max_leaves=12,
+)
+
+
+@settings(max_examples=60, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(doc=st.dictionaries(st.sampled_from(["x_p", "x_a", "y_rot", "z_rot", "x"]), _json_values)
+       | _json_values)
+def test_any_sections_json_is_read_or_refused_with_the_file_named(
+    tmp_path: Path, doc: object
+) -> None:
+    path = tmp_path / "sections.json"
+    path.write_text(json.dumps(doc))
+    try:
+        spans = read_sections(path)
+    except UserError as exc:
+        assert str(exc).startswith(str(path))
+        assert "\n" not in str(exc) and len(str(exc)) < 1000
+    else:
+        assert set(spans) == {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a", "x_rot", "y_rot",
+                              "z_rot"}
