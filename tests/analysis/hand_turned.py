@@ -162,5 +162,6 @@ def _rotation(
     rate_all = np.concatenate([np.zeros(k_rest), rate, np.zeros(k_rest)])
     w = np.outer(np.degrees(rate_all), axis)
     # the part turns by phi about its own axis: a fixed lab vector turns by -phi in its frame
-    a = np.array([_rot(axis, -p) @ a0 for p in phi_all])
+    c, sn = np.cos(-phi_all)[:, None], np.sin(-phi_all)[:, None]  # Rodrigues, vectorised
+    a = a0 * c + np.cross(axis, a0) * sn + axis * float(axis @ a0) * (1 - c)
     return add(w, a)
