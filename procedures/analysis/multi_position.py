@@ -22,7 +22,10 @@ Uncertainties: every input the estimates are built from (the face means, the rot
 integrals, the rotation angles) gets a standard uncertainty from a noise model fitted per
 channel to the static faces (the Allan deviation at the section's length, as bias.py does);
 they are propagated through the estimator's Jacobian (numerical, central differences),
-inputs independent. The earth's rate (at most 0.0042 deg/s) is not separated from the bias.
+inputs independent. The three pairs of opposite faces each give the bias; their spread is a
+chi-square on 6 degrees of freedom, and a bias that moved during the session (p < PAIRS_P)
+widens u(b) by the Birge ratio with a warning. The earth's rate (at most 0.0042 deg/s) is not
+separated from the bias.
 """
 
 from __future__ import annotations
