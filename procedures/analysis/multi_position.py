@@ -144,17 +144,7 @@ def analyze_multi_position(
         raise AnalysisError(
             f"accel_mps2 has {accel.shape[0]} samples but gyro_dps has {gyro.shape[0]}"
         )
-    fs = float(sample_rate_hz)
-    if not math.isfinite(fs) or fs <= 0:
-        raise AnalysisError(f"sample_rate_hz must be a positive finite number, got {fs!r}")
-    angle = float(rotation_deg)
-    if not math.isfinite(angle) or angle == 0:
-        raise AnalysisError(f"rotation_deg must be a finite non-zero angle, got {angle!r}")
-    u_angle = float(u_rotation_deg)
-    if not math.isfinite(u_angle) or not 0 <= u_angle < abs(angle):
-        raise AnalysisError(
-            f"u_rotation_deg must be from 0 to below |rotation_deg|, got {u_angle!r}"
-        )
+    fs, angle, u_angle = _check_numbers(sample_rate_hz, rotation_deg, u_rotation_deg)
     spans = check_sections(sections, gyro.shape[0])
     warnings = _moving_faces(gyro, spans)
     if accel is not None:
@@ -166,17 +156,8 @@ def analyze_multi_position(
     u_out = np.sqrt(np.einsum("ij,ij->i", jac, jac))
     has_g = estimate.g is not None
     chi2 = _pairs_chi2(summary, u_summary, estimate)
-    birge = None
-    u_bias = u_out[0:3]
-    if chi2 is not None and chi2_dist.sf(chi2, 6) < PAIRS_P:
-        birge = math.sqrt(chi2 / 6)
-        u_bias = u_bias * birge
-        warnings.append(
-            f"the three pairs of opposite faces disagree on the bias (chi-square {chi2:.3g} on "
-            f"6 degrees of freedom): the bias moved during the session (warm-up, drift) or a "
-            f"face was not still; u(b) is widened by the Birge ratio {birge:.3g}. Warm the part "
-            "up first and record the session without pauses"
-        )
+    birge = _birge_ratio(chi2, warnings)
+    u_bias = u_out[0:3] if birge is None else u_out[0:3] * birge
     return MultiPositionResult(
         bias_dps=estimate.b,
         u_bias_dps=u_bias,
@@ -191,6 +172,23 @@ def analyze_multi_position(
         pairs_chi2=chi2,
         bias_birge_ratio=birge,
     )
+
+
+def _check_numbers(
+    sample_rate_hz: float, rotation_deg: float, u_rotation_deg: float
+) -> tuple[float, float, float]:
+    fs = float(sample_rate_hz)
+    if not math.isfinite(fs) or fs <= 0:
+        raise AnalysisError(f"sample_rate_hz must be a positive finite number, got {fs!r}")
+    angle = float(rotation_deg)
+    if not math.isfinite(angle) or angle == 0:
+        raise AnalysisError(f"rotation_deg must be a finite non-zero angle, got {angle!r}")
+    u_angle = float(u_rotation_deg)
+    if not math.isfinite(u_angle) or not 0 <= u_angle < abs(angle):
+        raise AnalysisError(
+            f"u_rotation_deg must be from 0 to below |rotation_deg|, got {u_angle!r}"
+        )
+    return fs, angle, u_angle
 
 
 def _channels(values: ArrayLike, name: str) -> NDArray[np.float64]:
@@ -382,6 +380,20 @@ def _pairs_chi2(value: _Summary, u: _Summary, estimate: _Estimate) -> float | No
     if not np.all(u_pair > 0):
         return None  # noise-free data: nothing to judge the spread against
     return float(np.sum(((pair - estimate.b[:, None]) / u_pair) ** 2))
+
+
+def _birge_ratio(chi2: float | None, warnings: list[str]) -> float | None:
+    """sqrt(chi2 / 6) with a warning when the face pairs disagree (p < PAIRS_P), else None."""
+    if chi2 is None or chi2_dist.sf(chi2, 6) >= PAIRS_P:
+        return None
+    birge = math.sqrt(chi2 / 6)
+    warnings.append(
+        f"the three pairs of opposite faces disagree on the bias (chi-square {chi2:.3g} on "
+        f"6 degrees of freedom): the bias moved during the session (warm-up, drift) or a "
+        f"face was not still; u(b) is widened by the Birge ratio {birge:.3g}. Warm the part "
+        "up first and record the session without pauses"
+    )
+    return birge
 
 
 def _check_rotations(
