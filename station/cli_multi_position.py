@@ -2,8 +2,9 @@
 
 A three-axis session recorded with the part turned by hand (six static faces, one rotation of
 a known angle about each axis; docs/multi-position.md). CSV columns `gyr_x, gyr_y, gyr_z`
-(deg/s) and, when the part has an accelerometer, `acc_x, acc_y, acc_z` (m/s^2); other columns
-are ignored. The sections file is a JSON object naming each section's sample indices:
+(deg/s) and, when the part has an accelerometer, `acc_x, acc_y, acc_z` (m/s^2); a `time_s`
+column, if there is one, only checks `--rate-hz`; other columns are ignored. The sections
+file is a JSON object naming each section's sample indices:
 {"x_p": {"start": 0, "end": 800}, ...}, 0-based data rows (the header is not a row), end
 exclusive. JSON keys are pinned (docs/interfaces.md); without acc columns G is not estimated
 and its two keys are null.
@@ -38,6 +39,7 @@ ACCEL_COLUMNS = ("acc_x", "acc_y", "acc_z")
 MAX_ACCEL_MPS2 = 10_000.0  # about 1000 g: beyond any part's range
 MAX_RATE_HZ = 100_000.0
 MAX_ROTATION_DEG = 3600.0
+RATE_TOLERANCE = 0.01  # a time_s column's median step against 1 / --rate-hz
 MAX_INDEX = 10**10
 MAX_SECTIONS_BYTES = 100_000
 KNOWN_NAMES = frozenset((*SECTIONS, "start", "end"))
@@ -167,8 +169,9 @@ def _problems(exc: ValidationError, most: int = 4) -> list[str]:
 
 def read_session_csv(
     path: Path,
-) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
-    """gyr (n, 3) in deg/s and, when all three acc columns are there, acc (n, 3) in m/s^2."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """gyr (n, 3) in deg/s; acc (n, 3) in m/s^2 when all three columns are there; time_s
+    when there is such a column (only to check --rate-hz)."""
     rows = read_csv_rows(path, ",".join(GYRO_COLUMNS))
     header = [h.strip() for h in rows[0]]
     missing = [c for c in GYRO_COLUMNS if c not in header]
@@ -186,7 +189,21 @@ def read_session_csv(
         )
     gyro = _columns(path, rows, header, GYRO_COLUMNS, MAX_RATE_DPS)
     accel = _columns(path, rows, header, ACCEL_COLUMNS, MAX_ACCEL_MPS2) if acc_found else None
-    return gyro, accel
+    time_s = _columns(path, rows, header, ("time_s",), 1e9)[:, 0] if "time_s" in header else None
+    return gyro, accel, time_s
+
+
+def check_rate(path: Path, time_s: NDArray[np.float64] | None, rate_hz: float) -> None:
+    """With a time_s column, its median step must agree with --rate-hz (integrals use it)."""
+    if time_s is None or time_s.size < 3:
+        return
+    step_s = float(np.median(np.diff(time_s)))
+    if not abs(step_s * rate_hz - 1.0) <= RATE_TOLERANCE:
+        seen = f"{1.0 / step_s:.6g} Hz" if step_s > 0 else "not increasing"
+        raise UserError(
+            f"{path}: time_s steps by {step_s:.6g} s ({seen}) but --rate-hz is {rate_hz:g}; "
+            "give the rate the record was sampled at"
+        )
 
 
 def _some(names: list[str], most: int = 12) -> str:
@@ -225,7 +242,8 @@ def _columns(
 def run_multi_position(args: argparse.Namespace) -> int:
     check_args(args)
     sections = read_sections(args.sections)
-    gyro, accel = read_session_csv(args.csv)
+    gyro, accel, time_s = read_session_csv(args.csv)
+    check_rate(args.csv, time_s, args.rate_hz)
     try:
         result = analyze_multi_position(
             gyro,

@@ -136,6 +136,7 @@ def _corrupt_csv(path: Path, line: int, text: str) -> None:
         ("angle", "--rotation-deg must be"),
         ("wrong_sign", "give the angle as 360 deg"),
         ("no_sections_file", "no such file"),
+        ("rate_mismatch", "time_s steps by 0.01 s (100 Hz) but --rate-hz is 200"),
     ],
 )
 def test_bad_input_exits_2_naming_what_to_fix(
@@ -174,6 +175,11 @@ def test_bad_input_exits_2_naming_what_to_fix(
         extra = ["--rotation-deg", "-360"]
     elif case == "no_sections_file":
         sec_path = tmp_path / "none.json"
+    elif case == "rate_mismatch":
+        lines = csv_path.read_text().splitlines()
+        lines = ["time_s," + lines[0]] + [f"{i / 100:.2f},{ln}" for i, ln in enumerate(lines[1:])]
+        csv_path.write_text("\n".join(lines) + "\n")
+        extra = ["--rate-hz", "200"]
     assert _run(csv_path, sec_path, *extra) == 2
     err = capsys.readouterr().err
     assert needle in err
@@ -205,3 +211,14 @@ def test_any_sections_json_is_read_or_refused_with_the_file_named(
     else:
         assert set(spans) == {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a", "x_rot", "y_rot",
                               "z_rot"}
+
+
+def test_a_time_column_agreeing_with_the_rate_is_accepted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    csv_path, sec_path = _files(tmp_path, 32)
+    lines = csv_path.read_text().splitlines()
+    lines = ["time_s," + lines[0]] + [f"{i / 100:.2f},{ln}" for i, ln in enumerate(lines[1:])]
+    csv_path.write_text("\n".join(lines) + "\n")
+    assert _run(csv_path, sec_path, "--json") == 0
+    assert json.loads(capsys.readouterr().out)["sample_rate_hz"] == 100
