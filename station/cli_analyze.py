@@ -1,4 +1,4 @@
-"""`station analyze stop-method|allan CSV`: run the calibration analysis on a recorded CSV.
+"""`station analyze stop-method|allan|multi-position CSV`: calibration analysis of a recorded CSV.
 
 CSV columns `time_s, rate_dps` (header row required; extra columns ignored, an optional
 `status` column carries the fixture's status bits). JSON keys are pinned in docs/interfaces.md; keys
@@ -8,7 +8,6 @@ beyond them are additions.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import sys
@@ -23,6 +22,8 @@ from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
 from procedures.analysis.allan import check_static
 from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
+from station.cli_multi_position import add_multi_position
+from station.csv_input import read_csv_rows
 from station.errors import UserError
 
 REQUIRED = ("time_s", "rate_dps")
@@ -67,6 +68,8 @@ def register(subparsers: Any) -> None:
     al.add_argument("--json", action="store_true", help="print JSON instead of a table")
     al.set_defaults(handler=run_allan)
 
+    add_multi_position(sub)
+
 
 def _help(parser: argparse.ArgumentParser) -> int:
     parser.print_help()
@@ -75,29 +78,7 @@ def _help(parser: argparse.ArgumentParser) -> int:
 
 def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
     """Columns of a rate CSV as float arrays; UserError naming the problem otherwise."""
-    reader = None
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            reader = csv.reader(fh)
-            rows = list(reader)
-    except FileNotFoundError:
-        raise UserError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise UserError(f"{path}: is a folder; give a CSV file") from None
-    except UnicodeDecodeError as exc:
-        raise UserError(
-            f"{path}: not UTF-8 text (byte {exc.start}); save it as 'CSV UTF-8'"
-        ) from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    except csv.Error as exc:
-        line = f": line {reader.line_num}" if reader is not None else ""
-        raise UserError(
-            f"{path}{line}: not a readable CSV ({exc}); a rate record has short numeric fields"
-        ) from None
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if not rows:
-        raise UserError(f"{path}: the file is empty; expected a header row time_s,rate_dps")
+    rows = read_csv_rows(path, "time_s,rate_dps")
     header = [h.strip() for h in rows[0]]
     missing = [c for c in REQUIRED if c not in header]
     if missing:
@@ -171,7 +152,9 @@ def run_stop_method(args: argparse.Namespace) -> int:
     check_stop_method_args(args)
     data = read_rate_csv(args.csv)
     full_scale = RATED_RANGE_DPS if args.full_scale is None else args.full_scale
-    settings = StopMethodSettings(full_scale_dps=full_scale)
+    # a hand-cut record may begin in the tail of a move: used from its end, with a warning,
+    # as the station's own stop step does (procedures/steps/stop.py)
+    settings = StopMethodSettings(full_scale_dps=full_scale, trim_leading_motion=True)
     hint = (
         f"the over-range check uses the part's rated range +/-{RATED_RANGE_DPS:g} deg/s by "
         "default; for a part with a wider range pass --full-scale DPS"

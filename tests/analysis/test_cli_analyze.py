@@ -132,3 +132,31 @@ def test_uneven_sampling_is_refused_for_allan(
     path = _write(tmp_path / "gap.csv", {"time_s": t, "rate_dps": np.ones_like(t)})
     assert main(["analyze", "allan", str(path)]) == 2
     assert "not evenly spaced" in capsys.readouterr().err
+
+
+def test_stop_method_trims_motion_at_the_start_with_a_warning(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A hand-cut record that begins in the tail of a move is used from the end of that move,
+    with a warning, as the station's stop step does; the result is the clean record's."""
+    t, y = article_record(np.random.default_rng(8))
+    tail = t < 1.0
+    moving = y.copy()
+    moving[tail] += 40.0 * (1.0 - t[tail])  # decelerating from 40 deg/s to rest in 1 s
+    clean_csv = _write(tmp_path / "clean.csv", {"time_s": t[~tail], "rate_dps": y[~tail]})
+    cut_csv = _write(tmp_path / "cut.csv", {"time_s": t, "rate_dps": moving})
+    assert main(["analyze", "stop-method", str(clean_csv), "--json"]) == 0
+    clean = json.loads(capsys.readouterr().out)
+    assert main(["analyze", "stop-method", str(cut_csv), "--json"]) == 0
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert "warning: the record began in motion" in out.err
+    assert any("began in motion" in w for w in doc["warnings"])
+    assert len(doc["moves"]) == 2
+    assert doc["scale_correction"] == pytest.approx(clean["scale_correction"], abs=2e-4)
+    assert doc["bias_dps"] == pytest.approx(clean["bias_dps"], abs=0.01)
+    # with no move after the leading motion the record is still refused, naming why
+    early = t < 4.0
+    short_csv = _write(tmp_path / "short.csv", {"time_s": t[early], "rate_dps": moving[early]})
+    assert main(["analyze", "stop-method", str(short_csv)]) == 2
+    assert "at rest" in capsys.readouterr().err
