@@ -322,15 +322,15 @@ def window_from_samples(
     return Window(
         face=face,
         table_rate_dps=float(table_rate_dps),
-        rate_dps=_vec3(rate.mean(axis=0)),
-        u_rate_dps=_vec3(u_rate_dps),
-        accel_mps2=_vec3(acc.mean(axis=0)),
+        rate_dps=vec3(rate.mean(axis=0)),
+        u_rate_dps=vec3(u_rate_dps),
+        accel_mps2=vec3(acc.mean(axis=0)),
         temp_c=float(temp_c),
         supply_v=float(supply_v),
         condition=condition,
     )
 
 
-def _vec3(values: ArrayLike) -> tuple[float, float, float]:
+def vec3(values: ArrayLike) -> tuple[float, float, float]:
     v = np.asarray(values, dtype=np.float64).reshape(3)
     return (float(v[0]), float(v[1]), float(v[2]))
