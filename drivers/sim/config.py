@@ -94,7 +94,7 @@ class ThreeAxisSpec(_Model):
     misalignment_sigma: float = Field(
         default=0.004, ge=0.0, le=0.1, description="M's off-diagonal terms (0.4 %: 0.1-1 %)"
     )
-    g_sensitivity_sigma_dps_per_mps2: float = Field(default=0.005, ge=0.0, le=1.0)
+    g_sensitivity_sigma_dps_per_mps2: float = Field(default=0.01, ge=0.0, le=1.0)
     accel_noise_mps2: float = Field(
         default=0.003, ge=0.0, le=1.0, description="accelerometer white noise per sample, 1 sigma"
     )

@@ -118,3 +118,19 @@ def test_a_single_axis_frame_among_three_axis_ones_keeps_its_place_and_rate() ->
     assert res.rate_code_xyz[4].tolist() == [1234, 0, 0]
     assert res.accel_code_xyz[4].tolist() == [0, 0, 0]
     assert res.rate_code.tolist() == [*rate[:, 0].tolist(), 1234]
+
+
+def test_mutated_three_axis_streams_never_raise_nor_invent_frames() -> None:
+    data, seq, *_ = _stream3(200, seed=8)
+    rng = np.random.default_rng(8)
+    for _ in range(30):
+        raw = np.frombuffer(data, dtype=np.uint8).copy()
+        hits = rng.random(raw.size) < rng.uniform(0.0, 0.01)
+        raw[hits] ^= rng.integers(1, 256, int(hits.sum()), dtype=np.uint8)
+        parser = fp.FrameParser()
+        cut = int(rng.integers(1, raw.size))
+        results = [parser.feed(raw[:cut].tobytes()), parser.feed(raw[cut:].tobytes())]
+        got = np.concatenate([r.seq for r in results])
+        assert set(got.tolist()) <= set(seq.tolist())  # no frame invented
+        intact = ~hits.reshape(-1, fp.SAMPLE3_FRAME_SIZE).any(axis=1)
+        assert set(seq[intact].tolist()) <= set(got.tolist())  # every intact frame decoded

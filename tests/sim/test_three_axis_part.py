@@ -305,3 +305,14 @@ def test_six_faces_and_turntable_rates_recover_the_truth_from_the_wire() -> None
     np.testing.assert_allclose(bias, np.asarray(th.bias_dps), atol=1e-4)
     np.testing.assert_allclose(g_sens, np.asarray(th.g_sensitivity_dps_per_mps2), atol=2e-4)
     np.testing.assert_allclose(s_est, s_true, atol=1e-4)
+
+
+def test_a_slipping_operator_lands_on_another_face_and_a_deaf_one_never_turns() -> None:
+    slip = Cube(CubeConfig(wrong_face_probability=1.0), seed=1, socket=2)
+    turns = [slip.on_prompt(10.0 * i, "+x") for i in range(1, 6)]
+    landed = [t.to_face for t in turns if t is not None]
+    assert landed and all(face != "+x" for face in landed)
+    assert all(t.asked_face == "+x" for t in turns if t is not None)
+    deaf = Cube(CubeConfig(responds=False), seed=1, socket=3)
+    assert deaf.on_prompt(1.0, "-z") is None and deaf.prompts_seen == 1
+    assert deaf.face_at(100.0) == "+z"
