@@ -129,6 +129,8 @@ LIMIT_NAMES = (
     "bias_temp_coeff3_dps_per_c3",
     "scale_temp_coeff2_per_c2",
     "scale_temp_coeff3_per_c3",
+    "misalignment_mrad",
+    "g_sensitivity_dps_per_mps2",
 )
 
 
@@ -178,6 +180,12 @@ class Limits(_Strict):
     bias_temp_coeff3_dps_per_c3: Limit | None = Field(None, description="fitted b3, deg/s/C^3")
     scale_temp_coeff2_per_c2: Limit | None = Field(None, description="fitted s2, 1/C^2")
     scale_temp_coeff3_per_c3: Limit | None = Field(None, description="fitted s3, 1/C^3")
+    misalignment_mrad: Limit | None = Field(
+        None, description="three-axis: off-diagonal of M over its row's diagonal, mrad"
+    )
+    g_sensitivity_dps_per_mps2: Limit | None = Field(
+        None, description="three-axis: each element of G, deg/s per m/s^2"
+    )
 
 
 FitOrder = Literal[1, 2, 3]
@@ -279,6 +287,11 @@ class ProductConfig(_Strict):
     )
     self_heating_tau_s: float = Field(
         90.0, gt=0, le=1e4, description="time constant of the self-heating, s"
+    )
+    axes: Literal[1, 3] = Field(
+        1,
+        description="rate axes of the part: 1 (a single-axis gyro) or 3 (x, y, z in one "
+        "package, calibrated in cube orientations: docs/three-axis.md)",
     )
 
     @property

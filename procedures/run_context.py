@@ -104,7 +104,8 @@ class Progress:
     def socket_states(self) -> dict[int, str]:
         return {p.socket: ("RUNNING" if p.alive else str(p.verdict)) for p in self._parts}
 
-    def publish(self, kind: str, message: str = "", sockets: dict[int, str] | None = None) -> None:
+    def publish(self, kind: str, message: str = "", sockets: dict[int, str] | None = None,
+                orientation: str | None = None) -> None:
         fraction, remaining = self.fraction()
         self.bus.publish(
             ProgressEvent(
@@ -116,12 +117,15 @@ class Progress:
                 remaining_s=remaining,
                 message=message,
                 sockets=self.socket_states() if sockets is None else sockets,
+                orientation=orientation,
             )
         )
 
-    def prompt(self, message: str, sockets: Iterable[int]) -> None:
-        """Ask the operator to do something (kind="prompt"); `sockets` are those concerned."""
-        self.publish("prompt", message=message, sockets={s: "PROMPT" for s in sockets})
+    def prompt(self, message: str, sockets: Iterable[int], orientation: str | None = None) -> None:
+        """Ask the operator to do something (kind="prompt"); `sockets` are those concerned;
+        `orientation`: the cube face a reorientation prompt asks for ("+x" .. "-z")."""
+        self.publish("prompt", message=message, sockets={s: "PROMPT" for s in sockets},
+                     orientation=orientation)
 
     def prompt_done(self, sockets: Iterable[int] = ()) -> None:
         """Clear the prompt (kind="prompt_done")."""

@@ -48,6 +48,11 @@ _COLUMNS = (
     "encoder_counts",
 )
 _DTYPES = {c: np.float64 for c in ("time_s", "rate_dps", "temp_c", "station_time_s")}
+# three-axis parts only (in memory; a window of a single-axis part has none of them):
+# the decoded x, y, z gyro rates and accelerometer readings, one 1-D column each
+XYZ_COLUMNS = (
+    "rate_x_dps", "rate_y_dps", "rate_z_dps", "accel_x_mps2", "accel_y_mps2", "accel_z_mps2",
+)
 # samples a part gathers before they are appended to raw.h5 (each append costs the same
 # few ms of HDF5 bookkeeping whatever its size); at most _FLUSH_WALL_S apart anyway
 _FLUSH_SAMPLES = 8192
@@ -88,6 +93,9 @@ class _Growable:
                     new[: self.n] = self._cols[name][: self.n]
                 self._cols[name] = new
             self._cap = cap
+        for name in cols:
+            if name not in self._cols:  # a column that starts late: NaN before it
+                self._cols[name] = np.full(self._cap, np.nan, dtype=np.float64)
         for name, values in cols.items():
             self._cols[name][self.n : self.n + k] = values
         self.n += k
@@ -142,6 +150,7 @@ class PartStream:
         self._last_data_station_s = 0.0
         self._wrap_s = 0.0
         self.last_seq: int | None = None  # of the newest frame in (lockstep catch-up)
+        self._has_xyz = False  # three-axis frames seen: windows carry XYZ_COLUMNS
 
     # ------------------------------------------------------------ control (main thread)
 
@@ -231,10 +240,25 @@ class PartStream:
             ),
         }
         cols["station_time_s"] = cols["time_s"] + self.offset_s
-        self._data.append(cols)
+        self._data.append({**cols, **self._xyz_columns(block, n)})
         self._pending.append(cols)
         self._pending_n += n
         return n
+
+    def _xyz_columns(self, block: SampleBlock, n: int) -> dict[str, NDArray[Any]]:
+        """A three-axis block's decoded x, y, z columns; NaN for a single-axis block once
+        the stream has had three-axis ones; none for a single-axis stream."""
+        rate = getattr(block, "rate_code_xyz", None)
+        accel = getattr(block, "accel_code_xyz", None)
+        if rate is None or accel is None:
+            if not self._has_xyz:
+                return {}
+            return {c: np.full(n, np.nan) for c in XYZ_COLUMNS}
+        self._has_xyz = True
+        r = self.codes.rate_code_to_dps(np.asarray(rate).reshape(n, 3))
+        a = self.codes.accel_code_to_mps2(np.asarray(accel).reshape(n, 3))
+        return {**{c: r[:, i] for i, c in enumerate(XYZ_COLUMNS[:3])},
+                **{c: a[:, i] for i, c in enumerate(XYZ_COLUMNS[3:])}}
 
     def flush(self) -> None:
         with self.lock:
@@ -271,7 +295,10 @@ class PartStream:
                 disk = self.writer.read_window("samples", "time_s", start_s, end_s)
                 return {c: np.asarray(disk[c], dtype=_DTYPES.get(c, np.int64)) for c in _COLUMNS}
             i0, i1 = np.searchsorted(t, [start_s, end_s], side="left")
-            return {c: self._data.column(c)[i0:i1].copy() for c in _COLUMNS}
+            out = {c: self._data.column(c)[i0:i1].copy() for c in _COLUMNS}
+            if self._has_xyz:
+                out.update({c: self._data.column(c)[i0:i1].copy() for c in XYZ_COLUMNS})
+            return out
 
     def wait_delivered(self, fixture_s: float, wall_s: float) -> None:
         """Wait (wall time, at most `wall_s`) until the stream holds its samples up to fixture
