@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -129,6 +129,10 @@ class ThreeAxisCalibration:
     reference_temperature_c: float = REFERENCE_TEMPERATURE_C
     reference_supply_v: float = REFERENCE_SUPPLY_V
     notes: tuple[str, ...] = field(default_factory=tuple)
+    # the windows' mean die temperature and supply: without temperature and supply terms,
+    # b and M are the part's at these (not at the reference)
+    mean_temp_c: float = REFERENCE_TEMPERATURE_C
+    mean_supply_v: float = REFERENCE_SUPPLY_V
 
     def value(self, name: str) -> FloatArray:
         return np.asarray(getattr(self, name), dtype=np.float64)
@@ -158,6 +162,8 @@ class ThreeAxisCalibration:
         out["reference_temperature_c"] = self.reference_temperature_c
         out["reference_supply_v"] = self.reference_supply_v
         out["temp_supply_fitted"] = self.temp_supply_fitted
+        out["mean_die_temperature_c"] = self.mean_temp_c
+        out["mean_supply_v"] = self.mean_supply_v
         out["fit_chi2"] = self.chi2
         out["fit_dof"] = self.dof
         return out
@@ -261,8 +267,10 @@ def fit_three_axis(
     pred, jac = _model(p, d)
     cov = np.asarray(np.linalg.inv(jac.T @ (jac * wts[:, None])), dtype=np.float64)
     chi2 = float(np.sum((y - pred.ravel()) ** 2 * wts))
-    return _result(p, cov, chi2, len(y) - n_par, with_tv, reference_temperature_c,
-                   reference_supply_v)
+    cal = _result(p, cov, chi2, len(y) - n_par, with_tv, reference_temperature_c,
+                  reference_supply_v)
+    return replace(cal, mean_temp_c=float(np.mean(d["dt"]) + reference_temperature_c),
+                   mean_supply_v=float(np.mean(d["dv"]) + reference_supply_v))
 
 
 def _result(
@@ -283,7 +291,8 @@ def _result(
         v = np.sqrt(np.diag(cov[s, s])) if s.stop <= len(p) else np.full(n, math.nan)
         u[name] = v.reshape(3, 3) if n == 9 else v
     notes = () if with_tv else (
-        "one temperature and supply only: temperature and supply coefficients not fitted",
+        "one temperature and supply only: temperature and supply coefficients not fitted "
+        "(b and M are the part's at the measured die temperature and supply)",
     )
     return ThreeAxisCalibration(
         bias_dps=q["bias_dps"].copy(),

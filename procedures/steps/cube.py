@@ -14,6 +14,7 @@ procedures.analysis.three_axis.Window in part.extra["three_axis_windows"], which
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,11 @@ class CubeFacesSettings(StepSettings):
     reprompts: int = Field(2, ge=0, le=10, description="re-prompts for a cube in a wrong face")
     look_s: float = Field(1.0, gt=0.1, le=60.0, description="accelerometer window to confirm")
     max_tilt_deg: float = Field(10.0, gt=0, le=30.0, description="gravity off the axis, at most")
+    wander_factor: float = Field(
+        0.664, ge=0, le=100, description="bias wander between windows, in units of the "
+        "product's bias_instability_deg_per_h (0.664: its Allan floor), added to each window "
+        "mean's uncertainty (a short window cannot see the wander)",
+    )
 
 
 class CubeFaces(StepType[CubeFacesSettings]):
@@ -189,10 +195,12 @@ class CubeFaces(StepType[CubeFacesSettings]):
                 ctx.parts.drop(part, Verdict.ERROR, f"{what}: {exc}")
                 return
             accel = np.column_stack([data[c] for c in XYZ_COLUMNS[3:]])
+            wander_dps = self.settings.wander_factor * ctx.product.bias_instability_deg_per_h / 3600
+            u = [math.hypot(m.u_mean_dps, wander_dps) for m in means]
             out.append(Window(
                 face=face, table_rate_dps=p.ref_dps,
                 rate_dps=(means[0].mean_dps, means[1].mean_dps, means[2].mean_dps),
-                u_rate_dps=(means[0].u_mean_dps, means[1].u_mean_dps, means[2].u_mean_dps),
+                u_rate_dps=(u[0], u[1], u[2]),
                 accel_mps2=vec3(np.nanmean(accel, axis=0)),
                 temp_c=float(np.mean(data["temp_c"])), supply_v=res.supply_v,
                 condition=self.condition,
