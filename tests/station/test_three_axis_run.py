@@ -33,7 +33,7 @@ def test_three_axis_part_on_the_bench(tmp_path: Path) -> None:
     prompts: list[ProgressEvent] = []
     result, truth = run_simulated(
         [{"socket": 1, "serial": "IMU-0007", "three_axis": {}}],
-        procedure_path=PROCEDURE, out=tmp_path, speed=100.0,
+        procedure_path=PROCEDURE, out=tmp_path,
         on_progress=lambda e: prompts.append(e) if e.kind == "prompt" else None,
     )
     assert str(result.verdicts[1]) in ("PASS", "Verdict.PASS"), result.reasons
