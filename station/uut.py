@@ -357,10 +357,13 @@ class UutRunner:
         return clean
 
     def check_link_speed(self) -> None:
-        """The fixture's baud (station.yaml) must carry the procedure's output rate. Checked on
-        the simulated bench too, where a pty has no baud: the procedure must suit the station."""
+        """The fixture's baud (station.yaml) must carry the procedure's output rate in the
+        product's frames (a three-axis part's are longer). Checked on the simulated bench too,
+        where a pty has no baud: the procedure must suit the station."""
         problem = link_speed_problem(
-            self.procedure.output_rate_hz, self.settings.settings.instruments.fixture.baud
+            self.procedure.output_rate_hz,
+            self.settings.settings.instruments.fixture.baud,
+            axes=self.product.axes,
         )
         if problem is not None:
             raise UserError(

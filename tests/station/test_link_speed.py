@@ -153,3 +153,26 @@ def test_real_link_opens_at_the_configured_baud(tmp_path: Path) -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_three_axis_procedure_is_refused_where_its_longer_frames_do_not_fit(
+    tmp_path: Path,
+) -> None:
+    """At 200 Hz a single-axis part's 25-byte frames need 50,000 baud, a three-axis part's
+    40-byte frames 80,000: a 57,600-baud fixture carries the first and not the second."""
+    settings = _settings(tmp_path, 57_600)
+    single = UutRunner(settings, procedure_path=_procedure(tmp_path, 200), product_path=PRODUCT,
+                       out=tmp_path / "runs")
+    assert single.validate({1: "SIM-0001"}) == {1: "SIM-0001"}
+    text = (ROOT / "tests/data/eol-three-axis-short.yaml").read_text()
+    three = tmp_path / "three-200hz.yaml"
+    three.write_text(
+        text.replace("output_rate_hz: 100", "output_rate_hz: 200").replace(
+            "../../config/products/imu3.yaml", str(ROOT / "config/products/imu3.yaml"))
+    )
+    runner = UutRunner(settings, procedure_path=three, out=tmp_path / "runs")
+    with pytest.raises(UserError) as info:
+        runner.validate({1: "IMU-0001"})
+    assert "200 Hz needs 80,000 baud for its 40-byte sample frames" in str(info.value)
+    assert "57,600 baud" in str(info.value)
+    assert not (tmp_path / "runs").exists()
