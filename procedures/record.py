@@ -99,6 +99,48 @@ class Calibration(_Model):
     readback: dict[str, float] | None = None
 
 
+class ArrayValue(_Model):
+    """A vector (3) or matrix (3 x 3) with its k=2 uncertainty (None where not fitted)."""
+
+    value: list[float] | list[list[float]]
+    uncertainty_k2: list[float | None] | list[list[float | None]]
+
+
+class CalibrationThreeAxis(_Model):
+    """record.json's `calibration_three_axis` block (a three-axis part's fit and programming;
+    procedures/steps/three_axis_fit.py writes it, single-axis records never have it)."""
+
+    axes: int = 3
+    bias_dps: ArrayValue
+    matrix: ArrayValue
+    g_sensitivity_dps_per_mps2: ArrayValue
+    bias_temp_coeff_dps_per_c: ArrayValue
+    bias_supply_coeff_dps_per_v: ArrayValue
+    scale_temp_coeff_per_c: ArrayValue
+    scale_supply_coeff_per_v: ArrayValue
+    reference_temperature_c: float = 25.0
+    reference_supply_v: float = 5.0
+    temp_supply_fitted: bool = False
+    mean_die_temperature_c: float | None = None
+    mean_supply_v: float | None = None
+    fit_chi2: float | None = None
+    fit_dof: int | None = None
+    readback_ok: bool | None = None
+    readback: dict[str, Any] | None = None
+
+
+def three_axis_block(record: RunRecord) -> CalibrationThreeAxis | None:
+    """The record's three-axis calibration, typed; None for a single-axis record (or a block
+    that does not parse, which the reports then show as not recorded)."""
+    raw = (record.model_extra or {}).get("calibration_three_axis")
+    if not isinstance(raw, dict):
+        return None
+    try:
+        return CalibrationThreeAxis.model_validate(raw)
+    except ValueError:
+        return None
+
+
 class ConditionRecord(_Model):
     name: str  # e.g. "T25_V4.75"
     temperature_c: float

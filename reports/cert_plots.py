@@ -22,6 +22,7 @@ from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableStyle
 
 from procedures.rawdata import RawData
+from procedures.record import three_axis_block
 from reports import record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.charts import INTEGRATION_FILL, PALETTE, STATIC_FILL, Chart, message_box
@@ -315,7 +316,10 @@ def _heading_with_first(items: list[Flowable]) -> list[Flowable]:
 
 def all_plots(inputs: CertificateInputs) -> list[Flowable]:
     story: list[Flowable] = []
-    for section in (stop_method, rate_table, allan, stabilisation):
+    sections = (stop_method, rate_table, allan, stabilisation)
+    if inputs.record is not None and three_axis_block(inputs.record) is not None:
+        sections = (stabilisation,)  # a cube procedure has no stop, rate-table or noise record
+    for section in sections:
         story += _heading_with_first(section(inputs))
     return story
 

@@ -17,7 +17,7 @@ from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
 
 from procedures.record import Measurement, Outcome, RunRecord
-from reports import record_keys
+from reports import cert_three_axis, record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.cert_safe_state import safe_state_box
 from reports.pdfdoc import parse_utc
@@ -154,7 +154,10 @@ def summary_text(rec: RunRecord) -> str:
     out = (f"{len(rec.measurements)} measurements: {counts[Outcome.FAIL]} failed, "
            f"{counts[Outcome.MARGINAL]} marginal, {counts[Outcome.NOT_MEASURED]} not measured")
     cal = rec.calibration
-    if cal is None:
+    three_axis = cert_three_axis.summary(rec)
+    if three_axis is not None:
+        cal_text = three_axis
+    elif cal is None:
         cal_text = "No calibration was written to the part"
     else:
         rb = {True: "read-back PASSED", False: "read-back FAILED",

@@ -27,7 +27,13 @@ from pathlib import Path
 from reportlab.platypus import Flowable, KeepTogether, Spacer
 
 from procedures.record import CERTIFICATE_FILE
-from reports import cert_plots, cert_sections, cert_standards, cert_temperature_fit
+from reports import (
+    cert_plots,
+    cert_sections,
+    cert_standards,
+    cert_temperature_fit,
+    cert_three_axis,
+)
 from reports.cert_inputs import CertificateInputs, load_inputs
 from reports.pdfdoc import PageFurniture, build_pdf, parse_utc, write_atomic
 from reports.styles import bounded
@@ -56,7 +62,8 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story += cert_standards.standards(inputs)
     story += cert_sections.conditions(inputs)
     story += cert_sections.results(inputs)
-    story += cert_sections.calibration(inputs)
+    three_axis = cert_three_axis.three_axis(inputs)
+    story += three_axis or cert_sections.calibration(inputs)
     story += cert_temperature_fit.temperature_fit(inputs)
     if inputs.record is not None:
         story += cert_plots.all_plots(inputs)

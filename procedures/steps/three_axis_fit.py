@@ -20,7 +20,7 @@ from procedures.analysis.errors import AnalysisError
 from procedures.analysis.three_axis import ThreeAxisCalibration, fit_three_axis, vec3
 from procedures.record import Verdict
 from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.run_parts import PartRun, condition_record
 from procedures.steps.cube import WINDOWS_KEY
 from procedures.steps.program import failed_limits
 from procedures.steps.registry import Declared, StepSettings, StepType
@@ -135,6 +135,7 @@ class FitThreeAxis(StepType[FitThreeAxisSettings]):
             return
         part.extra[FIT_KEY] = cal
         setattr(part.record, RECORD_KEY, cal.as_calibration_dict())
+        part.record.conditions = [condition_record(r) for r in part.conditions.values()]
         for note in cal.notes:
             ctx.records.event(f"socket {part.socket}: {note}", parts=[part])
         for name, value, u_k2, units, limit in per_axis_measurements(cal):

@@ -49,3 +49,41 @@ def test_three_axis_part_on_the_bench(tmp_path: Path) -> None:
         u_k2 = np.array(cal[name]["uncertainty_k2"])
         # 1.5 U (3 sigma): one part, 21 numbers (coverage over many parts: benchmarks/bench_three_axis.py)
         assert np.all(np.abs(got - want) <= 1.5 * u_k2), (name, got - want, u_k2)
+    _certificate_shows_the_vectors_and_matrices(next(tmp_path.rglob("record.json")).parent)
+
+
+def _pdf_text(path: Path) -> str:
+    import subprocess
+
+    return subprocess.run(["pdftotext", "-layout", str(path), "-"], check=True,
+                          capture_output=True, text=True).stdout
+
+
+def _certificate_shows_the_vectors_and_matrices(folder: Path) -> None:
+    """The real PDF: b, M (and misalignment in mrad), G with k=2 uncertainties, the limits
+    judged and the read-back; a part that was not programmed says so and why."""
+    from reports.certificate import render_certificate
+
+    record = json.loads((folder / "record.json").read_text())
+    cal = record["calibration_three_axis"]
+    text = _pdf_text(render_certificate(folder))
+    assert "Three-axis calibration written to the part" in text
+    assert "Three-axis calibration written: bias vector" in text  # page one's summary
+    bx, ux = cal["bias_dps"]["value"][0], cal["bias_dps"]["uncertainty_k2"][0]
+    assert f"{bx:.6g} ± {ux:.2g}" in text
+    m = np.array(cal["matrix"]["value"])
+    assert f"{1e3 * m[0, 1] / m[0, 0]:.4g} ±" in text  # misalignment xy in mrad
+    assert f"{m[1, 1]:.6g} ±" in text
+    g = cal["g_sensitivity_dps_per_mps2"]["value"]
+    assert f"{g[2][2]:.4g} ±" in text
+    judged = [m for m in record["measurements"] if m["name"].startswith("misalignment_")]
+    assert len(judged) == 6
+    assert "per-axis values against the product's limits" in text
+    assert "read-back check PASSED" in text
+    assert "Stop method" not in text  # no single-axis plots on a cube procedure
+    record["analysis"]["programming"] = {"programmed": False,
+                                         "reason": "not programmed: failed misalignment_xy_mrad"}
+    (folder / "record.json").write_text(json.dumps(record))
+    text = _pdf_text(render_certificate(folder))
+    assert "Programming: not programmed: failed misalignment_xy_mrad." in text
+    assert "No calibration was written to the part" in text
