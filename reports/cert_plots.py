@@ -316,7 +316,8 @@ def _heading_with_first(items: list[Flowable]) -> list[Flowable]:
 
 def all_plots(inputs: CertificateInputs) -> list[Flowable]:
     story: list[Flowable] = []
-    sections = (stop_method, rate_table, allan, stabilisation)
+    sections: tuple[Callable[[CertificateInputs], list[Flowable]], ...] = (
+        stop_method, rate_table, allan, stabilisation)
     if inputs.record is not None and three_axis_block(inputs.record) is not None:
         sections = (stabilisation,)  # a cube procedure has no stop, rate-table or noise record
     for section in sections:

@@ -70,8 +70,7 @@ def _misalignment_mrad(cal: CalibrationThreeAxis) -> Table:
     """M's off-diagonal over its row's diagonal, in mrad; the diagonal shows the raw scale
     error 1/M_ii - 1 in % (the same quantities the limits judge)."""
     m = np.asarray(cal.matrix.value, dtype=float)
-    u = np.asarray([[np.nan if x is None else x for x in r] for r in cal.matrix.uncertainty_k2],
-                   dtype=float)
+    u = np.array(cal.matrix.uncertainty_k2, dtype=float)  # None (not fitted) becomes nan
     data: list[list[Any]] = [[_p("Misalignment (mrad); diagonal: raw scale error (%)"),
                               _p("x"), _p("y"), _p("z")]]
     for i, a in enumerate(AXES):

@@ -47,7 +47,8 @@ def test_three_axis_part_on_the_bench(tmp_path: Path) -> None:
     for name, want in expected.items():
         got = np.array(cal[name]["value"])
         u_k2 = np.array(cal[name]["uncertainty_k2"])
-        # 1.5 U (3 sigma): one part, 21 numbers (coverage over many parts: benchmarks/bench_three_axis.py)
+        # 1.5 U (3 sigma): one part, 21 numbers (coverage over many parts:
+        # benchmarks/bench_three_axis.py)
         assert np.all(np.abs(got - want) <= 1.5 * u_k2), (name, got - want, u_k2)
     _certificate_shows_the_vectors_and_matrices(next(tmp_path.rglob("record.json")).parent)
 
