@@ -20,6 +20,11 @@ Layout (all 1-D, resizable, appended together within a group so rows line up):
                stop_static | verify | stabilise), index, start_s, end_s (fixture clock),
                ref_rate_dps, ref_angle_deg, temp_setpoint_c, supply_v
     /events    station_time_s, text
+    /samples_xyz  three-axis parts only (a single-axis file has no such group): one row per
+               /samples row, in the same order: rate_x_code .. rate_z_code and accel_x_code ..
+               accel_z_code (the wire codes) and rate_x_dps .. rate_z_dps, accel_x_mps2 ..
+               accel_z_mps2 (decoded with the product's codes); /samples' rate_code and
+               rate_dps then hold the x axis
 
 Readers use `read_raw`, which returns plain numpy arrays per group; the run itself reads its
 older sample windows back with `RawDataWriter.read_window`.
@@ -28,7 +33,7 @@ older sample windows back with `RawDataWriter.read_window`.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -90,6 +95,18 @@ GROUPS: dict[str, dict[str, tuple[Any, str]]] = {
 }
 
 
+_XYZ = "xyz"
+# groups only some files have: the writer creates them when asked (`extra_groups`), readers
+# return them when the file has them
+EXTRA_GROUPS: dict[str, dict[str, tuple[Any, str]]] = {
+    "samples_xyz": {
+        **{f"rate_{a}_code": ("i4", "counts") for a in _XYZ},
+        **{f"accel_{a}_code": ("i4", "counts") for a in _XYZ},
+        **{f"rate_{a}_dps": ("f8", "deg/s") for a in _XYZ},
+        **{f"accel_{a}_mps2": ("f8", "m/s^2") for a in _XYZ},
+    },
+}
+
 # Columns added after the format's first files: a file without them reads as all zeros
 # (for encoder_counts, with ENCODER_LATCHED clear in status, that means "not latched").
 OPTIONAL_COLUMNS = {("samples", "encoder_counts")}
@@ -102,8 +119,15 @@ class RawDataError(ValueError):
 class RawDataWriter:
     """Appends rows to the groups of a new raw data file; flushes after every append."""
 
-    def __init__(self, path: Path, attrs: Mapping[str, Any]) -> None:
+    def __init__(
+        self, path: Path, attrs: Mapping[str, Any], extra_groups: Sequence[str] = ()
+    ) -> None:
         self.path = path
+        unknown = set(extra_groups) - set(EXTRA_GROUPS)
+        if unknown:
+            raise ValueError(f"raw data: unknown groups {sorted(unknown)}")
+        # every group is created now: no dataset can be added once readers may attach (SWMR)
+        self._groups = {**GROUPS, **{g: EXTRA_GROUPS[g] for g in extra_groups}}
         # a small chunk cache per dataset (HDF5's default is 1 MiB each, 32 datasets a file):
         # rows are appended, so only the chunk being filled needs to stay in memory
         self._file = h5py.File(path, "w", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
@@ -114,7 +138,7 @@ class RawDataWriter:
         # writing a batch of rows)
         self._datasets: dict[str, dict[str, Any]] = {}
         self._rows: dict[str, int] = {}  # rows written per group (every column alike)
-        for group_name, columns in GROUPS.items():
+        for group_name, columns in self._groups.items():
             group = self._file.create_group(group_name)
             self._datasets[group_name] = {}
             self._rows[group_name] = 0
@@ -130,7 +154,9 @@ class RawDataWriter:
     def append(self, group: str, **columns: Any) -> None:
         """Append rows; every column of the group must be given, all of one length (an
         optional column left out is written as zeros)."""
-        expected = GROUPS[group]
+        if group not in self._groups:
+            raise ValueError(f"raw data group {group!r} is not in this file")
+        expected = self._groups[group]
         optional = {c for g, c in OPTIONAL_COLUMNS if g == group and c not in columns}
         if optional and columns:
             rows = len(np.atleast_1d(np.asarray(next(iter(columns.values())))))
@@ -169,7 +195,19 @@ class RawDataWriter:
         g = self._file[group]
         ds = g[key]
         i0, i1 = _bisect(ds, start), _bisect(ds, end)
-        return {column: g[column][i0:i1] for column in GROUPS[group]}
+        return {column: g[column][i0:i1] for column in self._groups[group]}
+
+    def row_of(self, group: str, key: str, value: float) -> int:
+        """The first row whose sorted `key` column is not below `value`."""
+        return _bisect(self._file[group][key], value)
+
+    def read_rows(self, group: str, start: int, end: int) -> dict[str, NDArray[Any]]:
+        """Rows [start, end) written so far of every column of `group`."""
+        g = self._file[group]
+        return {column: g[column][start:end] for column in self._groups[group]}
+
+    def has_group(self, group: str) -> bool:
+        return group in self._groups
 
     def close(self) -> None:
         if self._file.id.valid:
@@ -217,31 +255,38 @@ def read_raw(path: Path) -> RawData:
                     f"(found {f.attrs.get('format')!r})"
                 )
             attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
-            groups: dict[str, dict[str, NDArray[Any]]] = {}
-            for group_name, columns in GROUPS.items():
-                if group_name not in f:
-                    raise RawDataError(f"{path}: group /{group_name} is missing")
-                g = f[group_name]
-                groups[group_name] = {}
-                for column, (dtype, _units) in columns.items():
-                    if column not in g and (group_name, column) in OPTIONAL_COLUMNS:
-                        rows = next(iter(g.values())).shape[0] if len(g) else 0
-                        groups[group_name][column] = np.zeros(rows, dtype=dtype)
-                        continue
-                    if column not in g:
-                        raise RawDataError(f"{path}: dataset /{group_name}/{column} is missing")
-                    data = g[column][()]
-                    if dtype is _STR:
-                        data = np.asarray(
-                            [d.decode() if isinstance(d, bytes) else str(d) for d in data],
-                            dtype=object,
-                        )
-                    groups[group_name][column] = data
+            groups = {name: _read_group(path, f, name, columns)
+                      for name, columns in GROUPS.items()}
+            groups.update({name: _read_group(path, f, name, columns)
+                           for name, columns in EXTRA_GROUPS.items() if name in f})
             return RawData(attrs=attrs, groups=groups)
     except RawDataError:
         raise
     except (OSError, KeyError, ValueError) as exc:
         raise RawDataError(f"{path}: raw data file cannot be read ({exc})") from exc
+
+
+def _read_group(
+    path: Path, f: Any, group_name: str, columns: dict[str, tuple[Any, str]]
+) -> dict[str, NDArray[Any]]:
+    if group_name not in f:
+        raise RawDataError(f"{path}: group /{group_name} is missing")
+    g = f[group_name]
+    out: dict[str, NDArray[Any]] = {}
+    for column, (dtype, _units) in columns.items():
+        if column not in g and (group_name, column) in OPTIONAL_COLUMNS:
+            rows = next(iter(g.values())).shape[0] if len(g) else 0
+            out[column] = np.zeros(rows, dtype=dtype)
+            continue
+        if column not in g:
+            raise RawDataError(f"{path}: dataset /{group_name}/{column} is missing")
+        data = g[column][()]
+        if dtype is _STR:
+            data = np.asarray(
+                [d.decode() if isinstance(d, bytes) else str(d) for d in data], dtype=object
+            )
+        out[column] = data
+    return out
 
 
 def file_sha256(path: Path) -> str:

@@ -53,6 +53,24 @@ _DTYPES = {c: np.float64 for c in ("time_s", "rate_dps", "temp_c", "station_time
 XYZ_COLUMNS = (
     "rate_x_dps", "rate_y_dps", "rate_z_dps", "accel_x_mps2", "accel_y_mps2", "accel_z_mps2",
 )
+# and their wire codes, which raw.h5's /samples_xyz keeps beside the decoded values
+XYZ_CODE_COLUMNS = (
+    "rate_x_code", "rate_y_code", "rate_z_code", "accel_x_code", "accel_y_code", "accel_z_code",
+)
+XYZ_GROUP = "samples_xyz"
+
+
+def _xyz_rows(pending: list[dict[str, NDArray[Any]]]) -> dict[str, NDArray[Any]]:
+    """raw.h5's /samples_xyz rows for pending blocks (rows line up with /samples: a block
+    without three-axis columns gives NaN values and zero codes)."""
+    out: dict[str, list[NDArray[Any]]] = {c: [] for c in (*XYZ_CODE_COLUMNS, *XYZ_COLUMNS)}
+    for block in pending:
+        n = len(block["time_s"])
+        for c in XYZ_CODE_COLUMNS:
+            out[c].append(block.get(c, np.zeros(n, dtype=np.int64)))
+        for c in XYZ_COLUMNS:
+            out[c].append(block.get(c, np.full(n, np.nan)))
+    return {c: np.concatenate(v) for c, v in out.items()}
 # samples a part gathers before they are appended to raw.h5 (each append costs the same
 # few ms of HDF5 bookkeeping whatever its size); at most _FLUSH_WALL_S apart anyway
 _FLUSH_SAMPLES = 8192
@@ -240,8 +258,9 @@ class PartStream:
             ),
         }
         cols["station_time_s"] = cols["time_s"] + self.offset_s
-        self._data.append({**cols, **self._xyz_columns(block, n)})
-        self._pending.append(cols)
+        xyz = self._xyz_columns(block, n)
+        self._data.append({**cols, **{c: xyz[c] for c in XYZ_COLUMNS if c in xyz}})
+        self._pending.append({**cols, **xyz})
         self._pending_n += n
         return n
 
@@ -253,23 +272,31 @@ class PartStream:
         if rate is None or accel is None:
             if not self._has_xyz:
                 return {}
-            return {c: np.full(n, np.nan) for c in XYZ_COLUMNS}
+            return {**{c: np.full(n, np.nan) for c in XYZ_COLUMNS},
+                    **{c: np.zeros(n, dtype=np.int64) for c in XYZ_CODE_COLUMNS}}
         self._has_xyz = True
-        r = self.codes.rate_code_to_dps(np.asarray(rate).reshape(n, 3))
-        a = self.codes.accel_code_to_mps2(np.asarray(accel).reshape(n, 3))
+        rate_codes = np.asarray(rate, dtype=np.int64).reshape(n, 3)
+        accel_codes = np.asarray(accel, dtype=np.int64).reshape(n, 3)
+        r = self.codes.rate_code_to_dps(rate_codes)
+        a = self.codes.accel_code_to_mps2(accel_codes)
         return {**{c: r[:, i] for i, c in enumerate(XYZ_COLUMNS[:3])},
-                **{c: a[:, i] for i, c in enumerate(XYZ_COLUMNS[3:])}}
+                **{c: a[:, i] for i, c in enumerate(XYZ_COLUMNS[3:])},
+                **{c: rate_codes[:, i] for i, c in enumerate(XYZ_CODE_COLUMNS[:3])},
+                **{c: accel_codes[:, i] for i, c in enumerate(XYZ_CODE_COLUMNS[3:])}}
 
     def flush(self) -> None:
         with self.lock:
             if not self._pending or self.writer is None:
                 self._pending, self._pending_n = [], 0
                 return
-            merged = {c: np.concatenate([p[c] for p in self._pending]) for c in _COLUMNS}
+            pending = self._pending
+            merged = {c: np.concatenate([p[c] for p in pending]) for c in _COLUMNS}
             self._pending, self._pending_n = [], 0
             self._last_flush = time.monotonic()
             try:
                 self.writer.append("samples", **merged)
+                if self.writer.has_group(XYZ_GROUP):
+                    self.writer.append(XYZ_GROUP, **_xyz_rows(pending))
             except Exception:  # the raw file must never kill the acquisition
                 log.exception("socket %d: could not append samples to raw data", self.socket)
 
@@ -292,13 +319,24 @@ class PartStream:
             t = self._data.column("time_s")
             if self._data.dropped and self.writer is not None and (not t.size or start_s < t[0]):
                 self.flush()
-                disk = self.writer.read_window("samples", "time_s", start_s, end_s)
-                return {c: np.asarray(disk[c], dtype=_DTYPES.get(c, np.int64)) for c in _COLUMNS}
+                return self._disk_window(start_s, end_s)
             i0, i1 = np.searchsorted(t, [start_s, end_s], side="left")
             out = {c: self._data.column(c)[i0:i1].copy() for c in _COLUMNS}
             if self._has_xyz:
                 out.update({c: self._data.column(c)[i0:i1].copy() for c in XYZ_COLUMNS})
             return out
+
+    def _disk_window(self, start_s: float, end_s: float) -> dict[str, NDArray[Any]]:
+        """A window read back from raw.h5 (the three-axis columns from /samples_xyz's rows
+        that line up with /samples')."""
+        assert self.writer is not None
+        disk = self.writer.read_window("samples", "time_s", start_s, end_s)
+        out = {c: np.asarray(disk[c], dtype=_DTYPES.get(c, np.int64)) for c in _COLUMNS}
+        if self._has_xyz and self.writer.has_group(XYZ_GROUP):
+            i0 = self.writer.row_of("samples", "time_s", start_s)
+            rows = self.writer.read_rows(XYZ_GROUP, i0, i0 + len(out["time_s"]))
+            out.update({c: np.asarray(rows[c], dtype=np.float64) for c in XYZ_COLUMNS})
+        return out
 
     def wait_delivered(self, fixture_s: float, wall_s: float) -> None:
         """Wait (wall time, at most `wall_s`) until the stream holds its samples up to fixture

@@ -736,7 +736,9 @@ class UutRunner:
                 # scales /samples/encoder_counts (the fixture latches the table's encoder);
                 # the table driver says how many counts it has per turn
                 **({"encoder_counts_per_rev": counts_per_rev} if counts_per_rev else {}),
+                **({"axes": 3} if self.product.axes == 3 else {}),
             },
+            extra_groups=("samples_xyz",) if self.product.axes == 3 else (),
         )
         return PartRun(socket=sock, serial=serial, folder=folder, record=record, writer=writer)
 

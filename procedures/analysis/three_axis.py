@@ -87,6 +87,8 @@ class Window:
     temp_c: float
     supply_v: float
     condition: str = ""
+    start_s: float = math.nan  # fixture time of the window (raw.h5 /segments), when known
+    end_s: float = math.nan
 
     def __post_init__(self) -> None:
         for name in ("rate_dps", "u_rate_dps", "accel_mps2"):

@@ -197,12 +197,16 @@ class CubeFaces(StepType[CubeFacesSettings]):
             accel = np.column_stack([data[c] for c in XYZ_COLUMNS[3:]])
             wander_dps = self.settings.wander_factor * ctx.product.bias_instability_deg_per_h / 3600
             u = [math.hypot(m.u_mean_dps, wander_dps) for m in means]
+            start_s, end_s = float(data["time_s"][0]), float(data["time_s"][-1])
             out.append(Window(
                 face=face, table_rate_dps=p.ref_dps,
                 rate_dps=(means[0].mean_dps, means[1].mean_dps, means[2].mean_dps),
                 u_rate_dps=(u[0], u[1], u[2]),
                 accel_mps2=vec3(np.nanmean(accel, axis=0)),
                 temp_c=float(np.mean(data["temp_c"])), supply_v=res.supply_v,
-                condition=self.condition,
+                condition=self.condition, start_s=start_s, end_s=end_s,
             ))
+            ctx.records.segment(part, "static" if p.ref_dps == 0 else "plateau", len(out) - 1,
+                                start_s, end_s, ref_rate_dps=p.ref_dps,
+                                temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
             res.note_temperature("scale", data["temp_c"])

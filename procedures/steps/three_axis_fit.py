@@ -11,6 +11,7 @@ axis) and, when the conditions span temperature and supply, bias_temp_coeff_x_dp
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -136,6 +137,7 @@ class FitThreeAxis(StepType[FitThreeAxisSettings]):
         part.extra[FIT_KEY] = cal
         setattr(part.record, RECORD_KEY, cal.as_calibration_dict())
         part.record.conditions = [condition_record(r) for r in part.conditions.values()]
+        part.record.analysis[WINDOWS_KEY] = [asdict(w) for w in part.extra.get(WINDOWS_KEY, [])]
         for note in cal.notes:
             ctx.records.event(f"socket {part.socket}: {note}", parts=[part])
         for name, value, u_k2, units, limit in per_axis_measurements(cal):

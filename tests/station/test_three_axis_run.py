@@ -50,7 +50,32 @@ def test_three_axis_part_on_the_bench(tmp_path: Path) -> None:
         # 1.5 U (3 sigma): one part, 21 numbers (coverage over many parts:
         # benchmarks/bench_three_axis.py)
         assert np.all(np.abs(got - want) <= 1.5 * u_k2), (name, got - want, u_k2)
-    _certificate_shows_the_vectors_and_matrices(next(tmp_path.rglob("record.json")).parent)
+    folder = next(tmp_path.rglob("record.json")).parent
+    _raw_h5_has_the_axes_and_the_windows(folder, record)
+    _certificate_shows_the_vectors_and_matrices(folder)
+
+
+def _raw_h5_has_the_axes_and_the_windows(folder: Path, record: dict) -> None:
+    """raw.h5's /samples_xyz lines up with /samples; every window the fit used is a
+    /segments row, and the decoded x, y, z over it give the window's means."""
+    from procedures.rawdata import read_raw
+
+    raw = read_raw(folder / "raw.h5")
+    assert raw.attrs["axes"] == 3
+    xyz, samples = raw["samples_xyz"], raw["samples"]
+    assert len(xyz["rate_z_dps"]) == len(samples["time_s"]) > 0
+    windows = record["analysis"]["three_axis_windows"]
+    segs = raw["segments"]
+    marked = [(k, s, e) for k, s, e in zip(segs["kind"], segs["start_s"], segs["end_s"],
+                                            strict=True) if k in ("static", "plateau")]
+    assert len(marked) == len(windows) == 18  # six faces x (rest, +r, -r)
+    for w, (kind, start, end) in zip(windows, marked, strict=True):
+        assert (kind == "static") == (w["table_rate_dps"] == 0)
+        assert (start, end) == (w["start_s"], w["end_s"])
+        inside = (samples["time_s"] >= start) & (samples["time_s"] < end)
+        for i, axis in enumerate("xyz"):
+            mean = float(np.mean(xyz[f"rate_{axis}_dps"][inside]))
+            assert abs(mean - w["rate_dps"][i]) < 3 * w["u_rate_dps"][i], (axis, w["face"])
 
 
 def _pdf_text(path: Path) -> str:
