@@ -18,7 +18,7 @@ import numpy as np
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
 
-from reports import lot_stats
+from reports import lot_stats, lot_three_axis
 from reports.charts import LIMIT_RED, PALETTE, Chart, bar_chart, message_box
 from reports.pdfdoc import PageFurniture, build_pdf, page_count, parse_utc, write_atomic
 from reports.styles import (
@@ -259,6 +259,8 @@ def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
         "/ (3 sigma); one-sided when a limit is missing. Red: Cpk < 1.0, amber: Cpk < 1.33. "
         "* limits changed within the lot; the newest run's limits are used.", NOTE)]
     story += _distributions(caps)
+    story += lot_three_axis.three_axis_section(
+        db.calibration_elements(**filters), runs)  # none for single-axis parts
     trend = _trend(runs)
     story += [KeepTogether([Paragraph("Trend of the calibration written", H2), trend[0]])]
     story += trend[1:]

@@ -27,11 +27,18 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from procedures.record import RECORD_FILE, RunRecord, read_record
 from station.db.connect import DatabaseError, database_url, engine_for, shown, sqlite_path
-from station.db.schema import CAL_KEYS, measurements, runs
-from station.db.store import measurement_rows, normalise_utc, replace_runs, run_row
+from station.db.schema import CAL_KEYS, calibration_elements, measurements, runs
+from station.db.store import (
+    element_rows,
+    measurement_rows,
+    normalise_utc,
+    replace_runs,
+    run_row,
+)
 
-SCHEMA_VERSION = 3
-__all__ = ["MeasurementRow", "ResultsDB", "ResultsDBError", "RunRow", "normalise_utc",
+SCHEMA_VERSION = 4
+__all__ = ["CalibrationElement", "MeasurementRow", "ResultsDB", "ResultsDBError", "RunRow",
+           "normalise_utc",
            "parse_since"]
 
 
@@ -61,6 +68,7 @@ class RunRow:
     lot: str = ""
     attempt: int = 1  # 1 for a serial's first test, 2 for its first retest, ...
     first_run_id: str = ""  # the run_id of the serial's first test
+    axes: int = 1  # 3: a three-axis part (its calibration: ResultsDB.calibration_elements)
 
 
 @dataclass(frozen=True)
@@ -76,6 +84,19 @@ class MeasurementRow:
     low: float | None
     high: float | None
     outcome: str
+
+
+@dataclass(frozen=True)
+class CalibrationElement:
+    """One element of a three-axis calibration (schema 4's calibration_elements)."""
+
+    run_id: str
+    serial: str
+    quantity: str  # bias_dps, matrix, g_sensitivity_dps_per_mps2, ...
+    axis: str  # x, y, z: the output axis (a matrix's row)
+    column_axis: str | None  # a matrix's column; None for a vector
+    value: float | None
+    uncertainty_k2: float | None
 
 
 def parse_since(value: str | date | datetime) -> str:
@@ -156,9 +177,10 @@ class ResultsDB:
         """Index several runs in one transaction (as add_run)."""
         rows = [run_row(folder, rec) for folder, rec in items]
         meas = [m for _, rec in items for m in measurement_rows(rec)]
+        elements = [e for _, rec in items for e in element_rows(rec)]
         try:
             with self._begin() as con:
-                replace_runs(con, rows, meas, queue=True)
+                replace_runs(con, rows, meas, queue=True, elements=elements)
         except SQLAlchemyError as exc:
             raise self._fail(exc) from None
 
@@ -192,7 +214,10 @@ class ResultsDB:
                 meas = [dict(m) for m in con.execute(
                     sa.select(measurements).where(measurements.c.run_id == run_id)
                 ).mappings()]
-                replace_runs(con, [full], meas, queue=True)
+                elements = [dict(e) for e in con.execute(
+                    sa.select(calibration_elements).where(
+                        calibration_elements.c.run_id == run_id)).mappings()]
+                replace_runs(con, [full], meas, queue=True, elements=elements)
         except SQLAlchemyError as exc:
             raise self._fail(exc) from None
 
@@ -245,6 +270,23 @@ class ResultsDB:
         except SQLAlchemyError as exc:
             raise self._fail(exc) from None
 
+    def calibration_elements(self, **filters: Any) -> list[CalibrationElement]:
+        """The three-axis calibration elements of the runs matching the filters (as
+        measurement_values takes them), oldest run first; none for single-axis runs."""
+        e, r = calibration_elements.c, runs.c
+        query = (
+            sa.select(e.run_id, r.serial, e.quantity, e.axis, e.column_axis, e.value,
+                      e.uncertainty_k2)
+            .select_from(calibration_elements.join(runs, r.run_id == e.run_id))
+            .where(*run_filters(**filters))
+            .order_by(r.started_utc, e.run_id, e.seq)
+        )
+        try:
+            with self.engine.connect() as con:
+                return [CalibrationElement(*row) for row in con.execute(query)]
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
+
     def measurement_names(self, **filters: Any) -> list[str]:
         """Distinct measurement names, in the order they first appear in the oldest run."""
         seen: dict[str, None] = {}
@@ -264,5 +306,5 @@ def _run_row(r: Any) -> RunRow:
         procedure_name=r["procedure_name"], procedure_sha256=r["procedure_sha256"],
         folder=r["folder"], calibration={k: r[f"cal_{k}"] for k in CAL_KEYS},
         work_order=r["work_order"], lot=r["lot"], attempt=r["attempt"],
-        first_run_id=r["first_run_id"],
+        first_run_id=r["first_run_id"], axes=r["axes"],
     )

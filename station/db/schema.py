@@ -52,6 +52,25 @@ runs = sa.Table(
     sa.Column("first_run_id", sa.Text, nullable=False, server_default=""),
     sa.Column("unit_verdict", sa.Text, nullable=False, server_default=""),
     sa.Column("unit_tests", sa.Integer, nullable=False, server_default="1"),
+    # schema 4 (migration 0004): three-axis parts
+    sa.Column("axes", sa.Integer, nullable=False, server_default="1"),
+)
+
+# Schema 4: a three-axis calibration, one row per element. quantity is the record's key
+# (bias_dps, matrix, g_sensitivity_dps_per_mps2, bias_temp_coeff_dps_per_c, ...), axis the
+# output axis (x, y, z), column_axis the matrix column (None for a vector).
+calibration_elements = sa.Table(
+    "calibration_elements",
+    metadata,
+    sa.Column(
+        "run_id", sa.Text, sa.ForeignKey("runs.run_id", ondelete="CASCADE"), primary_key=True
+    ),
+    sa.Column("seq", sa.Integer, primary_key=True),
+    sa.Column("quantity", sa.Text, nullable=False),
+    sa.Column("axis", sa.Text, nullable=False),
+    sa.Column("column_axis", sa.Text),
+    sa.Column("value", sa.Double),
+    sa.Column("uncertainty_k2", sa.Double),
 )
 
 measurements = sa.Table(

@@ -14,8 +14,8 @@ from typing import Any
 
 import sqlalchemy as sa
 
-from procedures.record import RunRecord
-from station.db.schema import CAL_KEYS, measurements, outbox, runs
+from procedures.record import RunRecord, three_axis_block
+from station.db.schema import CAL_KEYS, calibration_elements, measurements, outbox, runs
 
 
 def utc_now() -> str:
@@ -58,12 +58,39 @@ def run_row(folder: Path, rec: RunRecord) -> dict[str, Any]:
         "folder": str(folder.resolve()),
         "work_order": getattr(rec, "work_order", "") or "",
         "lot": getattr(rec, "lot", "") or "",
+        "axes": 3 if three_axis_block(rec) is not None else 1,
     }
     for k in CAL_KEYS:
         c = getattr(cal, k) if cal is not None else None
         row[f"cal_{k}"] = c.value if c is not None else None
         row[f"cal_{k}_u"] = c.uncertainty_k2 if c is not None else None
     return row
+
+
+_AXES = "xyz"
+ELEMENT_QUANTITIES = (
+    "bias_dps", "matrix", "g_sensitivity_dps_per_mps2", "bias_temp_coeff_dps_per_c",
+    "bias_supply_coeff_dps_per_v", "scale_temp_coeff_per_c", "scale_supply_coeff_per_v",
+)
+
+
+def element_rows(rec: RunRecord) -> list[dict[str, Any]]:
+    """The calibration_elements rows of a three-axis record (none for a single-axis one)."""
+    cal = three_axis_block(rec)
+    if cal is None:
+        return []
+    out: list[dict[str, Any]] = []
+    for quantity in ELEMENT_QUANTITIES:
+        arr = getattr(cal, quantity)
+        for i, axis in enumerate(_AXES):
+            value, u = arr.value[i], arr.uncertainty_k2[i]
+            cells = (list(zip(value, u, strict=True)) if isinstance(value, list)
+                     else [(value, u)])
+            for j, (v, uk2) in enumerate(cells):
+                out.append({"run_id": rec.run_id, "seq": len(out), "quantity": quantity,
+                            "axis": axis, "column_axis": _AXES[j] if len(cells) == 3 else None,
+                            "value": v, "uncertainty_k2": uk2})
+    return out
 
 
 def measurement_rows(rec: RunRecord) -> list[dict[str, Any]]:
@@ -87,6 +114,7 @@ def replace_runs(
     meas: Sequence[dict[str, Any]],
     *,
     queue: bool,
+    elements: Sequence[dict[str, Any]] = (),
 ) -> None:
     """Upsert runs by run_id (delete and insert, portable), then relink their units.
 
@@ -97,11 +125,15 @@ def replace_runs(
     ids = [r["run_id"] for r in rows]
     for chunk in _chunks(ids, 500):
         con.execute(measurements.delete().where(measurements.c.run_id.in_(chunk)))
+        con.execute(calibration_elements.delete().where(
+            calibration_elements.c.run_id.in_(chunk)))
         con.execute(runs.delete().where(runs.c.run_id.in_(chunk)))
     clean = [{k: v for k, v in r.items() if k not in _LINK_COLUMNS} for r in rows]
     con.execute(runs.insert(), clean)
     if meas:
         con.execute(measurements.insert(), list(meas))
+    if elements:
+        con.execute(calibration_elements.insert(), list(elements))
     relink_units(con, {(r["product"], r["serial"]) for r in rows})
     if queue:
         _queue(con, ids)

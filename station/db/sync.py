@@ -22,7 +22,7 @@ import sqlalchemy as sa
 from sqlalchemy.exc import SQLAlchemyError
 
 from station.db.connect import DatabaseError, database_url, engine_for, shown
-from station.db.schema import measurements, outbox, runs, stations
+from station.db.schema import calibration_elements, measurements, outbox, runs, stations
 from station.db.store import replace_runs, utc_now
 
 log = logging.getLogger(__name__)
@@ -95,10 +95,13 @@ class Sync:
                 sa.select(runs).where(runs.c.run_id.in_(ids))).mappings()]
             meas = [dict(m) for m in con.execute(
                 sa.select(measurements).where(measurements.c.run_id.in_(ids))).mappings()]
+            elements = [dict(e) for e in con.execute(
+                sa.select(calibration_elements).where(
+                    calibration_elements.c.run_id.in_(ids))).mappings()]
         try:
             central = engine_for(self.central_url)
             with central.begin() as con:
-                replace_runs(con, rows, meas, queue=False)
+                replace_runs(con, rows, meas, queue=False, elements=elements)
         except (SQLAlchemyError, DatabaseError) as exc:
             raise SyncError(
                 f"central database {shown(self.central_url)} not reachable "
