@@ -161,7 +161,32 @@ def _duts(values: list[str]) -> dict[int, str]:
     return out
 
 
-def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | None]:
+def _scanned_parts(duts: dict[int, str], axes: int) -> list[dict[str, Any]]:
+    """One simulated part per scanned serial, of the product's kind (a three-axis product's
+    parts are three-axis parts, each in its cube)."""
+    return [{"socket": s, "serial": serial, **({"three_axis": {}} if axes == 3 else {})}
+            for s, serial in sorted(duts.items())]
+
+
+def _product_axes(args: argparse.Namespace) -> int:
+    """The rate axes of the product the run will test (1 when the files do not say; the
+    runner refuses a bad procedure or product itself, in its own words)."""
+    from procedures.config import load_procedure, load_product
+
+    try:
+        settings = load_settings(Path(args.station) if args.station else None)
+        procedure_path = Path(args.procedure) if args.procedure else settings.procedure
+        procedure, _ = load_procedure(procedure_path)
+        product = (Path(args.product) if args.product else
+                   (procedure_path.parent / (procedure.product or "")).resolve())
+        return int(load_product(product)[0].axes)
+    except (ConfigError, ValueError, OSError):
+        return 1
+
+
+def _sim_config(
+    path: str | None, duts: dict[int, str], axes: int = 1
+) -> tuple[Any, float | None]:
     """The bench config to start: the given file, or one part per scanned serial."""
     if path:
         p = Path(path)
@@ -178,12 +203,9 @@ def _sim_config(path: str | None, duts: dict[int, str]) -> tuple[Any, float | No
         has_speed = isinstance(data, dict) and "speed" in data
         speed = None if has_speed else DEFAULT_SIM_SPEED
         if isinstance(data, dict) and not data.get("parts"):  # e.g. config/sim/manual.yaml
-            parts = [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
-            return {**data, "parts": parts}, speed
+            return {**data, "parts": _scanned_parts(duts, axes)}, speed
         return p.resolve(), speed
-    return {
-        "parts": [{"socket": s, "serial": serial} for s, serial in sorted(duts.items())]
-    }, DEFAULT_SIM_SPEED
+    return {"parts": _scanned_parts(duts, axes)}, DEFAULT_SIM_SPEED
 
 
 def _check_out(out: str | None) -> None:
@@ -295,7 +317,7 @@ def _run(args: argparse.Namespace) -> int:
             raise UserError(str(exc)) from None
         if settings.settings.sim_config:
             sim_path = str(settings.resolve(settings.settings.sim_config))
-    sim_config, _ = _sim_config(sim_path, duts) if args.sim else (None, None)
+    sim_config, _ = _sim_config(sim_path, duts, _product_axes(args)) if args.sim else (None, None)
     # lockstep (station time is physics time) unless --speed asks for a scaled clock
     return run_cycle(args, duts, sim=args.sim, sim_config=sim_config, speed=args.speed)
 
