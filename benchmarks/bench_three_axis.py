@@ -6,11 +6,16 @@ Each part's truth is drawn from the bench's three-axis population (drivers/sim/g
 (procedures/orientation_plan.py: six faces at the first condition, one face per axis at the
 others; at each face a static window and +r/-r table plateaus) and the contract's model
 raw = M^-1 D w + b + G a, with white noise on each window's mean from the part's angle random
-walk over the dwell. The fit is procedures/analysis/three_axis.py. Not yet the full station
-on the bench (that needs the three-axis steps, see docs/three-axis.md); the station time is
-the plan's estimate from the dwell, turn and table times below.
+walk over the dwell. The fit is procedures/analysis/three_axis.py; the station time is the
+plan's estimate from the dwell, turn and table times below.
+
+With `--full-runs N`, N simulated three-axis parts instead go through the station itself on
+the simulated bench (loads of up to 8, lockstep, distinct serials): the eol-three-axis
+procedure, its records' b, M, G and coefficients against the bench's truth, and the station
+time per load and per part.
 
     python3 benchmarks/bench_three_axis.py [--parts 300] [--seed 1]
+    python3 benchmarks/bench_three_axis.py --full-runs 24 [--load 8] [--procedure FILE]
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,11 +75,72 @@ def station_time_s() -> tuple[float, int]:
     return n_turns * OPERATOR_TURN_S + n_faces * per_face, n_turns
 
 
+def full_runs(n_parts: int, load: int, procedure: Path, seed: int) -> None:
+    """N parts through the station on the bench; coverage, error/U and station time."""
+    import tempfile
+
+    from station.uut import run_simulated
+
+    inside: dict[str, list[bool]] = {n: [] for n in NAMES}
+    z2: dict[str, list[float]] = {n: [] for n in NAMES}
+    times: list[float] = []
+    verdicts: dict[str, int] = {}
+    t0 = time.perf_counter()
+    for first in range(0, n_parts, load):
+        socks = range(1, min(load, n_parts - first) + 1)
+        parts = [{"socket": s, "serial": f"IMU-{seed % 10}{first + s:03d}", "three_axis": {}}
+                 for s in socks]
+        with tempfile.TemporaryDirectory(prefix="bench-3axis-") as out:
+            result, truth = run_simulated(parts, procedure_path=procedure, out=Path(out))
+            times.append(result.station_time_s)
+            for s in socks:
+                verdicts[str(result.verdicts[s])] = verdicts.get(str(result.verdicts[s]), 0) + 1
+                record = _read_record(result.folders[s])
+                cal = record.get("calibration_three_axis")
+                if not cal:
+                    continue
+                params = truth["sockets"][str(s)]["parameters"]
+                for n in NAMES:
+                    want = np.asarray(params[n], dtype=float)
+                    got = np.asarray(cal[n]["value"], dtype=float)
+                    u_k2 = np.asarray(cal[n]["uncertainty_k2"], dtype=float)
+                    e = np.abs(got - want).ravel()
+                    inside[n].extend((e <= u_k2.ravel()).tolist())
+                    z2[n].extend(((e / (u_k2.ravel() / 2)) ** 2).tolist())
+        print(f"  load of {len(socks)}: station {times[-1] / 60:.1f} min "
+              f"({time.perf_counter() - t0:.0f} s wall so far)", flush=True)
+    print(f"{n_parts} parts through {procedure.name} on the bench (lockstep), "
+          f"verdicts {verdicts}")
+    print(f"{'coefficient':32s} {'coverage':>9s} {'rms(err/u)':>11s}  (k=2 coverage target "
+          "93-97 %; err/u at k=1 should be about 1)")
+    for n in NAMES:
+        if inside[n]:
+            print(f"{n:32s} {100 * np.mean(inside[n]):8.1f}% "
+                  f"{np.sqrt(np.mean(z2[n])):11.2f}   ({len(inside[n])} values)")
+    per_load = float(np.mean(times))
+    print(f"station time per load {per_load / 60:.1f} min (mean of {len(times)}), "
+          f"per part {per_load / 60 / load:.1f} min at {load} per load")
+
+
+def _read_record(folder: Path) -> dict[str, Any]:
+    import json
+
+    return dict(json.loads((folder / "record.json").read_text()))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", type=int, default=300)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--full-runs", type=int, default=0, metavar="N",
+                    help="N parts through the station on the simulated bench instead")
+    ap.add_argument("--load", type=int, default=8, help="parts per load (--full-runs)")
+    ap.add_argument("--procedure", type=Path,
+                    default=ROOT / "config/procedures/eol-three-axis.yaml")
     args = ap.parse_args()
+    if args.full_runs:
+        full_runs(args.full_runs, args.load, args.procedure, args.seed)
+        return
     rng = np.random.default_rng(args.seed)
     inside: dict[str, list[bool]] = {n: [] for n in NAMES}
     err: dict[str, list[float]] = {n: [] for n in NAMES}
