@@ -260,17 +260,78 @@ def _check_simulate_args(args: argparse.Namespace, inp: _Input) -> None:
 def _run(
     args: argparse.Namespace, inp: _Input, out: Path, alpha: float, json_stdout: bool
 ) -> bool:
-    from procedures.model.data import write_csv
-    from procedures.model.discrepancy import run_discrepancy
-    from procedures.model.model_io import load_model, save_model
-    from procedures.model.output import result_to_json
-    from procedures.model.run_folder import load_data
+    from procedures.model.model_io import load_model
 
     console = sys.stderr if json_stdout else sys.stdout
     try:
         model = load_model(args.model)
     except ValueError as exc:
         raise UserError(str(exc)) from exc
+    if inp.run_folder is not None and _three_axis(inp.run_folder):
+        return _run_axes(args, inp, out, alpha, json_stdout, model, console)
+    traj = _trajectory(args, inp)
+    payload, report_failure, result, simulation = _analyse(
+        args, inp, traj, model, alpha, out, console)
+    json_path = _write_json(args, out, json_stdout, payload)
+    _print_summary(result, out, json_path, Path(payload["model_path"]),
+                   payload.get("report_path"), console, simulation)
+    if report_failure:
+        raise UserError(f"{report_failure}; the JSON and model were written")
+    return True
+
+
+def _three_axis(folder: Path) -> bool:
+    from procedures.model.run_folder_xyz import is_three_axis
+
+    return is_three_axis(folder)
+
+
+def _run_axes(
+    args: argparse.Namespace, inp: _Input, out: Path, alpha: float, json_stdout: bool,
+    model: Any, console: Any,
+) -> bool:
+    """A three-axis run folder: each axis through the workflow on its own (docs/three-axis.md);
+    out/axis-x/ ... hold each axis's model and report, discrepancy.json all three."""
+    from procedures.model.run_folder_xyz import AXES, load_axis
+
+    assert inp.run_folder is not None
+    if getattr(args, "simulate", False) or args.export_csv is not None:
+        raise UserError(f"{args.data}: a three-axis run folder is analysed per axis; "
+                        "--simulate and --export-csv are for single-axis runs (leave them out)")
+    per_axis: list[dict[str, Any]] = []
+    failures: list[str] = []
+    json_target = None if json_stdout else (args.json or out / "discrepancy.json")
+    for axis in AXES:
+        try:
+            traj = load_axis(inp.run_folder, axis, dut=args.dut)
+        except ValueError as exc:
+            raise UserError(str(exc)) from exc
+        axis_out = out / f"axis-{axis}"
+        axis_out.mkdir(parents=True, exist_ok=True)
+        print(f"axis {axis}:", file=console)
+        payload, failure, result, _sim = _analyse(args, inp, traj, model, alpha, axis_out,
+                                                  console)
+        _print_summary(result, axis_out, json_target, Path(payload["model_path"]),
+                       payload.get("report_path"), console)
+        per_axis.append({"axis": axis, **payload})
+        if failure:
+            failures.append(failure)
+    source = inp.path.resolve()
+    combined = {"data": str(args.data), "source": str(source), "run_folder": str(source),
+                "serial": per_axis[0].get("serial"), "out": str(out), "axes": per_axis}
+    json_path = _write_json(args, out, json_stdout, combined)
+    print(f"json: {json_path if json_path is not None else 'stdout'} (all three axes)",
+          file=console)
+    if failures:
+        raise UserError(f"{'; '.join(failures)}; the JSON and models were written")
+    return True
+
+
+def _trajectory(args: argparse.Namespace, inp: _Input) -> Trajectory:
+    from procedures.model.data import write_csv
+    from procedures.model.run_folder import load_data
+
+    console = sys.stderr if args.json is not None and str(args.json) == STDOUT else sys.stdout
     try:
         traj = load_data(inp.path, dut=args.dut)
     except ValueError as exc:
@@ -283,11 +344,23 @@ def _run(
         except OSError as exc:
             raise UserError(f"--export-csv {args.export_csv}: cannot write it ({exc})") from None
         print(f"data: {traj.n} samples written to {args.export_csv}", file=console)
+    return traj
+
+
+def _analyse(
+    args: argparse.Namespace, inp: _Input, traj: Trajectory, model: Any, alpha: float,
+    out: Path, console: Any,
+) -> tuple[dict[str, Any], str | None, DiscrepancyResult, SimulationComparison | None]:
+    """The workflow on one trajectory: its JSON payload (model and report written to out),
+    why the report could not be written (or None), the result and any simulation."""
+    from procedures.model.discrepancy import run_discrepancy
+    from procedures.model.model_io import save_model
+    from procedures.model.output import result_to_json
+
     try:
         result = run_discrepancy(traj, model, alpha=alpha)
     except ValueError as exc:
         raise UserError(f"{args.data}: {exc}") from exc
-
     source = inp.path.resolve()
     payload = result_to_json(result)
     payload.update(
@@ -323,6 +396,12 @@ def _run(
     except Exception as exc:  # the JSON and model are still useful without the PDF
         log.exception("discrepancy report failed")
         payload["report_error"] = str(exc)
+    return payload, report_failure, result, simulation
+
+
+def _write_json(
+    args: argparse.Namespace, out: Path, json_stdout: bool, payload: dict[str, Any]
+) -> Path | None:
     text = json.dumps(payload, indent=2)
     json_path = None if json_stdout else (args.json or out / "discrepancy.json")
     if json_path is None:
@@ -332,11 +411,7 @@ def _run(
             json_path.write_text(text, encoding="utf-8")
         except OSError as exc:
             raise UserError(f"cannot write the JSON to {json_path} ({exc})") from None
-    _print_summary(result, out, json_path, model_path, payload.get("report_path"), console,
-                   simulation)
-    if report_failure:
-        raise UserError(f"{report_failure}; the JSON and model were written")
-    return True
+    return json_path
 
 
 def _simulate(

@@ -22,12 +22,14 @@ temperature and supply terms are left out and reported as zero with no uncertain
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import solve_triangular
 
+from procedures.analysis.bias_wander import window_mean_covariance
 from procedures.analysis.errors import AnalysisError
 
 FloatArray = NDArray[np.float64]
@@ -89,6 +91,9 @@ class Window:
     condition: str = ""
     start_s: float = math.nan  # fixture time of the window (raw.h5 /segments), when known
     end_s: float = math.nan
+    # the part's bias instability (deg/s, each axis): its wander is shared between windows
+    # close in time (procedures/analysis/bias_wander.py); 0: the windows' own u_rate_dps only
+    bias_instability_dps: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("rate_dps", "u_rate_dps", "accel_mps2"):
@@ -102,6 +107,8 @@ class Window:
             )
         if min(self.u_rate_dps) <= 0:
             raise AnalysisError(f"window at face {self.face} needs positive u_rate_dps")
+        if not self.bias_instability_dps >= 0:
+            raise AnalysisError(f"window at face {self.face}: bias_instability_dps must be >= 0")
 
 
 def up_vector(face: str) -> FloatArray:
@@ -252,27 +259,57 @@ def fit_three_axis(
     p = np.zeros(n_par)
     p[_SLICE["sensitivity_matrix"]] = np.eye(3).ravel()
     y = d["raw"].ravel()
-    wts = 1.0 / d["u"].ravel() ** 2
+    white = _whitener(windows)  # rows window-major, as y and the Jacobian
+    y_w = white(y)
     for _ in range(_MAX_ITERATIONS):
         pred, jac = _model(p, d)
-        a = jac.T @ (jac * wts[:, None])
+        jac_w = white(jac)
+        a = jac_w.T @ jac_w
         if np.linalg.cond(a) > 1e13:
             raise AnalysisError(
                 "the windows do not separate bias, g-sensitivity and scale: measure at rest in "
                 "all six faces and on +r/-r plateaus with x, y and z up (and, for the "
                 "temperature and supply coefficients, with each axis up at every condition)"
             )
-        step = np.linalg.solve(a, jac.T @ (wts * (y - pred.ravel())))
+        step = np.linalg.solve(a, jac_w.T @ (y_w - white(pred.ravel())))
         p = p + step
         if np.max(np.abs(step)) < 1e-12:
             break
     pred, jac = _model(p, d)
-    cov = np.asarray(np.linalg.inv(jac.T @ (jac * wts[:, None])), dtype=np.float64)
-    chi2 = float(np.sum((y - pred.ravel()) ** 2 * wts))
+    jac_w = white(jac)
+    cov = np.asarray(np.linalg.inv(jac_w.T @ jac_w), dtype=np.float64)
+    chi2 = float(np.sum((y_w - white(pred.ravel())) ** 2))
     cal = _result(p, cov, chi2, len(y) - n_par, with_tv, reference_temperature_c,
                   reference_supply_v)
     return replace(cal, mean_temp_c=float(np.mean(d["dt"]) + reference_temperature_c),
                    mean_supply_v=float(np.mean(d["dv"]) + reference_supply_v))
+
+
+def _whitener(windows: Sequence[Window]) -> Callable[[FloatArray], FloatArray]:
+    """L^-1 applied to rows (window-major, three axes each), L L^T the windows' covariance:
+    each window's own u_rate_dps on the diagonal, plus the bias wander each axis's windows
+    share (bias_wander.py; windows without times share none)."""
+    u = np.array([w.u_rate_dps for w in windows], dtype=np.float64)  # (n, 3)
+    bi = max(w.bias_instability_dps for w in windows)
+    start = np.array([w.start_s for w in windows], dtype=np.float64)
+    end = np.array([w.end_s for w in windows], dtype=np.float64)
+    timed = np.isfinite(start) & np.isfinite(end)
+    if bi <= 0 or not np.any(timed):
+        return lambda rows: rows / u.ravel().reshape((-1,) + (1,) * (rows.ndim - 1))
+    n = len(windows)
+    shared = np.zeros((n, n))
+    idx_t = np.flatnonzero(timed)
+    shared[np.ix_(idx_t, idx_t)] = window_mean_covariance(start[timed], end[timed], bi)
+    full = np.zeros((3 * n, 3 * n))
+    for axis in range(3):
+        idx = np.arange(n) * 3 + axis
+        full[np.ix_(idx, idx)] = shared + np.diag(u[:, axis] ** 2)
+    chol = np.linalg.cholesky(full)
+
+    def apply(rows: FloatArray) -> FloatArray:
+        return np.asarray(solve_triangular(chol, rows, lower=True), dtype=np.float64)
+
+    return apply
 
 
 def _result(

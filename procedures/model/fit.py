@@ -307,9 +307,11 @@ class Fitter:
         layout = {e: (a, k) for e, a, k in sol.layout}
         bias = float(sol.theta[layout["bias"][0]])
         scale = float(sol.theta[layout["scale"][0]])
+        # a design near rank-deficient (e.g. one rate magnitude, two temperatures) can leave
+        # a rounding-negative variance in the pseudo-inverse: zero, as the effects' own are
         unc = {
-            "bias_dps": math.sqrt(cov[layout["bias"][0], layout["bias"][0]]),
-            "scale": math.sqrt(cov[layout["scale"][0], layout["scale"][0]]),
+            "bias_dps": math.sqrt(max(float(cov[layout["bias"][0], layout["bias"][0]]), 0.0)),
+            "scale": math.sqrt(max(float(cov[layout["scale"][0], layout["scale"][0]]), 0.0)),
         }
         effects: dict[str, dict[str, float]] = {}
         for e, old in model.effects.items():

@@ -14,7 +14,6 @@ procedures.analysis.three_axis.Window in part.extra["three_axis_windows"], which
 from __future__ import annotations
 
 import logging
-import math
 from typing import Any
 
 import numpy as np
@@ -63,9 +62,8 @@ class CubeFacesSettings(StepSettings):
     look_s: float = Field(1.0, gt=0.1, le=60.0, description="accelerometer window to confirm")
     max_tilt_deg: float = Field(10.0, gt=0, le=30.0, description="gravity off the axis, at most")
     wander_factor: float = Field(
-        0.664, ge=0, le=100, description="bias wander between windows, in units of the "
-        "product's bias_instability_deg_per_h (0.664: its Allan floor), added to each window "
-        "mean's uncertainty (a short window cannot see the wander)",
+        1.0, ge=0, le=100, description="bias wander shared between windows close in time, "
+        "in units of the product's bias_instability_deg_per_h (0: windows independent)",
     )
 
 
@@ -195,8 +193,8 @@ class CubeFaces(StepType[CubeFacesSettings]):
                 ctx.parts.drop(part, Verdict.ERROR, f"{what}: {exc}")
                 return
             accel = np.column_stack([data[c] for c in XYZ_COLUMNS[3:]])
-            wander_dps = self.settings.wander_factor * ctx.product.bias_instability_deg_per_h / 3600
-            u = [math.hypot(m.u_mean_dps, wander_dps) for m in means]
+            bi_dps = self.settings.wander_factor * ctx.product.bias_instability_deg_per_h / 3600
+            u = [m.u_mean_dps for m in means]
             start_s, end_s = float(data["time_s"][0]), float(data["time_s"][-1])
             out.append(Window(
                 face=face, table_rate_dps=p.ref_dps,
@@ -205,6 +203,7 @@ class CubeFaces(StepType[CubeFacesSettings]):
                 accel_mps2=vec3(np.nanmean(accel, axis=0)),
                 temp_c=float(np.mean(data["temp_c"])), supply_v=res.supply_v,
                 condition=self.condition, start_s=start_s, end_s=end_s,
+                bias_instability_dps=bi_dps,
             ))
             ctx.records.segment(part, "static" if p.ref_dps == 0 else "plateau", len(out) - 1,
                                 start_s, end_s, ref_rate_dps=p.ref_dps,
