@@ -246,6 +246,14 @@ class ProductConfig(_Strict):
         "about this much between conditions (a floor for the bias uncertainty when the record "
         "is too short to resolve it)",
     )
+    rate_random_walk_deg_per_h_per_sqrt_h: float = Field(
+        0.0,
+        ge=0,
+        le=1e6,
+        description="typical rate random walk of the product (the Allan deviation's +1/2 "
+        "slope): the bias drifts by about this much per square root of hour, which a "
+        "three-axis fit counts between windows far apart (0: not counted)",
+    )
     codes: CodeFormat = Field(
         default_factory=CodeFormat,
         description="how the part's raw rate and temperature codes read in deg/s and C "

@@ -6,10 +6,15 @@ Gauss-Markov processes with correlation times one decade apart (here 3, 30 and 3
 window's length to a condition's), of one common variance chosen so that their summed Allan
 deviation peaks at 0.664 x BI. Two window means close in time then share most of the slow
 terms and little of the fast one; windows far apart (other conditions) share almost none.
+A rate random walk (the Allan deviation's +1/2 slope, K in deg/s/sqrt(s)) adds a drift that
+windows far apart do not share: counted from the first window, Cov = K^2 min(t_i, t_j) for
+window means (t the window's middle; a window's own: its start + T/3). The fitted bias absorbs
+the choice of origin.
+
 A fit that treats short windows as independent would average the wander away and understate
 the bias and its temperature and supply coefficients.
 
-    cov = window_mean_covariance(start_s, end_s, bias_instability_dps)   # (n, n), deg/s^2
+    cov = window_mean_covariance(start_s, end_s, bias_instability_dps, rrw_dps_per_sqrt_s)
 """
 
 from __future__ import annotations
@@ -45,7 +50,8 @@ def term_sigma_dps(bias_instability_dps: float) -> float:
 
 
 def window_mean_covariance(
-    start_s: FloatArray, end_s: FloatArray, bias_instability_dps: float
+    start_s: FloatArray, end_s: FloatArray, bias_instability_dps: float,
+    rrw_dps_per_sqrt_s: float = 0.0,
 ) -> FloatArray:
     """Covariance (deg/s)^2 of the means of windows [start, end] (one time base, seconds)
     under the bias wander: exact for first-order Gauss-Markov terms, for windows that do
@@ -64,4 +70,16 @@ def window_mean_covariance(
         own = sigma2 * 2.0 / x**2 * (x - 1.0 + np.exp(-x))
         np.fill_diagonal(across, own)
         out += across
-    return out
+    return out + _random_walk_covariance(t0, t1, rrw_dps_per_sqrt_s)
+
+
+def _random_walk_covariance(t0: FloatArray, t1: FloatArray, k: float) -> FloatArray:
+    """Covariance of window means under a rate random walk K, from the first window's start
+    (windows that do not overlap)."""
+    if k <= 0 or t0.size == 0:
+        return np.zeros((t0.size, t0.size))
+    origin = float(np.min(t0))
+    mid = 0.5 * (t0 + t1) - origin
+    cov = k * k * np.minimum(mid[:, None], mid[None, :])
+    np.fill_diagonal(cov, k * k * (t0 - origin + (t1 - t0) / 3.0))
+    return np.asarray(cov, dtype=np.float64)

@@ -94,6 +94,7 @@ class Window:
     # the part's bias instability (deg/s, each axis): its wander is shared between windows
     # close in time (procedures/analysis/bias_wander.py); 0: the windows' own u_rate_dps only
     bias_instability_dps: float = 0.0
+    rate_random_walk_dps_per_sqrt_s: float = 0.0  # the same for the bias's random walk
 
     def __post_init__(self) -> None:
         for name in ("rate_dps", "u_rate_dps", "accel_mps2"):
@@ -107,8 +108,9 @@ class Window:
             )
         if min(self.u_rate_dps) <= 0:
             raise AnalysisError(f"window at face {self.face} needs positive u_rate_dps")
-        if not self.bias_instability_dps >= 0:
-            raise AnalysisError(f"window at face {self.face}: bias_instability_dps must be >= 0")
+        if not (self.bias_instability_dps >= 0 and self.rate_random_walk_dps_per_sqrt_s >= 0):
+            raise AnalysisError(f"window at face {self.face}: bias_instability_dps and "
+                                "rate_random_walk_dps_per_sqrt_s must be >= 0")
 
 
 def up_vector(face: str) -> FloatArray:
@@ -291,15 +293,16 @@ def _whitener(windows: Sequence[Window]) -> Callable[[FloatArray], FloatArray]:
     share (bias_wander.py; windows without times share none)."""
     u = np.array([w.u_rate_dps for w in windows], dtype=np.float64)  # (n, 3)
     bi = max(w.bias_instability_dps for w in windows)
+    rrw = max(w.rate_random_walk_dps_per_sqrt_s for w in windows)
     start = np.array([w.start_s for w in windows], dtype=np.float64)
     end = np.array([w.end_s for w in windows], dtype=np.float64)
     timed = np.isfinite(start) & np.isfinite(end)
-    if bi <= 0 or not np.any(timed):
+    if (bi <= 0 and rrw <= 0) or not np.any(timed):
         return lambda rows: rows / u.ravel().reshape((-1,) + (1,) * (rows.ndim - 1))
     n = len(windows)
     shared = np.zeros((n, n))
     idx_t = np.flatnonzero(timed)
-    shared[np.ix_(idx_t, idx_t)] = window_mean_covariance(start[timed], end[timed], bi)
+    shared[np.ix_(idx_t, idx_t)] = window_mean_covariance(start[timed], end[timed], bi, rrw)
     full = np.zeros((3 * n, 3 * n))
     for axis in range(3):
         idx = np.arange(n) * 3 + axis

@@ -63,7 +63,8 @@ class CubeFacesSettings(StepSettings):
     max_tilt_deg: float = Field(10.0, gt=0, le=30.0, description="gravity off the axis, at most")
     wander_factor: float = Field(
         1.0, ge=0, le=100, description="bias wander shared between windows close in time, "
-        "in units of the product's bias_instability_deg_per_h (0: windows independent)",
+        "in units of the product's bias_instability_deg_per_h and "
+        "rate_random_walk_deg_per_h_per_sqrt_h (0: windows independent)",
     )
 
 
@@ -193,7 +194,9 @@ class CubeFaces(StepType[CubeFacesSettings]):
                 ctx.parts.drop(part, Verdict.ERROR, f"{what}: {exc}")
                 return
             accel = np.column_stack([data[c] for c in XYZ_COLUMNS[3:]])
-            bi_dps = self.settings.wander_factor * ctx.product.bias_instability_deg_per_h / 3600
+            factor = self.settings.wander_factor
+            bi_dps = factor * ctx.product.bias_instability_deg_per_h / 3600
+            rrw = factor * ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 3600 / 60
             u = [m.u_mean_dps for m in means]
             start_s, end_s = float(data["time_s"][0]), float(data["time_s"][-1])
             out.append(Window(
@@ -203,7 +206,7 @@ class CubeFaces(StepType[CubeFacesSettings]):
                 accel_mps2=vec3(np.nanmean(accel, axis=0)),
                 temp_c=float(np.mean(data["temp_c"])), supply_v=res.supply_v,
                 condition=self.condition, start_s=start_s, end_s=end_s,
-                bias_instability_dps=bi_dps,
+                bias_instability_dps=bi_dps, rate_random_walk_dps_per_sqrt_s=rrw,
             ))
             ctx.records.segment(part, "static" if p.ref_dps == 0 else "plateau", len(out) - 1,
                                 start_s, end_s, ref_rate_dps=p.ref_dps,

@@ -51,3 +51,20 @@ def test_windows_far_apart_share_little_and_it_scales_with_bias_instability() ->
     assert corr[0, 1] > 0.5 and corr[0, 2] < 1e-3
     double = window_mean_covariance(starts, starts + 10.0, 2 * BI_DPS)
     assert np.allclose(double, 4 * cov)
+
+
+def test_random_walk_covariance_matches_a_simulation() -> None:
+    """A rate random walk K from the first window's start (where the simulation's walk is 0)."""
+    k = 4.0 / 3600 / 60  # 4 deg/h/sqrt(h) in deg/s/sqrt(s)
+    starts = np.array([0.0, 30.0, 600.0])
+    ends = starts + 10.0
+    cov = window_mean_covariance(starts, ends, 0.0, k)
+    rng = np.random.default_rng(11)
+    dt_s = 0.5
+    t = np.arange(int(ends.max() / dt_s)) * dt_s
+    walk = np.cumsum(rng.normal(0.0, k * np.sqrt(dt_s), (4000, t.size)), axis=1)
+    means = np.column_stack([walk[:, (t >= s) & (t < f)].mean(axis=1)
+                             for s, f in zip(starts, ends, strict=True)])
+    empirical = np.cov(means, rowvar=False)
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    assert np.all(np.abs(empirical - cov) < 0.12 * scale), (empirical / scale, cov / scale)
