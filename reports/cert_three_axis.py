@@ -15,8 +15,13 @@ import numpy as np
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table
 
-from procedures.record import ArrayValue, CalibrationThreeAxis, Outcome, RunRecord
-from procedures.record import three_axis_block as three_axis_block
+from procedures.record import (
+    ArrayValue,
+    CalibrationThreeAxis,
+    Outcome,
+    RunRecord,
+    three_axis_block,
+)
 from reports.cert_inputs import CertificateInputs
 from reports.styles import BODY, CELL, H2, NOTE, fmt, grid_style
 
