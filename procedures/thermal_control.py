@@ -1,12 +1,14 @@
 """The `fastest` thermal strategy at run time: plan, command, learn, re-plan.
 
-At a condition's start the controller plans a setpoint profile (procedures/chamber_strategy.py:
-a bounded overshoot held, then the target) for every part's die, each with its own lag and
-self-heating, and commands it. Every check it advances its estimate of the chamber's ramped
-setpoint, records the air and each part's own reading, and every `replan_interval_s` learns
-each die's lag from those readings and plans again from where things are. The self-heating
-step of a supply change is predicted with the product's C/W (or scaled from the rise at the
-previous supply). `finish` commands the target: the chamber is never left at an overshoot.
+At a condition's start the controller plans a setpoint profile for every part's die, each with
+its own lag and self-heating, and commands it: the sooner of the linear programme's profile
+(procedures/chamber_profile.py) and a bounded overshoot held, then the target
+(procedures/chamber_strategy.py). Every check it advances its estimate of the chamber's
+ramped setpoint, records the air and each part's own reading, and every
+`replan_interval_s` learns each die's lag from those readings and plans again from where
+things are. The self-heating step of a supply change is predicted from the reading's excess
+over the air and the product's C/W times the change in measured power (or scaled by the
+power ratio). `finish` commands the target: the chamber is never left at an overshoot.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from procedures.chamber_profile import ProfilePlan, plan_lp_profile
 from procedures.chamber_strategy import (
     Criterion,
     DieState,
@@ -62,29 +65,24 @@ class _Part:
     reading_c: list[float] = field(default_factory=list)
 
 
-def heat_before_change(
-    reading_c: float, air_c: float, supply_old_v: float, supply_new_v: float,
-    power_new_w: float, c_per_w: float | None,
-) -> float:
-    """The self-heating in a reading taken just after a supply change: the product's C/W
-    times the power drawn at the old supply (power scales with V^2); without C/W, or at the
-    first condition (no old supply), the reading's excess over the air."""
-    if c_per_w is None or supply_old_v <= 0 or supply_new_v <= 0:
-        return reading_c - air_c
-    return c_per_w * max(power_new_w, 0.0) * (supply_old_v / supply_new_v) ** 2
+def heat_now_c(reading_c: float, air_c: float) -> float:
+    """The self-heating in a part's reading at a condition's start: its excess over the air.
+    The die has settled to the air through the previous condition's measurement, so the
+    excess is the heating (and any constant offset of the part's sensor, which stays)."""
+    return reading_c - air_c
 
 
 def heat_after_change(
-    heat_now_c: float, supply_old_v: float, supply_new_v: float, power_new_w: float,
-    c_per_w: float | None,
+    heat_now: float, power_old_w: float, power_new_w: float, c_per_w: float | None,
 ) -> float:
-    """The self-heating a part tends to at the new supply: the product's C/W times the power
-    it draws, or (no C/W given) the present heating scaled by the power ratio (V^2)."""
-    if c_per_w is not None:
+    """The self-heating a part tends to at the new supply: the present heating changed by the
+    product's C/W times the change in the power it draws (at power-on, `power_old_w` 0: the
+    C/W times the power); without C/W, the present heating scaled by the power ratio."""
+    if c_per_w is None:
+        return heat_now * power_new_w / power_old_w if power_old_w > 0 else heat_now
+    if power_old_w <= 0:
         return c_per_w * max(power_new_w, 0.0)
-    if supply_old_v <= 0:
-        return heat_now_c
-    return heat_now_c * (supply_new_v / supply_old_v) ** 2
+    return heat_now + c_per_w * (power_new_w - power_old_w)
 
 
 class FastestController:
@@ -96,8 +94,8 @@ class FastestController:
         self.parts: dict[int, _Part] = {}
         self.air_time_s: list[float] = []
         self.air_c: list[float] = []
-        self.plan: SetpointPlan | None = None
-        self.first_plan: SetpointPlan | None = None
+        self.plan: SetpointPlan | ProfilePlan | None = None
+        self.first_plan: SetpointPlan | ProfilePlan | None = None
         self.plan_at_s = 0.0
         self.ramped_c = settings.target_c
         self.commanded_c: float | None = None
@@ -148,6 +146,7 @@ class FastestController:
         part = self.parts.get(socket)
         return {
             "strategy": "fastest",
+            "plan": "profile" if isinstance(plan, ProfilePlan) else "overshoot",
             "die_tau_s": part.tau_s if part else None,
             "overshoot_c": plan.overshoot_c if plan else 0.0,
             "hold_s": plan.hold_s if plan else 0.0,
@@ -210,10 +209,14 @@ class FastestController:
         ]
         if not dies:
             return
-        self.plan = plan_profile(
+        args = (
             self.cfg.model, self.cfg.limits, air_c, self.ramped_c, dies, self.cfg.target_c,
             self.cfg.criterion,
         )
+        profile = plan_lp_profile(*args)  # judged with a margin: the model is learned
+        overshoot = plan_profile(*args)
+        sooner = profile is not None and profile.settle_s <= overshoot.settle_s
+        self.plan = profile if sooner else overshoot
         self.plan_at_s = now_s
         self.replans += 1
         log.debug("thermal plan at %.0f s: %s", now_s, self.plan)

@@ -32,7 +32,7 @@ from procedures.steps.thermal_fastest import (
 from procedures.thermal_control import (
     FastestController,
     heat_after_change,
-    heat_before_change,
+    heat_now_c,
 )
 
 
@@ -147,20 +147,21 @@ class Stabilise(StepType[ThermalSettings]):
         """The supply first (its self-heating step is part of the plan), then the plan."""
         chamber = ctx.instruments.chamber
         chamber.set_ramp_rate(ctx.procedure.chamber.ramp_c_per_min)
-        previous = self.place.previous
-        old_v = previous.supply_v if previous is not None else 0.0
+        alive = ctx.parts.alive()
+        power_old_w = 0.0
+        if self.place.previous is not None:  # the power each part drew before the change
+            _, volts, amps = ctx.instruments.log_environment()
+            power_old_w = volts * amps / max(len(alive), 1)
         ctx.instruments.set_supply_voltage(self.target.supply_v)
         air_c, volts, amps = ctx.instruments.log_environment()
-        alive = ctx.parts.alive()
         self._mark_condition(ctx)
         power_w = volts * amps / max(len(alive), 1)
-        heat_c_per_w = ctx.product.self_heating_c_per_w
+        c_per_w = ctx.product.self_heating_c_per_w
         start: dict[int, tuple[float, float, float]] = {}
-        new_v = self.target.supply_v
         for part in alive:
             reading_c = latest_reading_c(part, ctx.clock.now_s())
-            heat_now = heat_before_change(reading_c, air_c, old_v, new_v, power_w, heat_c_per_w)
-            heat_final = heat_after_change(heat_now, old_v, new_v, power_w, heat_c_per_w)
+            heat_now = heat_now_c(reading_c, air_c)
+            heat_final = heat_after_change(heat_now, power_old_w, power_w, c_per_w)
             start[part.socket] = (reading_c, heat_now, heat_final)
         self._control = FastestController(chamber, control_settings(ctx, self))
         try:

@@ -75,12 +75,12 @@ def test_no_movement_keeps_the_prior() -> None:
 
 # ---------------------------------------------------------------- several dies, the bound
 
+from procedures.chamber_profile import settle_bound_s  # noqa: E402
 from procedures.chamber_strategy import (  # noqa: E402
     Criterion,
     DieState,
     plan_profile,
     ramped_profiles,
-    settle_bound_s,
     settled_from_s,
 )
 

@@ -118,12 +118,16 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
         world.power_w = volts * volts * 0.025 / 5.0
         world.advance(0.2)
 
+    def environment() -> tuple[float, float, float]:  # each part draws power_w
+        volts = math.sqrt(world.power_w * 5.0 / 0.025)
+        return world.air_c, volts, len(parts) * world.power_w / volts
+
     return SimpleNamespace(
         clock=clock,
         wait=SimpleNamespace(clock=clock, sleep=world.advance),
         instruments=SimpleNamespace(
             chamber=world,
-            log_environment=lambda: (world.air_c, 5.0, 0.025 * len(parts)),
+            log_environment=environment,
             set_supply_voltage=set_supply,
         ),
         parts=SimpleNamespace(alive=lambda: parts, drop=None, require=lambda: None),
@@ -199,10 +203,10 @@ def test_a_target_beyond_the_part_maximum_is_refused_with_the_setting_to_check()
 
 def test_an_abort_during_the_overshoot_leaves_the_chamber_at_the_target() -> None:
     world = warmed([300.0])
-    world.abort_at_s = 120.0  # the plan holds the overshoot for minutes
+    world.abort_at_s = 360.0  # past the ramp to 45 C (240 s): the profile is beyond it
     with pytest.raises(Aborted):
         settle(world, "fastest")
-    overshoot = [sp for t, sp in world.writes if t < 120.0]
+    overshoot = [sp for t, sp in world.writes if t < 360.0]
     assert overshoot and max(overshoot) > 45.0
     assert world.setpoint_c == 45.0 and world.writes[-1][1] == 45.0
 
@@ -225,3 +229,31 @@ def test_cooling_waits_for_the_air_before_judging_the_dies() -> None:
     # a die that had not started to move was not taken as stable: it reached the cold side
     assert world.reading(0) < 25.0 + world.heat_c[0] + 0.6
     assert world.setpoint_c == 25.0
+
+
+def test_a_supply_change_settles_sooner_with_the_planned_profile() -> None:
+    """At one temperature the self-heating step of a supply change is the whole wait: the
+    linear programme's profile dips the air against it (one overshoot cannot shape it)."""
+
+    def at_4v75() -> World:
+        world = warmed([300.0])
+        world.power_w = 4.75 * 4.75 * 0.025 / 5.0
+        world.heat_c = [40.0 * world.power_w]
+        return world
+
+    def run(world: World, strategy: str) -> tuple[float, Any]:
+        ctx = context(world, strategy)
+        s = step(25.0, 5.25, Condition(25.0, 4.75))
+        start = world.now_s
+        s.setup(ctx)
+        s.main(ctx)
+        return world.now_s - start, s
+
+    straight, _ = run(at_4v75(), "setpoint")
+    world = at_4v75()
+    fast, s = run(world, "fastest")
+    assert fast < 0.75 * straight
+    assert min(sp for _, sp in world.writes) < 25.0  # the air was dipped against the heating
+    assert world.setpoint_c == 25.0
+    assert s._control.summary(1)["plan"] == "profile"
+    assert abs(world.reading(0) - (25.0 + world.heat_c[0])) < 0.2

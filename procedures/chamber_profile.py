@@ -1,0 +1,346 @@
+"""Chamber setpoint profiles from a linear programme (no I/O).
+
+The chamber and die model of procedures/chamber_strategy.py on a STEP_S grid: the ramped
+setpoint moves by at most the ramp limit per step, the air follows it with `air_tau_s`, each die
+follows the air with its own lag, and a part's reading is its die plus its self-heating. Every
+quantity is linear in the ramp rates, so "is there a profile after which every die meets the
+stability criterion from window end k on" is a linear feasibility problem.
+
+- `settle_bound_s`: the soonest k for one die with no overshoot bound (the physics bound the
+  cycle-time benchmark reports).
+- `plan_lp_profile`: the soonest k for several dies at once, within the overshoot bound, with
+  the setpoint back at the target by k (the measurement that follows must not see the chamber
+  move) and a margin on the criterion (the model is learned, not known). No reading goes
+  beyond its way from now to its final value by more than band_c / 2 and its self-heating's
+  change (a die turning back at a peak looks flat for a moment: the criterion would take the
+  peak for stable), nor, once judged, farther from it than a die approaching straight would
+  be. Among the profiles that settle by then, the one that stays closest to the target. The
+  station follows it a step ahead (`ProfilePlan.setpoint_at`) and plans again as the
+  readings come in.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linprog
+from scipy.sparse import coo_matrix
+
+from procedures.chamber_strategy import (
+    Criterion,
+    DieState,
+    ThermalLimits,
+    ThermalModel,
+    representative_dies,
+)
+
+STEP_S = 10.0  # the grid: the ramp rate is constant over a step
+PLAN_MARGIN = 0.85  # the plan meets slope and band limits this much tighter than the step judges
+
+
+@dataclass(frozen=True)
+class ProfilePlan:
+    """A planned profile: the chamber's ramped setpoint every STEP_S from when it was planned."""
+
+    target_c: float
+    ramped_c: tuple[float, ...]
+    settle_s: float  # predicted time from the plan until every die meets the criterion
+    die_peak_c: float  # the dies' predicted extreme in the direction of travel
+    overshoot_c: float  # the setpoint's largest excursion outside start..target
+    hold_s: float  # the profile is at the target for good from here
+
+    def setpoint_at(self, elapsed_s: float) -> float:
+        """The setpoint to command `elapsed_s` after planning: the next grid point's ramped
+        setpoint (the chamber ramps to it within the step), then the target."""
+        i = int(math.floor(elapsed_s / STEP_S + 1e-9)) + 1
+        return self.ramped_c[i] if i < len(self.ramped_c) else self.target_c
+
+
+class _Rows:
+    """Sparse constraint rows collected as (row, column, value) triples."""
+
+    def __init__(self) -> None:
+        self.r: list[int] = []
+        self.c: list[int] = []
+        self.v: list[float] = []
+        self.high: list[float] = []
+
+    def add(self, terms: list[tuple[int, float]], high: float) -> None:
+        row = len(self.high)
+        for col, val in terms:
+            self.r.append(row)
+            self.c.append(col)
+            self.v.append(val)
+        self.high.append(high)
+
+    def matrix(self, n_var: int) -> coo_matrix:
+        return coo_matrix((self.v, (self.r, self.c)), shape=(len(self.high), n_var))
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """Everything fixed while the settle index is searched."""
+
+    model: ThermalModel
+    air_c: float
+    ramped_c: float
+    dies: tuple[DieState, ...]
+    target_c: float
+    crit: Criterion
+    n: int  # steps in the horizon
+    setpoint_range: tuple[float, float]
+    part_range: tuple[float, float]
+    near_final: bool
+    back_at_target: bool  # the setpoint at the target from the settle index on
+
+    @property
+    def m(self) -> int:
+        return max(int(round(self.crit.window_s / STEP_S)), 2)
+
+    def times(self) -> NDArray[np.float64]:
+        return np.arange(self.n + 1, dtype=np.float64) * STEP_S
+
+
+class _Layout:
+    """Column indices: ramp rates u, ramped setpoint r, air a, each die's lag part d, then
+    each die's window maxima and minima, then |r - target| (the objective)."""
+
+    def __init__(self, p: _Problem, end: int) -> None:
+        n = p.n
+        self.u, self.r, self.a = 0, n, 2 * n + 1
+        self.d = [3 * n + 2 + j * (n + 1) for j in range(len(p.dies))]
+        self.n_win = n + 1 - end
+        base = 3 * n + 2 + len(p.dies) * (n + 1)
+        self.hi = [base + 2 * j * self.n_win for j in range(len(p.dies))]
+        self.lo = [h + self.n_win for h in self.hi]
+        self.e = base + 2 * len(p.dies) * self.n_win
+        self.n_var = self.e + n + 1
+
+
+def _dynamics(p: _Problem, lay: _Layout) -> tuple[coo_matrix, NDArray[np.float64]]:
+    """Equalities: start states, the ramp, the air's and each die's first-order lag."""
+    n, eq, rhs = p.n, _Rows(), []
+    ka = 1.0 - math.exp(-STEP_S / p.model.air_tau_s)
+
+    def fix(col: int, value: float) -> None:
+        eq.add([(col, 1.0)], 0.0)
+        rhs.append(value)
+
+    fix(lay.r, p.ramped_c)
+    fix(lay.a, p.air_c)
+    for i in range(n):
+        eq.add([(lay.r + i + 1, 1.0), (lay.r + i, -1.0), (lay.u + i, -STEP_S)], 0.0)
+        eq.add([(lay.a + i + 1, 1.0), (lay.a + i, -(1.0 - ka)), (lay.r + i, -ka / 2),
+                (lay.r + i + 1, -ka / 2)], 0.0)
+        rhs += [0.0, 0.0]
+    for die, d0 in zip(p.dies, lay.d, strict=True):
+        kd = 1.0 - math.exp(-STEP_S / die.tau_s)
+        fix(d0, die.die_c - die.heat_c)
+        for i in range(n):
+            eq.add([(d0 + i + 1, 1.0), (d0 + i, -(1.0 - kd)), (lay.a + i, -kd / 2),
+                    (lay.a + i + 1, -kd / 2)], 0.0)
+            rhs.append(0.0)
+    fix(lay.r + n, p.target_c)  # the profile ends at the target
+    return eq.matrix(lay.n_var), np.asarray(rhs)
+
+
+def _windows(p: _Problem, lay: _Layout, end: int, margin: float, rows: _Rows) -> None:
+    """Every window ending at or after `end` meets the criterion (slope, band, tolerance)."""
+    m, crit = p.m, p.crit
+    x = np.arange(m + 1) - m / 2.0
+    w = x / float(x @ x) / STEP_S * 60.0
+    t = p.times()
+    for die, d0, hi0, lo0 in zip(p.dies, lay.d, lay.hi, lay.lo, strict=True):
+        heat = die.heat_at(t)
+        final = die.final_c(p.target_c)
+        for j, k in enumerate(range(end, p.n + 1)):
+            cols = range(k - m, k + 1)
+            s0 = float(w @ heat[k - m : k + 1])
+            terms = [(d0 + c, float(wc)) for c, wc in zip(cols, w, strict=True)]
+            rows.add(terms, margin * crit.slope_c_per_min - s0)
+            rows.add([(c, -v) for c, v in terms], margin * crit.slope_c_per_min + s0)
+            for c in cols:
+                rows.add([(d0 + c, 1.0), (hi0 + j, -1.0)], -heat[c])
+                rows.add([(lo0 + j, 1.0), (d0 + c, -1.0)], heat[c])
+            rows.add([(hi0 + j, 1.0), (lo0 + j, -1.0)], margin * crit.band_c)
+            if crit.target_c is not None and crit.tolerance_c is not None:
+                mean_heat = float(np.mean(heat[k - m : k + 1]))
+                avg = [(d0 + c, 1.0 / (m + 1)) for c in cols]
+                rows.add(avg, crit.target_c + margin * crit.tolerance_c - mean_heat)
+                rows.add([(c, -v) for c, v in avg],
+                         -(crit.target_c - margin * crit.tolerance_c - mean_heat))
+            near = _near_final_c(p, die)
+            if near is not None:
+                rows.add([(d0 + k, 1.0)], final + near - heat[k])
+                rows.add([(d0 + k, -1.0)], -(final - near - heat[k]))
+
+
+def _near_final_c(p: _Problem, die: DieState) -> float | None:
+    """How far from its final value a judged reading may be: band / 2 with `near_final`; for
+    a plan, no farther than a die approaching straight would be when its slope meets the
+    limit (slope x lag), so the profile never leaves a larger creep than the setpoint would."""
+    if p.near_final:
+        return p.crit.band_c / 2
+    if p.back_at_target:
+        return max(p.crit.slope_c_per_min * die.tau_s / 60.0, p.crit.band_c / 2)
+    return None
+
+
+def _bounds(p: _Problem, lay: _Layout, end: int) -> list[tuple[float | None, float | None]]:
+    n, rate = p.n, p.model.ramp_c_per_min / 60.0
+    bounds: list[tuple[float | None, float | None]] = [(None, None)] * lay.n_var
+    for i in range(n):
+        bounds[lay.u + i] = (-rate, rate)
+    for i in range(n + 1):
+        bounds[lay.r + i] = p.setpoint_range
+        if p.back_at_target and i >= end:
+            bounds[lay.r + i] = (p.target_c, p.target_c)
+    t = p.times()
+    half = p.crit.band_c / 2
+    for die, d0 in zip(p.dies, lay.d, strict=True):
+        heat = die.heat_at(t)
+        final = die.final_c(p.target_c)
+        low, high = p.part_range
+        if p.back_at_target:  # no reading beyond its way from now to final (and its heating)
+            rise = die.heat_final_c - die.heat_c
+            low = max(low, min(die.die_c, final) - half + min(rise, 0.0))
+            high = min(high, max(die.die_c, final) + half + max(rise, 0.0))
+        for i in range(n + 1):
+            bounds[d0 + i] = (low - heat[i], high - heat[i])
+        bounds[d0 + n] = (
+            max(final - half, p.part_range[0]) - heat[n],
+            min(final + half, p.part_range[1]) - heat[n],
+        )
+    return bounds
+
+
+def _solve(
+    p: _Problem, end: int, margin: float, objective: bool
+) -> NDArray[np.float64] | None:
+    """The LP's solution with every window from `end` on meeting the criterion (None:
+    infeasible); with `objective`, the one with the least sum of |setpoint - target|."""
+    lay = _Layout(p, end)
+    a_eq, b_eq = _dynamics(p, lay)
+    ub = _Rows()
+    _windows(p, lay, end, margin, ub)
+    cost = np.zeros(lay.n_var)
+    if objective:
+        for i in range(p.n + 1):
+            ub.add([(lay.r + i, 1.0), (lay.e + i, -1.0)], p.target_c)
+            ub.add([(lay.r + i, -1.0), (lay.e + i, -1.0)], -p.target_c)
+        cost[lay.e : lay.e + p.n + 1] = 1.0
+    res = linprog(
+        cost, A_ub=ub.matrix(lay.n_var).tocsr(), b_ub=np.asarray(ub.high),
+        A_eq=a_eq.tocsr(), b_eq=b_eq, bounds=_bounds(p, lay, end), method="highs",
+    )
+    return np.asarray(res.x) if res.status == 0 else None
+
+
+def _soonest_end(p: _Problem, margin: float) -> int | None:
+    """The first window-end index from which the LP is feasible (bisection), or None."""
+    low, high = p.m, p.n - 1
+    if _solve(p, low, margin, False) is not None:
+        return low
+    if _solve(p, high, margin, False) is None:
+        return None
+    while high - low > 1:
+        mid = (low + high) // 2
+        if _solve(p, mid, margin, False) is not None:
+            high = mid
+        else:
+            low = mid
+    return high
+
+
+def settle_bound_s(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    die: DieState,
+    target_c: float,
+    crit: Criterion,
+    horizon_s: float | None = None,
+    near_final: bool = False,
+) -> float:
+    """The soonest any setpoint profile within the chamber's limits (ramp rate, setpoint
+    limits, the part's limits; no overshoot bound) can make the die meet the stability
+    criterion for good, for this die lag and self-heating. The chamber starts settled at
+    `air_c`; the profile ends at the target. The criterion alone lets the reading creep at up
+    to the slope limit for good (a profile may hold the self-heating's rise off with the air,
+    then creep); `near_final` also asks the reading to stay within band_c / 2 of its final
+    value from the first window's end. inf: not within the horizon."""
+    travel_s = abs(target_c - air_c) / model.ramp_c_per_min * 60.0
+    horizon = horizon_s or travel_s + 4.0 * die.tau_s + 4.0 * model.air_tau_s + crit.window_s
+    p = _Problem(
+        model, air_c, air_c, (die,), target_c, crit, int(math.ceil(horizon / STEP_S)),
+        (limits.setpoint_low_c, limits.setpoint_high_c), (limits.min_part_c, limits.max_part_c),
+        near_final, back_at_target=False,
+    )
+    end = _soonest_end(p, margin=1.0)
+    return math.inf if end is None else float(end * STEP_S)
+
+
+def plan_lp_profile(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    ramped_c: float,
+    dies: list[DieState],
+    target_c: float,
+    crit: Criterion,
+    margin: float = PLAN_MARGIN,
+) -> ProfilePlan | None:
+    """The profile after which the slowest of `dies` meets the criterion (tightened by
+    `margin`) soonest, the setpoint within the chamber's limits and the overshoot bound of
+    start..target, every die within the part's limits, the setpoint at the target from then
+    on; None when no such profile exists within the horizon (the caller falls back)."""
+    if not dies:
+        raise ValueError("no dies to plan for")
+    dies = representative_dies(dies, target_c)
+    low_c, high_c = min(ramped_c, target_c), max(ramped_c, target_c)
+    setpoint_range = (
+        max(limits.setpoint_low_c, low_c - limits.max_overshoot_c),
+        min(limits.setpoint_high_c, high_c + limits.max_overshoot_c),
+    )
+    slowest = max(d.tau_s for d in dies)
+    travel_s = (high_c - low_c) / model.ramp_c_per_min * 60.0
+    # lags enough for the farthest die to come within band / 2 of its final value unhelped
+    far = max(abs(d.final_c(target_c) - d.die_c) + abs(d.heat_final_c - d.heat_c) for d in dies)
+    lags = max(4.0, math.log(max(far, crit.band_c) / (crit.band_c / 2)) + 1.0)
+    horizon = travel_s + lags * slowest + 4.0 * model.air_tau_s + crit.window_s
+    p = _Problem(
+        model, air_c, ramped_c, tuple(dies), target_c, crit, int(math.ceil(horizon / STEP_S)),
+        setpoint_range, (limits.min_part_c, limits.max_part_c), near_final=False,
+        back_at_target=True,
+    )
+    end = _soonest_end(p, margin)
+    x = None if end is None else _solve(p, end, margin, objective=True)
+    if end is None or x is None:
+        return None
+    return _plan_of(p, _Layout(p, end), x, end, start_c=ramped_c)
+
+
+def _plan_of(
+    p: _Problem, lay: _Layout, x: NDArray[np.float64], end: int, start_c: float
+) -> ProfilePlan:
+    ramped = np.asarray(x[lay.r : lay.r + p.n + 1])
+    sign = 1.0 if p.target_c >= start_c else -1.0
+    t = p.times()
+    readings = [x[d0 : d0 + p.n + 1] + die.heat_at(t) for die, d0 in zip(p.dies, lay.d,
+                                                                         strict=True)]
+    every = np.concatenate(readings)
+    peak = float(every.max() if sign > 0 else every.min())
+    beyond = np.maximum(ramped - max(start_c, p.target_c), min(start_c, p.target_c) - ramped)
+    moving = np.nonzero(np.abs(ramped - p.target_c) > 0.05)[0]
+    hold_s = float((moving[-1] + 1) * STEP_S) if moving.size else 0.0
+    return ProfilePlan(
+        target_c=p.target_c,
+        ramped_c=tuple(float(v) for v in ramped[: end + 1]),
+        settle_s=float(end * STEP_S),
+        die_peak_c=peak,
+        overshoot_c=float(max(beyond.max(), 0.0)),
+        hold_s=hold_s,
+    )
