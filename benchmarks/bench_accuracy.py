@@ -4,7 +4,7 @@ For each part: every fitted coefficient against the truth of the bench, in units
 k = 2 uncertainty (|fit - truth| / U; <= 1 means covered), and the residual scale error after
 correction at the verification rates. Prints one row per part and a summary.
 
-    python3 benchmarks/bench_accuracy.py [--parts 24] [--sockets 8] [--speed 100]
+    python3 benchmarks/bench_accuracy.py [--parts 24] [--sockets 8] [--speed X]
                                          [--procedure config/procedures/eol-rate-table.yaml]
 """
 
@@ -44,7 +44,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", type=int, default=24)
     ap.add_argument("--sockets", type=int, default=8)
-    ap.add_argument("--speed", type=float, default=100.0)
+    ap.add_argument("--speed", type=float, default=None, help="scaled clock (default: lockstep)")
     ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
     ap.add_argument("--first-serial", type=int, default=5001)
     args = ap.parse_args()
