@@ -38,6 +38,7 @@ from procedures.chamber_strategy import (
 )
 
 STEP_S = 10.0  # the grid: the ramp rate is constant over a step
+MAX_PLAN_STEPS = 480  # 80 min of horizon: the linear programme's size (and time) grows with it
 PLAN_MARGIN = 0.85  # the plan meets slope and band limits this much tighter than the step judges
 
 
@@ -296,9 +297,12 @@ def plan_lp_profile(
     """The profile after which the slowest of `dies` meets the criterion (tightened by
     `margin`) soonest, the setpoint within the chamber's limits and the overshoot bound of
     start..target, every die within the part's limits, the setpoint at the target from then
-    on; None when no such profile exists within the horizon (the caller falls back)."""
+    on. None (the caller falls back to one overshoot) when no such profile exists within the
+    horizon, when no overshoot is allowed, or when the horizon is beyond MAX_PLAN_STEPS."""
     if not dies:
         raise ValueError("no dies to plan for")
+    if limits.max_overshoot_c <= 0:
+        return None  # no room beyond start..target: nothing to shape that straight does not
     dies = representative_dies(dies, target_c)
     low_c, high_c = min(ramped_c, target_c), max(ramped_c, target_c)
     setpoint_range = (
@@ -311,10 +315,12 @@ def plan_lp_profile(
     far = max(abs(d.final_c(target_c) - d.die_c) + abs(d.heat_final_c - d.heat_c) for d in dies)
     lags = max(4.0, math.log(max(far, crit.band_c) / (crit.band_c / 2)) + 1.0)
     horizon = travel_s + lags * slowest + 4.0 * model.air_tau_s + crit.window_s
+    n = int(math.ceil(horizon / STEP_S))
+    if n > MAX_PLAN_STEPS:
+        return None  # a slow ramp's long travel: the straight way or one overshoot will do
     p = _Problem(
-        model, air_c, ramped_c, tuple(dies), target_c, crit, int(math.ceil(horizon / STEP_S)),
-        setpoint_range, (limits.min_part_c, limits.max_part_c), near_final=False,
-        back_at_target=True,
+        model, air_c, ramped_c, tuple(dies), target_c, crit, n, setpoint_range,
+        (limits.min_part_c, limits.max_part_c), near_final=False, back_at_target=True,
     )
     end = _soonest_end(p, margin)
     x = None if end is None else _solve(p, end, margin, objective=True)

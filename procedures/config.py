@@ -366,8 +366,9 @@ class ChamberConfig(_Strict):
     strategy: Literal["setpoint", "fastest"] = Field(
         "setpoint",
         description="setpoint: the chamber goes straight to each temperature; fastest: a "
-        "planned setpoint profile (a bounded overshoot held, then the target), re-planned from "
-        "each part's own sensor, so the slowest die settles soonest",
+        "planned setpoint profile (shaped within the overshoot bound against each die's lag and "
+        "self-heating, or one overshoot held), re-planned from each part's own sensor, so the "
+        "slowest die settles soonest",
     )
     max_overshoot_c: float = Field(
         15.0, ge=0, le=50, description="fastest: largest setpoint overshoot beyond the target"
