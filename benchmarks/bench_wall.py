@@ -9,6 +9,11 @@ station time must agree within 1 % (in lockstep it is physics time) and every me
 every part must be the same value.
 
     python3 benchmarks/bench_wall.py [--sockets 8 32] [--no-hog] [--procedure PATH]
+                                     [--profile DIR]
+
+--profile DIR runs both processes under cProfile (the station in-process, the bench through
+GYROCAL_BENCH_PROFILE) and writes station-N.prof and bench-N.prof there, with a summary of
+each; the profiled figures are slower than unprofiled ones.
 
 The issue's targets (issue 15): 8 sockets in at most 30 s of wall time, 32 in at most 2 min.
 The wall time includes starting the bench process and the station's imports; on a machine
@@ -18,6 +23,10 @@ shared with other work it is longer than the CPU time (the two processes take tu
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
+import os
+import pstats
 import resource
 import subprocess
 import sys
@@ -42,12 +51,26 @@ def cpu_s() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def one_load(n: int, proc_path: Path, out: Path) -> dict[str, Any]:
+def one_load(
+    n: int, proc_path: Path, out: Path, profile_dir: Path | None = None
+) -> dict[str, Any]:
     """One load of `n` parts in lockstep: station s, wall s, cpu s, verdicts, values."""
     first = 9000 + 100 * (n // 8)
     parts = [{"socket": s, "serial": f"SIM-{first + s:04d}"} for s in range(1, n + 1)]
+    profiler = None
+    if profile_dir is not None:
+        profile_dir.mkdir(parents=True, exist_ok=True)
+        os.environ["GYROCAL_BENCH_PROFILE"] = str(profile_dir / f"bench-{n}.prof")
+        profiler = cProfile.Profile()
+        profiler.enable()
     w0, c0 = time.monotonic(), cpu_s()
-    result, truth = run_simulated(parts, procedure_path=proc_path, out=out)
+    try:
+        result, truth = run_simulated(parts, procedure_path=proc_path, out=out)
+    finally:
+        if profiler is not None:
+            profiler.disable()
+            profiler.dump_stats(profile_dir / f"station-{n}.prof")  # type: ignore[operator]
+            os.environ.pop("GYROCAL_BENCH_PROFILE", None)
     wall, cpu = time.monotonic() - w0, cpu_s() - c0
     recs = [read_record(result.folders[s]) for s in sorted(result.folders)]
     values = {
@@ -65,6 +88,18 @@ def one_load(n: int, proc_path: Path, out: Path) -> dict[str, Any]:
     }
 
 
+def print_profile(path: Path, top: int = 25) -> None:
+    """The `top` functions of a profile by their own time, and by cumulative time."""
+    if not path.exists():
+        print(f"(no profile at {path})")
+        return
+    for key in ("tottime", "cumulative"):
+        buf = io.StringIO()
+        pstats.Stats(str(path), stream=buf).strip_dirs().sort_stats(key).print_stats(top)
+        print(f"--- {path.name} by {key}")
+        print(buf.getvalue())
+
+
 def print_row(label: str, row: dict[str, Any]) -> None:
     verdicts = row["verdicts"]
     passed = sum(v == "PASS" for v in verdicts)
@@ -80,7 +115,9 @@ def main() -> int:
     ap.add_argument("--sockets", type=int, nargs="+", default=[8, 32])
     ap.add_argument("--no-hog", action="store_true", help="skip the run beside a CPU hog")
     ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
+    ap.add_argument("--profile", metavar="DIR", help="cProfile both processes into DIR")
     args = ap.parse_args()
+    profile_dir = Path(args.profile) if args.profile else None
     proc_path = Path(args.procedure)
     out = Path(tempfile.mkdtemp(prefix="bench-wall-"))
     print(f"procedure {proc_path.name}, bench in lockstep; run folders in {out}")
@@ -92,9 +129,12 @@ def main() -> int:
     print("-" * len(head))
     rows = []
     for n in args.sockets:
-        rows.append(one_load(n, proc_path, out / f"quiet-{n}"))
+        rows.append(one_load(n, proc_path, out / f"quiet-{n}", profile_dir))
         print_row("quiet", rows[-1])
-    if args.no_hog:
+        if profile_dir is not None:
+            for name in (f"station-{n}.prof", f"bench-{n}.prof"):
+                print_profile(profile_dir / name)
+    if args.no_hog or profile_dir is not None:
         return 0
     quiet = rows[0]
     hog = subprocess.Popen([sys.executable, "-c", HOG])

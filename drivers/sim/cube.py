@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from drivers.orientation import ORIENTATIONS, STANDARD_GRAVITY_MPS2, normalise_face, up_vector
 from drivers.sim.config import CubeConfig
@@ -79,11 +78,15 @@ class CubeTurn:
 
     def attitude(self, t: FloatArray) -> NDArray[np.float64]:
         """(n, 3, 3) attitudes at times `t` inside or around the turn."""
+        from scipy.spatial.transform import Rotation  # only while a cube turns: 0.4 s import
+
         s = self.progress(t)
         rel = Rotation.from_rotvec(np.outer(s, self.rotvec)).as_matrix()
         return np.asarray(np.asarray(self.from_attitude) @ rel, dtype=np.float64)
 
     def final_attitude(self) -> FloatArray:
+        from scipy.spatial.transform import Rotation  # only while a cube turns: 0.4 s import
+
         return np.asarray(self.from_attitude) @ Rotation.from_rotvec(self.rotvec).as_matrix()
 
     def body_rate_dps(self, t: FloatArray) -> FloatArray:

@@ -41,6 +41,15 @@ _ORDER_KEYS = {
     3: fp.CAL_KEYS_HIGHER_ORDER,
 }
 _ERR = fp.ReplyError
+# a single-axis part's sample frame fields, in `fp.encode_samples` argument order
+SampleFields = tuple[
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    "NDArray[np.int64] | None",
+]
 
 
 def _err(code: fp.ReplyError, text: str) -> str:
@@ -239,6 +248,18 @@ class FixtureSocket:
 
     def frames_at(self, times: NDArray[np.float64], table_angle: NDArray[np.float64]) -> bytes:
         """The sample frames at `times` (from `due_times`), the table at `table_angle` then."""
+        fields_or_frames = self.sample_fields(times, table_angle)
+        if isinstance(fields_or_frames, bytes):
+            return fields_or_frames
+        return self.finish_frames(fp.encode_samples(*fields_or_frames))
+
+    def sample_fields(
+        self, times: NDArray[np.float64], table_angle: NDArray[np.float64]
+    ) -> SampleFields | bytes:
+        """`frames_at` before its encoding: a single-axis part's frame fields (the arguments
+        of `fp.encode_samples`; `finish_frames` takes the encoded bytes), or the finished
+        frames of anything else (none from a silent part, a three-axis part's). The bench
+        encodes every socket's fields in one call (`World.produce_all`)."""
         dt = 1.0 / self.odr_hz
         n = times.size
         # the fixture turned by hand adds its angle (nothing to add until the hand moves it)
@@ -275,7 +296,8 @@ class FixtureSocket:
         temp_noise = self.rng.normal(0.0, self.world.config.part_physics.temp_noise_c, n)
         seq = self.seq + np.arange(n, dtype=np.int64)
         self.seq += n
-        frames = fp.encode_samples(
+        self.frames_sent += n
+        return (
             seq,
             np.rint((times + self.clock_offset_s) * 1e6).astype(np.int64),
             rate_code,
@@ -283,7 +305,9 @@ class FixtureSocket:
             status,
             encoder,
         )
-        self.frames_sent += n
+
+    def finish_frames(self, frames: bytes) -> bytes:
+        """The encoded frames of `sample_fields` as the socket sends them (its stream faults)."""
         return self._apply_stream_faults(frames)
 
     def _apply_stream_faults(self, frames: bytes, size: int = fp.SAMPLE_FRAME_SIZE) -> bytes:

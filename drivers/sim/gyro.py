@@ -177,18 +177,36 @@ class PartModel:
         out = e[0] * (p.arw_deg_per_sqrt_h / 60.0 / math.sqrt(dt_s))
         row = 1
         if use_gm:
-            for i, corr in enumerate(GM_TAUS_S):
-                a = math.exp(-dt_s / corr)
-                x = first_order_filter(
-                    e[row], a, self._gm_sigma * math.sqrt(1 - a * a), float(self._gm_state[i])
-                )
-                self._gm_state[i] = x[-1]
+            gm = self._gauss_markov(e[row : row + len(GM_TAUS_S)], dt_s)
+            for x in gm:  # in the order a filter at a time added them
                 out += x
-                row += 1
+            row += len(GM_TAUS_S)
         if k_si > 0:
             walk = self._rrw_state + np.cumsum(e[row]) * (k_si * math.sqrt(dt_s))
             self._rrw_state = float(walk[-1])
             out += walk
+        return out
+
+    def _gauss_markov(self, e: FloatArray, dt_s: float) -> FloatArray:
+        """The Gauss-Markov terms (one row per GM_TAUS_S) driven by the rows of `e`, their
+        states carried on: the three filters at once when the block is short enough for one
+        chunk of `first_order_filter` each (the same numbers, a third of the calls)."""
+        n = e.shape[1]
+        a = [math.exp(-dt_s / corr) for corr in GM_TAUS_S]
+        b = [self._gm_sigma * math.sqrt(1 - ai * ai) for ai in a]
+        decay = [-math.log(ai) for ai in a]
+        if n == 0 or not all(d > 0 and n <= max(1, int(200.0 / d)) for d in decay):
+            rows = [
+                first_order_filter(e[i], a[i], b[i], float(self._gm_state[i]))
+                for i in range(len(a))
+            ]
+            out = np.stack(rows) if n else np.empty((len(a), 0))
+        else:
+            grow = np.exp(np.asarray(decay)[:, None] * np.arange(1, n + 1))
+            y_prev = np.asarray(self._gm_state, dtype=np.float64)[:, None]
+            out = (y_prev + np.asarray(b)[:, None] * np.cumsum(e * grow, axis=1)) / grow
+        if n:
+            self._gm_state[:] = out[:, -1]
         return out
 
     def raw_output_dps(

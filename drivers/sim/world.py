@@ -14,10 +14,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers import fixture_protocol as fp
 from drivers.rate_table_map import Fault
 from drivers.sim.chamber import ChamberModel
 from drivers.sim.config import PartSpec, SimConfig
-from drivers.sim.fixture import FixtureSocket
+from drivers.sim.fixture import FixtureSocket, SampleFields
 from drivers.sim.gyro import PartModel
 from drivers.sim.gyro3 import PartModel3, resolve_three_axis
 from drivers.sim.population import resolve_part
@@ -97,7 +98,8 @@ class World:
         """Every streaming socket's sample frames due up to `t_s` (sockets with none left
         out): the same bytes as each socket's `produce(t_s)`, with the table's angle evaluated
         once, at every socket's sample times together (sorted, so the motion profile finds
-        each time's piece in one search)."""
+        each time's piece in one search), and every single-axis socket's frames encoded in
+        one call (a frame's bytes depend on its own fields only)."""
         due: list[tuple[FixtureSocket, NDArray[np.float64]]] = []
         for sock in self.sockets.values():
             times = sock.due_times(t_s)
@@ -113,12 +115,19 @@ class World:
         angle = np.empty_like(every)
         angle[order] = self.table.angle_deg(every[order])
         out: dict[int, bytes] = {}
+        pending: list[tuple[FixtureSocket, SampleFields]] = []
         start = 0
         for sock, times in due:
             end = start + times.size
-            out[sock.socket] = sock.frames_at(times, angle[start:end])
+            fields = sock.sample_fields(times, angle[start:end])
+            if isinstance(fields, bytes):
+                out[sock.socket] = fields
+            else:
+                pending.append((sock, fields))
             start = end
-        return out
+        for sock, frames in _encode_together(pending):
+            out[sock.socket] = sock.finish_frames(frames)
+        return {s.socket: out[s.socket] for s, _ in due}  # in socket order, as before
 
     def _load_siemens(self) -> float:
         g = 0.0
@@ -211,3 +220,36 @@ class World:
             "sockets": {str(i): s.truth() for i, s in self.sockets.items()},
             "safe": self.safe_summary(t),
         }
+
+
+def _encode_together(
+    pending: list[tuple[FixtureSocket, SampleFields]],
+) -> list[tuple[FixtureSocket, bytes]]:
+    """Each socket's encoded sample frames, from one `fp.encode_samples` call over all of
+    them (a socket without encoder counts gets 0 there, as its own call would)."""
+    if not pending:
+        return []
+    if len(pending) == 1:
+        sock, fields = pending[0]
+        return [(sock, fp.encode_samples(*fields))]
+    sizes = [f[0].size for _, f in pending]
+    seq, time_us, rate, temp, status = (
+        np.concatenate([f[i] for _, f in pending]) for i in range(5)
+    )
+    encoders = [f[5] for _, f in pending]
+    encoder = None
+    if any(e is not None for e in encoders):
+        encoder = np.concatenate(
+            [
+                np.zeros(n, dtype=np.int64) if e is None else e
+                for e, n in zip(encoders, sizes, strict=True)
+            ]
+        )
+    frames = fp.encode_samples(seq, time_us, rate, temp, status, encoder)
+    out: list[tuple[FixtureSocket, bytes]] = []
+    start = 0
+    for (sock, _), n in zip(pending, sizes, strict=True):
+        end = start + n * fp.SAMPLE_FRAME_SIZE
+        out.append((sock, frames[start:end]))
+        start = end
+    return out
