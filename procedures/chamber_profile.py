@@ -298,11 +298,17 @@ def plan_lp_profile(
     `margin`) soonest, the setpoint within the chamber's limits and the overshoot bound of
     start..target, every die within the part's limits, the setpoint at the target from then
     on. None (the caller falls back to one overshoot) when no such profile exists within the
-    horizon, when no overshoot is allowed, or when the horizon is beyond MAX_PLAN_STEPS."""
+    horizon, when no overshoot is allowed, when a reading is missing (nan), or when the
+    horizon is beyond MAX_PLAN_STEPS."""
     if not dies:
         raise ValueError("no dies to plan for")
     if limits.max_overshoot_c <= 0:
         return None  # no room beyond start..target: nothing to shape that straight does not
+    numbers = [air_c, ramped_c, target_c] + [
+        v for d in dies for v in (d.die_c, d.tau_s, d.heat_c, d.heat_final_c, d.heat_tau_s)
+    ]
+    if not all(math.isfinite(v) for v in numbers):
+        return None  # a part without a reading yet: one overshoot (or straight) plans
     dies = representative_dies(dies, target_c)
     low_c, high_c = min(ramped_c, target_c), max(ramped_c, target_c)
     setpoint_range = (

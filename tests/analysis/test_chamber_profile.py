@@ -116,3 +116,10 @@ def test_no_profile_when_the_reading_must_end_beyond_the_part_maximum() -> None:
     limits = ThermalLimits(max_overshoot_c=10.0, setpoint_high_c=85.0, max_part_c=46.0)
     dies = [DieState(27.0, 300.0, 2.0, 2.0)]  # 45 C air: the reading ends at 47 C
     assert plan_lp_profile(BENCH, limits, 25.0, 25.0, dies, 45.0, CRIT) is None
+
+
+def test_no_profile_without_a_reading() -> None:
+    """A part whose stream has no samples yet reads nan: the station falls back, never raises."""
+    silent = [DieState(math.nan, 300.0, 0.0, 2.0), DieState(25.0, 300.0, math.nan, 2.0)]
+    for die in silent:
+        assert plan_lp_profile(BENCH, LIMITS, 25.0, 25.0, [die], 25.0, CRIT) is None
