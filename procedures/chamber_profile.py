@@ -34,7 +34,6 @@ from procedures.chamber_strategy import (
     DieState,
     ThermalLimits,
     ThermalModel,
-    representative_dies,
 )
 
 STEP_S = 10.0  # the grid: the ramp rate is constant over a step
@@ -240,13 +239,14 @@ def _solve(
     return np.asarray(res.x) if res.status == 0 else None
 
 
-def _soonest_end(p: _Problem, margin: float) -> int | None:
-    """The first window-end index from which the LP is feasible (bisection), or None."""
-    low, high = p.m, p.n - 1
-    if _solve(p, low, margin, False) is not None:
-        return low
+def _soonest_end(p: _Problem, margin: float, latest: int | None = None) -> int | None:
+    """The first window-end index from which the LP is feasible (bisection), or None; with
+    `latest`, None also when it is not feasible by then (one solve when it is not)."""
+    low, high = p.m, p.n - 1 if latest is None else max(min(latest, p.n - 1), p.m)
     if _solve(p, high, margin, False) is None:
         return None
+    if _solve(p, low, margin, False) is not None:
+        return low
     while high - low > 1:
         mid = (low + high) // 2
         if _solve(p, mid, margin, False) is not None:
@@ -284,6 +284,24 @@ def settle_bound_s(
     return math.inf if end is None else float(end * STEP_S)
 
 
+def planning_dies(dies: list[DieState], target_c: float) -> list[DieState]:
+    """At most four dies that bound the rest (the programme's time grows faster than its
+    size): the slowest and the fastest lag, the farthest to go, the largest self-heating
+    change still to come; identical states once."""
+    keys = (
+        lambda d: d.tau_s,
+        lambda d: -d.tau_s,
+        lambda d: abs(d.final_c(target_c) - d.die_c),
+        lambda d: abs(d.heat_final_c - d.heat_c),
+    )
+    picked: list[DieState] = []
+    for key in keys:
+        die = max(dies, key=key)
+        if die not in picked:
+            picked.append(die)
+    return picked
+
+
 def plan_lp_profile(
     model: ThermalModel,
     limits: ThermalLimits,
@@ -293,12 +311,13 @@ def plan_lp_profile(
     target_c: float,
     crit: Criterion,
     margin: float = PLAN_MARGIN,
+    not_after_s: float | None = None,
 ) -> ProfilePlan | None:
     """The profile after which the slowest of `dies` meets the criterion (tightened by
     `margin`) soonest, the setpoint within the chamber's limits and the overshoot bound of
     start..target, every die within the part's limits, the setpoint at the target from then
     on. None (the caller falls back to one overshoot) when no such profile exists within the
-    horizon, when no overshoot is allowed, when a reading is missing (nan), or when the
+    horizon or settles by `not_after_s` (the plan to beat), when no overshoot is allowed, when a reading is missing (nan), or when the
     horizon is beyond MAX_PLAN_STEPS."""
     if not dies:
         raise ValueError("no dies to plan for")
@@ -309,7 +328,7 @@ def plan_lp_profile(
     ]
     if not all(math.isfinite(v) for v in numbers):
         return None  # a part without a reading yet: one overshoot (or straight) plans
-    dies = representative_dies(dies, target_c)
+    dies = planning_dies(dies, target_c)
     low_c, high_c = min(ramped_c, target_c), max(ramped_c, target_c)
     setpoint_range = (
         max(limits.setpoint_low_c, low_c - limits.max_overshoot_c),
@@ -328,7 +347,10 @@ def plan_lp_profile(
         model, air_c, ramped_c, tuple(dies), target_c, crit, n, setpoint_range,
         (limits.min_part_c, limits.max_part_c), near_final=False, back_at_target=True,
     )
-    end = _soonest_end(p, margin)
+    latest = None
+    if not_after_s is not None and math.isfinite(not_after_s):
+        latest = int(not_after_s // STEP_S)
+    end = _soonest_end(p, margin, latest)
     x = None if end is None else _solve(p, end, margin, objective=True)
     if end is None or x is None:
         return None

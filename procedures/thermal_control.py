@@ -213,10 +213,10 @@ class FastestController:
             self.cfg.model, self.cfg.limits, air_c, self.ramped_c, dies, self.cfg.target_c,
             self.cfg.criterion,
         )
-        profile = plan_lp_profile(*args)  # judged with a margin: the model is learned
         overshoot = plan_profile(*args)
-        sooner = profile is not None and profile.settle_s <= overshoot.settle_s
-        self.plan = profile if sooner else overshoot
+        # the shaped profile, planned with a margin (the model is learned), where it is sooner
+        profile = plan_lp_profile(*args, not_after_s=overshoot.settle_s)
+        self.plan = profile or overshoot
         self.plan_at_s = now_s
         self.replans += 1
         log.debug("thermal plan at %.0f s: %s", now_s, self.plan)
