@@ -316,9 +316,9 @@ def plan_lp_profile(
     """The profile after which the slowest of `dies` meets the criterion (tightened by
     `margin`) soonest, the setpoint within the chamber's limits and the overshoot bound of
     start..target, every die within the part's limits, the setpoint at the target from then
-    on. None (the caller falls back to one overshoot) when no such profile exists within the
-    horizon or settles by `not_after_s` (the plan to beat), when no overshoot is allowed, when a reading is missing (nan), or when the
-    horizon is beyond MAX_PLAN_STEPS."""
+    on. None (the caller falls back to one overshoot) when no such profile settles within
+    the horizon or by `not_after_s` (the plan to beat), when no overshoot is allowed, when a
+    reading is missing (nan), or when the horizon is beyond MAX_PLAN_STEPS."""
     if not dies:
         raise ValueError("no dies to plan for")
     if limits.max_overshoot_c <= 0:
