@@ -16,7 +16,9 @@ Per load (one UUT cycle of 1, 4 or 8 sockets) with the chamber strategy `setpoin
                 dwells, + the verification dwells,
   ratio       = station / bound (bound*, ratio*: the die also within band / 2 of its
                 final reading from the window's end on, not merely creeping within the
-                criterion's slope limit).
+                criterion's slope limit; load, ratio: every part's die at once under the one
+                chamber they share, each with its own self-heating: no one setpoint profile
+                answers dies that heat differently as well as each alone).
 The bench runs in lockstep (station time is physics time) unless --speed asks for a scaled
 clock.
 
@@ -40,7 +42,7 @@ import yaml  # noqa: E402
 
 from procedures.analysis.allan import NoiseModel  # noqa: E402
 from procedures.analysis.bias import required_averaging_time_s  # noqa: E402
-from procedures.chamber_profile import settle_bound_s  # noqa: E402
+from procedures.chamber_profile import load_settle_bound_s, settle_bound_s  # noqa: E402
 from procedures.chamber_strategy import (  # noqa: E402
     Criterion,
     DieState,
@@ -96,9 +98,11 @@ def thermal_wait_s(record: RunRecord) -> float:
 
 
 def thermal_bound_s(
-    proc_path: Path, records: list[RunRecord], ambient_c: float = 25.0, near_final: bool = False
+    proc_path: Path, records: list[RunRecord], ambient_c: float = 25.0, near_final: bool = False,
+    load: bool = False,
 ) -> float:
-    """Sum over the conditions of the physics bound for the slowest part (see the module)."""
+    """Sum over the conditions of the physics bound for the slowest part (see the module);
+    with `load`, for every part at once under the one chamber they share."""
     proc, _ = load_procedure(proc_path)
     product, _ = load_product((proc_path.parent / str(proc.product)).resolve())
     thermal = proc.settings_of("thermal")
@@ -126,17 +130,26 @@ def thermal_bound_s(
         for r in records:
             stab = r.analysis["stability"][name]
             new_heat[r.dut.socket] = stab["die_temperature_c"] - target
-        # the part with the largest self-heating step governs (all share one chamber)
-        sock = max(new_heat, key=lambda s: abs(new_heat[s] - heat[s]))
-        die = DieState(
-            die_c=air_c + heat[sock], tau_s=tau_s, heat_c=heat[sock],
-            heat_final_c=new_heat[sock], heat_tau_s=product.self_heating_tau_s,
-        )
+        dies = {
+            s: DieState(
+                die_c=air_c + heat[s], tau_s=tau_s, heat_c=heat[s], heat_final_c=new_heat[s],
+                heat_tau_s=product.self_heating_tau_s,
+            )
+            for s in new_heat
+        }
         crit = Criterion(
             thermal.window_s, thermal.slope_c_per_min, thermal.band_c, target,
             thermal.target_tolerance_c,
         )
-        worst = settle_bound_s(model, limits, air_c, die, target, crit, near_final=near_final)
+        if load:
+            worst = load_settle_bound_s(
+                model, limits, air_c, list(dies.values()), target, crit, near_final=near_final
+            )
+        else:  # the part with the largest self-heating step governs
+            sock = max(new_heat, key=lambda s: abs(new_heat[s] - heat[s]))
+            worst = settle_bound_s(
+                model, limits, air_c, dies[sock], target, crit, near_final=near_final
+            )
         total += worst if math.isfinite(worst) else 0.0
         air_c, heat = target, new_heat
     return total
@@ -175,27 +188,34 @@ def main() -> int:
             floor = measurement_floor_s(proc_path, arw)
             bound = thermal_bound_s(proc_path, recs) + floor
             settled = thermal_bound_s(proc_path, recs, near_final=True) + floor
+            shared = thermal_bound_s(proc_path, recs, load=True) + floor
             verdicts = ",".join(str(r.verdict) for r in recs)
-            rows.append((strategy, n, total, thermal, bound, settled, floor, wall, cpu, verdicts))
+            rows.append(
+                (strategy, n, total, thermal, bound, settled, shared, floor, wall, cpu, verdicts)
+            )
             print(f"  ... {strategy}, {n} socket(s) done in {wall:.0f} s wall", flush=True)
     pace = "in lockstep" if args.speed is None else f"at {args.speed:g}x"
     print(f"\nprocedure {Path(args.procedure).name}, bench {pace}; times in station minutes")
     head = (
         f"{'strategy':>8} {'sockets':>7} {'station':>8} {'thermal':>8} {'measure':>8} "
         f"{'bound':>7} {'(therm':>7} {'+ meas)':>7} {'ratio':>6} {'bound*':>7} {'ratio*':>6} "
+        f"{'load':>6} {'ratio':>6} "
         f"{'per part':>8} {'wall s':>7} {'cpu s':>6}  verdicts"
     )
     print(head)
     print("-" * len(head))
-    for strategy, n, total, thermal, bound, settled, floor, wall, cpu, verdicts in rows:
+    for strategy, n, total, thermal, bound, settled, shared, floor, wall, cpu, verdicts in rows:
         print(
             f"{strategy:>8} {n:7d} {total / 60:8.1f} {thermal / 60:8.1f} "
             f"{(total - thermal) / 60:8.1f} {bound / 60:7.1f} {(bound - floor) / 60:7.1f} "
             f"{floor / 60:7.1f} {total / bound:6.2f} {settled / 60:7.1f} {total / settled:6.2f} "
+            f"{shared / 60:6.1f} {total / shared:6.2f} "
             f"{total / n / 60:8.2f} {wall:7.1f} {cpu:6.0f}  {verdicts}"
         )
     print("bound: the stability criterion met for good (the reading may creep at up to the")
-    print("slope limit); bound*: also within band/2 of its final value from then on")
+    print("slope limit); bound*: also within band/2 of its final value from then on;")
+    print("load: the bound for every part at once under the one chamber they share (the part")
+    print("with the largest self-heating step alone governs `bound`)")
     print("cpu s: the station's and the bench's CPU time (in lockstep the two take turns, so on")
     print("an idle machine the wall time is about the cpu time; on a loaded one it is longer)")
     print(f"run folders in {out}")

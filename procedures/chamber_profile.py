@@ -6,8 +6,9 @@ follows the air with its own lag, and a part's reading is its die plus its self-
 quantity is linear in the ramp rates, so "is there a profile after which every die meets the
 stability criterion from window end k on" is a linear feasibility problem.
 
-- `settle_bound_s`: the soonest k for one die with no overshoot bound (the physics bound the
-  cycle-time benchmark reports).
+- `settle_bound_s`: the soonest k for one die with no overshoot bound (a physics bound the
+  cycle-time benchmark reports); `load_settle_bound_s`: the same for every die of a load under
+  the one chamber they share.
 - `plan_lp_profile`: the soonest k for several dies at once, within the overshoot bound, with
   the setpoint back at the target by k (the measurement that follows must not see the chamber
   move) and a margin on the criterion (the model is learned, not known). No reading goes
@@ -273,10 +274,30 @@ def settle_bound_s(
     to the slope limit for good (a profile may hold the self-heating's rise off with the air,
     then creep); `near_final` also asks the reading to stay within band_c / 2 of its final
     value from the first window's end. inf: not within the horizon."""
+    return load_settle_bound_s(model, limits, air_c, [die], target_c, crit, horizon_s, near_final)
+
+
+def load_settle_bound_s(
+    model: ThermalModel,
+    limits: ThermalLimits,
+    air_c: float,
+    dies: list[DieState],
+    target_c: float,
+    crit: Criterion,
+    horizon_s: float | None = None,
+    near_final: bool = False,
+) -> float:
+    """`settle_bound_s` for a load: the soonest one profile (the parts share the chamber)
+    can make every one of `dies` meet the criterion for good. Never sooner than the bound of
+    any one of them; later when their self-heating or lags differ, as one setpoint cannot
+    answer each die at once."""
+    if not dies:
+        raise ValueError("no dies to bound")
     travel_s = abs(target_c - air_c) / model.ramp_c_per_min * 60.0
-    horizon = horizon_s or travel_s + 4.0 * die.tau_s + 4.0 * model.air_tau_s + crit.window_s
+    slowest_s = max(d.tau_s for d in dies)
+    horizon = horizon_s or travel_s + 4.0 * slowest_s + 4.0 * model.air_tau_s + crit.window_s
     p = _Problem(
-        model, air_c, air_c, (die,), target_c, crit, int(math.ceil(horizon / STEP_S)),
+        model, air_c, air_c, tuple(dies), target_c, crit, int(math.ceil(horizon / STEP_S)),
         (limits.setpoint_low_c, limits.setpoint_high_c), (limits.min_part_c, limits.max_part_c),
         near_final, back_at_target=False,
     )

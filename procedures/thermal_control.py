@@ -36,6 +36,41 @@ log = logging.getLogger(__name__)
 SETPOINT_RESOLUTION_C = 0.1  # the chamber's setpoint register holds tenths
 MIN_LEARN_C2 = 100.0  # sum of (air - die)^2 over the readings before a lag is learned
 TAU_RANGE = 3.0  # a learned lag stays within 1/3..3 times the product's value
+MIN_HEAT_STEP_C = 0.1  # a self-heating step smaller than this is not learned within a condition
+HEAT_PRIOR_WEIGHT = 3.0  # the predicted self-heating weighs as much as 3 settled readings
+C_PER_W_RANGE = 3.0  # a part's learned C/W stays within 1/3..3 times the product's value
+
+
+def die_lag_c(
+    time_s: np.ndarray, air_c: np.ndarray, start_c: float, tau_s: float
+) -> np.ndarray:
+    """The die (without its self-heating) lagging the air from `start_c`, at the readings'
+    times (the air linear between them)."""
+    die = np.empty_like(air_c)
+    die[0] = start_c
+    for i in range(1, time_s.size):
+        k = 1.0 - math.exp(-(time_s[i] - time_s[i - 1]) / tau_s)
+        die[i] = die[i - 1] + (0.5 * (air_c[i] + air_c[i - 1]) - die[i - 1]) * k
+    return die
+
+
+def learn_heat_final_c(
+    elapsed_s: np.ndarray, heat_c: np.ndarray, heat0_c: float, prior_c: float,
+    heat_tau_s: float, prior_weight: float = HEAT_PRIOR_WEIGHT,
+) -> float:
+    """The self-heating a part tends to, from its readings less its die's lag (`heat_c`):
+    least squares on heat = final + (heat0 - final) exp(-t / tau), pulled towards the
+    prediction `prior_c` with the weight of `prior_weight` readings; the prediction alone
+    while the heating has hardly moved. Kept within the step's size of the prediction."""
+    decay = np.exp(-np.asarray(elapsed_s) / heat_tau_s)
+    x = 1.0 - decay
+    y = np.asarray(heat_c) - heat0_c * decay
+    ok = np.isfinite(y)
+    learned = (float(x[ok] @ y[ok]) + prior_weight * prior_c) / (
+        float(x[ok] @ x[ok]) + prior_weight
+    )
+    step = max(abs(prior_c - heat0_c), MIN_HEAT_STEP_C)
+    return min(max(learned, prior_c - step), prior_c + step)
 
 
 class SetpointChamber(Protocol):
@@ -83,6 +118,37 @@ def heat_after_change(
     if power_old_w <= 0:
         return c_per_w * max(power_new_w, 0.0)
     return heat_now + c_per_w * (power_new_w - power_old_w)
+
+
+@dataclass
+class SelfHeating:
+    """One part's own self-heating, learned across the run's conditions from its sensor.
+
+    At the first condition (power-on) the part's excess over the air is its sensor's offset
+    and what it had heated so far (`excess_at_power_on_c`). At each later condition's start
+    the die has settled through the previous measurement, so the excess less that is the
+    heating at the power the part drew: its own C/W (per watt of the load's mean power per
+    part; a part drawing more current heats more per mean watt). The sensor's offset cancels.
+    """
+
+    excess_at_power_on_c: float | None = None
+    c_per_w: float | None = None  # learned; None until a condition has been measured powered
+
+    def observe(self, excess_c: float, power_w: float, product_c_per_w: float | None) -> None:
+        """The excess over the air at a condition's start, the power drawn before it."""
+        if not math.isfinite(excess_c):
+            return
+        if self.excess_at_power_on_c is None or power_w <= 0:
+            self.excess_at_power_on_c = excess_c
+            return
+        learned = (excess_c - self.excess_at_power_on_c) / power_w
+        if product_c_per_w is not None and product_c_per_w > 0:  # a sensor fault is not heating
+            low, high = product_c_per_w / C_PER_W_RANGE, product_c_per_w * C_PER_W_RANGE
+            learned = min(max(learned, low), high)
+        self.c_per_w = learned
+
+    def c_per_w_or(self, product_c_per_w: float | None) -> float | None:
+        return self.c_per_w if self.c_per_w is not None else product_c_per_w
 
 
 class FastestController:
@@ -178,7 +244,7 @@ class FastestController:
         return part.heat_final_c + (part.heat0_c - part.heat_final_c) * decay
 
     def _learn(self) -> None:
-        """Each die's lag from its own readings (the self-heating model taken out)."""
+        """Each part's self-heating to come, then its die's lag, from its own readings."""
         air_t = np.asarray(self.air_time_s)
         air = np.asarray(self.air_c)
         t0 = air_t[0]
@@ -186,6 +252,13 @@ class FastestController:
             t = np.asarray(part.time_s)
             if t.size < 3:
                 continue
+            if abs(part.heat_final_c - part.heat0_c) >= MIN_HEAT_STEP_C:
+                die = die_lag_c(t, np.interp(t, air_t, air), part.die0_c - part.heat0_c,
+                                part.tau_s)
+                part.heat_final_c = learn_heat_final_c(
+                    t - t0, np.asarray(part.reading_c) - die, part.heat0_c, part.heat_final_c,
+                    self.cfg.heat_tau_s,
+                )
             heat = np.array([self._heat_at(part, x - t0) for x in t])
             die = np.asarray(part.reading_c) - heat
             air_at = np.interp(t, air_t, air)

@@ -161,7 +161,9 @@ class Stabilise(StepType[ThermalSettings]):
         for part in alive:
             reading_c = latest_reading_c(part, ctx.clock.now_s())
             heat_now = heat_now_c(reading_c, air_c)
-            heat_final = heat_after_change(heat_now, power_old_w, power_w, c_per_w)
+            part.self_heating.observe(heat_now, power_old_w, c_per_w)
+            own_c_per_w = part.self_heating.c_per_w_or(c_per_w)
+            heat_final = heat_after_change(heat_now, power_old_w, power_w, own_c_per_w)
             start[part.socket] = (reading_c, heat_now, heat_final)
         self._control = FastestController(chamber, control_settings(ctx, self))
         try:
@@ -308,6 +310,7 @@ class Stabilise(StepType[ThermalSettings]):
             }
             if self._control is not None:
                 part.record.analysis["stability"][self.condition].update(
-                    self._control.summary(part.socket)
+                    self._control.summary(part.socket),
+                    self_heating_c_per_w=part.self_heating.c_per_w,
                 )
         ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")

@@ -19,6 +19,7 @@ from procedures.config import ChamberConfig
 from procedures.run_context import Aborted
 from procedures.steps.registry import Place
 from procedures.steps.thermal import Stabilise, ThermalSettings
+from procedures.thermal_control import SelfHeating, learn_heat_final_c
 
 SAMPLE_S = 0.5
 
@@ -40,6 +41,7 @@ class World:
         self.heat_c = [0.0] * len(die_taus_s)
         self.heat_c_per_w = heat_c_per_w
         self.power_w = 0.11
+        self.power_scale = [1.0] * len(die_taus_s)  # a part drawing more current heats more
         self.samples: list[list[tuple[float, float]]] = [[] for _ in die_taus_s]
         self.abort_at_s = math.inf
 
@@ -83,7 +85,7 @@ class World:
             self.air_c += (self.ramped_c - self.air_c) * (1 - math.exp(-h / 60.0))
             for i, tau in enumerate(self.taus):
                 self.die_c[i] += (self.air_c - self.die_c[i]) * (1 - math.exp(-h / tau))
-                target = self.heat_c_per_w * self.power_w
+                target = self.heat_c_per_w * self.power_w * self.power_scale[i]
                 self.heat_c[i] += (target - self.heat_c[i]) * (1 - math.exp(-h / 90.0))
             self.now_s += h
             for i in range(len(self.taus)):
@@ -110,7 +112,7 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
     clock = SimpleNamespace(now_s=lambda: world.now_s)
     parts = [
         SimpleNamespace(socket=i + 1, stream=Stream(world, i), conditions={},
-                        record=SimpleNamespace(analysis={}))
+                        record=SimpleNamespace(analysis={}), self_heating=SelfHeating())
         for i in range(len(world.taus))
     ]
 
@@ -118,9 +120,9 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
         world.power_w = volts * volts * 0.025 / 5.0
         world.advance(0.2)
 
-    def environment() -> tuple[float, float, float]:  # each part draws power_w
+    def environment() -> tuple[float, float, float]:  # each part draws power_w x its scale
         volts = math.sqrt(world.power_w * 5.0 / 0.025)
-        return world.air_c, volts, len(parts) * world.power_w / volts
+        return world.air_c, volts, sum(world.power_scale) * world.power_w / volts
 
     return SimpleNamespace(
         clock=clock,
@@ -257,3 +259,47 @@ def test_a_supply_change_settles_sooner_with_the_planned_profile() -> None:
     assert world.setpoint_c == 25.0
     assert s._control.summary(1)["plan"] == "profile"
     assert abs(world.reading(0) - (25.0 + world.heat_c[0])) < 0.2
+
+
+def test_each_part_learns_its_own_self_heating_from_its_rise_at_power_on() -> None:
+    """Parts drawing different currents heat differently; the supply tells only the load's
+    total. Each part's heating is learned from its own sensor: within the power-on condition
+    (the plan follows it) and, for the supply changes after it, as its own C/W."""
+    world = World([300.0, 300.0, 300.0])
+    world.power_scale = [0.8, 1.0, 1.25]
+    ctx = context(world, "fastest")
+    s = step(25.0, 4.75, None)  # the first condition: the parts were just powered
+    s.setup(ctx)
+    s.main(ctx)
+    mean_scale = sum(world.power_scale) / 3
+    learned = [p.self_heating for p in ctx.parts.alive()]
+    for i, part in enumerate(learned):
+        assert part.excess_at_power_on_c is not None and part.c_per_w is None  # not yet
+        assert abs(world.reading(i) - (25.0 + world.heat_c[i])) < 0.6
+    # the supply change: each part's excess over the air at its start gives its own C/W
+    world.advance(150.0)  # the measurements of the first condition
+    s2 = step(25.0, 5.25, Condition(25.0, 4.75))
+    s2.setup(ctx)
+    s2.main(ctx)
+    for i, part in enumerate(learned):
+        truth = 40.0 * world.power_scale[i] / mean_scale
+        assert part.c_per_w is not None and abs(part.c_per_w - truth) < 0.1 * truth
+        assert abs(world.reading(i) - (25.0 + world.heat_c[i])) < 0.6
+    assert learned[0].c_per_w < learned[1].c_per_w < learned[2].c_per_w
+
+
+def test_a_sensor_offset_is_not_taken_for_self_heating() -> None:
+    heating = SelfHeating()
+    heating.observe(1.5, 0.0, 40.0)  # just powered: the sensor reads 1.5 C over the air
+    heating.observe(1.5 + 40.0 * 0.1, 0.1, 40.0)  # settled at 0.1 W: 4 C of heating
+    assert heating.c_per_w == pytest.approx(40.0)
+    heating.observe(1.5 + 400.0 * 0.1, 0.1, 40.0)  # a faulty sensor: held to 3 x the product
+    assert heating.c_per_w == pytest.approx(120.0)
+
+
+def test_the_heating_to_come_is_learned_from_the_rise_and_held_at_the_prediction_early() -> None:
+    t = np.arange(0.0, 240.0, 5.0)
+    rise = 4.5 + (0.2 - 4.5) * np.exp(-t / 90.0)  # the part tends to 4.5 C, predicted 4.0
+    assert learn_heat_final_c(t, rise, 0.2, 4.0, 90.0) == pytest.approx(4.5, abs=0.1)
+    early = t < 10.0  # two readings: the rise has hardly begun, the prediction stands
+    assert learn_heat_final_c(t[early], rise[early], 0.2, 4.0, 90.0) == pytest.approx(4.0, abs=0.05)
