@@ -77,6 +77,19 @@ class _Rows:
             self.v.append(val)
         self.high.append(high)
 
+    def add_block(
+        self, cols: NDArray[np.int64], vals: NDArray[np.float64], high: NDArray[np.float64]
+    ) -> None:
+        """Rows given as arrays shaped (..., row, term) and (..., row), in C order; terms of
+        value 0 are padding."""
+        n_rows = high.size
+        row = len(self.high) + np.repeat(np.arange(n_rows), cols.shape[-1])
+        keep = vals.ravel() != 0.0
+        self.r.extend(row[keep].tolist())
+        self.c.extend(cols.ravel()[keep].tolist())
+        self.v.extend(vals.ravel()[keep].tolist())
+        self.high.extend(high.ravel().tolist())
+
     def matrix(self, n_var: int) -> coo_matrix:
         return coo_matrix((self.v, (self.r, self.c)), shape=(len(self.high), n_var))
 
@@ -149,34 +162,73 @@ def _dynamics(p: _Problem, lay: _Layout) -> tuple[coo_matrix, NDArray[np.float64
 
 
 def _windows(p: _Problem, lay: _Layout, end: int, margin: float, rows: _Rows) -> None:
-    """Every window ending at or after `end` meets the criterion (slope, band, tolerance)."""
+    """Every window ending at or after `end` meets the criterion (slope, band, tolerance).
+    Per die one block: for each window its rows in a fixed order (see `_window_rows`)."""
+    t = p.times()
+    for die, d0, hi0, lo0 in zip(p.dies, lay.d, lay.hi, lay.lo, strict=True):
+        cols, vals, high = _window_rows(p, die, d0, hi0, lo0, end, margin, t)
+        rows.add_block(cols, vals, high)
+
+
+def _window_rows(
+    p: _Problem, die: DieState, d0: int, hi0: int, lo0: int, end: int, margin: float,
+    t: NDArray[np.float64],
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """One die's window rows as (columns, values, right-hand sides), shaped (window, row,
+    term) with unused terms 0: the slope's two sides, each sample within the window's maximum
+    and minimum, the band, the mean's tolerance (when the criterion has one), the reading
+    near its final value (when the plan asks it)."""
     m, crit = p.m, p.crit
     x = np.arange(m + 1) - m / 2.0
     w = x / float(x @ x) / STEP_S * 60.0
-    t = p.times()
-    for die, d0, hi0, lo0 in zip(p.dies, lay.d, lay.hi, lay.lo, strict=True):
-        heat = die.heat_at(t)
+    heat = die.heat_at(t)
+    ks = np.arange(end, p.n + 1)
+    idx = ks[:, None] + np.arange(-m, 1)[None, :]  # (window, m + 1) sample indices
+    win_heat = heat[idx]
+    j = np.arange(ks.size)
+    n_win, k1 = ks.size, m + 1
+    blocks_c: list[NDArray[np.int64]] = []
+    blocks_v: list[NDArray[np.float64]] = []
+    blocks_h: list[NDArray[np.float64]] = []
+
+    def block(cols: NDArray[np.int64], vals: NDArray[np.float64], high: NDArray[np.float64]
+              ) -> None:  # (window, row, term) padded to m + 1 terms
+        pad = k1 - cols.shape[-1]
+        blocks_c.append(np.pad(cols, ((0, 0), (0, 0), (0, pad))))
+        blocks_v.append(np.pad(vals, ((0, 0), (0, 0), (0, pad))))
+        blocks_h.append(high)
+
+    s0 = win_heat @ w
+    slope_c = np.stack([d0 + idx, d0 + idx], axis=1)
+    slope_v = np.stack([np.broadcast_to(w, idx.shape), -np.broadcast_to(w, idx.shape)], axis=1)
+    block(slope_c, slope_v, np.stack([margin * crit.slope_c_per_min - s0,
+                                      margin * crit.slope_c_per_min + s0], axis=1))
+    # each sample: d - hi <= -heat, lo - d <= heat (alternating, sample by sample)
+    hi_j, lo_j = np.broadcast_to((hi0 + j)[:, None], idx.shape), np.broadcast_to(
+        (lo0 + j)[:, None], idx.shape)
+    env_c = np.stack([np.stack([d0 + idx, hi_j], -1), np.stack([lo_j, d0 + idx], -1)], axis=2)
+    env_v = np.broadcast_to(np.array([[1.0, -1.0], [1.0, -1.0]]), env_c.shape)
+    env_h = np.stack([-win_heat, win_heat], axis=2)
+    block(env_c.reshape(n_win, 2 * k1, 2), np.array(env_v).reshape(n_win, 2 * k1, 2),
+          env_h.reshape(n_win, 2 * k1))
+    band_c = np.stack([hi0 + j, lo0 + j], axis=-1)[:, None, :]
+    block(band_c, np.broadcast_to(np.array([1.0, -1.0]), band_c.shape).copy(),
+          np.full((n_win, 1), margin * crit.band_c))
+    if crit.target_c is not None and crit.tolerance_c is not None:
+        mean_heat = win_heat.mean(axis=1)
+        avg = np.full(idx.shape, 1.0 / k1)
+        block(np.stack([d0 + idx, d0 + idx], axis=1), np.stack([avg, -avg], axis=1),
+              np.stack([crit.target_c + margin * crit.tolerance_c - mean_heat,
+                        -(crit.target_c - margin * crit.tolerance_c - mean_heat)], axis=1))
+    near = _near_final_c(p, die)
+    if near is not None:
         final = die.final_c(p.target_c)
-        for j, k in enumerate(range(end, p.n + 1)):
-            cols = range(k - m, k + 1)
-            s0 = float(w @ heat[k - m : k + 1])
-            terms = [(d0 + c, float(wc)) for c, wc in zip(cols, w, strict=True)]
-            rows.add(terms, margin * crit.slope_c_per_min - s0)
-            rows.add([(c, -v) for c, v in terms], margin * crit.slope_c_per_min + s0)
-            for c in cols:
-                rows.add([(d0 + c, 1.0), (hi0 + j, -1.0)], -heat[c])
-                rows.add([(lo0 + j, 1.0), (d0 + c, -1.0)], heat[c])
-            rows.add([(hi0 + j, 1.0), (lo0 + j, -1.0)], margin * crit.band_c)
-            if crit.target_c is not None and crit.tolerance_c is not None:
-                mean_heat = float(np.mean(heat[k - m : k + 1]))
-                avg = [(d0 + c, 1.0 / (m + 1)) for c in cols]
-                rows.add(avg, crit.target_c + margin * crit.tolerance_c - mean_heat)
-                rows.add([(c, -v) for c, v in avg],
-                         -(crit.target_c - margin * crit.tolerance_c - mean_heat))
-            near = _near_final_c(p, die)
-            if near is not None:
-                rows.add([(d0 + k, 1.0)], final + near - heat[k])
-                rows.add([(d0 + k, -1.0)], -(final - near - heat[k]))
+        near_c = np.stack([d0 + ks, d0 + ks], axis=1)[:, :, None]
+        near_v = np.broadcast_to(np.array([1.0, -1.0])[None, :, None], near_c.shape).copy()
+        block(near_c, near_v, np.stack([final + near - heat[ks], -(final - near - heat[ks])],
+                                       axis=1))
+    return (np.concatenate(blocks_c, axis=1), np.concatenate(blocks_v, axis=1),
+            np.concatenate(blocks_h, axis=1))
 
 
 def _near_final_c(p: _Problem, die: DieState) -> float | None:
@@ -240,17 +292,38 @@ def _solve(
     return np.asarray(res.x) if res.status == 0 else None
 
 
-def _soonest_end(p: _Problem, margin: float, latest: int | None = None) -> int | None:
+def _soonest_end(
+    p: _Problem, margin: float, latest: int | None = None, hint: int | None = None
+) -> int | None:
     """The first window-end index from which the LP is feasible (bisection), or None; with
-    `latest`, None also when it is not feasible by then (one solve when it is not)."""
+    `latest`, None also when it is not feasible by then (one solve when it is not). `hint`
+    (the last plan's index, moved on by the time since) is tried first, and its neighbour:
+    a replan that confirms it takes two solves. Feasibility only grows with the index, so the
+    answer is the bisection's."""
     low, high = p.m, p.n - 1 if latest is None else max(min(latest, p.n - 1), p.m)
-    if _solve(p, high, margin, False) is None:
-        return None
-    if _solve(p, low, margin, False) is not None:
-        return low
+
+    def feasible(end: int) -> bool:
+        return _solve(p, end, margin, False) is not None
+
+    if hint is not None and low < hint <= high:
+        if feasible(hint):
+            if not feasible(hint - 1):
+                return hint
+            high = hint - 1  # feasible
+            if high == low or feasible(low):
+                return low
+        else:
+            low = hint  # not feasible
+            if low == high or not feasible(high):
+                return None
+    else:
+        if not feasible(high):
+            return None
+        if feasible(low):
+            return low
     while high - low > 1:
         mid = (low + high) // 2
-        if _solve(p, mid, margin, False) is not None:
+        if feasible(mid):
             high = mid
         else:
             low = mid
@@ -333,13 +406,15 @@ def plan_lp_profile(
     crit: Criterion,
     margin: float = PLAN_MARGIN,
     not_after_s: float | None = None,
+    hint_s: float | None = None,
 ) -> ProfilePlan | None:
     """The profile after which the slowest of `dies` meets the criterion (tightened by
     `margin`) soonest, the setpoint within the chamber's limits and the overshoot bound of
     start..target, every die within the part's limits, the setpoint at the target from then
     on. None (the caller falls back to one overshoot) when no such profile settles within
     the horizon or by `not_after_s` (the plan to beat), when no overshoot is allowed, when a
-    reading is missing (nan), or when the horizon is beyond MAX_PLAN_STEPS."""
+    reading is missing (nan), or when the horizon is beyond MAX_PLAN_STEPS. `hint_s`, the
+    last plan's settle time from now, is where the search starts (the same plan, sooner)."""
     if not dies:
         raise ValueError("no dies to plan for")
     if limits.max_overshoot_c <= 0:
@@ -371,7 +446,8 @@ def plan_lp_profile(
     latest = None
     if not_after_s is not None and math.isfinite(not_after_s):
         latest = int(not_after_s // STEP_S)
-    end = _soonest_end(p, margin, latest)
+    hint = None if hint_s is None or not math.isfinite(hint_s) else int(round(hint_s / STEP_S))
+    end = _soonest_end(p, margin, latest, hint)
     x = None if end is None else _solve(p, end, margin, objective=True)
     if end is None or x is None:
         return None

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.signal import lfilter
 
 STEP_S = 5.0  # model time step: the air and die time constants are a minute and more
@@ -257,7 +258,12 @@ def settled_from_s(
     win = np.lib.stride_tricks.sliding_window_view(y, m + 1, axis=-1)
     x = np.arange(m + 1) - m / 2.0
     slope = win @ (x / float(x @ x)) / STEP_S * 60.0
-    ok = (np.abs(slope) <= crit.slope_c_per_min) & (np.ptp(win, axis=-1) <= crit.band_c)
+    # each window's peak-to-peak from running extremes (a window starts `half` before the
+    # filter's centre): the same as np.ptp over the windows, without the m-fold copy
+    half, n_win = (m + 1) // 2, y.shape[-1] - m
+    top = maximum_filter1d(y, m + 1, axis=-1)[..., half : half + n_win]
+    bottom = minimum_filter1d(y, m + 1, axis=-1)[..., half : half + n_win]
+    ok = (np.abs(slope) <= crit.slope_c_per_min) & (top - bottom <= crit.band_c)
     if crit.target_c is not None and crit.tolerance_c is not None:
         ok &= np.abs(win.mean(axis=-1) - crit.target_c) <= crit.tolerance_c
     ends = t[m:]

@@ -287,8 +287,12 @@ class FastestController:
             self.cfg.criterion,
         )
         overshoot = plan_profile(*args)
-        # the shaped profile, planned with a margin (the model is learned), where it is sooner
-        profile = plan_lp_profile(*args, not_after_s=overshoot.settle_s)
+        # the shaped profile, planned with a margin (the model is learned), where it is sooner;
+        # the search starts where the last shaped plan would settle
+        hint_s = None
+        if isinstance(self.plan, ProfilePlan):
+            hint_s = self.plan.settle_s - (now_s - self.plan_at_s)
+        profile = plan_lp_profile(*args, not_after_s=overshoot.settle_s, hint_s=hint_s)
         self.plan = profile or overshoot
         self.plan_at_s = now_s
         self.replans += 1

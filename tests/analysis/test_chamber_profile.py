@@ -123,3 +123,31 @@ def test_no_profile_without_a_reading() -> None:
     silent = [DieState(math.nan, 300.0, 0.0, 2.0), DieState(25.0, 300.0, math.nan, 2.0)]
     for die in silent:
         assert plan_lp_profile(BENCH, LIMITS, 25.0, 25.0, [die], 25.0, CRIT) is None
+
+
+def test_a_replan_searching_from_the_last_plan_finds_the_bisections_answer(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The hint (where the last plan would settle) changes how many solves, never the plan;
+    a hint the replan confirms takes two."""
+    import procedures.chamber_profile as cp
+
+    air, dies, target = CASES["supply up"]
+    base = plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT)
+    assert base is not None
+    solves = []
+    real = cp._solve
+    monkeypatch.setattr(cp, "_solve", lambda *a, **k: solves.append(1) or real(*a, **k))
+    for hint in (0.0, base.settle_s - 30.0, base.settle_s, base.settle_s + 30.0, 5000.0):
+        for not_after in (None, base.settle_s - STEP_S, base.settle_s + 60.0):
+            plain = plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT,
+                                    not_after_s=not_after)
+            solves.clear()
+            hinted = plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT,
+                                     not_after_s=not_after, hint_s=hint)
+            assert (plain is None) == (hinted is None)
+            if plain is not None and hinted is not None:
+                assert hinted.settle_s == plain.settle_s
+                assert hinted.ramped_c == pytest.approx(plain.ramped_c, abs=1e-6)
+                if hint == base.settle_s:
+                    assert len(solves) == 3  # the hint, its neighbour, then the objective

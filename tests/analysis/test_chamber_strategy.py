@@ -149,3 +149,28 @@ def test_no_profile_settles_sooner_than_the_bound() -> None:
     heat_straight = plan_profile(BENCH, ThermalLimits(max_overshoot_c=0.0), 25.0, 25.0, [heat],
                                  25.0, CRIT)
     assert 0.0 < heat_bound < heat_straight.settle_s
+
+
+def test_the_running_extremes_judge_windows_as_the_windows_themselves_would() -> None:
+    """settled_from_s takes each window's peak-to-peak from running extremes: the same
+    verdicts as the windows' own max - min, for odd and even window lengths."""
+    from procedures.chamber_strategy import STEP_S, settled_from_s
+
+    rng = np.random.default_rng(0)
+    t = np.arange(200) * STEP_S
+    for window_s in (10.0, 55.0, 60.0):
+        crit = Criterion(window_s, 0.1, 0.2, 45.0, 0.5)
+        m = max(int(round(window_s / STEP_S)), 2)
+        for _ in range(20):
+            y = 45.0 + np.cumsum(rng.normal(0, 0.02, (5, t.size)), axis=1)
+            win = np.lib.stride_tricks.sliding_window_view(y, m + 1, axis=-1)
+            x = np.arange(m + 1) - m / 2.0
+            slope = win @ (x / float(x @ x)) / STEP_S * 60.0
+            ok = (np.abs(slope) <= 0.1) & (np.ptp(win, axis=-1) <= 0.2)
+            ok &= np.abs(win.mean(axis=-1) - 45.0) <= 0.5
+            bad = ~ok
+            last = bad.shape[-1] - 1 - np.argmax(bad[:, ::-1], axis=-1)
+            ends = t[m:]
+            after = np.append(ends, np.inf)[np.minimum(last + 1, ends.size)]
+            expected = np.where(bad.any(axis=-1), after, ends[0])
+            assert np.array_equal(settled_from_s(t, y, crit), expected)
