@@ -23,6 +23,7 @@ stability criterion from window end k on" is a linear feasibility problem.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -295,39 +296,54 @@ def _solve(
 def _soonest_end(
     p: _Problem, margin: float, latest: int | None = None, hint: int | None = None
 ) -> int | None:
-    """The first window-end index from which the LP is feasible (bisection), or None; with
-    `latest`, None also when it is not feasible by then (one solve when it is not). `hint`
-    (the last plan's index, moved on by the time since) is tried first, and its neighbour:
-    a replan that confirms it takes two solves. Feasibility only grows with the index, so the
-    answer is the bisection's."""
+    """The first window-end index from which the LP is feasible, or None; with `latest`,
+    None also when it is not feasible by then (one solve when it is not). Feasibility only
+    grows with the index: a bisection, or with `hint` (the last plan's index, moved on by the
+    time since) a search outwards from it in doubling steps, then a bisection: the same
+    answer, and two solves when a replan confirms the last plan."""
     low, high = p.m, p.n - 1 if latest is None else max(min(latest, p.n - 1), p.m)
 
     def feasible(end: int) -> bool:
         return _solve(p, end, margin, False) is not None
 
     if hint is not None and low < hint <= high:
-        if feasible(hint):
-            if not feasible(hint - 1):
-                return hint
-            high = hint - 1  # feasible
-            if high == low or feasible(low):
-                return low
-        else:
-            low = hint  # not feasible
-            if low == high or not feasible(high):
-                return None
+        low, high = _bracket(feasible, hint, low, high)
+        if high < 0:
+            return None
     else:
         if not feasible(high):
             return None
         if feasible(low):
             return low
-    while high - low > 1:
+    while high - low > 1:  # low not feasible, high feasible
         mid = (low + high) // 2
         if feasible(mid):
             high = mid
         else:
             low = mid
     return high
+
+
+def _bracket(feasible: Callable[[int], bool], hint: int, low: int, high: int) -> tuple[int, int]:
+    """(not feasible, feasible) indices around the answer, searched outwards from `hint` in
+    doubling steps within low..high; (low - 1, low) when `low` itself is feasible, (_, -1)
+    when not even `high` is."""
+    step = 1
+    if feasible(hint):
+        good = hint
+        while good > low:
+            probe = max(good - step, low)
+            if not feasible(probe):
+                return probe, good
+            good, step = probe, step * 2
+        return low - 1, low
+    bad = hint
+    while bad < high:
+        probe = min(bad + step, high)
+        if feasible(probe):
+            return bad, probe
+        bad, step = probe, step * 2
+    return bad, -1
 
 
 def settle_bound_s(

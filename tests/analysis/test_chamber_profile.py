@@ -138,7 +138,8 @@ def test_a_replan_searching_from_the_last_plan_finds_the_bisections_answer(
     solves = []
     real = cp._solve
     monkeypatch.setattr(cp, "_solve", lambda *a, **k: solves.append(1) or real(*a, **k))
-    for hint in (0.0, base.settle_s - 30.0, base.settle_s, base.settle_s + 30.0, 5000.0):
+    for hint in (0.0, base.settle_s - 30.0, base.settle_s - STEP_S, base.settle_s,
+                 base.settle_s + STEP_S, base.settle_s + 30.0, 5000.0):
         for not_after in (None, base.settle_s - STEP_S, base.settle_s + 60.0):
             plain = plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT,
                                     not_after_s=not_after)
