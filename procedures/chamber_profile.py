@@ -22,6 +22,7 @@ stability criterion from window end k on" is a linear feasibility problem.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,8 +39,13 @@ from procedures.chamber_strategy import (
     ThermalModel,
 )
 
+log = logging.getLogger(__name__)
+
 STEP_S = 10.0  # the grid: the ramp rate is constant over a step
 MAX_PLAN_STEPS = 480  # 80 min of horizon: the linear programme's size (and time) grows with it
+SOLVERS = ("highs", "highs-ipm")  # HiGHS's simplex, then its interior point where it stalls
+SOLVE_TIME_LIMIT_S = 5.0  # the simplex can stall on a degenerate programme: then the next
+UNDECIDED = (1, 4)  # linprog's status: iteration or time limit reached; numerical trouble
 PLAN_MARGIN = 0.85  # the plan meets slope and band limits this much tighter than the step judges
 
 
@@ -286,11 +292,17 @@ def _solve(
             ub.add([(lay.r + i, 1.0), (lay.e + i, -1.0)], p.target_c)
             ub.add([(lay.r + i, -1.0), (lay.e + i, -1.0)], -p.target_c)
         cost[lay.e : lay.e + p.n + 1] = 1.0
-    res = linprog(
-        cost, A_ub=ub.matrix(lay.n_var).tocsr(), b_ub=np.asarray(ub.high),
-        A_eq=a_eq.tocsr(), b_eq=b_eq, bounds=_bounds(p, lay, end), method="highs",
-    )
-    return np.asarray(res.x) if res.status == 0 else None
+    problem = {
+        "c": cost, "A_ub": ub.matrix(lay.n_var).tocsr(), "b_ub": np.asarray(ub.high),
+        "A_eq": a_eq.tocsr(), "b_eq": b_eq, "bounds": _bounds(p, lay, end),
+    }
+    for method in SOLVERS:
+        res = linprog(**problem, method=method, options={"time_limit": SOLVE_TIME_LIMIT_S})
+        if res.status not in UNDECIDED:
+            return np.asarray(res.x) if res.status == 0 else None
+    log.warning("chamber profile: no solver decided the linear programme (%s): taken as "
+                "infeasible", res.message)
+    return None
 
 
 def _soonest_end(

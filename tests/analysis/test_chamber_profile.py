@@ -4,6 +4,7 @@ than the overshoot family, never sooner than the physics bound."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -152,3 +153,36 @@ def test_a_replan_searching_from_the_last_plan_finds_the_bisections_answer(
                 assert hinted.ramped_c == pytest.approx(plain.ramped_c, abs=1e-6)
                 if hint == base.settle_s:
                     assert len(solves) == 3  # the hint, its neighbour, then the objective
+
+
+def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_feasible(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
+) -> None:
+    """HiGHS's simplex can stall on a degenerate programme (seen on a load's bound): the
+    solve is time-limited and the interior point method decides; when neither does, the
+    programme counts as infeasible (the station falls back), with a warning."""
+    from scipy.optimize import OptimizeResult
+
+    import procedures.chamber_profile as cp
+
+    air, dies, target = CASES["supply up"]
+    expected = settle_bound_s(BENCH, LIMITS, air, dies[0], target, CRIT)
+    real = cp.linprog
+    methods: list[str] = []
+
+    def stalling(*a: Any, method: str, options: dict[str, float], **k: Any) -> Any:
+        methods.append(method)
+        assert options["time_limit"] == cp.SOLVE_TIME_LIMIT_S
+        if method == "highs":
+            return OptimizeResult(status=1, x=None, message="Time limit reached")
+        return real(*a, method=method, options=options, **k)
+
+    monkeypatch.setattr(cp, "linprog", stalling)
+    assert settle_bound_s(BENCH, LIMITS, air, dies[0], target, CRIT) == expected
+    assert "highs-ipm" in methods
+
+    monkeypatch.setattr(cp, "linprog", lambda *a, **k: OptimizeResult(
+        status=1, x=None, message="Time limit reached"))
+    with caplog.at_level("WARNING", logger="procedures.chamber_profile"):
+        assert plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT) is None
+    assert "no solver decided" in caplog.text
