@@ -19,7 +19,7 @@ from drivers.protocols import Chamber, PartLink, RateTable, Supply
 from procedures.rawdata import RawDataWriter
 from procedures.record import ConditionRecord, RunRecord, Verdict
 from procedures.streams import PartStream
-from procedures.thermal_control import SelfHeating
+from procedures.thermal_control import PartThermal
 
 log = logging.getLogger(__name__)
 
@@ -125,8 +125,8 @@ class PartRun:
     rows: RowBuffer = field(default_factory=lambda: RowBuffer(None))
     # set when the part failed a limit: what it failed (it is then never programmed)
     failed_limits: list[str] = field(default_factory=list)
-    # its own self-heating, learned by the `fastest` thermal strategy from its sensor
-    self_heating: SelfHeating = field(default_factory=SelfHeating)
+    # what the `fastest` thermal strategy learned of it from its own sensor, condition to condition
+    thermal: PartThermal = field(default_factory=PartThermal)
 
     def __post_init__(self) -> None:
         self.rows = RowBuffer(self.writer)

@@ -100,11 +100,11 @@ class _Part:
     reading_c: list[float] = field(default_factory=list)
 
 
-def heat_now_c(reading_c: float, air_c: float) -> float:
-    """The self-heating in a part's reading at a condition's start: its excess over the air.
-    The die has settled to the air through the previous condition's measurement, so the
-    excess is the heating (and any constant offset of the part's sensor, which stays)."""
-    return reading_c - air_c
+def heat_now_c(reading_c: float, die_c: float) -> float:
+    """The self-heating in a part's reading at a condition's start: its excess over its die
+    (the air, or where the die was at the last condition's end gone on towards the air:
+    `PartThermal.die_now_c`), with any constant offset of the part's sensor, which stays."""
+    return reading_c - die_c
 
 
 def heat_after_change(
@@ -121,21 +121,40 @@ def heat_after_change(
 
 
 @dataclass
-class SelfHeating:
-    """One part's own self-heating, learned across the run's conditions from its sensor.
+class PartThermal:
+    """What the `fastest` strategy learned of one part from its own sensor, carried from
+    condition to condition.
 
-    At the first condition (power-on) the part's excess over the air is its sensor's offset
-    and what it had heated so far (`excess_at_power_on_c`). At each later condition's start
-    the die has settled through the previous measurement, so the excess less that is the
-    heating at the power the part drew: its own C/W (per watt of the load's mean power per
-    part; a part drawing more current heats more per mean watt). The sensor's offset cancels.
+    - Its die without the self-heating (`die_lag_c` at station time `die_lag_at_s`, lag
+      `tau_s`) at the end of a condition's wait: through the measurement that follows, the air
+      holds at the target and the die goes on towards it, so the next condition starts from
+      where the die really is (a die judged stable may still creep), not from the air.
+    - Its own C/W: at the first condition (power-on) the part's excess over its die is its
+      sensor's offset and what it had heated so far (`excess_at_power_on_c`); at each later
+      condition's start the excess less that is its heating at the power it drew, per watt of
+      the load's mean power per part (a part drawing more current heats more per mean watt).
+      The sensor's offset cancels.
     """
 
     excess_at_power_on_c: float | None = None
     c_per_w: float | None = None  # learned; None until a condition has been measured powered
+    die_lag_c: float | None = None
+    die_lag_at_s: float = 0.0
+    tau_s: float = 0.0
+
+    def die_now_c(self, now_s: float, air_c: float) -> float:
+        """The die (without self-heating) now: where it was, gone on towards the air."""
+        if self.die_lag_c is None or not self.tau_s > 0 or not math.isfinite(self.die_lag_c):
+            return air_c
+        decay = math.exp(-max(now_s - self.die_lag_at_s, 0.0) / self.tau_s)
+        return air_c + (self.die_lag_c - air_c) * decay
+
+    def remember_die(self, die_lag_c: float | None, at_s: float, tau_s: float) -> None:
+        if die_lag_c is not None and math.isfinite(die_lag_c):
+            self.die_lag_c, self.die_lag_at_s, self.tau_s = die_lag_c, at_s, tau_s
 
     def observe(self, excess_c: float, power_w: float, product_c_per_w: float | None) -> None:
-        """The excess over the air at a condition's start, the power drawn before it."""
+        """The excess over the die at a condition's start, the power drawn before it."""
         if not math.isfinite(excess_c):
             return
         if self.excess_at_power_on_c is None or power_w <= 0:
@@ -205,6 +224,21 @@ class FastestController:
         if self.commanded_c is None or abs(self.commanded_c - self.cfg.target_c) > 1e-9:
             self.chamber.set_setpoint(self.cfg.target_c)
             self.commanded_c = self.cfg.target_c
+
+    def die_lag_now(self, socket: int) -> tuple[float, float] | None:
+        """A part's die without its self-heating at its last reading, and that reading's
+        time: its lag (learned) behind the air the chamber gave it (None: no readings)."""
+        part = self.parts.get(socket)
+        if part is None or len(part.time_s) < 2:
+            return None
+        t = np.asarray(part.time_s)
+        air = np.interp(t, np.asarray(self.air_time_s), np.asarray(self.air_c))
+        die = die_lag_c(t, air, part.die0_c - part.heat0_c, part.tau_s)
+        return float(die[-1]), float(t[-1])
+
+    def tau_of(self, socket: int) -> float:
+        part = self.parts.get(socket)
+        return part.tau_s if part else self.cfg.die_tau_prior_s
 
     def summary(self, socket: int) -> dict[str, Any]:
         """What the record keeps of the strategy for one part."""

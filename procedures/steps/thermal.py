@@ -160,9 +160,10 @@ class Stabilise(StepType[ThermalSettings]):
         start: dict[int, tuple[float, float, float]] = {}
         for part in alive:
             reading_c = latest_reading_c(part, ctx.clock.now_s())
-            heat_now = heat_now_c(reading_c, air_c)
-            part.self_heating.observe(heat_now, power_old_w, c_per_w)
-            own_c_per_w = part.self_heating.c_per_w_or(c_per_w)
+            die_c = part.thermal.die_now_c(ctx.wait.clock.now_s(), air_c)
+            heat_now = heat_now_c(reading_c, die_c)
+            part.thermal.observe(heat_now, power_old_w, c_per_w)
+            own_c_per_w = part.thermal.c_per_w_or(c_per_w)
             heat_final = heat_after_change(heat_now, power_old_w, power_w, own_c_per_w)
             start[part.socket] = (reading_c, heat_now, heat_final)
         self._control = FastestController(chamber, control_settings(ctx, self))
@@ -181,6 +182,15 @@ class Stabilise(StepType[ThermalSettings]):
                 temperature_c=self.target.temperature_c,
                 supply_v=self.target.supply_v,
             )
+
+    def _remember_dies(self, ctx: RunContext) -> None:
+        """Each part's die as the controller estimates it now: the next condition starts
+        from it (procedures.thermal_control.PartThermal)."""
+        assert self._control is not None
+        for part in ctx.parts.alive():
+            state = self._control.die_lag_now(part.socket)
+            if state is not None:
+                part.thermal.remember_die(state[0], state[1], self._control.tau_of(part.socket))
 
     def _tick(self, ctx: RunContext, air_c: float) -> None:
         if self._control is None:
@@ -274,6 +284,7 @@ class Stabilise(StepType[ThermalSettings]):
                 break
         if self._control is not None:
             self._control.finish()  # measure at the target, never at an overshoot
+            self._remember_dies(ctx)
         end = ctx.wait.clock.now_s()
         for part in ctx.parts.alive():
             v = verdicts[part.socket]
@@ -311,6 +322,6 @@ class Stabilise(StepType[ThermalSettings]):
             if self._control is not None:
                 part.record.analysis["stability"][self.condition].update(
                     self._control.summary(part.socket),
-                    self_heating_c_per_w=part.self_heating.c_per_w,
+                    self_heating_c_per_w=part.thermal.c_per_w,
                 )
         ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")

@@ -19,7 +19,7 @@ from procedures.config import ChamberConfig
 from procedures.run_context import Aborted
 from procedures.steps.registry import Place
 from procedures.steps.thermal import Stabilise, ThermalSettings
-from procedures.thermal_control import SelfHeating, learn_heat_final_c
+from procedures.thermal_control import PartThermal, learn_heat_final_c
 
 SAMPLE_S = 0.5
 
@@ -112,7 +112,7 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
     clock = SimpleNamespace(now_s=lambda: world.now_s)
     parts = [
         SimpleNamespace(socket=i + 1, stream=Stream(world, i), conditions={},
-                        record=SimpleNamespace(analysis={}), self_heating=SelfHeating())
+                        record=SimpleNamespace(analysis={}), thermal=PartThermal())
         for i in range(len(world.taus))
     ]
 
@@ -272,7 +272,7 @@ def test_each_part_learns_its_own_self_heating_from_its_rise_at_power_on() -> No
     s.setup(ctx)
     s.main(ctx)
     mean_scale = sum(world.power_scale) / 3
-    learned = [p.self_heating for p in ctx.parts.alive()]
+    learned = [p.thermal for p in ctx.parts.alive()]
     for i, part in enumerate(learned):
         assert part.excess_at_power_on_c is not None and part.c_per_w is None  # not yet
         assert abs(world.reading(i) - (25.0 + world.heat_c[i])) < 0.6
@@ -289,7 +289,7 @@ def test_each_part_learns_its_own_self_heating_from_its_rise_at_power_on() -> No
 
 
 def test_a_sensor_offset_is_not_taken_for_self_heating() -> None:
-    heating = SelfHeating()
+    heating = PartThermal()
     heating.observe(1.5, 0.0, 40.0)  # just powered: the sensor reads 1.5 C over the air
     heating.observe(1.5 + 40.0 * 0.1, 0.1, 40.0)  # settled at 0.1 W: 4 C of heating
     assert heating.c_per_w == pytest.approx(40.0)
@@ -303,3 +303,16 @@ def test_the_heating_to_come_is_learned_from_the_rise_and_held_at_the_prediction
     assert learn_heat_final_c(t, rise, 0.2, 4.0, 90.0) == pytest.approx(4.5, abs=0.1)
     early = t < 10.0  # two readings: the rise has hardly begun, the prediction stands
     assert learn_heat_final_c(t[early], rise[early], 0.2, 4.0, 90.0) == pytest.approx(4.0, abs=0.05)
+
+
+def test_a_condition_starts_from_where_the_die_was_not_from_the_air() -> None:
+    """A die judged stable may still creep: the next condition's start takes the die from
+    the last condition's estimate, gone on towards the air, so the creep is not taken for
+    self-heating."""
+    thermal = PartThermal()
+    assert thermal.die_now_c(100.0, 45.0) == 45.0  # nothing known: the air
+    thermal.remember_die(44.7, at_s=100.0, tau_s=300.0)
+    assert thermal.die_now_c(100.0, 45.0) == pytest.approx(44.7)
+    assert thermal.die_now_c(400.0, 45.0) == pytest.approx(45.0 - 0.3 * math.exp(-1.0))
+    thermal.remember_die(float("nan"), at_s=500.0, tau_s=300.0)  # no reading: kept
+    assert thermal.die_lag_at_s == 100.0
