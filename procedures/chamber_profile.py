@@ -306,17 +306,23 @@ def _solve(
 
 
 def _soonest_end(
-    p: _Problem, margin: float, latest: int | None = None, hint: int | None = None
+    p: _Problem, margin: float, latest: int | None = None, hint: int | None = None,
+    solutions: dict[int, NDArray[np.float64]] | None = None,
 ) -> int | None:
     """The first window-end index from which the LP is feasible, or None; with `latest`,
     None also when it is not feasible by then (one solve when it is not). Feasibility only
     grows with the index: a bisection, or with `hint` (the last plan's index, moved on by the
     time since) a search outwards from it in doubling steps, then a bisection: the same
-    answer, and two solves when a replan confirms the last plan."""
+    answer, and two solves when a replan confirms the last plan. With `solutions`, each
+    solve also minimises the objective and keeps its solution there (the plan is then
+    solved already)."""
     low, high = p.m, p.n - 1 if latest is None else max(min(latest, p.n - 1), p.m)
 
     def feasible(end: int) -> bool:
-        return _solve(p, end, margin, False) is not None
+        x = _solve(p, end, margin, solutions is not None)
+        if x is not None and solutions is not None:
+            solutions[end] = x
+        return x is not None
 
     if hint is not None and low < hint <= high:
         low, high = _bracket(feasible, hint, low, high)
@@ -475,10 +481,11 @@ def plan_lp_profile(
     if not_after_s is not None and math.isfinite(not_after_s):
         latest = int(not_after_s // STEP_S)
     hint = None if hint_s is None or not math.isfinite(hint_s) else int(round(hint_s / STEP_S))
-    end = _soonest_end(p, margin, latest, hint)
-    x = None if end is None else _solve(p, end, margin, objective=True)
-    if end is None or x is None:
+    solved: dict[int, NDArray[np.float64]] = {}
+    end = _soonest_end(p, margin, latest, hint, solved)
+    if end is None:
         return None
+    x = solved[end]
     return _plan_of(p, _Layout(p, end), x, end, start_c=ramped_c)
 
 
