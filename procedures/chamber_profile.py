@@ -145,6 +145,7 @@ def _dynamics(p: _Problem, lay: _Layout) -> tuple[coo_matrix, NDArray[np.float64
     """Equalities: start states, the ramp, the air's and each die's first-order lag."""
     n, eq, rhs = p.n, _Rows(), []
     ka = 1.0 - math.exp(-STEP_S / p.model.air_tau_s)
+    i = np.arange(n)
 
     def fix(col: int, value: float) -> None:
         eq.add([(col, 1.0)], 0.0)
@@ -152,18 +153,21 @@ def _dynamics(p: _Problem, lay: _Layout) -> tuple[coo_matrix, NDArray[np.float64
 
     fix(lay.r, p.ramped_c)
     fix(lay.a, p.air_c)
-    for i in range(n):
-        eq.add([(lay.r + i + 1, 1.0), (lay.r + i, -1.0), (lay.u + i, -STEP_S)], 0.0)
-        eq.add([(lay.a + i + 1, 1.0), (lay.a + i, -(1.0 - ka)), (lay.r + i, -ka / 2),
-                (lay.r + i + 1, -ka / 2)], 0.0)
-        rhs += [0.0, 0.0]
+    # per step: the ramp (r' = r + u dt), then the air's lag behind the ramped setpoint
+    ramp_c = np.stack([lay.r + i + 1, lay.r + i, lay.u + i, lay.u + i], axis=-1)
+    ramp_v = np.broadcast_to(np.array([1.0, -1.0, -STEP_S, 0.0]), ramp_c.shape)
+    air_c = np.stack([lay.a + i + 1, lay.a + i, lay.r + i, lay.r + i + 1], axis=-1)
+    air_v = np.broadcast_to(np.array([1.0, -(1.0 - ka), -ka / 2, -ka / 2]), air_c.shape)
+    eq.add_block(np.stack([ramp_c, air_c], axis=1), np.stack([ramp_v, air_v], axis=1),
+                 np.zeros((n, 2)))
+    rhs += [0.0] * (2 * n)
     for die, d0 in zip(p.dies, lay.d, strict=True):
         kd = 1.0 - math.exp(-STEP_S / die.tau_s)
         fix(d0, die.die_c - die.heat_c)
-        for i in range(n):
-            eq.add([(d0 + i + 1, 1.0), (d0 + i, -(1.0 - kd)), (lay.a + i, -kd / 2),
-                    (lay.a + i + 1, -kd / 2)], 0.0)
-            rhs.append(0.0)
+        lag_c = np.stack([d0 + i + 1, d0 + i, lay.a + i, lay.a + i + 1], axis=-1)
+        lag_v = np.broadcast_to(np.array([1.0, -(1.0 - kd), -kd / 2, -kd / 2]), lag_c.shape)
+        eq.add_block(lag_c[:, None, :], lag_v[:, None, :], np.zeros((n, 1)))
+        rhs += [0.0] * n
     fix(lay.r + n, p.target_c)  # the profile ends at the target
     return eq.matrix(lay.n_var), np.asarray(rhs)
 
@@ -287,10 +291,13 @@ def _solve(
     ub = _Rows()
     _windows(p, lay, end, margin, ub)
     cost = np.zeros(lay.n_var)
-    if objective:
-        for i in range(p.n + 1):
-            ub.add([(lay.r + i, 1.0), (lay.e + i, -1.0)], p.target_c)
-            ub.add([(lay.r + i, -1.0), (lay.e + i, -1.0)], -p.target_c)
+    if objective:  # e >= |r - target|, for each step
+        i = np.arange(p.n + 1)
+        cols = np.stack([lay.r + i, lay.e + i], axis=-1)
+        vals = np.array([[[1.0, -1.0], [-1.0, -1.0]]])
+        high = np.tile(np.array([p.target_c, -p.target_c]), (p.n + 1, 1))
+        ub.add_block(np.stack([cols, cols], axis=1), np.broadcast_to(vals, (p.n + 1, 2, 2)),
+                     high)
         cost[lay.e : lay.e + p.n + 1] = 1.0
     problem = {
         "c": cost, "A_ub": ub.matrix(lay.n_var).tocsr(), "b_ub": np.asarray(ub.high),
