@@ -33,6 +33,7 @@ from procedures.watchdog import Watchdog
 
 if TYPE_CHECKING:
     from procedures.config import ProcedureConfig, ProductConfig
+    from procedures.streams import PartStream
 
 log = logging.getLogger(__name__)
 SUPPLY_SETTLE_S = 0.2  # station seconds after a change of supply setting before reading it
@@ -375,13 +376,7 @@ class Waiting:
             lost, total = stream.frames_lost, stream.frames_lost + stream.frames_ok
             if lost > 10 and lost > limit * total:
                 self._parts.drop(
-                    part,
-                    Verdict.ERROR,
-                    (
-                        f"socket {part.socket}: stream corrupted: {lost} of {total} frames lost "
-                        f"({stream.frames_corrupted} with a bad CRC), more than the "
-                        f"{limit:g} allowed: check the fixture cable and its grounding"
-                    ),
+                    part, Verdict.ERROR, _stream_loss_reason(part.socket, stream, limit)
                 )
         self._parts.require()
         if self.deadline_s is not None and self.clock.now_s() > self.deadline_s:
@@ -545,3 +540,15 @@ class RunContext:
     @property
     def aborted(self) -> bool:
         return self.wait.aborted
+
+
+def _stream_loss_reason(socket: int, stream: PartStream, limit: float) -> str:
+    """Why a part's stream is no longer trusted: corrupted (frames with a bad CRC) or losing
+    frames (none corrupted: dropped on the way)."""
+    lost, total = stream.frames_lost, stream.frames_lost + stream.frames_ok
+    bad_crc = stream.frames_corrupted
+    what = "stream corrupted" if bad_crc else "stream losing frames"
+    return (
+        f"socket {socket}: {what}: {lost} of {total} frames lost ({bad_crc} with a bad CRC), "
+        f"more than the {limit:g} allowed: check the fixture cable and its grounding"
+    )

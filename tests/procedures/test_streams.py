@@ -72,3 +72,19 @@ def test_offset_maps_station_to_fixture_time() -> None:
     )  # fixture = station + 100
     stream.poll()
     assert abs(stream.fixture_time(now + 5.0) - (now + 105.0)) < 0.05
+
+
+def test_a_lost_stream_is_named_by_its_cause() -> None:
+    """Frames with a bad CRC: corrupted; none: dropped on the way (the operator checks the
+    cable either way, but the record says which)."""
+    from types import SimpleNamespace
+
+    from procedures.run_context import _stream_loss_reason
+
+    dropped = SimpleNamespace(frames_lost=40, frames_ok=960, frames_corrupted=0)
+    corrupted = SimpleNamespace(frames_lost=40, frames_ok=960, frames_corrupted=12)
+    drop_text = _stream_loss_reason(3, dropped, 0.001)  # type: ignore[arg-type]
+    corrupt_text = _stream_loss_reason(3, corrupted, 0.001)  # type: ignore[arg-type]
+    assert drop_text.startswith("socket 3: stream losing frames: 40 of 1000 frames lost (0 ")
+    assert corrupt_text.startswith("socket 3: stream corrupted: 40 of 1000 frames lost (12 ")
+    assert "0.001 allowed" in drop_text
