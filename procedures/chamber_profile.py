@@ -325,13 +325,17 @@ def _soonest_end(
     solved already)."""
     low, high = p.m, p.n - 1 if latest is None else max(min(latest, p.n - 1), p.m)
 
-    def feasible(end: int) -> bool:
-        x = _solve(p, end, margin, solutions is not None)
-        if x is not None and solutions is not None:
-            solutions[end] = x
-        return x is not None
+    answers: dict[int, bool] = {}  # each index solved once (low may be high, or the hint)
 
-    if hint is not None and low < hint <= high:
+    def feasible(end: int) -> bool:
+        if end not in answers:
+            x = _solve(p, end, margin, solutions is not None)
+            if x is not None and solutions is not None:
+                solutions[end] = x
+            answers[end] = x is not None
+        return answers[end]
+
+    if hint is not None and low <= hint <= high:
         low, high = _bracket(feasible, hint, low, high)
         if high < 0:
             return None

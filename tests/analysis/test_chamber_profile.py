@@ -130,7 +130,7 @@ def test_a_replan_searching_from_the_last_plan_finds_the_bisections_answer(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The hint (where the last plan would settle) changes how many solves, never the plan;
-    a hint the replan confirms takes two."""
+    a hint the replan confirms takes two (one where it is the first index a window allows)."""
     import procedures.chamber_profile as cp
 
     air, dies, target = CASES["supply up"]
@@ -152,7 +152,10 @@ def test_a_replan_searching_from_the_last_plan_finds_the_bisections_answer(
                 assert hinted.settle_s == plain.settle_s
                 assert hinted.ramped_c == pytest.approx(plain.ramped_c, abs=1e-6)
                 if hint == base.settle_s:
-                    assert len(solves) == 2  # the hint (its solution is the plan), its neighbour
+                    # the hint (its solution is the plan), its neighbour below (none when
+                    # the hint is the first index a window allows)
+                    first = round(CRIT.window_s / STEP_S)
+                    assert len(solves) == (1 if hint == first * STEP_S else 2)
 
 
 def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_feasible(
@@ -186,3 +189,18 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
     with caplog.at_level("WARNING", logger="procedures.chamber_profile"):
         assert plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT) is None
     assert "no solver decided" in caplog.text
+
+
+def test_an_index_is_solved_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A search whose first and last index are one (the plan to beat settles as soon as a
+    window can) solves that index once, not once as each end of the search."""
+    import procedures.chamber_profile as cp
+
+    air, dies, target = CASES["supply up"]
+    window_s = CRIT.window_s
+    solves: list[int] = []
+    real = cp._solve
+    monkeypatch.setattr(cp, "_solve", lambda p, end, *a: solves.append(end) or real(p, end, *a))
+    plan = plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT, not_after_s=window_s)
+    assert plan is not None and plan.settle_s == window_s
+    assert solves == [round(window_s / STEP_S)]
