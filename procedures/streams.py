@@ -79,7 +79,7 @@ _FLUSH_WALL_S = 5.0  # a killed run loses at most this much wall time of samples
 # samples kept in memory per part (between this and twice this): 65 s at 1 kHz, 9 MB
 KEEP_SAMPLES = 1 << 16
 CATCH_UP_WALL_S = 0.5  # lockstep: longest wall wait for an interval's frames
-CATCH_UP_POLL_WALL_S = 0.0005
+CATCH_UP_WAIT_WALL_S = 0.002  # lockstep: one wait for a socket's frames (woken early)
 
 
 class _Growable:
@@ -196,13 +196,14 @@ class PartStream:
 
     # ------------------------------------------------------------ acquisition thread
 
-    def poll(self) -> int:
-        """Read what the link has; returns the number of new samples."""
+    def poll(self, wait_wall_s: float = 0.0) -> int:
+        """Read what the link has (waiting up to `wait_wall_s` for frames when it has none);
+        returns the number of new samples."""
         with self.lock:
             if not self.streaming or self.error is not None:
                 return 0
             try:
-                block = self.link.read_samples(0.0)
+                block = self.link.read_samples(wait_wall_s)
                 n = self._ingest(block)
                 now = self.clock.now_s()
                 if n:
@@ -388,9 +389,12 @@ class Acquisition:
         sent = reply.get("seq") or {}
         waiting = [s for s in self.streams.values() if str(s.socket) in sent]
         deadline = time.monotonic() + CATCH_UP_WALL_S
+        wait_s = 0.0
         while waiting:
-            for stream in waiting:
-                stream.poll()
+            # the first socket still behind waits for its frames (woken as they come, not
+            # after a fixed sleep); the others take what they have
+            for i, stream in enumerate(waiting):
+                stream.poll(wait_s if i == 0 else 0.0)
             waiting = [
                 s
                 for s in waiting
@@ -399,8 +403,7 @@ class Acquisition:
             if waiting and time.monotonic() > deadline:
                 log.debug("lockstep at %.3f s: sockets %s did not catch up", t_s, waiting)
                 return
-            if waiting:
-                time.sleep(CATCH_UP_POLL_WALL_S)
+            wait_s = CATCH_UP_WAIT_WALL_S
 
     def __exit__(self, *exc: object) -> None:
         self.close()
