@@ -84,6 +84,9 @@ class TableStatus:
     # encoder counts made continuous by the driver (no wrap) since it connected; added so the
     # rate-table fit can difference counts across a U32 wrap
     encoder_counts_unwrapped: int = 0
+    # one step of the controller clock (its time stamps are rounded to it): the reference
+    # rate's uncertainty takes it from here; 1 ms where a driver cannot tell
+    controller_time_resolution_s: float = 1e-3
 
 
 @runtime_checkable

@@ -215,6 +215,7 @@ class ModbusRateTable(TableWaits):
             rate_dps=p.decode(regs.rate, block, first),
             controller_time_s=self._time_raw(time_raw) * regs.time.scale,
             encoder_counts_unwrapped=self._counts(counts),
+            controller_time_resolution_s=abs(regs.time.scale),  # one count of its register
         )
 
     def fault_text(self, code: int) -> str:

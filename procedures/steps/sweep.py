@@ -59,6 +59,9 @@ def run_plateaus(
             [c0, c1],
             [s0.controller_time_s, s1.controller_time_s],
             cpr,
+            time_resolution_s=max(
+                s0.controller_time_resolution_s, s1.controller_time_resolution_s
+            ),
             counts_modulo=1 << 62 if s0.encoder_counts_unwrapped else 1 << 32,
         )
         out.append(Plateau(rate, t0, t1, ref.rate_dps, ref.u_rate_dps, ref.angle_deg))

@@ -81,6 +81,7 @@ def test_status_snapshot_decodes_signs_and_unwraps_counters():
     assert s.position_deg == -12.345 and s.rate_dps == -100.25
     assert s.encoder_counts == 0xFFFF_FFF0
     assert s.controller_time_s == pytest.approx(0xFFFF_FF00 * 1e-6)
+    assert s.controller_time_resolution_s == 1e-6  # one count of the us clock register
     s2 = table.read_status()
     assert s2.encoder_counts == 0x10  # raw, as the contract says
     assert s2.encoder_counts_unwrapped - s.encoder_counts_unwrapped == 0x20

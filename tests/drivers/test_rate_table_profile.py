@@ -94,6 +94,7 @@ def test_status_decodes_low_word_first_with_the_profiles_scales_and_bits():
     s2 = table.read_status()
     assert s2.encoder_counts_unwrapped - s.encoder_counts_unwrapped == 8
     assert s2.controller_time_s - s.controller_time_s == pytest.approx(0.032)
+    assert s2.controller_time_resolution_s == 1e-3  # this profile's clock counts ms
     finish(server, table)
 
 
