@@ -17,7 +17,7 @@ the region where each term holds is reported with the result.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -90,6 +90,17 @@ class NoiseModel:
 
     def adev_dps(self, tau_s: ArrayLike) -> NDArray[np.float64]:
         return np.sqrt(self.avar_dps2(tau_s))
+
+    def with_floor(
+        self, bias_instability_dps: float, rrw_dps_per_sqrt_s: float = 0.0
+    ) -> NoiseModel:
+        """This model with its slow terms at least the given values (a record too short to
+        resolve them fits them near zero; a product's typical values are their floor)."""
+        return replace(
+            self,
+            bias_instability_dps=max(self.bias_instability_dps, bias_instability_dps),
+            rrw_dps_per_sqrt_s=max(self.rrw_dps_per_sqrt_s, rrw_dps_per_sqrt_s),
+        )
 
     @classmethod
     def from_datasheet(

@@ -139,11 +139,14 @@ class Bias(StepType[BiasSettings]):
         except AnalysisError as exc:
             ctx.parts.drop(part, Verdict.ERROR, f"bias at {self.condition}: {exc}")
             return
-        part.extra["noise"] = noise
         res = part.conditions[self.condition]
         # the bias wanders between conditions (bias instability): a short record cannot see
         # it, so the product's typical value is its floor
         b_dps = max(noise.bias_instability_dps, ctx.product.bias_instability_deg_per_h / 3600.0)
+        # the windows measured after this one (rate plateaus, stops, verification) see the
+        # wander within them too: their model has the same floor
+        rrw = ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 216000.0
+        part.extra["noise"] = noise.with_floor(b_dps, rrw)
         u_wander = self.settings.wander_factor * b_dps
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
         res.note_temperature("bias", data["temp_c"])

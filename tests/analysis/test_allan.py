@@ -110,3 +110,14 @@ def test_noise_term_uncertainties_match_their_monte_carlo_scatter() -> None:
     assert np.std(arw, ddof=1) == pytest.approx(np.mean(u_arw), rel=0.3)
     assert np.std(bi, ddof=1) == pytest.approx(np.mean(u_bi), rel=0.3)
     assert abs(np.mean(bi) / 25.0 - 1) < 3 * np.std(bi) / np.sqrt(60)
+
+
+def test_a_floor_raises_only_the_slow_terms_below_it() -> None:
+    from procedures.analysis.allan import NoiseModel
+
+    short = NoiseModel(arw_deg_per_sqrt_s=0.01, bias_instability_dps=0.0, rrw_dps_per_sqrt_s=2e-5)
+    floored = short.with_floor(0.004, 1e-5)
+    assert floored.arw_deg_per_sqrt_s == 0.01  # white noise is measured, never floored
+    assert floored.bias_instability_dps == 0.004
+    assert floored.rrw_dps_per_sqrt_s == 2e-5  # above its floor: kept
+    assert float(floored.avar_dps2(8.0)) > float(short.avar_dps2(8.0))

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from procedures.analysis.allan import FLICKER_AVAR_FACTOR
 from procedures.rawdata import read_raw
 from procedures.record import Verdict, read_record
 
@@ -85,6 +87,32 @@ def test_residual_after_correction_below_0p05_percent(four: SimRun) -> None:
     failing = read_record(four.result.folders[4])  # a failed part is never programmed
     assert failing.verification is None
     assert failing.reason.startswith("not programmed: failed raw_bias_dps@")
+
+
+def test_plateaus_carry_the_references_and_the_wanders_uncertainty(four: SimRun) -> None:
+    """The table's clock counts microseconds: a plateau's reference rate is as uncertain as
+    the encoder and that clock make it (a 1 ms stamp would be 50 ppm of an 8 s plateau). Each
+    plateau's mean carries the bias wander within it, which a short noise record cannot
+    resolve: the product's typical bias instability is its floor."""
+    from procedures.config import load_procedure, load_product
+
+    for sock in (1, 2, 3):
+        rec = read_record(four.result.folders[sock])
+        product, _ = load_product(Path(rec.product.path))
+        procedure, _ = load_procedure(Path(rec.procedure.path))
+        dwell_s = procedure.settings_of("rate_table").plateau_dwell_s
+        noise = rec.analysis["allan"]  # the noise record at the first condition
+        fit = rec.analysis["rate_table"][noise["condition"]]
+        rate = np.abs(np.asarray(fit["rate_in_dps"]))
+        assert np.all(np.asarray(fit["u_rate_in_dps"]) / rate < 2e-6)
+        white = (noise["arw_deg_per_sqrt_h"] / 60.0) ** 2 / dwell_s
+        measured_b = noise["bias_instability_deg_per_h"] / 3600.0
+        floor_b = max(measured_b, product.bias_instability_deg_per_h / 3600.0)
+        expected = math.sqrt(white + FLICKER_AVAR_FACTOR * floor_b**2)
+        assert min(fit["u_rate_out_dps"]) == pytest.approx(expected, rel=0.03), sock
+        if measured_b < 0.5 * floor_b:  # the floor is what makes the difference here
+            unfloored = math.sqrt(white + FLICKER_AVAR_FACTOR * measured_b**2)
+            assert min(fit["u_rate_out_dps"]) > 1.1 * unfloored
 
 
 def test_bench_safe_after_run(four: SimRun) -> None:
