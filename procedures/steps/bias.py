@@ -10,6 +10,7 @@ from pydantic import Field, field_validator
 
 from procedures.analysis.allan import analyze_allan
 from procedures.analysis.bias import estimate_bias, required_averaging_time_s
+from procedures.analysis.bias_wander import window_mean_covariance
 from procedures.analysis.errors import AnalysisError
 from procedures.config import Seconds
 from procedures.record import Verdict
@@ -26,12 +27,14 @@ class BiasSettings(StepSettings):
     target_accuracy_dps: float = Field(0.005, gt=0, le=100, description="k=2 target for 'auto'")
     min_dwell_s: Seconds = Field(10.0, gt=0, description="pilot dwell for 'auto'")
     max_dwell_s: Seconds = Field(300.0, gt=0, description="cap for 'auto'")
-    wander_factor: float = Field(
-        1.5,
+    wander_factor: float | None = Field(
+        None,
         ge=0,
         le=100,
-        description="bias wander between conditions, in units of the bias "
-        "instability, added to each condition's bias uncertainty (0: white noise only)",
+        description="bias wander between conditions added to each condition's bias "
+        "uncertainty: none = the wander of the window's mean under the bias instability "
+        "(its Gauss-Markov model, about 1.2 x for a 30 s window); a number = that many times "
+        "the bias instability (0: white noise only)",
     )
     allan: Literal["first_condition", "every_condition", "never"] = Field(
         "first_condition",
@@ -116,6 +119,16 @@ class Bias(StepType[BiasSettings]):
             ctx.instruments.snapshot()
         ctx.parts.each(lambda part: self._analyse(ctx, part, t0, t1, dwell))
 
+    def _wander_dps(self, t0: float, t1: float, b_dps: float, rrw: float) -> float:
+        """How far this window's mean may lie from the part's bias at this condition: the
+        bias wander of a [t0, t1] mean (procedures/analysis/bias_wander.py), or the
+        procedure's multiple of the bias instability."""
+        factor = self.settings.wander_factor
+        if factor is not None:
+            return factor * b_dps
+        cov = window_mean_covariance(np.array([t0]), np.array([t1]), b_dps, rrw)
+        return math.sqrt(float(cov[0, 0]))
+
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float, dwell: float) -> None:
         fs = sample_rate_hz(ctx)
         data = samples_between(ctx, part, t0, t1)
@@ -143,11 +156,11 @@ class Bias(StepType[BiasSettings]):
         # the bias wanders between conditions (bias instability): a short record cannot see
         # it, so the product's typical value is its floor
         b_dps = max(noise.bias_instability_dps, ctx.product.bias_instability_deg_per_h / 3600.0)
+        rrw = ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 216000.0
         # the windows measured after this one (rate plateaus, stops, verification) see the
         # wander within them too: their model has the same floor
-        rrw = ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 216000.0
         part.extra["noise"] = noise.with_floor(b_dps, rrw)
-        u_wander = self.settings.wander_factor * b_dps
+        u_wander = self._wander_dps(t0, t1, b_dps, rrw)
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
         res.note_temperature("bias", data["temp_c"])
         ctx.records.measure(

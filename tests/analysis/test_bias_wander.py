@@ -5,6 +5,7 @@ instability: windows close in time share most of it, windows far apart almost no
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from procedures.analysis.bias_wander import (
     WANDER_TAUS_S,
@@ -68,3 +69,17 @@ def test_random_walk_covariance_matches_a_simulation() -> None:
     empirical = np.cov(means, rowvar=False)
     scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
     assert np.all(np.abs(empirical - cov) < 0.12 * scale), (empirical / scale, cov / scale)
+
+
+def test_the_bias_step_takes_its_windows_wander_from_the_model_unless_given_a_factor() -> None:
+    """A condition's bias carries the wander of its window's mean: about 1.19 x BI for 30 s
+    under the model (longer windows average more of it away); `wander_factor` x BI where
+    the procedure gives one."""
+    from procedures.steps.bias import Bias, BiasSettings
+
+    b_dps = 15.0 / 3600.0
+    model = Bias(BiasSettings())
+    assert model._wander_dps(100.0, 130.0, b_dps, 0.0) == pytest.approx(1.19 * b_dps, rel=0.01)
+    assert model._wander_dps(100.0, 160.0, b_dps, 0.0) < model._wander_dps(100.0, 130.0, b_dps, 0.0)
+    given = Bias(BiasSettings(wander_factor=1.5))
+    assert given._wander_dps(100.0, 130.0, b_dps, 0.0) == pytest.approx(1.5 * b_dps)
