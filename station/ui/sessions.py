@@ -146,8 +146,10 @@ class LoginThrottle:
             entry.count += 1
             entry.last_s = now
             over = entry.count - allowed
-            if over > 0:
-                entry.locked_until_s = now + min(self.max_s, self.base_s * 2 ** min(over - 1, 30))
+            if over > 0:  # the wait itself: (now + wait) - now may round past it
+                wait = min(self.max_s, self.base_s * 2 ** min(over - 1, 30))
+                entry.locked_until_s = now + wait
+                return float(wait)
             return max(0.0, entry.locked_until_s - now)
 
     def failed_from(self, session_token: str, address: str) -> float:

@@ -73,4 +73,7 @@ def test_full_procedure_passes_with_each_family_set(name: str, tmp_path: Path) -
             total += 1
             if abs(c.value - truth[tkey]) > c.uncertainty_k2:
                 misses.append((sock, key, c.value, truth[tkey], c.uncertainty_k2))
-    assert total == 12 and len(misses) <= 1, misses  # k = 2: about 1 in 20 may miss
+    # k = 2 intervals that are right miss about 1 in 20, and a part's coefficients share its
+    # data: two of twelve out happens in about 1 run in 10, three in about 1 in 50
+    # (benchmarks/bench_accuracy.py measures the coverage over many parts)
+    assert total == 12 and len(misses) <= 2, misses
