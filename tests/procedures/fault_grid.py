@@ -24,6 +24,13 @@ from station.settings import load_settings
 from station.uut import Endpoints, UutRunner
 
 GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"
+# the grid judges how a fault is handled, at a high bench speed on a machine shared with other
+# work: there a wall hiccup of milliseconds is seconds of station time, and the stop method's
+# scatter widens (|E_n| beyond 3 against the table in about 1 run in 6 under two CPU hogs). A
+# part failing that judgement before the faulted step would leave the cell untested, so the
+# grid's product is the shipped one with that limit opened (benchmarks/bench_accuracy.py and
+# the lockstep tests judge the consistency; a scaled clock cannot)
+OPENED_LIMITS = {"stop_table_consistency": {"low": -100.0, "high": 100.0, "units": "1"}}
 SERIAL = "SIM-0901"
 GRID_SPEED = 200.0
 STEPS = ("power_identify", "thermal", "bias", "rate_table", "stop_method", "program", "verify")
@@ -128,6 +135,23 @@ REPRESENTATIVE = (
 )
 
 
+def grid_procedure(folder: Path) -> Path:
+    """The grid's procedure with a product whose OPENED_LIMITS are opened, written in
+    `folder` (the shipped files stay as they are)."""
+    import yaml
+
+    data = yaml.safe_load(GRID_PROCEDURE.read_text())
+    product_path = (GRID_PROCEDURE.parent / data["product"]).resolve()
+    product = yaml.safe_load(product_path.read_text())
+    product["limits"].update(OPENED_LIMITS)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "grid-product.yaml").write_text(yaml.safe_dump(product, sort_keys=False))
+    data["product"] = "grid-product.yaml"
+    copy = folder / GRID_PROCEDURE.name
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    return copy
+
+
 def grid_cells() -> list[tuple[str, str]]:
     return [(f.id, step) for f in FAULTS for step in f.steps]
 
@@ -215,7 +239,7 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float) -> CellResult:
     ) as bench:
         runner = UutRunner(
             load_settings(),
-            procedure_path=GRID_PROCEDURE,
+            procedure_path=grid_procedure(out),
             out=out,
             endpoints=Endpoints.of_bench(bench.endpoints),
             certificate=True,
