@@ -2,7 +2,9 @@
 
 For each part: every fitted coefficient against the truth of the bench, in units of its own
 k = 2 uncertainty (|fit - truth| / U; <= 1 means covered), and the residual scale error after
-correction at the verification rates. Prints one row per part and a summary.
+correction at the verification rates. Prints one row per part and a summary, with the RMS
+of each condition's bias and scale error over its own uncertainty (k = 1) and of the
+stop-vs-table E_n (1 when the stated uncertainties are the scatter).
 
     python3 benchmarks/bench_accuracy.py [--parts 24] [--sockets 8] [--speed X]
                                          [--procedure config/procedures/eol-rate-table.yaml]
@@ -11,10 +13,12 @@ correction at the verification rates. Prints one row per part and a summary.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -38,6 +42,50 @@ SHORT = {
     "scale_temp_coeff_per_c": "sT",
     "scale_supply_coeff_per_v": "sV",
 }
+
+
+def condition_ratios(rec: Any, tr: dict[str, float]) -> dict[str, list[float]]:
+    """Per condition: (measured - truth) / u (k = 1) of the bias and the scale the fit took,
+    truth at the condition's own die temperature and supply; and the stop-vs-table E_n."""
+    out: dict[str, list[float]] = {"bias": [], "scale": [], "en": []}
+    cal = rec.calibration
+    t0 = cal.reference_temperature_c if cal is not None else 25.0
+    v0 = cal.reference_supply_v if cal is not None else 5.0
+    for c in rec.analysis.get("fit", {}).get("conditions", []):
+        dv = c["supply_v"] - v0
+        bias = (
+            tr["bias_dps"]
+            + tr["bias_temp_coeff_dps_per_c"] * (c["bias_temp_c"] - t0)
+            + tr["bias_supply_coeff_dps_per_v"] * dv
+        )
+        scale = tr["scale"] * (
+            1.0
+            + tr["scale_temp_coeff_per_c"] * (c["scale_temp_c"] - t0)
+            + tr["scale_supply_coeff_per_v"] * dv
+        )
+        out["bias"].append((c["bias_dps"] - bias) / c["u_bias_dps"])
+        out["scale"].append((c["scale"] - scale) / c["u_scale"])
+    out["en"] = [
+        m.value
+        for m in rec.measurements
+        if m.name == "stop_table_consistency" and m.value is not None
+    ]
+    return out
+
+
+def print_condition_ratios(per_part: list[dict[str, list[float]]]) -> None:
+    """RMS of each ratio over every part and condition: 1 when the stated uncertainty is
+    the scatter (below 1: intervals too wide; above: too narrow)."""
+    for key, what in (
+        ("bias", "per-condition bias error / u"),
+        ("scale", "per-condition scale error / u"),
+        ("en", "stop-vs-table E_n"),
+    ):
+        v = [x for p in per_part for x in p[key]]
+        if v:
+            rms = math.sqrt(sum(x * x for x in v) / len(v))
+            beyond = sum(abs(x) > 3 for x in v)
+            print(f"{what}: rms {rms:.2f} over {len(v)} (1 = as stated), |.| > 3: {beyond}")
 
 
 def main() -> int:
@@ -69,6 +117,7 @@ def main() -> int:
                     row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
             if rec.verification:
                 row["res"] = rec.verification["max_error_pct"]
+            row["cond"] = condition_ratios(rec, tr)
             rows.append(row)
         print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)
     head = (
@@ -103,6 +152,7 @@ def main() -> int:
             f"residual scale error after correction: max {max(res):.4f} %, "
             f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %"
         )
+    print_condition_ratios([r["cond"] for r in rows])
     print(
         f"parts {len(rows)}, fitted {len(fitted)}, verdicts "
         + ", ".join(
