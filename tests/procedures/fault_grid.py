@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from drivers.sim.launcher import BenchStartError, launch_bench
 from procedures.progress import ProgressEvent
 from procedures.record import RAW_DATA_FILE, Verdict, read_record
@@ -138,8 +140,6 @@ REPRESENTATIVE = (
 def grid_procedure(folder: Path) -> Path:
     """The grid's procedure with a product whose OPENED_LIMITS are opened, written in
     `folder` (the shipped files stay as they are)."""
-    import yaml
-
     data = yaml.safe_load(GRID_PROCEDURE.read_text())
     product_path = (GRID_PROCEDURE.parent / data["product"]).resolve()
     product = yaml.safe_load(product_path.read_text())
@@ -239,7 +239,7 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float) -> CellResult:
     ) as bench:
         runner = UutRunner(
             load_settings(),
-            procedure_path=grid_procedure(out),
+            procedure_path=grid_procedure(out.with_name(out.name + "-procedure")),
             out=out,
             endpoints=Endpoints.of_bench(bench.endpoints),
             certificate=True,
