@@ -18,7 +18,7 @@ import pytest
 pytest.importorskip(
     "playwright.sync_api", reason="the playwright package is missing: pip install playwright"
 )
-from playwright.sync_api import Browser, Page, expect  # noqa: E402
+from playwright.sync_api import Browser, Page, Route, expect  # noqa: E402
 
 from station.ui.app import create_app  # noqa: E402
 from station.ui.controller import Controller  # noqa: E402
@@ -239,6 +239,38 @@ def test_duplicate_serial_flagged_at_scan(line: Line, screen: Page) -> None:
     expect(screen.locator("#start-reason")).to_contain_text("SIM-0007 is scanned in sockets 1, 2")
     _scan(screen, 2, "SIM-0008")
     expect(screen.locator("#start-btn")).to_be_enabled()
+
+
+def test_a_late_validation_reply_leaves_the_focus_where_the_operator_moved(
+    line: Line, screen: Page
+) -> None:
+    """The reply to socket 1's scan arrives after the operator has moved to socket 3: the
+    focus stays in socket 3, so the next scan cannot land in socket 2 (CI once saw a serial
+    typed into socket 31 go to socket 30 this way)."""
+    held: list[Route] = []
+
+    def hold_first(route: Route) -> None:
+        if held:
+            route.continue_()
+        else:
+            held.append(route)
+
+    screen.goto(line.url)
+    screen.route("**/api/validate", hold_first)
+    _scan(screen, 1, "SIM-0001")
+    for _ in range(200):  # the request is parked by the handler, on the page's own time
+        if held:
+            break
+        screen.wait_for_timeout(10)
+    assert held, "socket 1's validation request never reached the route"
+    screen.locator("#serial-3").fill("SIM-0003")  # the operator taps socket 3 and scans
+    held[0].continue_()
+    expect(screen.locator("#serial-1")).to_have_class(re.compile(r"\bok\b"))
+    assert screen.evaluate("document.activeElement.id") == "serial-3"
+    screen.keyboard.press("Enter")
+    expect(screen.locator("#serial-3")).to_have_class(re.compile(r"\bok\b"))
+    expect(screen.locator("#serial-2")).to_have_value("")
+    expect(screen.locator("#serial-3")).to_have_value("SIM-0003")
 
 
 def test_operator_prompt_shown_and_cleared(line: Line, screen: Page) -> None:

@@ -421,7 +421,7 @@ async function validate(n) {
   s.input.classList.toggle("ok", r.ok);
   s.input.classList.toggle("bad", !r.ok);
   s.msg.textContent = r.ok ? "" : r.data.error;
-  if (!r.ok) { s.input.select(); renderStart(); return false; }
+  if (!r.ok) { if (document.activeElement === s.input) s.input.select(); renderStart(); return false; }
   s.input.value = r.data.serial;
   // The same serial in two sockets is flagged at once, not at START.
   const other = Object.keys(sockets).find((k) => k !== String(n) && sockets[k].input.value.trim() === r.data.serial);
@@ -429,9 +429,14 @@ async function validate(n) {
     s.input.classList.remove("ok"); s.input.classList.add("bad", "dup");
     sockets[other].input.classList.add("dup");
     s.msg.textContent = t("socket.duplicate", { other });
-    s.input.select(); renderStart(); return false;
+    if (document.activeElement === s.input) s.input.select();
+    renderStart(); return false;
   }
   renderStart();
+  // The reply may come after the operator has moved on (tapped or scanned into another
+  // field): the focus moves on only from the field this reply is for, so no scan lands
+  // in a socket other than the one the operator chose.
+  if (document.activeElement !== s.input) return true;
   const keys = Object.keys(sockets);
   const next = keys.find((k) => +k > +n && !sockets[k].input.value);
   (next ? sockets[next].input : $("start-btn")).focus();
