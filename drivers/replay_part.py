@@ -269,7 +269,11 @@ class ReplayPartLink:
         with self._lock:
             streaming = self._streaming
             next_due_s = self._next_due_s() if streaming else None
-        if next_due_s is not None and max_wait_s > 0:
+        # In lockstep station time moves only by the station's own waits, so a wait here
+        # cannot bring a frame due (and must not step the clock from the acquisition thread,
+        # or from inside a clock waiter): a read takes what is due and returns.
+        lockstep = bool(getattr(self._clock, "lockstep", False))
+        if next_due_s is not None and max_wait_s > 0 and not lockstep:
             wait_s = min(next_due_s - self._clock.now_s(), max_wait_s * self._clock.speed)
             if wait_s > 0:
                 self._clock.sleep_s(wait_s)

@@ -3,6 +3,7 @@ station clock (a fake one here), with in-memory calibration registers and compen
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import pytest
 from pydantic import ValidationError
 
 from drivers import fixture_protocol as fp
+from drivers.clock import LockstepClock
 from drivers.errors import ConnectionLost, PartSilent
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.part_link import FixtureRefused
@@ -143,6 +145,23 @@ def test_read_samples_waits_on_the_station_clock(run_folder):
     assert len(block) == 1 and clock.now_s() == pytest.approx(10.0 + PERIOD_S)
     block = link.read_samples(max_wait_s=0.002)  # not long enough for the next one
     assert len(block) == 0 and clock.now_s() == pytest.approx(10.0 + PERIOD_S + 0.002)
+
+
+def test_in_lockstep_a_read_never_moves_station_time(run_folder):
+    """Only the station's own waits step a lockstep clock: a read that waits for frames
+    (the acquisition's catch-up, itself called from the clock's step) returns what is due."""
+    steps: list[float] = []
+    clock = LockstepClock(lambda t_s: steps.append(t_s) or {})
+    clock.start_at(10.0)
+    link = open_replay(run_folder, clock)
+    link.start_stream()
+    wall0 = time.monotonic()
+    assert len(link.read_samples(max_wait_s=1.0)) == 0
+    assert time.monotonic() - wall0 < 0.5 and steps == [] and clock.now_s() == 10.0
+    clock.sleep_s(PERIOD_S * 1.5)  # the station waits: sample 0 comes due
+    assert steps == [pytest.approx(10.0 + PERIOD_S * 1.5)]
+    assert link.read_samples(max_wait_s=1.0).seq.tolist() == [7]
+    assert len(steps) == 1
 
 
 def test_stop_then_start_resumes_with_the_fixture_clock_running_on(run_folder):
