@@ -94,12 +94,17 @@ RETRYABLE = (InstrumentTimeout, StepTimeout)
 class Engine:
     """Runs a plan of steps for every loaded part; see the module docstring."""
 
-    def __init__(self, ctx: RunContext, steps: Sequence[Step]) -> None:
+    def __init__(
+        self,
+        ctx: RunContext,
+        steps: Sequence[Step],
+        safe_state_policy: SafeStatePolicy | None = None,
+    ) -> None:
         self.ctx = ctx
         self.steps = steps
         self.safe_state_report: dict[str, str] = {}
         self.safe_state: SafeStateReport | None = None
-        self.safe_state_policy = SafeStatePolicy()
+        self.safe_state_policy = safe_state_policy or SafeStatePolicy()
 
     def abort(self, reason: str = "operator abort") -> None:
         self.ctx.wait.abort(reason)

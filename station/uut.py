@@ -58,7 +58,7 @@ from procedures.record import (
     Verdict,
     write_record,
 )
-from procedures.safe_state import SafeSettingsError, check_safe_temperature
+from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
 from procedures.steps.plan import build_plan
 from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
@@ -287,8 +287,12 @@ class UutRunner:
         out: Path | None = None,
         endpoints: Endpoints | None = None,
         certificate: bool = True,
+        safe_state_policy: SafeStatePolicy | None = None,
     ) -> None:
         self.settings = settings
+        # how long the safe-state pass keeps trying an instrument it cannot reach (the
+        # default: 2 station minutes); a test rig that loses links on purpose may shorten it
+        self.safe_state_policy = safe_state_policy
         self.procedure_path = Path(procedure_path) if procedure_path else settings.procedure
         self.procedure, self.procedure_file = load_procedure(self.procedure_path)
         if product_path is None:
@@ -651,7 +655,7 @@ class UutRunner:
             start_temp = bench.chamber.read_temperature()
         except InstrumentError:
             start_temp = None
-        engine = Engine(ctx, build_plan(self.procedure, start_temp))
+        engine = Engine(ctx, build_plan(self.procedure, start_temp), self.safe_state_policy)
         self._engine = engine
         engine.run()
         for part in parts:

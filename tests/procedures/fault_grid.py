@@ -1,6 +1,11 @@
 """The fault x step grid: one simulated-bench run per cell, a fault injected through the bench's
 control channel when the step starts, and the cell judged on what a factory needs.
 
+The bench runs in lockstep: station time is physics time, so every cell measures the same
+part the same way up to its fault, and the fault comes at a station time (a clock waiter),
+not after a wall timer that machine load stretches. A link's reply timeouts are wall seconds
+there, as on a real bench. `speed` runs a cell on a scaled clock instead (bench_faults.py).
+
 A cell is correct when the run ends ERROR or ABORTED with the fault named in its reason, every
 instrument is safe by the bench's own truth or the station says which one is not (in the
 record and on page one of the certificate, never claiming safe what is not), and the data are
@@ -13,6 +18,8 @@ from __future__ import annotations
 import shutil
 import subprocess
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,19 +29,23 @@ import yaml
 from drivers.sim.launcher import BenchStartError, launch_bench
 from procedures.progress import ProgressEvent
 from procedures.record import RAW_DATA_FILE, Verdict, read_record
+from procedures.safe_state import SafeStatePolicy
 from station.settings import load_settings
 from station.uut import Endpoints, UutRunner
 
 GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"
-# the grid judges how a fault is handled, at a high bench speed on a machine shared with other
-# work: there a wall hiccup of milliseconds is seconds of station time, and the stop method's
-# scatter widens (|E_n| beyond 3 against the table in about 1 run in 6 under two CPU hogs). A
-# part failing that judgement before the faulted step would leave the cell untested, so the
-# grid's product is the shipped one with that limit opened (benchmarks/bench_accuracy.py and
-# the lockstep tests judge the consistency; a scaled clock cannot)
+# On a scaled clock (`speed`, the benchmark's option) a wall hiccup of milliseconds is seconds
+# of station time on a shared machine, and the stop method's scatter widens (|E_n| beyond 3
+# against the table in about 1 run in 6 at 200x under two CPU hogs). A part failing that
+# judgement before the faulted step would leave the cell untested, so a scaled run's product
+# has that limit opened. In lockstep the shipped product is judged as it is.
 OPENED_LIMITS = {"stop_table_consistency": {"low": -100.0, "high": 100.0, "units": "1"}}
 SERIAL = "SIM-0901"
-GRID_SPEED = 200.0
+GRID_SPEED = 200.0  # the benchmark's scaled clock, when asked for one
+# A lost link is retried for 2 station minutes by default, which in lockstep (speed 1) is 2
+# wall minutes per cell. The grid gives the pass 10 wall seconds: the least any pass gets
+# (SafeStatePolicy.wall_floor_s), and what the grid gave it at 200x before it ran in lockstep.
+GRID_SAFE_STATE = SafeStatePolicy(deadline_s=10.0)
 STEPS = ("power_identify", "thermal", "bias", "rate_table", "stop_method", "program", "verify")
 ALL = STEPS
 AT_REST_AND_MOVING = ALL
@@ -169,6 +180,9 @@ class CellResult:
     certificate_text: str = ""
     data_kept: bool = False
     fault_to_safe_s: float | None = None
+    # wall seconds from the fault to the run's end (in lockstep a link's reply timeouts cost
+    # wall time, not station time)
+    fault_to_end_wall_s: float | None = None
     wall_s: float = 0.0
     problems: list[str] = field(default_factory=list)
 
@@ -214,9 +228,10 @@ def first_page_text(pdf: Path) -> str:
     return done.stdout
 
 
-def run_cell(fault_id: str, step: str, out: Path, speed: float = GRID_SPEED) -> CellResult:
-    """Run one cell on a fresh bench and judge it (a bench that fails to start on a loaded
-    machine is started again: that is the test rig, not the cell)."""
+def run_cell(fault_id: str, step: str, out: Path, speed: float | None = None) -> CellResult:
+    """Run one cell on a fresh bench (in lockstep, or at `speed`) and judge it (a bench that
+    fails to start on a loaded machine is started again: that is the test rig, not the
+    cell)."""
     for attempt in range(3):
         try:
             return _run_cell(fault_id, step, out / f"try{attempt}", speed)
@@ -226,48 +241,38 @@ def run_cell(fault_id: str, step: str, out: Path, speed: float = GRID_SPEED) -> 
     raise AssertionError("unreachable")
 
 
-def _run_cell(fault_id: str, step: str, out: Path, speed: float) -> CellResult:
-    import time
-
+def _run_cell(fault_id: str, step: str, out: Path, speed: float | None) -> CellResult:
     fault = FAULTS_BY_ID[fault_id]
     cell = CellResult(fault_id, step)
     wall0 = time.monotonic()
-    injected_at: list[float] = []
     part = {"socket": 1, "serial": SERIAL}
     with launch_bench(
-        config={"parts": [part]}, speed=speed, sockets=1, start_timeout_s=60.0
+        config={"parts": [part]},
+        speed=speed,
+        sockets=1,
+        start_timeout_s=60.0,
+        lockstep=speed is None,
     ) as bench:
+        procedure = GRID_PROCEDURE
+        if speed is not None:
+            procedure = grid_procedure(out.with_name(out.name + "-procedure"))
         runner = UutRunner(
             load_settings(),
-            procedure_path=grid_procedure(out.with_name(out.name + "-procedure")),
+            procedure_path=procedure,
             out=out,
             endpoints=Endpoints.of_bench(bench.endpoints),
             certificate=True,
             operator="fault-grid",
+            safe_state_policy=GRID_SAFE_STATE,
         )
-        fired = threading.Event()
-
-        def inject() -> None:
-            ctx = runner.context
-            if ctx is None:  # the run ended before the fault was due
-                return
-            injected_at.append(ctx.clock.now_s())
-            bench.control.fault(fault.kind, **fault.params)
-
-        def on_event(ev: ProgressEvent) -> None:
-            if ev.kind == "step" and ev.step == step and not fired.is_set():
-                fired.set()
-                after_s = INJECT_AFTER_S.get(step, 0.0)
-                if after_s > 0:
-                    timer = threading.Timer(after_s / speed, inject)
-                    timer.daemon = True
-                    timer.start()
-                else:
-                    inject()
-
-        runner.progress.subscribe(on_event)
+        injector = _Injector(runner, step, lambda: bench.control.fault(fault.kind, **fault.params))
+        runner.progress.subscribe(injector.on_event)
         result = runner.run({1: SERIAL})
+        ended_wall = time.monotonic()
         truth = bench.control.truth()
+    injected_at = injector.injected_at
+    if injector.injected_wall is not None:
+        cell.fault_to_end_wall_s = ended_wall - injector.injected_wall
     cell.wall_s = time.monotonic() - wall0
     cell.injected = bool(injected_at)
     folder = result.folders[1]
@@ -289,6 +294,51 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float) -> CellResult:
     if not cell.correct:
         cell.problems = _problems(cell)
     return cell
+
+
+class _Injector:
+    """Injects the fault `INJECT_AFTER_S` station seconds into `step`: from a clock waiter in
+    lockstep (at a station time, whatever the machine's load), after a wall timer on a scaled
+    clock."""
+
+    def __init__(self, runner: UutRunner, step: str, fault: Callable[[], object]) -> None:
+        self.runner, self.step, self.fault = runner, step, fault
+        self.injected_at: list[float] = []
+        self.injected_wall: float | None = None
+        self._fired = threading.Event()
+
+    def on_event(self, ev: ProgressEvent) -> None:
+        if ev.kind != "step" or ev.step != self.step or self._fired.is_set():
+            return
+        self._fired.set()
+        ctx = self.runner.context
+        if ctx is None:
+            return
+        after_s = INJECT_AFTER_S.get(self.step, 0.0)
+        clock = ctx.clock
+        if after_s <= 0:
+            self._inject()
+        elif hasattr(clock, "add_waiter"):
+            due_s = clock.now_s() + after_s
+
+            def waiter(t_s: float, reply: object) -> None:
+                if t_s >= due_s and not self.injected_at:
+                    clock.remove_waiter(waiter)
+                    self._inject()
+
+            clock.add_waiter(waiter)
+        else:
+            timer = threading.Timer(clock.wall_timeout_s(after_s), self._inject)
+            timer.daemon = True
+            timer.start()
+
+    def _inject(self) -> None:
+        ctx = self.runner.context
+        if ctx is None:  # the run ended before the fault was due
+            return
+        self.injected_at.append(ctx.clock.now_s())
+        self.injected_wall = time.monotonic()
+        self.fault()
 
 
 def _problems(cell: CellResult) -> list[str]:
