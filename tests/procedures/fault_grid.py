@@ -290,7 +290,8 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float | None) -> CellR
     )
     times = [s.get("safe_at_station_s") for s in instruments.values() if s.get("safe")]
     if injected_at and times and len(times) == len(instruments):
-        cell.fault_to_safe_s = max(float(t) for t in times) - injected_at[0]
+        # safe_at_station_s is rounded to 1 ms: an instrument already safe reads -0.0
+        cell.fault_to_safe_s = max(max(float(t) for t in times) - injected_at[0], 0.0)
     if not cell.correct:
         cell.problems = _problems(cell)
     return cell
