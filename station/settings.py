@@ -306,6 +306,22 @@ class AmbientSettings(_Strict):
     humidity_pct: float | None = Field(None, ge=0, le=100, description="relative humidity, %")
 
 
+class SafeStateSettings(_Strict):
+    """How long the end-of-run safe-state pass keeps trying an instrument that does not read
+    back safe or cannot be reached (docs/safety.md)."""
+
+    retry_for_s: float = Field(
+        120.0, ge=0.0, le=3600.0,
+        description="station seconds of retries with backoff before the instrument is "
+        "reported NOT SAFE",
+    )
+    wall_floor_s: float = Field(
+        10.0, ge=1.0, le=3600.0,
+        description="the least wall time the retries get (a fast simulated clock must not cut "
+        "a slow link short)",
+    )
+
+
 class StationSettings(_Strict):
     """Everything specific to one physical station."""
 
@@ -327,6 +343,10 @@ class StationSettings(_Strict):
     )
     refuse_overdue_instruments: bool = Field(
         False, description="refuse to run when an instrument's calibration is overdue"
+    )
+    safe_state: SafeStateSettings = Field(
+        default_factory=SafeStateSettings,
+        description="how long the safe-state pass retries an instrument it cannot make safe",
     )
     ui: UiSettings = Field(default_factory=UiSettings, description="browser UI settings")
     central_db: PathText | None = Field(

@@ -290,9 +290,12 @@ class UutRunner:
         safe_state_policy: SafeStatePolicy | None = None,
     ) -> None:
         self.settings = settings
-        # how long the safe-state pass keeps trying an instrument it cannot reach (the
-        # default: 2 station minutes); a test rig that loses links on purpose may shorten it
-        self.safe_state_policy = safe_state_policy
+        # how long the safe-state pass keeps trying an instrument it cannot reach: the station
+        # file's safe_state section, unless the caller (a test rig) gives its own
+        retry = settings.settings.safe_state
+        self.safe_state_policy = safe_state_policy or SafeStatePolicy(
+            deadline_s=retry.retry_for_s, wall_floor_s=retry.wall_floor_s
+        )
         self.procedure_path = Path(procedure_path) if procedure_path else settings.procedure
         self.procedure, self.procedure_file = load_procedure(self.procedure_path)
         if product_path is None:
