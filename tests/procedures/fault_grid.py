@@ -270,11 +270,11 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float | None) -> CellR
         result = runner.run({1: SERIAL})
         ended_wall = time.monotonic()
         truth = bench.control.truth()
-    injected_at = injector.injected_at
-    if injector.injected_wall is not None:
-        cell.fault_to_end_wall_s = ended_wall - injector.injected_wall
+    injected_at = injector.at_station_s
+    if injector.at_wall_s is not None:
+        cell.fault_to_end_wall_s = ended_wall - injector.at_wall_s
     cell.wall_s = time.monotonic() - wall0
-    cell.injected = bool(injected_at)
+    cell.injected = injected_at is not None
     folder = result.folders[1]
     rec = read_record(folder)
     cell.verdict, cell.reason = str(rec.verdict), rec.reason
@@ -289,9 +289,9 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float | None) -> CellR
         pdf.exists()
     )
     times = [s.get("safe_at_station_s") for s in instruments.values() if s.get("safe")]
-    if injected_at and times and len(times) == len(instruments):
+    if injected_at is not None and times and len(times) == len(instruments):
         # safe_at_station_s is rounded to 1 ms: an instrument already safe reads -0.0
-        cell.fault_to_safe_s = max(max(float(t) for t in times) - injected_at[0], 0.0)
+        cell.fault_to_safe_s = max(max(float(t) for t in times) - injected_at, 0.0)
     if not cell.correct:
         cell.problems = _problems(cell)
     return cell
@@ -304,8 +304,8 @@ class _Injector:
 
     def __init__(self, runner: UutRunner, step: str, fault: Callable[[], object]) -> None:
         self.runner, self.step, self.fault = runner, step, fault
-        self.injected_at: list[float] = []
-        self.injected_wall: float | None = None
+        self.at_station_s: float | None = None  # when the fault went in (None: never)
+        self.at_wall_s: float | None = None
         self._fired = threading.Event()
 
     def on_event(self, ev: ProgressEvent) -> None:
@@ -323,7 +323,7 @@ class _Injector:
             due_s = clock.now_s() + after_s
 
             def waiter(t_s: float, reply: object) -> None:
-                if t_s >= due_s and not self.injected_at:
+                if t_s >= due_s and self.at_station_s is None:
                     clock.remove_waiter(waiter)
                     self._inject()
 
@@ -337,8 +337,7 @@ class _Injector:
         ctx = self.runner.context
         if ctx is None:  # the run ended before the fault was due
             return
-        self.injected_at.append(ctx.clock.now_s())
-        self.injected_wall = time.monotonic()
+        self.at_station_s, self.at_wall_s = ctx.clock.now_s(), time.monotonic()
         self.fault()
 
 
