@@ -28,7 +28,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 PROGRAMS = ("station", "python3", "pytest", "pdfsig")
-MARKER = re.compile(r'<!--\s*doc-test(?:\s+"([^"]+)")?:\s*(\w+)\s*(.*?)\s*-->')
+MARKER = re.compile(r'<!--\s*doc-test(?:\s+"([^"]+)")?:\s*([\w-]+)\s*(.*?)\s*-->')
 FENCE = re.compile(r"^\s*```(\w*)\s*$")
 SHELL_FENCES = {"", "sh", "bash", "shell", "console"}
 
