@@ -12,7 +12,15 @@ import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from drivers.bounded import (
     MAX_LIST,
@@ -482,8 +490,23 @@ def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
             f"with: station procedure convert {loaded.path} -o NEW.yaml"
         )
     if isinstance(loaded.data, dict) and "steps" in loaded.data:
-        parse_steps(loaded.data["steps"], loaded)  # file:line for every entry's problems
+        try:
+            parse_steps(loaded.data["steps"], loaded)  # file:line for every entry's problems
+        except ConfigError as exc:  # and the run-wide fields' problems: every mistake at once
+            raise ConfigError("\n".join([str(exc), *_problems_beside_steps(loaded)])) from None
     return load_yaml_model(path, ProcedureConfig)
+
+
+def _problems_beside_steps(loaded: LoadedYaml) -> list[str]:
+    """The problems of a procedure's fields other than `steps` (already reported)."""
+    rest = {k: v for k, v in loaded.data.items() if k != "steps"}
+    try:
+        ProcedureConfig.model_validate({**rest, "steps": []})
+    except ValidationError as exc:
+        text = format_validation_error(exc, loaded, ProcedureConfig)
+        return [ln for ln in text.splitlines() if ": field steps" not in ln
+                and "field (top level)" not in ln]
+    return []
 
 
 def check_procedure_for_product(
