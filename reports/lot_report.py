@@ -267,7 +267,7 @@ def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
     story += [Paragraph("Runs", H2), _run_list(runs)]
     furniture = PageFurniture(
         title="Lot report",
-        identity=f"{y.runs} runs | yield "
+        identity=f"{y.runs} run{'' if y.runs == 1 else 's'} | yield "
                  + (f"{y.yield_fraction * 100:.1f} %" if y.yield_fraction is not None else "n/a"),
         simulated=sims > 0,
         document_time=issued,
