@@ -287,9 +287,21 @@ def margin(m: Measurement) -> tuple[float | None, str]:
         return None, "no limits"
     d = min(dists)
     if m.low is not None and m.high is not None and m.high > m.low:
-        # a no-break space: the per cent stays with its number when the cell wraps
-        return d, f"{d / ((m.high - m.low) / 2) * 100:.0f}\u00a0%"
+        return d, margin_pct(d / ((m.high - m.low) / 2) * 100)
     return d, ""
+
+
+MARGIN_PCT_SHOWN = 999  # beyond this many % of the half tolerance the figure says nothing
+
+
+def margin_pct(pct: float) -> str:
+    """The margin as % of half the tolerance; a no-break space keeps the per cent with its
+    number when the cell wraps, and a part far outside shows as beyond +/-999 %."""
+    if pct > MARGIN_PCT_SHOWN:
+        return f">{MARGIN_PCT_SHOWN}\u00a0%"
+    if pct < -MARGIN_PCT_SHOWN:
+        return f"<-{MARGIN_PCT_SHOWN}\u00a0%"
+    return f"{pct:.0f}\u00a0%"
 
 
 def results(inputs: CertificateInputs) -> list[Flowable]:
@@ -301,6 +313,9 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
              "Margin", "Outcome"]
     rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
     style = grid_style()
+    # nine columns: a narrower padding leaves the longest values of every column their room
+    style.add("LEFTPADDING", (0, 0), (-1, -1), 2)
+    style.add("RIGHTPADDING", (0, 0), (-1, -1), 2)
     for i, m in enumerate(rec.measurements, start=1):
         d, pct = margin(m)
         # Numbers as plain strings (never broken; table_fit gives each column its widest);

@@ -27,7 +27,7 @@ from reports.styles import FONT
 DEFAULT_SIZE = 7.5
 DEFAULT_PADDING = 6.0  # reportlab's default left + right padding
 FLOOR = 40.0  # points: the narrowest a text column is squeezed to
-SLACK = 1.5  # points: a word exactly as wide as its cell must not wrap on rounding
+SLACK = 0.5  # points: a word exactly as wide as its cell must not wrap on rounding
 _SPACES = re.compile(r"[^\S\xa0]+")  # where reportlab breaks a line: not at a no-break space
 
 

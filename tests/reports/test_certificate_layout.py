@@ -133,14 +133,21 @@ def _adjacent(lines: list[list[str]], first: str, second: str) -> bool:
 
 def test_every_value_and_uncertainty_is_its_own_token(edge_certificate: tuple[Path, Any]) -> None:
     folder, record = edge_certificate
-    lines = _lines(folder)
-    missing = [f"{m.name} @ {m.condition}: {fmt(m.value)} {fmt(m.uncertainty_k2, 3)}"
+    text = pdf_text(folder / "certificate.pdf")
+    results = text[text.index("Results\n"):text.index("Calibration written to the part")]
+    lines = [line.split() for line in results.splitlines()]
+    # each row: its condition, value and uncertainty side by side on one line, each whole
+    missing = [f"{m.condition} {fmt(m.value)} {fmt(m.uncertainty_k2, 3)} ({m.name})"
                for m in record.measurements
-               if not _adjacent(lines, fmt(m.value), fmt(m.uncertainty_k2, 3))]
+               if not any(tokens[i:i + 3] == [m.condition, fmt(m.value),
+                                              fmt(m.uncertainty_k2, 3)]
+                          for tokens in lines for i in range(len(tokens)))]
     assert not missing, missing
     tokens = {t for line in lines for t in line}
-    for name in CONDITIONS:  # whole, never broken inside the name
-        assert name in tokens, name
+    names = {m.name for m in record.measurements} | {
+        word for m in record.measurements if m.units != "1" for word in m.units.split()}
+    assert names - tokens == set()  # never broken inside a name or a unit
+    assert {"Outcome", "Measurement", "Condition"} <= tokens
 
 
 def test_calibration_shows_every_term_to_third_order_as_tokens(
