@@ -52,6 +52,7 @@ def test_lot_report_by_lot_and_by_work_order(lot_db: Path, tmp_path: Path) -> No
         assert n in out[1]
         text = pdf_text(pdf)
         assert f"{flag.removeprefix('--').replace('-', '_')} = {value}" in text
+        assert "deg/sqrt(h)" in text.split()  # units whole in the capability table (finding 14)
 
 
 def test_socket_is_indexed_and_shown_to_the_review_screen(lot_db: Path) -> None:
