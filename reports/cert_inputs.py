@@ -7,14 +7,18 @@ holds, makes the certificate's verdict ERROR with the problem spelled out, never
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from procedures.rawdata import RawData, RawDataError, file_sha256, read_raw
 from procedures.record import RAW_DATA_FILE, RunRecord, Verdict, read_record
 
 log = logging.getLogger(__name__)
+
+APPROVALS_FILE = "approvals.json"  # written by station/approvals.py, sealed with the folder
 
 
 @dataclass
@@ -25,6 +29,8 @@ class CertificateInputs:
     raw_path: Path
     raw_sha256: str | None
     problems: list[str] = field(default_factory=list)
+    # quality approvals ({by, role, time_utc, remark}), shown in the sign-off box
+    approvals: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def verdict(self) -> str:
@@ -64,8 +70,24 @@ def _raw_path(folder: Path, record: RunRecord | None) -> Path:
     return folder / RAW_DATA_FILE
 
 
-def load_inputs(folder: Path) -> CertificateInputs:
-    """Read record.json and the raw data of a run folder, collecting what is wrong."""
+def read_approvals(folder: Path) -> list[dict[str, Any]]:
+    """The approvals recorded in the folder's approvals.json; none when there is no such
+    file or it cannot be read (station/approvals.py refuses to approve a damaged one)."""
+    path = Path(folder) / APPROVALS_FILE
+    if not path.is_file():
+        return []
+    try:
+        entries = json.loads(path.read_text(encoding="utf-8")).get("approvals", [])
+    except (OSError, ValueError, AttributeError) as exc:
+        log.warning("approvals of %s not shown: %s", folder, exc)
+        return []
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
+def load_inputs(folder: Path,
+                approvals: list[dict[str, Any]] | None = None) -> CertificateInputs:
+    """Read record.json and the raw data of a run folder, collecting what is wrong.
+    `approvals`: the approvals to show (default: the folder's approvals.json)."""
     problems: list[str] = []
     record: RunRecord | None = None
     try:
@@ -95,4 +117,5 @@ def load_inputs(folder: Path) -> CertificateInputs:
             )
     for p in problems:
         log.warning("certificate for %s: %s", folder, p)
-    return CertificateInputs(folder, record, raw, raw_path, sha, problems)
+    shown = read_approvals(folder) if approvals is None else approvals
+    return CertificateInputs(folder, record, raw, raw_path, sha, problems, shown)

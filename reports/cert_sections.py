@@ -7,6 +7,7 @@ sparse record.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import date, datetime
 from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
@@ -16,7 +17,7 @@ from reportlab.lib.styles import ParagraphStyle
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
 
-from procedures.record import Measurement, Outcome, RunRecord
+from procedures.record import Calibration, Coefficient, Measurement, Outcome, RunRecord
 from reports import cert_three_axis, record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.cert_safe_state import safe_state_box
@@ -42,8 +43,10 @@ from reports.styles import (
     verdict_style,
     with_units,
 )
+from reports.table_fit import fitted_table
 
 CONTENT_WIDTH = 182 * mm
+CELL_BOLD = ParagraphStyle("cellbold", parent=CELL, fontName=FONT_BOLD)
 
 
 def _p(text: object, style: ParagraphStyle = CELL) -> Paragraph:
@@ -129,10 +132,9 @@ def header(inputs: CertificateInputs) -> list[Flowable]:
             story.append(Paragraph(
                 f"INSTRUMENT CALIBRATION OVERDUE on the day of this run: {escape(late)}", WARNING))
     rows = _identity_rows(inputs, serial)
-    table = Table([[_p(k), _p(v)] for k, v in rows], colWidths=[42 * mm, CONTENT_WIDTH - 42 * mm])
     style = grid_style(header_rows=0)
     style.add("BACKGROUND", (0, 0), (0, -1), HEADER_GREY)
-    table.setStyle(style)
+    table = fitted_table([[_p(k), _p(v)] for k, v in rows], CONTENT_WIDTH, style)
     story += [Spacer(1, 2 * mm), table]
     if rec is not None:
         story.append(Spacer(1, 1.5 * mm))
@@ -209,9 +211,7 @@ def traceability(inputs: CertificateInputs) -> list[Flowable]:
                          _p(ref.sha256, CELL_MONO)])
     raw_note = inputs.raw_sha256 or "file missing"
     rows.append([_p("Raw data"), _p(inputs.raw_path.name), _p("-"), _p(raw_note, CELL_MONO)])
-    t = Table(rows, colWidths=[24 * mm, 42 * mm, 18 * mm, CONTENT_WIDTH - 84 * mm], repeatRows=1)
-    t.setStyle(grid_style())
-    story.append(t)
+    story.append(fitted_table(rows, CONTENT_WIDTH, grid_style(), repeatRows=1))
     story.append(Spacer(1, 2 * mm))
     irows = [[_p(h) for h in ("Role", "Instrument", "Serial", "Firmware", "Address",
                                "Calibration due")]]
@@ -228,13 +228,10 @@ def traceability(inputs: CertificateInputs) -> list[Flowable]:
                           _p(inst.address or "-"), _p(due)])
     if len(irows) == 1:
         irows.append([_p("no instruments recorded")] + [_p("")] * 5)
-    t = Table(irows, colWidths=[24 * mm, 44 * mm, 26 * mm, 22 * mm, 36 * mm, 30 * mm],
-              repeatRows=1)
     style = grid_style()
     for r in overdue_rows:
         style.add("BACKGROUND", (0, r), (-1, r), FAIL_ROW)
-    t.setStyle(style)
-    story.append(t)
+    story.append(fitted_table(irows, CONTENT_WIDTH, style, repeatRows=1))
     return story
 
 
@@ -245,17 +242,17 @@ def conditions(inputs: CertificateInputs) -> list[Flowable]:
         return story + [Paragraph("No conditions recorded.", NOTE)]
     heads = ["Condition", "Chamber set (C)", "Die temp (C)", "Supply set (V)",
              "Supply measured (V)", "Supply current (A)", "Time to stability (s)", "Stable"]
-    rows = [[_p(h) for h in heads]]
+    rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
     for c in rec.conditions:
         extra = c.model_extra or {}
         measured = extra.get("supply_measured_v")
-        rows.append([_p(c.name), _p(fmt(c.temperature_c)), _p(fmt(c.die_temperature_c)),
-                     _p(fmt(c.supply_v)),
-                     _p(fmt(float(measured)) if isinstance(measured, int | float) else "-"),
-                     _p(fmt(c.supply_current_a)), _p(fmt(c.time_to_stability_s)),
-                     _p(fmt(c.stable) if c.stable is not None else "-")])
-    t = Table(rows, repeatRows=1, colWidths=[28 * mm] + [22 * mm] * 7)
-    t.setStyle(grid_style())
+        # numbers as plain strings: never broken inside (table_fit sizes their columns)
+        rows.append([_p(c.name), fmt(c.temperature_c), fmt(c.die_temperature_c),
+                     fmt(c.supply_v),
+                     fmt(float(measured)) if isinstance(measured, int | float) else "-",
+                     fmt(c.supply_current_a), fmt(c.time_to_stability_s),
+                     fmt(c.stable) if c.stable is not None else "-"])
+    t = fitted_table(rows, CONTENT_WIDTH, grid_style(), repeatRows=1)
     crit = record_keys.stability(rec.analysis)
     story.append(t)
     if crit:
@@ -290,8 +287,21 @@ def margin(m: Measurement) -> tuple[float | None, str]:
         return None, "no limits"
     d = min(dists)
     if m.low is not None and m.high is not None and m.high > m.low:
-        return d, f"{d / ((m.high - m.low) / 2) * 100:.0f} %"
+        return d, margin_pct(d / ((m.high - m.low) / 2) * 100)
     return d, ""
+
+
+MARGIN_PCT_SHOWN = 999  # beyond this many % of the half tolerance the figure says nothing
+
+
+def margin_pct(pct: float) -> str:
+    """The margin as % of half the tolerance; a no-break space keeps the per cent with its
+    number when the cell wraps, and a part far outside shows as beyond +/-999 %."""
+    if pct > MARGIN_PCT_SHOWN:
+        return f">{MARGIN_PCT_SHOWN}\u00a0%"
+    if pct < -MARGIN_PCT_SHOWN:
+        return f"<-{MARGIN_PCT_SHOWN}\u00a0%"
+    return f"{pct:.0f}\u00a0%"
 
 
 def results(inputs: CertificateInputs) -> list[Flowable]:
@@ -303,13 +313,19 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
              "Margin", "Outcome"]
     rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
     style = grid_style()
+    # nine columns: a narrower padding leaves the longest values of every column their room
+    style.add("LEFTPADDING", (0, 0), (-1, -1), 2)
+    style.add("RIGHTPADDING", (0, 0), (-1, -1), 2)
     for i, m in enumerate(rec.measurements, start=1):
         d, pct = margin(m)
-        # Numbers as plain strings (fast, never wrap); names and units as paragraphs.
+        # Numbers as plain strings (never broken; table_fit gives each column its widest);
+        # names, units, the margin's "value %" and the outcome as paragraphs, which may wrap
+        # at a space ("NOT / MEASURED"), so that the numbers keep their room.
+        words = CELL_BOLD if m.outcome == Outcome.FAIL else CELL
         rows.append([_p(m.name), _p(m.condition or "-"), fmt(m.value),
                      fmt(m.uncertainty_k2, 3), _p(unit_label(m.units)), fmt(m.low), fmt(m.high),
-                     f"{fmt(d, 3)} {pct}".strip() if d is not None else pct,
-                     m.outcome.value.replace("_", " ")])
+                     _p(f"{fmt(d, 3)} {pct}".strip() if d is not None else pct, words),
+                     _p(m.outcome.value.replace("_", " "), words)])
         if m.outcome == Outcome.FAIL:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
             style.add("FONT", (0, i), (-1, i), FONT_BOLD, 7.5)
@@ -317,9 +333,7 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
             style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
         elif m.outcome == Outcome.NOT_MEASURED:
             style.add("TEXTCOLOR", (0, i), (-1, i), colors.grey)
-    t = Table(rows, repeatRows=1, colWidths=[38 * mm, 21 * mm, 17 * mm, 15 * mm, 17 * mm,
-                                             15 * mm, 15 * mm, 21 * mm, 23 * mm])
-    t.setStyle(style)
+    t = fitted_table(rows, CONTENT_WIDTH, style, repeatRows=1)
     n_fail = sum(m.outcome == Outcome.FAIL for m in rec.measurements)
     n_marg = sum(m.outcome == Outcome.MARGINAL for m in rec.measurements)
     story += [t, Paragraph(
@@ -343,6 +357,37 @@ _COEFFS = [
     ("scale_temp_coeff_per_c", "Scale temperature coefficient", "1/C", "scale_tc_per_c"),
     ("scale_supply_coeff_per_v", "Scale supply coefficient", "1/V", "scale_vc_per_v"),
 ]
+# The terms beyond first order an order-2 or -3 fit adds to the calibration block (extra keys,
+# procedures/steps/fit_order.py), each after its first-order term; shown when present.
+_HIGHER_COEFFS = {
+    "bias_temp_coeff_dps_per_c": [
+        ("bias_temp_coeff2_dps_per_c2", "Bias temperature coefficient, 2nd order",
+         "deg/s/C^2", "bias_tc2_dps_per_c2"),
+        ("bias_temp_coeff3_dps_per_c3", "Bias temperature coefficient, 3rd order",
+         "deg/s/C^3", "bias_tc3_dps_per_c3")],
+    "scale_temp_coeff_per_c": [
+        ("scale_temp_coeff2_per_c2", "Scale temperature coefficient, 2nd order", "1/C^2",
+         "scale_tc2_per_c2"),
+        ("scale_temp_coeff3_per_c3", "Scale temperature coefficient, 3rd order", "1/C^3",
+         "scale_tc3_per_c3")],
+}
+
+
+def calibration_terms(cal: Calibration) -> list[tuple[str, str, str, str, Coefficient]]:
+    """(key, label, units, register, coefficient) of every term written to the part: the
+    six first-order ones and whichever higher-order ones the record holds."""
+    extra = cal.model_extra or {}
+    out = []
+    for key, label, units, register in _COEFFS:
+        out.append((key, label, units, register, getattr(cal, key)))
+        for hkey, hlabel, hunits, hregister in _HIGHER_COEFFS.get(key, []):
+            raw = extra.get(hkey)
+            try:
+                coeff = Coefficient.model_validate(raw)
+            except ValueError:
+                continue  # absent (a first-order fit) or malformed: not a programmed term
+            out.append((hkey, hlabel, hunits, hregister, coeff))
+    return out
 
 
 def readback_value(readback: dict[str, float], key: str, register: str) -> float | None:
@@ -360,16 +405,13 @@ def calibration(inputs: CertificateInputs) -> list[Flowable]:
     if cal is None:
         return story + [Paragraph("No calibration was written to this part.", NOTE)]
     readback = cal.readback or {}
-    rows = [[_p(h) for h in ("Coefficient", "Key", "Value", "U (k=2)", "Units", "Read back")]]
-    for key, label, units, register in _COEFFS:
-        c = getattr(cal, key)
-        rows.append([_p(label), _p(key, CELL_MONO), _p(fmt(c.value, 7)),
-                     _p(fmt(c.uncertainty_k2, 3)), _p(unit_label(units)),
-                     _p(fmt(readback_value(readback, key, register), 7))])
-    t = Table(rows, repeatRows=1, colWidths=[48 * mm, 50 * mm, 22 * mm, 18 * mm, 16 * mm,
-                                             28 * mm])
-    t.setStyle(grid_style())
-    story.append(t)
+    rows: list[list[str | Paragraph]] = [[_p(h) for h in (
+        "Coefficient", "Key", "Value", "U (k=2)", "Units", "Read back")]]
+    for key, label, units, register, c in calibration_terms(cal):
+        rows.append([_p(label), _p(key, CELL_MONO), fmt(c.value, 7),
+                     fmt(c.uncertainty_k2, 3), _p(unit_label(units)),
+                     fmt(readback_value(readback, key, register), 7)])
+    story.append(fitted_table(rows, CONTENT_WIDTH, grid_style(), repeatRows=1))
     bias, scale = cal.bias_dps.value, cal.scale.value
     rb = {True: "PASSED (registers read back equal to the values written)",
           False: "FAILED (registers read back differ from the values written)",
@@ -397,16 +439,15 @@ def verification(rec: RunRecord | None) -> list[Flowable]:
     rows_in = record_keys.verification_residuals(rec.verification if rec else None)
     if not rows_in:
         return story + [Paragraph("No verification residuals recorded.", NOTE)]
-    rows = [[_p(h) for h in ("Condition", "Input rate (deg/s)", "Residual (deg/s)",
-                             "Residual (%)")]]
+    rows: list[list[str | Paragraph]] = [[_p(h) for h in (
+        "Condition", "Input rate (deg/s)", "Residual (deg/s)", "Residual (%)")]]
     for r in rows_in:
         def num(key: str, r: dict[str, Any] = r) -> float | None:
             v = r.get(key)
             return float(v) if isinstance(v, int | float) else None
-        rows.append([_p(r.get("condition", "-")), _p(fmt(num("rate_in_dps"))),
-                     _p(fmt(num("error_dps"), 3)), _p(fmt(num("error_pct"), 3))])
-    t = Table(rows, repeatRows=1, colWidths=[40 * mm, 35 * mm, 35 * mm, 35 * mm])
-    t.setStyle(grid_style())
+        rows.append([_p(r.get("condition", "-")), fmt(num("rate_in_dps")),
+                     fmt(num("error_dps"), 3), fmt(num("error_pct"), 3)])
+    t = fitted_table(rows, CONTENT_WIDTH, grid_style(), repeatRows=1)
     story.append(t)
     v = rec.verification if rec else None
     if isinstance(v, dict) and isinstance(v.get("max_error_pct"), int | float):
@@ -415,16 +456,32 @@ def verification(rec: RunRecord | None) -> list[Flowable]:
     return story
 
 
-def sign_off() -> Table:
-    """Boxes for the quality engineer's review, filled in by hand or by a signing tool."""
-    rows = [[_p("Reviewed by (quality)"), _p(""), _p("Date"), _p(""), _p("Signature"), _p("")]]
-    t = Table(rows, colWidths=[34 * mm, 46 * mm, 12 * mm, 28 * mm, 18 * mm, 44 * mm],
-              rowHeights=[10 * mm])
-    style = grid_style(header_rows=0)
-    for col in (0, 2, 4):
-        style.add("BACKGROUND", (col, 0), (col, 0), HEADER_GREY)
-    t.setStyle(style)
-    return t
+def approval_date(entry: dict[str, Any]) -> str:
+    """An approval's time as the box shows it (UTC, to the minute)."""
+    t = parse_utc(str(entry.get("time_utc", "")))
+    return f"{t:%Y-%m-%d %H:%M} UTC" if t else str(entry.get("time_utc") or "not recorded")
+
+
+def sign_off(approvals: Sequence[dict[str, Any]] = ()) -> Table:
+    """The quality engineer's review box: one row per recorded approval (name, role and
+    remark; date; that it is signed, and in which PDF signature field), or an empty row to
+    be filled in by hand when the run has not been approved."""
+    heads = ["Reviewed by (quality)", "Date", "Signature"]
+    rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
+    for n, entry in enumerate(approvals, start=1):
+        who = f"{entry.get('by', '?')} ({entry.get('role', 'quality')})"
+        remark = str(entry.get("remark") or "").strip()
+        rows.append([_p(who + (f"; remark: {remark}" if remark else "")),
+                     approval_date(entry),
+                     _p(f"signed digitally (PDF signature Approval-{n}, station key)")])
+    if len(rows) == 1:
+        rows.append([_p(""), "", _p("")])
+    style = grid_style()
+    table = fitted_table(rows, CONTENT_WIDTH, style)
+    if not approvals:  # room to sign by hand
+        table = Table(rows, colWidths=table._colWidths, rowHeights=[None, 10 * mm])
+        table.setStyle(style)
+    return table
 
 
 def generated_note(inputs: CertificateInputs, when: datetime) -> Paragraph:

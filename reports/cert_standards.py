@@ -7,11 +7,12 @@ and the product file); a record from before it says "not recorded" for each.
 from __future__ import annotations
 
 from reportlab.lib.units import mm
-from reportlab.platypus import Flowable, Paragraph, Spacer, Table
+from reportlab.platypus import Flowable, Paragraph, Spacer
 
 from procedures.record import CertificateContext
 from reports.cert_inputs import CertificateInputs
 from reports.styles import BODY, CELL, H2, escape, fmt, grid_style
+from reports.table_fit import fitted_table
 
 CONTENT_WIDTH = 182 * mm
 NOT_RECORDED = "not recorded"
@@ -61,8 +62,7 @@ def standards(inputs: CertificateInputs) -> list[Flowable]:
     if rec is None:
         return []
     context = rec.certificate_context
-    table = Table(_rows(context), colWidths=[52 * mm, 44 * mm, 56 * mm, 30 * mm], repeatRows=1)
-    table.setStyle(grid_style())
+    table = fitted_table(_rows(context), CONTENT_WIDTH, grid_style(), repeatRows=1)
     return [Paragraph("Decision rule, reference standards and ambient conditions", H2),
             Paragraph(escape(decision_rule_text(context)), BODY), Spacer(1, 1.5 * mm),
             table, Spacer(1, 1.5 * mm), Paragraph(escape(ambient_text(context)), BODY)]

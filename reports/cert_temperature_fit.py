@@ -28,6 +28,7 @@ from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableSt
 from reports.cert_inputs import CertificateInputs
 from reports.charts import PALETTE, Chart, message_box
 from reports.styles import CELL, CELL_MONO, H2, NOTE, escape, fmt, grid_style, unit_label
+from reports.table_fit import fitted_table
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +67,8 @@ def polynomial_at(
 
 
 def _table(fit: dict[str, Any]) -> Table:
-    rows = [[Paragraph(h, CELL) for h in ("Coefficient", "Value", "U (k=2)", "Units")]]
+    rows: list[list[str | Paragraph]] = [
+        [Paragraph(h, CELL) for h in ("Coefficient", "Value", "U (k=2)", "Units")]]
     coefficients = fit.get("coefficients")
     if not isinstance(coefficients, list) or not coefficients:
         raise MalformedFit(f"{KEY}.coefficients is not a list")
@@ -74,12 +76,10 @@ def _table(fit: dict[str, Any]) -> Table:
         if not isinstance(c, dict):
             raise MalformedFit(f"{KEY}.coefficients holds a non-mapping")
         rows.append([Paragraph(escape(c.get("name", "-")), CELL_MONO),
-                     Paragraph(fmt(_num(c, "value"), 7), CELL),
-                     Paragraph(fmt(_num(c, "uncertainty_k2"), 3), CELL),
+                     fmt(_num(c, "value"), 7),  # numbers: never broken (table_fit)
+                     fmt(_num(c, "uncertainty_k2"), 3),
                      Paragraph(escape(unit_label(str(c.get("units", "")))), CELL)])
-    t = Table(rows, repeatRows=1, colWidths=[70 * mm, 35 * mm, 30 * mm, 30 * mm])
-    t.setStyle(grid_style())
-    return t
+    return fitted_table(rows, FULL_W, grid_style(), repeatRows=1)
 
 
 def _chart(fit: dict[str, Any], kind: str) -> Chart:

@@ -24,6 +24,9 @@ from procedures.record import (
 )
 from reports.cert_inputs import CertificateInputs
 from reports.styles import BODY, CELL, H2, NOTE, fmt, grid_style
+from reports.table_fit import fitted_table
+
+WIDTH = 182 * mm
 
 AXES = "xyz"
 PER_AXIS = (
@@ -54,9 +57,7 @@ def _vector_table(rows: list[tuple[str, ArrayValue, str]]) -> Table:
     for label, arr, units in rows:
         cells = [_p(_pm(v, u)) for v, u in zip(arr.value, arr.uncertainty_k2, strict=True)]
         data.append([_p(label), *cells, _p(units)])
-    t = Table(data, colWidths=[38 * mm, 42 * mm, 42 * mm, 42 * mm, 18 * mm])
-    t.setStyle(grid_style())
-    return t
+    return fitted_table(data, WIDTH, grid_style())
 
 
 def _matrix_table(title: str, arr: ArrayValue, units: str, digits: int = 6) -> Table:
@@ -66,9 +67,7 @@ def _matrix_table(title: str, arr: ArrayValue, units: str, digits: int = 6) -> T
         assert isinstance(row_v, list) and isinstance(row_u, list)
         data.append([_p(f"row {a}"),
                      *[_p(_pm(v, u, digits)) for v, u in zip(row_v, row_u, strict=True)]])
-    t = Table(data, colWidths=[38 * mm, 48 * mm, 48 * mm, 48 * mm])
-    t.setStyle(grid_style())
-    return t
+    return fitted_table(data, WIDTH, grid_style())
 
 
 def _misalignment_mrad(cal: CalibrationThreeAxis) -> Table:
@@ -86,9 +85,7 @@ def _misalignment_mrad(cal: CalibrationThreeAxis) -> Table:
             else:
                 cells.append(_p(_pm(1e3 * m[i, j] / m[i, i], 1e3 * u[i, j] / abs(m[i, i]), 4)))
         data.append([_p(f"row {a}"), *cells])
-    t = Table(data, colWidths=[38 * mm, 48 * mm, 48 * mm, 48 * mm])
-    t.setStyle(grid_style())
-    return t
+    return fitted_table(data, WIDTH, grid_style())
 
 
 def _judged(rec: RunRecord) -> str:

@@ -23,6 +23,7 @@ import logging
 import time
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 from reportlab.platypus import Flowable, KeepTogether, Spacer
 
@@ -67,15 +68,19 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story += cert_temperature_fit.temperature_fit(inputs)
     if inputs.record is not None:
         story += cert_plots.all_plots(inputs)
-    story += [Spacer(1, 8), KeepTogether([cert_sections.sign_off(), Spacer(1, 4),
+    story += [Spacer(1, 8), KeepTogether([cert_sections.sign_off(inputs.approvals),
+                                          Spacer(1, 4),
                                           cert_sections.generated_note(inputs, when)])]
     return story
 
 
-def certificate_bytes(run_folder: Path, *, unverified: str = "") -> bytes:
+def certificate_bytes(run_folder: Path, *, unverified: str = "",
+                      approvals: list[dict[str, Any]] | None = None) -> bytes:
     """The certificate of a run folder as PDF bytes (nothing written). `unverified`: why
-    the folder failed verification; marks every page UNVERIFIED with that reason."""
-    inputs = load_inputs(run_folder)
+    the folder failed verification; marks every page UNVERIFIED with that reason.
+    `approvals`: the quality approvals to show in the sign-off box (default: those in the
+    folder's approvals.json)."""
+    inputs = load_inputs(run_folder, approvals)
     rec = inputs.record
     serial = bounded(rec.dut.serial if rec else "unknown serial", 64)
     run_id = bounded(rec.run_id if rec else run_folder.name, 80)

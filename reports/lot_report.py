@@ -36,6 +36,7 @@ from reports.styles import (
     titled,
     unit_label,
 )
+from reports.table_fit import fitted_table
 from station.results_db import MeasurementRow, ResultsDB, RunRow
 
 FULL_W = 182 * mm
@@ -76,22 +77,19 @@ def _summary_table(y: lot_stats.YieldSummary) -> Table:
 
 
 def _capability_table(caps: list[lot_stats.Capability]) -> Table:
-    rows = [[_p(h) for h in ("Measurement", "Units", "n", "Mean", "Sigma (n-1)", "LSL", "USL",
-                             "Cpk")]]
+    rows: list[list[str | Paragraph]] = [[_p(h) for h in (
+        "Measurement", "Units", "n", "Mean", "Sigma (n-1)", "LSL", "USL", "Cpk")]]
     style = grid_style()
     for i, c in enumerate(caps, start=1):
+        # numbers as plain strings, never broken; table_fit sizes every column to its content
         rows.append([_p(c.label + (" *" if c.limits_varied else "")), _p(unit_label(c.units)),
-                     _p(c.n),
-                     _p(fmt(c.mean)), _p(fmt(c.sigma, 3)), _p(fmt(c.low)), _p(fmt(c.high)),
-                     _p(fmt(c.cpk, 3))])
+                     str(c.n), fmt(c.mean), fmt(c.sigma, 3), fmt(c.low), fmt(c.high),
+                     fmt(c.cpk, 3)])
         if c.cpk is not None and c.cpk < 1.0:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
         elif c.cpk is not None and c.cpk < 1.33:
             style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
-    t = Table(rows, repeatRows=1, colWidths=[62 * mm, 16 * mm, 10 * mm, 20 * mm, 20 * mm,
-                                             18 * mm, 18 * mm, 16 * mm])
-    t.setStyle(style)
-    return t
+    return fitted_table(rows, FULL_W, style, repeatRows=1)
 
 
 def _histogram(c: lot_stats.Capability) -> Flowable:
@@ -206,9 +204,7 @@ def _run_list(runs: list[RunRow]) -> Table:
                      (why or "-") if len(why) <= 28 else _p(why)])
         if r.verdict != "PASS":
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
-    t = Table(rows, repeatRows=1, colWidths=[58 * mm, 28 * mm, 34 * mm, 20 * mm, 42 * mm])
-    t.setStyle(style)
-    return t
+    return fitted_table(rows, FULL_W, style, repeatRows=1)
 
 
 def _coverage_text(db: ResultsDB, runs: list[RunRow], filters: dict[str, object]) -> str:
@@ -267,7 +263,7 @@ def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
     story += [Paragraph("Runs", H2), _run_list(runs)]
     furniture = PageFurniture(
         title="Lot report",
-        identity=f"{y.runs} runs | yield "
+        identity=f"{y.runs} run{'' if y.runs == 1 else 's'} | yield "
                  + (f"{y.yield_fraction * 100:.1f} %" if y.yield_fraction is not None else "n/a"),
         simulated=sims > 0,
         document_time=issued,

@@ -13,9 +13,10 @@ import statistics
 from collections.abc import Sequence
 
 from reportlab.lib.units import mm
-from reportlab.platypus import Flowable, Paragraph, Table
+from reportlab.platypus import Flowable, Paragraph
 
 from reports.styles import CELL, H2, NOTE, fmt, grid_style
+from reports.table_fit import fitted_table
 from station.results_db import CalibrationElement, RunRow
 
 LABELS = {
@@ -67,9 +68,7 @@ def three_axis_section(
                                                   "Sigma (n-1)", "Mean U (k=2)")]]
     for name, units, n, mean, sigma, u in lines:
         rows.append([_p(name), _p(units), str(n), fmt(mean, 6), fmt(sigma, 3), fmt(u, 3)])
-    t = Table(rows, repeatRows=1, colWidths=[30 * mm, 30 * mm, 12 * mm, 30 * mm, 30 * mm,
-                                             30 * mm])
-    t.setStyle(grid_style())
+    t = fitted_table(rows, 182 * mm, grid_style(), repeatRows=1)
     return [Paragraph("Three-axis calibration written, per axis", H2), t, Paragraph(
         "Completed three-axis runs. b: bias vector; M: correction matrix (row: output axis, "
         "column: input axis); G: g-sensitivity (row: gyro axis, column: accelerometer axis); "

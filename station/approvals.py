@@ -1,11 +1,21 @@
-"""A quality engineer's approval of a run: recorded, signed into the PDF, sealed.
+"""A quality engineer's approval of a run: recorded, shown on the certificate, signed, sealed.
 
-`approve(folder, settings, by=..., role="quality")` refuses a folder that fails
-verification, appends {by, role, time_utc, certificate_sha256 (of the PDF approved)} to
-`approvals.json`, adds a PAdES signature (field Approval-N, the approver's name and the time
-in its reason) as an incremental update of certificate.pdf, and writes a new manifest that
-covers approvals.json. The signature is made with the station's key on the approver's
-behalf: the station's sign-in (station/ui/auth.py) is what vouches for who approved.
+`approve(folder, settings, by=..., role="quality", remark=...)` refuses a folder that fails
+verification (and a FAIL run approved without a remark), appends {by, role, time_utc,
+remark, certificate_sha256 (of the PDF approved)} to `approvals.json`, issues the certificate
+again with the approval in its "Reviewed by (quality)" box (station/certify.py: rendered
+from the record and the approvals, the station's signature, then one PAdES signature per
+approval, field Approval-N, the approver's name and the time in its reason), and writes a new
+manifest that covers approvals.json. The signatures are made with the station's key on the
+approver's behalf: the station's sign-in (station/ui/auth.py) is what vouches for who
+approved.
+
+Why re-render rather than only append a visible signature to the signed PDF: the approval
+then is part of the page content (every viewer, a print and pdftotext show it), any number
+of approvals fit the box, and `station approve` and `station report` produce the same
+document from the same sealed files. The cost: the station's signature is made again at the
+approval (its time changes); the certificate approved is identified by its SHA-256 in the
+approval's entry.
 """
 
 from __future__ import annotations
@@ -15,14 +25,14 @@ import json
 from pathlib import Path
 from typing import Any
 
-from procedures.record import CERTIFICATE_FILE
-from station.certify import approval_reason, station_identity, trusted_fingerprints
+from procedures.record import CERTIFICATE_FILE, Verdict, read_record
+from station.certify import signed_certificate, station_identity, trusted_fingerprints
 from station.errors import UserError
 from station.manifest import APPROVALS_FILE, file_digest, seal, verify_folder
-from station.pdf_signing import sign_pdf_bytes
 from station.settings import LoadedSettings
 
 MAX_NAME_CHARS = 120
+MAX_REMARK_CHARS = 500
 
 
 def read_approvals(folder: Path) -> list[dict[str, Any]]:
@@ -43,15 +53,19 @@ def _write_approvals(folder: Path, entries: list[dict[str, Any]]) -> None:
     write_atomic(folder / APPROVALS_FILE, (text + "\n").encode())
 
 
-def approve(folder: Path, settings: LoadedSettings, *, by: str, role: str) -> dict[str, Any]:
-    """Record and sign an approval; returns the new entry. UserError when the folder is
-    altered, has no certificate, or the name is empty."""
+def approve(folder: Path, settings: LoadedSettings, *, by: str, role: str,
+            remark: str = "") -> dict[str, Any]:
+    """Record, show and sign an approval; returns the new entry. UserError when the folder
+    is altered, has no certificate, the name is empty, or a FAIL run has no remark."""
+    from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
 
     folder = Path(folder)
-    name = by.strip()
+    name, remark = by.strip(), remark.strip()
     if not name or len(name) > MAX_NAME_CHARS:
         raise UserError(f"approver name must be 1-{MAX_NAME_CHARS} characters")
+    if len(remark) > MAX_REMARK_CHARS or not remark.isprintable():
+        raise UserError(f"--remark must be at most {MAX_REMARK_CHARS} printable characters")
     result = verify_folder(folder, trusted_fingerprints(settings))
     if not result.intact:
         raise UserError(f"{folder} cannot be approved: " + "; ".join(result.problems))
@@ -59,15 +73,24 @@ def approve(folder: Path, settings: LoadedSettings, *, by: str, role: str) -> di
     if not cert.is_file():
         raise UserError(f"{folder} has no certificate to approve; render it with "
                         "`station report RUN_FOLDER` first")
+    try:
+        record = read_record(folder)
+    except ValueError as exc:
+        raise UserError(f"{folder} cannot be approved: {exc}") from None
+    if record.verdict is Verdict.FAIL and not remark:
+        raise UserError(f"{folder} is a FAIL run: approving it needs a remark saying why "
+                        "(--remark TEXT)")
     entries = read_approvals(folder)
     entry = {"by": name, "role": role,
              "time_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
              "certificate_sha256": file_digest(cert)["sha256"]}
+    if remark:
+        entry["remark"] = remark
+    approvals = [*entries, entry]
     identity = station_identity(settings)
-    signed = sign_pdf_bytes(cert.read_bytes(), identity,
-                            field_name=f"Approval-{len(entries) + 1}",
-                            reason=approval_reason(entry), signer_name=name)
-    write_atomic(cert, signed)
-    _write_approvals(folder, [*entries, entry])
+    pdf = signed_certificate(certificate_bytes(folder, approvals=approvals), identity,
+                             settings.settings.station.id, record.certificate_number, approvals)
+    write_atomic(cert, pdf)
+    _write_approvals(folder, approvals)
     seal(folder, identity, "approval")
     return entry

@@ -2,7 +2,7 @@
 
     station report RUN_FOLDER [--index] [--db PATH] [--unverified] [--station FILE]
     station history [--since DATE] [--until DATE] [--product P] [--verdict V] [--serial S]
-                    [--db PATH] [--json] [--reindex RUNS_DIR]
+                    [--lot LOT] [--work-order WO] [--db PATH] [--json] [--reindex RUNS_DIR]
     station lot-report [same filters] --out FILE.pdf [--issued TIME] [--db PATH]
 
 The database defaults to the one named in config/station.yaml (`results_db`), or
@@ -27,6 +27,11 @@ log = logging.getLogger(__name__)
 FALLBACK_DB = Path("runs/results.sqlite")
 UNVERIFIED_FILE = "certificate-UNVERIFIED.pdf"
 VERDICTS = ("PASS", "FAIL", "ERROR", "ABORTED", "RUNNING")
+
+
+def plural(n: int, noun: str) -> str:
+    """'1 run', '2 runs'."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def default_db_path() -> Path | str:
@@ -62,6 +67,8 @@ def _filters(args: argparse.Namespace) -> dict[str, Any]:
         "product": args.product,
         "verdict": args.verdict.upper() if args.verdict else None,
         "serial": args.serial,
+        "lot": args.lot,
+        "work_order": args.work_order,
     }
 
 
@@ -72,6 +79,9 @@ def _add_filters(p: argparse.ArgumentParser) -> None:
     p.add_argument("--verdict", metavar="V", type=str.upper, choices=VERDICTS,
                    help="PASS, FAIL, ERROR or ABORTED")
     p.add_argument("--serial", metavar="S", help="one part's serial number")
+    p.add_argument("--lot", metavar="LOT", help="one production lot (station run --lot)")
+    p.add_argument("--work-order", metavar="WO",
+                   help="one work order (station run --work-order)")
     p.add_argument("--db", metavar="PATH", help="results database (default: station.yaml's)")
 
 
@@ -132,8 +142,11 @@ def _render_checked(folder: Path, args: argparse.Namespace) -> Path:
 def history_table(runs: list[RunRow]) -> list[str]:
     """The runs as text rows under a header, each column as wide as its widest cell plus
     two spaces, so no value runs into the next (product names can be long)."""
-    header = ("started (UTC)", "serial", "product", "verdict", "detail")
-    rows = [(r.started_utc, r.serial, r.product, r.verdict,
+    line = any(r.lot or r.work_order for r in runs)  # the line's columns, when recorded
+    header = ("started (UTC)", "serial", *(("lot", "work order") if line else ()), "product",
+              "verdict", "detail")
+    rows = [(r.started_utc, r.serial, *((r.lot or "-", r.work_order or "-") if line else ()),
+             r.product, r.verdict,
              " ".join(filter(None, [", ".join(r.failed_measurements) or r.reason,
                                     "[sim]" if r.simulated else ""])))
             for r in runs]
@@ -188,7 +201,8 @@ def cmd_history(args: argparse.Namespace) -> int:
             "run_id": r.run_id, "serial": r.serial, "product": r.product,
             "verdict": r.verdict, "started_utc": r.started_utc, "reason": r.reason,
             "failed_measurements": list(r.failed_measurements), "folder": r.folder,
-            "simulated": r.simulated} for r in runs], indent=2))
+            "simulated": r.simulated, "lot": r.lot, "work_order": r.work_order,
+            "socket": r.socket} for r in runs], indent=2))
         return 0
     if not runs:
         print("no runs match")
@@ -198,7 +212,7 @@ def cmd_history(args: argparse.Namespace) -> int:
     counts = {v: sum(r.verdict == v for r in runs) for v in VERDICTS}
     done = counts["PASS"] + counts["FAIL"]
     yield_text = f"{counts['PASS'] / done * 100:.1f} %" if done else "n/a"
-    print(f"{len(runs)} runs: " + ", ".join(f"{v} {n}" for v, n in counts.items() if n)
+    print(f"{plural(len(runs), 'run')}: " + ", ".join(f"{v} {n}" for v, n in counts.items() if n)
           + f"; yield {yield_text}")
     return 0
 
@@ -224,7 +238,7 @@ def cmd_lot_report(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     y = summary.yields
     yf = f"{y.yield_fraction * 100:.1f} %" if y.yield_fraction is not None else "n/a"
-    print(f"{out}: {y.runs} runs, yield {yf}, {summary.pages} pages")
+    print(f"{out}: {plural(y.runs, 'run')}, yield {yf}, {plural(summary.pages, 'page')}")
     return 0
 
 

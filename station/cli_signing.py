@@ -2,8 +2,9 @@
 
     station verify RUN_FOLDER [--trust CERT.pem] [--station FILE]
         exit 0 intact, 1 altered (naming the file), 2 not a run folder (pinned)
-    station approve RUN_FOLDER --by NAME [--station FILE]
-        a quality engineer's approval: second PDF signature, approvals.json, new manifest
+    station approve RUN_FOLDER --by NAME [--remark TEXT] [--station FILE]
+        a quality engineer's approval: shown on the certificate, second PDF signature,
+        approvals.json, new manifest (a FAIL run needs --remark)
 """
 
 from __future__ import annotations
@@ -14,12 +15,25 @@ import sys
 from pathlib import Path
 
 from station.errors import UserError
-from station.manifest import Status, verify_folder
+from station.manifest import Status, Verification, verify_folder
 
 log = logging.getLogger(__name__)
 
 ORIGINS = {"run": "at the end of the run", "report": "by `station report` (not at the run)",
            "approval": "after a quality approval"}
+
+
+AGAIN = {"report": "by `station report`", "approval": "after a quality approval",
+         "run": "at the end of the run"}
+
+
+def sealed_text(result: Verification) -> str:
+    """When the folder's evidence starts (its first sealing) and what sealed it last."""
+    first = result.first_origin or result.origin
+    text = "sealed " + ORIGINS.get(first, first or "unknown")
+    if result.origin and result.origin != first:
+        text += ", sealed again " + AGAIN.get(result.origin, result.origin)
+    return text
 
 
 def _settings(path: str | None) -> object | None:
@@ -61,9 +75,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
             print(p, file=sys.stderr)
         return int(Status.NOT_A_RUN_FOLDER)
     if result.intact:
-        when = ORIGINS.get(result.origin, result.origin or "unknown")
-        print(f"{folder}: intact (signed by {result.signer_fingerprint}, sealed {when}; "
-              f"{basis})")
+        print(f"{folder}: intact (signed by {result.signer_fingerprint}, {sealed_text(result)};"
+              f" {basis})")
         return int(Status.INTACT)
     print(f"{folder}: ALTERED: " + ", ".join(result.altered_files))
     for p in result.problems:
@@ -78,7 +91,8 @@ def cmd_approve(args: argparse.Namespace) -> int:
     settings = _settings(args.station)
     if not isinstance(settings, LoadedSettings):
         raise UserError("no station settings: give --station FILE (its key signs approvals)")
-    entry = approve(Path(args.run_folder), settings, by=args.by, role="quality")
+    entry = approve(Path(args.run_folder), settings, by=args.by, role="quality",
+                    remark=args.remark or "")
     print(f"{args.run_folder}: approved by {entry['by']} at {entry['time_utc']}")
     return 0
 
@@ -94,5 +108,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p = subparsers.add_parser("approve", help="record a quality engineer's approval of a run")
     p.add_argument("run_folder", metavar="RUN_FOLDER")
     p.add_argument("--by", required=True, metavar="NAME", help="the approving quality engineer")
+    p.add_argument("--remark", metavar="TEXT",
+                   help="why the run is approved (required for a FAIL run); on the certificate")
     p.add_argument("--station", metavar="FILE", help="station file (default: config/station.yaml)")
     p.set_defaults(handler=cmd_approve)

@@ -56,7 +56,8 @@ class Verification:
     problems: list[str] = field(default_factory=list)
     altered_files: list[str] = field(default_factory=list)
     signer_fingerprint: str = ""
-    origin: str = ""
+    origin: str = ""  # what sealed the folder last
+    first_origin: str = ""  # what sealed it first (`run`: the evidence starts at the run)
 
     @property
     def intact(self) -> bool:
@@ -81,13 +82,30 @@ def is_run_folder(folder: Path) -> bool:
     return folder.is_dir() and any((folder / n).is_file() for n in (RECORD_FILE, RAW_DATA_FILE))
 
 
+def _first_sealed(folder: Path, identity: StationIdentity) -> dict[str, Any] | None:
+    """The first sealing ({origin, sealed_utc}) the folder's present manifest vouches for:
+    carried from one manifest to the next, so a folder sealed at the run and sealed again by
+    `station report` or an approval still says its evidence starts at the run. None when
+    there is no manifest this station signed (the new one is then the first)."""
+    doc, _ = _read_manifest(folder)
+    if doc is None or _check_signature(doc, {identity.fingerprint})[1]:
+        return None
+    body = doc["body"]
+    first = body.get("first_sealed")
+    if isinstance(first, dict) and isinstance(first.get("origin"), str):
+        return {"origin": first["origin"], "sealed_utc": str(first.get("sealed_utc", ""))}
+    return {"origin": str(body.get("origin", "")), "sealed_utc": str(body.get("sealed_utc", ""))}
+
+
 def build_body(folder: Path, identity: StationIdentity, origin: str) -> dict[str, Any]:
     files = {name: (file_digest(folder / name) if (folder / name).is_file() else None)
              for name in SEALED_FILES}
+    now = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     return {
         "run_id": folder.name,
-        "sealed_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "sealed_utc": now,
         "origin": origin,
+        "first_sealed": _first_sealed(folder, identity) or {"origin": origin, "sealed_utc": now},
         "files": files,
         "signer": {"fingerprint_sha256": identity.fingerprint, "subject": identity.subject,
                    "certificate_pem": identity.certificate_pem()},
@@ -176,8 +194,11 @@ def verify_folder(folder: Path, trusted: set[str] | None = None) -> Verification
     if doc is None:
         return Verification(Status.ALTERED, [problem], [MANIFEST_FILE])
     fingerprint, problem = _check_signature(doc, trusted)
-    result = Verification(Status.INTACT, signer_fingerprint=fingerprint,
-                          origin=str(doc["body"].get("origin", "")))
+    origin = str(doc["body"].get("origin", ""))
+    first = doc["body"].get("first_sealed")
+    result = Verification(Status.INTACT, signer_fingerprint=fingerprint, origin=origin,
+                          first_origin=str(first.get("origin", origin))
+                          if isinstance(first, dict) else origin)
     if problem:
         result.status = Status.ALTERED
         result.problems.append(problem)

@@ -9,7 +9,7 @@ when the database is opened (station/db/migrations). Times are ISO-8601 UTC text
 
     db = ResultsDB(path_or_url)               # creates or migrates the schema
     db.add_run(run_folder, record)            # upsert by run_id, with all measurements
-    db.runs(since=..., product=..., verdict=..., serial=...)
+    db.runs(since=..., product=..., verdict=..., serial=..., lot=..., work_order=...)
     db.measurement_values("bias_dps", product=...)
     db.mark_error(run_id, reason)             # a crashed run, found later
 """
@@ -36,7 +36,7 @@ from station.db.store import (
     run_row,
 )
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 __all__ = ["CalibrationElement", "MeasurementRow", "ResultsDB", "ResultsDBError", "RunRow",
            "normalise_utc",
            "parse_since"]
@@ -69,6 +69,7 @@ class RunRow:
     attempt: int = 1  # 1 for a serial's first test, 2 for its first retest, ...
     first_run_id: str = ""  # the run_id of the serial's first test
     axes: int = 1  # 3: a three-axis part (its calibration: ResultsDB.calibration_elements)
+    socket: int = 0  # the fixture socket the part sat in; 0 when not recorded (schema < 5)
 
 
 @dataclass(frozen=True)
@@ -127,6 +128,8 @@ def run_filters(
     product: str | None = None,
     verdict: str | None = None,
     serial: str | None = None,
+    lot: str | None = None,
+    work_order: str | None = None,
 ) -> list[sa.ColumnElement[bool]]:
     """WHERE clauses on the runs table for the usual filters (all optional)."""
     clauses: list[sa.ColumnElement[bool]] = []
@@ -140,6 +143,10 @@ def run_filters(
         clauses.append(runs.c.verdict == verdict.upper())
     if serial:
         clauses.append(runs.c.serial == serial)
+    if lot:
+        clauses.append(runs.c.lot == lot)
+    if work_order:
+        clauses.append(runs.c.work_order == work_order)
     return clauses
 
 
@@ -229,11 +236,13 @@ class ResultsDB:
         verdict: str | None = None,
         serial: str | None = None,
         until: When = None,
+        lot: str | None = None,
+        work_order: str | None = None,
     ) -> list[RunRow]:
         """Runs matching every filter given, oldest first."""
         query = (
             sa.select(runs)
-            .where(*run_filters(since, until, product, verdict, serial))
+            .where(*run_filters(since, until, product, verdict, serial, lot, work_order))
             .order_by(runs.c.started_utc, runs.c.run_id)
         )
         try:
@@ -251,10 +260,12 @@ class ResultsDB:
         verdict: str | None = None,
         serial: str | None = None,
         until: When = None,
+        lot: str | None = None,
+        work_order: str | None = None,
     ) -> list[MeasurementRow]:
         """Measurements (of one name, or all) of the runs matching the filters, oldest first."""
         m, r = measurements.c, runs.c
-        clauses = run_filters(since, until, product, verdict, serial)
+        clauses = run_filters(since, until, product, verdict, serial, lot, work_order)
         if name is not None:
             clauses.append(m.name == name)
         query = (
@@ -306,5 +317,5 @@ def _run_row(r: Any) -> RunRow:
         procedure_name=r["procedure_name"], procedure_sha256=r["procedure_sha256"],
         folder=r["folder"], calibration={k: r[f"cal_{k}"] for k in CAL_KEYS},
         work_order=r["work_order"], lot=r["lot"], attempt=r["attempt"],
-        first_run_id=r["first_run_id"], axes=r["axes"],
+        first_run_id=r["first_run_id"], axes=r["axes"], socket=r["socket"],
     )

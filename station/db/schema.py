@@ -54,6 +54,8 @@ runs = sa.Table(
     sa.Column("unit_tests", sa.Integer, nullable=False, server_default="1"),
     # schema 4 (migration 0004): three-axis parts
     sa.Column("axes", sa.Integer, nullable=False, server_default="1"),
+    # schema 5 (migration 0005): the socket the part sat in (0: not recorded)
+    sa.Column("socket", sa.Integer, nullable=False, server_default="0"),
 )
 
 # Schema 4: a three-axis calibration, one row per element. quantity is the record's key

@@ -59,6 +59,7 @@ def run_row(folder: Path, rec: RunRecord) -> dict[str, Any]:
         "work_order": getattr(rec, "work_order", "") or "",
         "lot": getattr(rec, "lot", "") or "",
         "axes": 3 if three_axis_block(rec) is not None else 1,
+        "socket": rec.dut.socket,
     }
     for k in CAL_KEYS:
         c = getattr(cal, k) if cal is not None else None

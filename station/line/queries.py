@@ -20,6 +20,9 @@ from station.line.spc import capability, mean_sd, western_electric
 from station.results_db import parse_since
 
 RECENT_RESULTS = 8
+COEFFICIENT_UNITS = {"bias_dps": "deg/s", "bias_temp_coeff_dps_per_c": "deg/s/C",
+                     "bias_supply_coeff_dps_per_v": "deg/s/V", "scale": "1",
+                     "scale_temp_coeff_per_c": "1/C", "scale_supply_coeff_per_v": "1/V"}
 CPK_WINDOW = 2000  # Cpk over the latest first tests: the process as it runs now
 
 
@@ -153,7 +156,10 @@ def control_chart(con: sa.Connection, flt: Filters, coefficient: str, limit: int
     sigma = (sum(ranges) / len(ranges)) / 1.128 if ranges else 0.0
     flags = western_electric(values, centre, sigma)
     return {
-        "coefficient": coefficient, "centre": centre, "sigma": sigma,
+        "coefficient": coefficient, "units": COEFFICIENT_UNITS[coefficient],
+        "centre": centre, "sigma": sigma,
+        # control limits: centre +/- 3 sigma (rule 1's line)
+        "ucl": centre + 3 * sigma, "lcl": centre - 3 * sigma,
         "points": [
             {"run_id": r.run_id, "serial": r.serial, "started_utc": r.started_utc,
              "value": v, "rules": f}

@@ -22,6 +22,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
 
+# Fewer values than this give no Cpk ("too few"): at n = 2 Bissell's interval of a Cpk of 1.33
+# spans about -0.6 to 3.3 (and a Cpk of 182 was shown with -70 .. 435); at 25 it is about
+# +/- 0.4, the least that still tells a capable process from an incapable one.
+MIN_CPK_N = 25
+
 
 @dataclass(frozen=True)
 class Capability:
@@ -30,10 +35,12 @@ class Capability:
     sd: float
     low: float | None
     high: float | None
-    cpk: float | None  # None when there is no limit, fewer than 2 values, or no spread
+    cpk: float | None  # None when there is no limit, too few values, or no spread
     ci_low: float | None
     ci_high: float | None
     confidence: float
+    too_few: bool = False  # fewer than min_n values: no Cpk is given
+    min_n: int = MIN_CPK_N
 
 
 def cpk(mean: float, sd: float, low: float | None, high: float | None) -> float | None:
@@ -61,11 +68,14 @@ def bissell_interval(cpk_hat: float, n: int, confidence: float = 0.95) -> tuple[
 
 
 def capability(n: int, mean: float, sd: float, low: float | None, high: float | None,
-               confidence: float = 0.95) -> Capability:
-    """Cpk and its Bissell interval from the sample size, mean and sample standard deviation."""
-    value = cpk(mean, sd, low, high) if n >= 2 else None
+               confidence: float = 0.95, min_n: int = MIN_CPK_N) -> Capability:
+    """Cpk and its Bissell interval from the sample size, mean and sample standard deviation;
+    none below `min_n` values (too_few)."""
+    too_few = n < max(min_n, 2)
+    value = None if too_few else cpk(mean, sd, low, high)
     ci = bissell_interval(value, n, confidence) if value is not None else (None, None)
-    return Capability(n, mean, sd, low, high, value, ci[0], ci[1], confidence)
+    return Capability(n, mean, sd, low, high, value, ci[0], ci[1], confidence, too_few,
+                      max(min_n, 2))
 
 
 def western_electric(values: Sequence[float], centre: float, sigma: float) -> list[list[int]]:

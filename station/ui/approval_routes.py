@@ -15,6 +15,7 @@ from typing import Any
 
 from fastapi import FastAPI
 from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel
 
 from station.errors import UserError
 from station.ui.controller import Controller
@@ -22,6 +23,10 @@ from station.ui.history import History
 from station.ui.requests import Guarded, Security, error
 
 log = logging.getLogger(__name__)
+
+
+class ApproveBody(BaseModel):
+    remark: str = ""  # why the run is approved; required for a FAIL run (station/approvals.py)
 
 
 def add_approval_routes(app: FastAPI, controller: Controller, history: History,
@@ -52,7 +57,7 @@ def add_approval_routes(app: FastAPI, controller: Controller, history: History,
                              "altered_files": result.altered_files, "approvals": approvals})
 
     @app.post("/api/runs/{key}/approve")
-    def approve_run(key: str, session: Guarded) -> Response:
+    def approve_run(key: str, session: Guarded, body: ApproveBody | None = None) -> Response:
         from station.approvals import approve
 
         if not session.quality or not session.operator:
@@ -64,6 +69,7 @@ def add_approval_routes(app: FastAPI, controller: Controller, history: History,
         folder = folder_of(key)
         if folder is None:
             return error(404, f"no run {key} at this station")
-        entry = approve(folder, sec.settings, by=session.operator, role="quality")
+        entry = approve(folder, sec.settings, by=session.operator, role="quality",
+                        remark=body.remark if body else "")
         log.info("run %s approved by %s", key, session.operator)
         return JSONResponse({"approved": entry})

@@ -143,7 +143,7 @@ class History:
             {
                 "key": Path(r.folder).name,
                 "run_id": r.run_id,
-                "socket": "",
+                "socket": r.socket or "",  # 0: indexed before sockets were (schema < 5)
                 "serial": r.serial,
                 "verdict": r.verdict,
                 "reason": r.reason,

@@ -59,7 +59,7 @@ def _schema3_file(path: Path) -> None:
 def test_schema3_database_upgrades_with_its_runs_kept(tmp_path: Path) -> None:
     path = tmp_path / "results.sqlite"
     _schema3_file(path)
-    assert HEAD_REVISION == "0004"
+    assert HEAD_REVISION == "0005"
     con = sqlite3.connect(path)
     assert "calibration_elements" not in {
         r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
@@ -68,7 +68,8 @@ def test_schema3_database_upgrades_with_its_runs_kept(tmp_path: Path) -> None:
     from station.db.store import run_row
 
     old = make_record(Part(serial="OLD-0001"))
-    row = {k: v for k, v in run_row(tmp_path / old.run_id, old).items() if k != "axes"}
+    row = {k: v for k, v in run_row(tmp_path / old.run_id, old).items()
+           if k not in ("axes", "socket")}
     engine = sa.create_engine(f"sqlite:///{path}")
     with engine.begin() as c:
         c.execute(sa.text(f"INSERT INTO runs ({', '.join(row)}) VALUES "

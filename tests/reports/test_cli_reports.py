@@ -98,7 +98,7 @@ def test_history_filters_and_summarises(tmp_path: Path) -> None:
     n_fail = sum(r.verdict.value == "FAIL" for r in records)
     rows = [ln for ln in out.stdout.splitlines() if ln.startswith("2026-")]
     assert len(rows) == n_fail > 0 and all(" FAIL " in ln for ln in rows)
-    assert f"{n_fail} runs: FAIL {n_fail}" in out.stdout
+    assert f"{n_fail} run{'s' if n_fail > 1 else ''}: FAIL {n_fail}" in out.stdout  # "1 run"
     js = json.loads(station("history", "--db", str(db), "--since", "2026-11-21T12:00Z",
                             "--json").stdout)
     assert len(js) == sum(r.started_utc >= "2026-11-21T12:00" for r in records)

@@ -100,9 +100,32 @@ function renderCapability() {
     const ci = c.cpk === null ? "–" : `${c.ci_low.toFixed(2)} – ${c.ci_high.toFixed(2)}`;
     tr.append(el("td", {}, c.name), el("td", {}, c.condition || ""), el("td", {}, String(c.n)),
       el("td", {}, num(c.mean)), el("td", {}, num(c.sd)), el("td", {}, limits),
-      el("td", { class: "cpk" }, c.cpk === null ? "–" : c.cpk.toFixed(2)), el("td", { class: "ci" }, ci));
+      el("td", { class: "cpk" }, c.too_few ? `too few (n < ${c.min_n})` : c.cpk === null ? "–" : c.cpk.toFixed(2)),
+      el("td", { class: "ci" }, ci));
     body.append(tr);
   }
+}
+
+// About `target` round values (1, 2, 2.5, 5 x 10^k) covering [lo, hi], for the chart's axis.
+function niceTicks(lo, hi, target = 5) {
+  if (!(isFinite(lo) && isFinite(hi)) || hi <= lo) return [lo];
+  const raw = (hi - lo) / target;
+  const mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 2.5, 5, 10].map((m) => m * mag).find((s) => s >= raw);
+  const out = [];
+  for (let i = Math.ceil(lo / step - 1e-9); i <= Math.floor(hi / step + 1e-9); i++) out.push(i === 0 ? 0 : i * step);
+  return out;
+}
+// An axis value: as many digits as the tick step needs, never "-0".
+function tickLabel(v, step) {
+  if (v === 0) return "0";
+  const a = Math.abs(v);
+  if (a >= 1e5 || a < 1e-3) {
+    const e = v.toExponential(Math.max(0, Math.min(6, Math.ceil(-Math.log10(step / a)))));
+    return e.replace(/(\.\d*?)0+e/, "$1e").replace(/\.e/, "e");
+  }
+  const s = v.toFixed(Math.max(0, Math.min(10, Math.ceil(-Math.log10(step)) + 1)));
+  return s.replace(/(\.\d*?)0+$/, "$1").replace(/\.$/, "");
 }
 
 function renderChart(data) {
@@ -113,20 +136,40 @@ function renderChart(data) {
   const list = document.getElementById("violations");
   list.replaceChildren();
   if (!pts.length) return;
-  const W = 900, H = 260, pad = 30;
+  const W = 900, H = 260, pad = 30, left = 78, right = 96;
   const lo = Math.min(data.centre - 3.5 * data.sigma, ...pts.map((p) => p.value));
   const hi = Math.max(data.centre + 3.5 * data.sigma, ...pts.map((p) => p.value));
   const span = hi - lo || 1;
-  const x = (i) => pad + (i * (W - 2 * pad)) / Math.max(1, pts.length - 1);
+  const x = (i) => left + (i * (W - left - right)) / Math.max(1, pts.length - 1);
   const y = (v) => H - pad - ((v - lo) * (H - 2 * pad)) / span;
-  const line = (v, cls) => {
+  const text = (tx, ty, s, attrs = {}) => {
+    const t = document.createElementNS(ns, "text");
+    Object.entries({ x: tx, y: ty, "font-size": 11, fill: "#333", ...attrs }).forEach(([k, val]) => t.setAttribute(k, val));
+    t.textContent = s;
+    svg.append(t);
+  };
+  const line = (v, stroke, dash, label) => {
     const l = document.createElementNS(ns, "line");
-    Object.entries({ x1: pad, x2: W - pad, y1: y(v), y2: y(v), stroke: cls, "stroke-dasharray": "4 3" })
+    Object.entries({ x1: left, x2: W - right, y1: y(v), y2: y(v), stroke, "stroke-dasharray": dash })
       .forEach(([k, val]) => l.setAttribute(k, val));
     svg.append(l);
+    if (label) text(W - right + 4, y(v) + 4, label, { fill: stroke, class: "chart-line-label" });
   };
-  line(data.centre, "#555");
-  for (const k of [1, 2, 3]) { line(data.centre + k * data.sigma, "#bbb"); line(data.centre - k * data.sigma, "#bbb"); }
+  // the value axis: round ticks with their values, the coefficient and its units
+  const units = data.units && data.units !== "1" ? ` (${data.units})` : "";
+  const ticks = niceTicks(lo, hi, 5);
+  const step = ticks.length > 1 ? ticks[1] - ticks[0] : span;
+  for (const t of ticks) {
+    line(t, "#eee", "");
+    text(left - 6, y(t) + 4, tickLabel(t, step), { "text-anchor": "end", class: "chart-tick" });
+  }
+  text(14, H / 2, data.coefficient + units, { transform: `rotate(-90 14 ${H / 2})`, "text-anchor": "middle", class: "chart-axis" });
+  text((left + W - right) / 2, H - 6, `first tests, oldest to newest (${pts.length})`, { "text-anchor": "middle", class: "chart-axis" });
+  // centre line and control limits (centre +/- 3 sigma), each labelled with its value
+  line(data.centre, "#555", "4 3", "centre " + tickLabel(data.centre, step / 10));
+  for (const k of [1, 2]) { line(data.centre + k * data.sigma, "#bbb", "2 4"); line(data.centre - k * data.sigma, "#bbb", "2 4"); }
+  line(data.ucl, "#c62828", "6 3", "UCL " + tickLabel(data.ucl, step / 10));
+  line(data.lcl, "#c62828", "6 3", "LCL " + tickLabel(data.lcl, step / 10));
   const path = document.createElementNS(ns, "polyline");
   path.setAttribute("points", pts.map((p, i) => `${x(i)},${y(p.value)}`).join(" "));
   path.setAttribute("fill", "none");

@@ -48,5 +48,11 @@ function drawChart(canvas, data) {
   g.fillText(clock(t0), pad.l, h - 6);
   g.fillText(clock(t1), w - pad.r - 48, h - 6);
 }
-function fmt(v) { const a = Math.abs(v); return a >= 1000 ? v.toFixed(0) : a >= 10 ? v.toFixed(1) : v.toFixed(2); }
+// An axis value: two significant digits below 0.01 (toFixed(2) made -0.001 read "-0.00"),
+// and never a minus on a zero.
+function fmt(v) {
+  const a = Math.abs(v);
+  const s = a >= 1000 ? v.toFixed(0) : a >= 10 ? v.toFixed(1) : a >= 0.01 ? v.toFixed(2) : a >= 1e-12 ? v.toPrecision(2) : "0";
+  return /^-0(\.0*)?$/.test(s) ? s.slice(1) : s;
+}
 function clock(s) { const v = Math.max(0, Math.round(s)); return Math.floor(v / 60) + ":" + String(v % 60).padStart(2, "0"); }

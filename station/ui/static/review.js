@@ -15,16 +15,24 @@ function runKey(run) {
   return m ? m[1] : "";
 }
 
-async function approveRun(key, cell) {
+// A FAIL run is approved only with a remark saying why (station/approvals.py); it is shown
+// on the certificate beside the approver's name.
+async function approveRun(key, cell, verdict) {
+  let remark = "";
+  if (verdict === "FAIL") {
+    remark = (window.prompt("This run FAILED. Remark for approving it (shown on the certificate):") || "").trim();
+    if (!remark) { $("review-msg").textContent = "Approving a FAIL run needs a remark."; return; }
+  }
   const r = await fetch("/api/runs/" + encodeURIComponent(key) + "/approve", {
-    method: "POST", headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf }, body: "{}" });
+    method: "POST", headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf },
+    body: JSON.stringify({ remark }) });
   const d = await r.json();
   if (!r.ok) { $("review-msg").textContent = d.error; return; }
   $("review-msg").textContent = "";
-  await showIntegrity(key, cell);
+  await showIntegrity(key, cell, verdict);
 }
 
-async function showIntegrity(key, cell) {
+async function showIntegrity(key, cell, verdict) {
   const r = await fetch("/api/runs/" + encodeURIComponent(key) + "/integrity");
   if (!r.ok) return;
   const d = await r.json();
@@ -43,7 +51,7 @@ async function showIntegrity(key, cell) {
   if (session.quality && d.status === "intact") {
     const b = document.createElement("button");
     b.type = "button"; b.className = "approve"; b.textContent = "Approve";
-    b.addEventListener("click", () => approveRun(key, cell));
+    b.addEventListener("click", () => approveRun(key, cell, verdict));
     cell.appendChild(b);
   }
 }
@@ -81,7 +89,7 @@ async function load() {
     rec.className = "record-cell";
     tr.appendChild(rec);
     const key = runKey(run);
-    if (key && body.children.length < MAX_CHECKED) showIntegrity(key, rec);  // each hashes a folder
+    if (key && body.children.length < MAX_CHECKED) showIntegrity(key, rec, run.verdict);  // each hashes a folder
     body.appendChild(tr);
   }
 }
