@@ -84,12 +84,16 @@ def _capability_table(caps: list[lot_stats.Capability]) -> Table:
         # numbers as plain strings, never broken; table_fit sizes every column to its content
         rows.append([_p(c.label + (" *" if c.limits_varied else "")), _p(unit_label(c.units)),
                      str(c.n), fmt(c.mean), fmt(c.sigma, 3), fmt(c.low), fmt(c.high),
-                     fmt(c.cpk, 3)])
+                     _cpk_text(c)])
         if c.cpk is not None and c.cpk < 1.0:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
         elif c.cpk is not None and c.cpk < 1.33:
             style.add("BACKGROUND", (0, i), (-1, i), MARGINAL_AMBER)
     return fitted_table(rows, FULL_W, style, repeatRows=1)
+
+
+def _cpk_text(c: lot_stats.Capability) -> str:
+    return f"too few (n < {lot_stats.MIN_CPK_N})" if c.too_few else fmt(c.cpk, 3)
 
 
 def _histogram(c: lot_stats.Capability) -> Flowable:
@@ -114,7 +118,7 @@ def _histogram(c: lot_stats.Capability) -> Flowable:
                     width=1.0)
     if c.mean is not None:
         chart.vline(c.mean, PALETTE[2], f"mean {fmt(c.mean, 4)}, sigma {fmt(c.sigma, 3)}, "
-                    f"Cpk {fmt(c.cpk, 3)}", dash=(3, 2))
+                    f"Cpk {_cpk_text(c)}", dash=(3, 2))
     return chart.drawing()
 
 
@@ -252,7 +256,8 @@ def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
     story += [Paragraph("Capability", H2), _capability_table(caps), Paragraph(
         "Over completed runs (PASS or FAIL). Sigma = sample standard deviation (n - 1) of all "
         "values in the lot (overall sigma, so strictly Ppk). Cpk = min(USL - mean, mean - LSL) "
-        "/ (3 sigma); one-sided when a limit is missing. Red: Cpk < 1.0, amber: Cpk < 1.33. "
+        "/ (3 sigma); one-sided when a limit is missing; none below "
+        f"{lot_stats.MIN_CPK_N} values (too few to tell). Red: Cpk < 1.0, amber: Cpk < 1.33. "
         "* limits changed within the lot; the newest run's limits are used.", NOTE)]
     story += _distributions(caps)
     story += lot_three_axis.three_axis_section(

@@ -73,8 +73,19 @@ class Capability:
     values: tuple[float, ...]
 
     @property
+    def too_few(self) -> bool:
+        """Too few values for a capability index worth reading."""
+        return self.n < MIN_CPK_N
+
+    @property
     def label(self) -> str:
         return f"{self.name} @ {self.condition}" if self.condition else self.name
+
+
+# Fewer values than this give no Cpk ("too few"): at n = 2 Bissell's interval of a Cpk of 1.33
+# spans about -0.6 to 3.3 (and a Cpk of 182 was shown with -70 .. 435); at 25 it is about
+# +/- 0.4, the least that still tells a capable process from an incapable one.
+MIN_CPK_N = 25
 
 
 def cpk(mean: float, sigma: float, low: float | None, high: float | None) -> float | None:
@@ -108,7 +119,8 @@ def capability(name: str, rows: list[MeasurementRow], condition: str | None = No
     n = len(values)
     mean = float(np.mean(values)) if n else None
     sigma = float(np.std(values, ddof=1)) if n >= 2 else None
-    index = cpk(mean, sigma, low, high) if mean is not None and sigma is not None else None
+    enough = n >= MIN_CPK_N and mean is not None and sigma is not None
+    index = cpk(mean, sigma, low, high) if enough else None  # type: ignore[arg-type]
     return Capability(
         name=name,
         condition=condition,

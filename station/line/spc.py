@@ -22,10 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
 
-# Fewer values than this give no Cpk ("too few"): at n = 2 Bissell's interval of a Cpk of 1.33
-# spans about -0.6 to 3.3 (and a Cpk of 182 was shown with -70 .. 435); at 25 it is about
-# +/- 0.4, the least that still tells a capable process from an incapable one.
-MIN_CPK_N = 25
+from reports.lot_stats import MIN_CPK_N  # one minimum for the dashboard and the lot report
 
 
 @dataclass(frozen=True)

@@ -116,8 +116,21 @@ def test_capability_is_per_condition_not_pooled() -> None:
     hot = lot_stats.capability("raw_bias_dps", rows, "T45")
     assert cold.n == hot.n == 3
     assert cold.mean == pytest.approx(1.0) and hot.mean == pytest.approx(5.0)
-    assert hot.cpk == pytest.approx((10 - 5.0) / (3 * 0.4))
+    assert lot_stats.cpk(hot.mean, hot.sigma, hot.low, hot.high) == pytest.approx(
+        (10 - 5.0) / (3 * 0.4))
+    assert hot.cpk is None and hot.too_few  # three values: no Cpk on the report
     assert hot.label == "raw_bias_dps @ T45"
+
+
+def test_a_lot_too_small_for_cpk_reads_too_few(tmp_path: Path) -> None:
+    """Issue 26 finding 11: a Cpk of 182 was printed from two runs."""
+    path = tmp_path / "results.sqlite"
+    make_lot(path, lot_stats.MIN_CPK_N - 1)
+    summary = render_lot_report(ResultsDB(path), tmp_path / "lot.pdf")
+    assert all(c.cpk is None for c in summary.capabilities)
+    text = pdf_text(tmp_path / "lot.pdf")
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("bias_dps "))
+    assert f"too few (n < {lot_stats.MIN_CPK_N})" in re.sub(r"\s+", " ", line)
 
 
 ISSUED = datetime(2026, 12, 1, 8, 15, 0, tzinfo=UTC)
