@@ -161,6 +161,8 @@ def summary_text(rec: RunRecord) -> str:
         cal_text = three_axis
     elif cal is None:
         cal_text = "No calibration was written to the part"
+    elif (why := record_keys.not_programmed(rec.analysis)) is not None:
+        cal_text = f"Calibration fitted but not written to the part ({why})"
     else:
         rb = {True: "read-back PASSED", False: "read-back FAILED",
               None: "read-back not recorded"}[cal.readback_ok]
@@ -400,8 +402,15 @@ def readback_value(readback: dict[str, float], key: str, register: str) -> float
 
 def calibration(inputs: CertificateInputs) -> list[Flowable]:
     rec = inputs.record
-    story: list[Flowable] = [Paragraph("Calibration written to the part", H2)]
     cal = rec.calibration if rec else None
+    why = record_keys.not_programmed(rec.analysis) if rec else None
+    if cal is not None and why is not None:
+        story: list[Flowable] = [
+            Paragraph("Calibration fitted (not written to the part)", H2),
+            Paragraph(f"Not written to the part: {escape(why)}. The coefficients below "
+                      "are what the fit found; the part keeps the calibration it had.", NOTE)]
+    else:
+        story = [Paragraph("Calibration written to the part", H2)]
     if cal is None:
         return story + [Paragraph("No calibration was written to this part.", NOTE)]
     readback = cal.readback or {}
@@ -415,7 +424,7 @@ def calibration(inputs: CertificateInputs) -> list[Flowable]:
     bias, scale = cal.bias_dps.value, cal.scale.value
     rb = {True: "PASSED (registers read back equal to the values written)",
           False: "FAILED (registers read back differ from the values written)",
-          None: "not recorded"}[cal.readback_ok]
+          None: "not recorded"}[cal.readback_ok] if why is None else "none (not written)"
     story.append(Paragraph(
         f"Reference conditions {fmt(cal.reference_temperature_c)} C, "
         f"{fmt(cal.reference_supply_v)} V; coefficients act on dT = die temperature - "

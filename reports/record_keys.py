@@ -78,6 +78,16 @@ def _opt_float(d: dict[str, Any], key: str) -> float | None:
     return f if math.isfinite(f) else None
 
 
+def not_programmed(analysis: dict[str, Any]) -> str | None:
+    """Why the fitted calibration was not written to the part (the program step's
+    `analysis.programming`), or None when it was written or the record does not say."""
+    programming = analysis.get("programming")
+    if not isinstance(programming, dict) or programming.get("programmed") is not False:
+        return None
+    reason = str(programming.get("reason") or "no reason recorded")
+    return reason.removeprefix("not programmed: ")
+
+
 def section(analysis: dict[str, Any], key: str) -> dict[str, Any]:
     """`analysis[key]` as a dict, or MissingAnalysisError naming the key."""
     value = analysis.get(key)

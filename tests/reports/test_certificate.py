@@ -291,3 +291,18 @@ def test_dimensionless_values_carry_no_stray_unit(tmp_path: Path) -> None:
     lines = pdf_text(folder / "certificate.pdf").splitlines()
     scale_row = next(ln for ln in lines if ln.split()[:1] == ["scale"] and "FAIL" in ln)
     assert "(ratio)" in scale_row and " 1 " not in scale_row
+
+
+def test_a_part_not_programmed_is_not_said_to_be_written(fresh_run: Path) -> None:
+    """A part failing before the program step keeps its fitted coefficients in the record;
+    the certificate must not call them written to the part."""
+    rec = read_record(fresh_run)
+    reason = "not programmed: failed stop_table_consistency@T25_V4.75"
+    analysis = {**rec.analysis, "programming": {"programmed": False, "reason": reason}}
+    write_record(fresh_run, rec.model_copy(update={"analysis": analysis,
+                                                   "verdict": Verdict.FAIL}))
+    text = _flat(pdf_text(render_certificate(fresh_run), layout=False))
+    assert "Calibration written" not in text
+    assert "Calibration fitted but not written to the part (failed stop_table_consistency" in text
+    assert "Calibration fitted (not written to the part)" in text
+    assert "failed failed" not in text and "Read-back check: none (not written)" in text
