@@ -202,6 +202,15 @@ class LineLink:
                 instrument=self.instrument,
             ) from None
 
+    def reopen(self, timeout_s: float | None = None) -> None:
+        """Close the port and open it again, with a new reply timeout (wall s) if given (the
+        opener must open at `self.timeout_s` for it to take effect)."""
+        with self._lock:
+            self._drop()
+            if timeout_s is not None:
+                self.timeout_s = timeout_s
+            self._ensure_open()
+
     def close(self) -> None:
         with self._lock:
             self._drop()
