@@ -22,6 +22,7 @@ from typing import Protocol
 import serial
 
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
+from drivers.fd_wait import use_poll
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +110,7 @@ class TcpLinePort:
 def open_port(address: str, *, baudrate: int, timeout_s: float) -> LinePort:
     """Open `address` (host:port, a device path or a pyserial URL); ConnectionLost if not."""
     tcp = parse_host_port(address)
+    use_poll()  # pyserial waits with select(): any descriptor number (drivers/fd_wait.py)
     try:
         if tcp is not None:
             return TcpLinePort(tcp[0], tcp[1], timeout_s)
