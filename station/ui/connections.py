@@ -104,7 +104,7 @@ def capped_protocol(limits: ConnectionLimits) -> type[asyncio.Protocol]:
     class CappedHTTPProtocol(AutoHTTPProtocol):  # type: ignore[misc, valid-type]
         connection_limiter = limiter
 
-        def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        def connection_made(self, transport: asyncio.Transport) -> None:
             peer = transport.get_extra_info("peername")
             client = str(peer[0]) if isinstance(peer, tuple) and peer else "unknown"
             if not limiter.admit(self, client):

@@ -124,3 +124,25 @@ def test_scpi_supply_over_a_visa_socket_above_1024(high_fds: None) -> None:
             assert supply.check_safe().safe
         finally:
             supply.close()
+
+
+def test_no_select_select_call_in_the_product() -> None:
+    """The station's own code never calls select.select() (FD_SETSIZE): poll or selectors."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    found = []
+    for package in ("drivers", "station", "procedures", "reports"):
+        for path in (root / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                func = getattr(node, "func", None)
+                if (
+                    isinstance(node, ast.Call)
+                    and isinstance(func, ast.Attribute)
+                    and func.attr == "select"
+                    and isinstance(func.value, ast.Name)
+                    and func.value.id in ("select", "_select")
+                ):
+                    found.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert found == []
