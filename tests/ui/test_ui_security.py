@@ -186,6 +186,7 @@ def test_a_screen_reloaded_during_a_lockout_reads_its_session_and_aborts(
     the station's own screen, reloaded (no cookie), without a session and unable to ABORT."""
     screen = signed.client(address="127.0.0.1")
     assert _renew(screen, screen.post("/api/signin", json={"badge": ANA_BADGE})).status_code == 200
+    signed.runner.step_s = 60.0  # the run lasts until aborted, however slow the guesses are
     assert screen.post("/api/start", json=START).status_code == 200
     signed.app.app.state.throttle.address_free = 3
     for _ in range(3):  # guesses from loopback, each on a fresh session, until the address locks
