@@ -53,6 +53,10 @@ def select_by_poll(
     a closed descriptor is OSError(EBADF) as select raises it."""
     if timeout is not None and timeout < 0:
         raise ValueError("timeout must be non-negative")
+    # poll waits whole milliseconds: round up so a short wait is never a busy loop
+    wait_ms = None if timeout is None else math.ceil(timeout * 1000)
+    if not wlist and not xlist:  # the fast path: pyserial's read, pymodbus's recv
+        return _readable(rlist, wait_ms), [], []
     poller = _select.poll()
     masks: dict[int, int] = {}
     for objs, mask in ((rlist, _READ), (wlist, _WRITE), (xlist, _select.POLLPRI)):
@@ -61,15 +65,31 @@ def select_by_poll(
             masks[fd] = masks.get(fd, 0) | mask
     for fd, mask in masks.items():
         poller.register(fd, mask)
-    # poll waits whole milliseconds: round up so a short wait is never a busy loop
-    events = dict(poller.poll(None if timeout is None else math.ceil(timeout * 1000)))
-    if any(ev & _select.POLLNVAL for ev in events.values()):
-        raise OSError(errno.EBADF, os.strerror(errno.EBADF))
+    events = dict(poller.poll(wait_ms))
+    _raise_if_closed(events.values())
     return (
         _ready(rlist, events, _READ),
         _ready(wlist, events, _WRITE),
         _ready(xlist, events, _select.POLLPRI),
     )
+
+
+def _readable(rlist: Sequence[Any], wait_ms: int | None) -> list[Any]:
+    poller = _select.poll()
+    for obj in rlist:
+        poller.register(_fd(obj), _READ)
+    events = poller.poll(wait_ms)
+    if not events:
+        return []
+    _raise_if_closed(ev for _, ev in events)
+    ready = {fd for fd, ev in events if ev & _READ}
+    return [obj for obj in rlist if _fd(obj) in ready]
+
+
+def _raise_if_closed(events: Iterable[int]) -> None:
+    """select raises EBADF for a closed descriptor; poll reports it as POLLNVAL."""
+    if any(ev & _select.POLLNVAL for ev in events):
+        raise OSError(errno.EBADF, os.strerror(errno.EBADF))
 
 
 def _ready(objs: Iterable[Any], events: dict[int, int], mask: int) -> list[Any]:
