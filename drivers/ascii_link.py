@@ -22,6 +22,7 @@ from typing import Protocol
 import serial
 
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
+from drivers.fd_wait import use_poll
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +110,7 @@ class TcpLinePort:
 def open_port(address: str, *, baudrate: int, timeout_s: float) -> LinePort:
     """Open `address` (host:port, a device path or a pyserial URL); ConnectionLost if not."""
     tcp = parse_host_port(address)
+    use_poll()  # pyserial waits with select(): any descriptor number (drivers/fd_wait.py)
     try:
         if tcp is not None:
             return TcpLinePort(tcp[0], tcp[1], timeout_s)
@@ -201,6 +203,15 @@ class LineLink:
                 f"bytes {raw!r}: check the baud rate and the address",
                 instrument=self.instrument,
             ) from None
+
+    def reopen(self, timeout_s: float | None = None) -> None:
+        """Close the port and open it again, with a new reply timeout (wall s) if given (the
+        opener must open at `self.timeout_s` for it to take effect)."""
+        with self._lock:
+            self._drop()
+            if timeout_s is not None:
+                self.timeout_s = timeout_s
+            self._ensure_open()
 
     def close(self) -> None:
         with self._lock:

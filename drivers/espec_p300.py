@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 import re
-from functools import partial
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -89,7 +88,10 @@ class Settings(BaseModel):
 def factory(settings: dict[str, Any]) -> EspecP300:
     """Validate `settings`, connect and return the driver (station clock: `attach_clock`)."""
     cfg = Settings.model_validate(settings)
-    opener = partial(open_port, cfg.address, baudrate=cfg.baudrate, timeout_s=cfg.timeout_s)
+
+    def opener() -> LinePort:  # at the link's timeout now: `reconnect` may have lengthened it
+        return open_port(cfg.address, baudrate=cfg.baudrate, timeout_s=link.timeout_s)
+
     link = LineLink(opener, instrument=NAME, where=cfg.address, timeout_s=cfg.timeout_s)
     link.connect()
     return EspecP300(link, poll_s=cfg.poll_s, serial=cfg.serial)
@@ -217,6 +219,9 @@ class EspecP300(RampedChamber):
     def power_off(self) -> None:
         """Switch the controller off (POWER,OFF); run() powers it on again."""
         self.command("POWER,OFF")
+
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        self._link.reopen(timeout_s)
 
     def close(self) -> None:
         self._link.close()

@@ -18,6 +18,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
+from drivers.fd_wait import use_poll
 from drivers.protocols import InstrumentIdentity
 
 log = logging.getLogger(__name__)
@@ -131,6 +132,7 @@ class ModbusLink:
     def _ensure_connected(self) -> None:
         if self._client.connected:
             return
+        use_poll()  # pymodbus waits with select(): any descriptor number (drivers/fd_wait.py)
         if not self._client.connect():
             raise ConnectionLost(
                 f"cannot connect to the {self.where}: check that it is powered, its network "

@@ -10,7 +10,8 @@ holds the last ramped value, so the ramp is a staircase as fine as the station p
 `read_setpoint` answers the target, not the ramped value.
 
 A subclass provides the wire primitives (`_read_limits`, `_write_setpoint`, `_read_wire_setpoint`,
-`_read_pv`, `_start`, `_standby`, `_running`, `_alarms`) plus `identify` and `close`.
+`_read_pv`, `_start`, `_standby`, `_running`, `_alarms`) plus `identify`, `close` and
+`reconnect`; the safe-state readback (`check_safe`) is shared.
 """
 
 from __future__ import annotations
@@ -25,12 +26,15 @@ from drivers.errors import (
     InstrumentError,
     SetpointOutOfRange,
 )
-from drivers.protocols import InstrumentIdentity
+from drivers.protocols import InstrumentIdentity, SafeReadback
 
 log = logging.getLogger(__name__)
 
 MAX_RAMP_C_PER_MIN = 1000.0
 RAMP_STEP_C = 0.1  # smallest setpoint change the ramp writes (the controllers show tenths)
+# how far the controller's setpoint may be from the safe one and still read back as it: the
+# P-300 takes tenths, the F4T a float (in F when so configured), so half a tenth and a hair
+SAFE_SETPOINT_TOLERANCE_C = 0.06
 
 
 class SetpointRamp:
@@ -103,6 +107,11 @@ class RampedChamber(ABC):
 
     @abstractmethod
     def close(self) -> None: ...
+
+    @abstractmethod
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        """Drop the connection and open a new one, with a new reply timeout (wall s) if
+        given: the safe-state pass's way through to a slow or re-plugged controller."""
 
     @abstractmethod
     def _read_limits(self) -> tuple[float, float]:
@@ -268,3 +277,14 @@ class RampedChamber(ABC):
         low, high = self.setpoint_limits()
         self._write(min(max(safe_temp_c, low), high))
         self._start()
+
+    def check_safe(self, safe_temp_c: float) -> SafeReadback:
+        """Read back whether the controller holds the safe setpoint (within its limits): the
+        setpoint on the wire, not a ramp's target, which only this driver knows."""
+        low, high = self.setpoint_limits()
+        target = min(max(safe_temp_c, low), high)
+        setpoint = self._read_wire_setpoint()
+        air = self._read_pv()
+        running = "running" if self._running() else "stopped"
+        detail = f"setpoint {setpoint:g} C (safe {target:g} C), air {air:g} C, {running}"
+        return SafeReadback(abs(setpoint - target) <= SAFE_SETPOINT_TOLERANCE_C, detail)

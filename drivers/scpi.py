@@ -38,6 +38,9 @@ def open_serial(path: str, *, baudrate: int = 115200, read_timeout_s: float = 0.
     """Open a serial port (or pty) without touching DTR/RTS beyond what pyserial tolerates."""
     import serial  # local: byte-level tests do not need pyserial
 
+    from drivers.fd_wait import use_poll
+
+    use_poll()  # pyserial waits with select(): any descriptor number (drivers/fd_wait.py)
     try:
         return serial.Serial(path, baudrate=baudrate, timeout=read_timeout_s, write_timeout=1.0)
     except (serial.SerialException, OSError) as exc:

@@ -12,11 +12,18 @@ sees the output voltage collapse at the current limit and raises `SupplyCurrentL
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.errors import InstrumentError, ProtocolError, ScpiError, SupplyCurrentLimit
+from drivers.errors import (
+    ConnectionLost,
+    InstrumentError,
+    ProtocolError,
+    ScpiError,
+    SupplyCurrentLimit,
+)
 from drivers.protocols import InstrumentIdentity, SafeReadback
 from drivers.scpi import ScpiCommands, ScpiTransport, parse_float
 from drivers.visa import VisaTransport, resource_name
@@ -79,6 +86,9 @@ class ScpiSupply:
         self._current_limit_a: float | None = None
         # the supply's rating (station.yaml max_voltage_v / max_current_a), for the pre-flight
         self.limits: tuple[float | None, float | None] = (None, None)
+        # opens the transport again at a reply timeout (wall s): set by `open`; None for a
+        # transport handed in, which this driver cannot reopen
+        self._reopen: Callable[[float | None], ScpiTransport] | None = None
 
     @classmethod
     def open(
@@ -91,8 +101,29 @@ class ScpiSupply:
         name: str = NAME,
     ) -> ScpiSupply:
         """Open a VISA resource string, a serial device path or host:port (`drivers.visa`)."""
-        transport = VisaTransport.open(address, baud=baudrate, timeout_s=timeout_s, instrument=name)
-        return cls(transport, dialect, name=name)
+        current = {"timeout_s": timeout_s}
+
+        def reopen(new_timeout_s: float | None) -> ScpiTransport:
+            if new_timeout_s is not None:
+                current["timeout_s"] = new_timeout_s
+            return VisaTransport.open(
+                address, baud=baudrate, timeout_s=current["timeout_s"], instrument=name
+            )
+
+        supply = cls(reopen(None), dialect, name=name)
+        supply._reopen = reopen
+        return supply
+
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        """Close the connection and open a new one, with a new reply timeout (wall s) if
+        given: the safe-state pass's way through to a slow or re-plugged supply."""
+        if self._reopen is None:
+            raise ConnectionLost(
+                f"the {self.name} was opened over a given transport and cannot reconnect",
+                instrument=self.name,
+            )
+        self._scpi.close()  # VisaTransport.close logs, never raises: the old link may be dead
+        self._scpi = ScpiCommands(self._reopen(timeout_s), error_query=self.dialect.error_query)
 
     def identify(self) -> InstrumentIdentity:
         reply = self._scpi.query("*IDN?")

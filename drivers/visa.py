@@ -99,6 +99,9 @@ class VisaTransport:
         """Open `address` with pyvisa-py; ConnectionLost says why it cannot be opened."""
         import pyvisa
 
+        from drivers.fd_wait import use_poll
+
+        use_poll()  # pyvisa-py and pyserial wait with select(): any descriptor number
         name = resource_name(address)
         options: dict[str, Any] = {
             "read_termination": TERMINATION,

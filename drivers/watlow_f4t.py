@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from drivers.ascii_link import parse_host_port
 from drivers.clock import Clock
 from drivers.errors import ProtocolError, SetpointOutOfRange
-from drivers.modbus_link import ModbusLink, ModbusRefused
+from drivers.modbus_link import ModbusLink, ModbusRefused, reopen_link
 from drivers.protocols import InstrumentIdentity
 from drivers.ramped_chamber import RampedChamber
 from drivers.watlow_f4t_map import (
@@ -191,6 +191,10 @@ class WatlowF4T(RampedChamber):
                 what = ALARM_TEXT.get(code, f"alarm state {code}")
                 active.append(f"{what} on alarm {alarm}")
         return active
+
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        reopen_link(self._link, timeout_s)
+        self._fahrenheit = None  # a re-plugged controller may have been set to other units
 
     def close(self) -> None:
         self._link.close()

@@ -84,7 +84,7 @@ def _ui(args: argparse.Namespace) -> int:
             flush=True,
         )
         try:
-            serve_forever(station.app, args.host, args.port, tls=station.tls)
+            serve_forever(station.app, args.host, args.port, tls=station.tls, limits=station.limits)
         except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled: a normal stop
             pass
         except OSError as exc:

@@ -39,6 +39,13 @@ ROLE_KEYS = {
     "part": "fixture",
     "inclinometer": "inclinometer",
 }
+# role -> the sim config's key that gives the bench a twin for it, and a family to name there
+SIM_KEYS = {
+    "rate_table": ("instruments.rate_table", "modbus-servo"),
+    "chamber": ("instruments.chamber", "watlow-f4"),
+    "supply": ("instruments.supply", "scpi"),
+    "inclinometer": ("instruments.inclinometer", "ascii-xy"),
+}
 ROLE_NAMES = {
     "rate_table": "rate table",
     "chamber": "chamber",
@@ -140,6 +147,8 @@ def plan_role(
     entry: InstrumentSettings | None = getattr(cfg, role, None)
     if entry is None or table_absent(loaded, role, endpoints):
         return None
+    if endpoints is not None and not endpoints.serves(role):
+        raise UserError(not_served(loaded, role))
     driver, own_settings = _sim_driver(role, entry.driver, endpoints)
     name, factory = _resolve(loaded, role, driver)
     given = entry.driver_settings()
@@ -152,6 +161,18 @@ def plan_role(
     return RoleDriver(
         role, name, factory, settings, ("instruments", _yaml_key(loaded, role)),
         entry.calibration_due, entry.expected_model,
+    )
+
+
+def not_served(loaded: LoadedSettings, role: str) -> str:
+    """One line: station.yaml names a role the simulated bench has no twin for. --sim never
+    falls back to station.yaml's own address (a real instrument, perhaps on the LAN)."""
+    key, family = SIM_KEYS.get(role, (f"instruments.{role}", "<family>"))
+    return (
+        f"{_line(loaded, ('instruments', _yaml_key(loaded, role)))}: station.yaml names the "
+        f"{ROLE_NAMES.get(role, role)} but the simulated bench does not serve it: set "
+        f"{key}: {family} in the sim config (--sim-config), or leave instruments."
+        f"{_yaml_key(loaded, role)} out of station.yaml for simulated runs"
     )
 
 

@@ -258,6 +258,15 @@ class UiSettings(_Strict):
     tls_key: str | None = Field(
         None, max_length=4096, description="PEM private key of tls_certificate (relative)"
     )
+    max_connections: int = Field(
+        256, ge=8, le=4096,
+        description="connections the screen's server holds at once; beyond it the oldest "
+        "idle one is closed (docs/ui-security.md)",
+    )
+    max_connections_per_client: int = Field(
+        64, ge=4, le=4096,
+        description="connections from one address (every loopback client is one address)",
+    )
     language: str | None = Field(
         None,
         pattern=r"^[a-z]{2,3}$",

@@ -109,6 +109,13 @@ class Endpoints:
         return str(getattr(self, role, "") or "") if role in (
             "rate_table", "chamber", "supply") else ""
 
+    def serves(self, role: str) -> bool:
+        """Whether the bench has a twin for a station role (the inclinometer: one on a
+        fixture); a role it does not serve must never be reached at station.yaml's address."""
+        if role == "inclinometer":
+            return bool(self.inclinometers)
+        return bool(self.address(role))
+
 
 @dataclass
 class UutResult:

@@ -2,19 +2,19 @@
 
 Deliberately independent of the station's part-link driver: it opens each port with
 pyserial (raw mode), sends fixture commands, and decodes with `FrameParser`, reading every
-port from one thread with select().
+port from one thread with poll().
 """
 
 from __future__ import annotations
 
 import os
-import select
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import serial
 
+from drivers.fd_wait import select_by_poll, use_poll
 from drivers.fixture_protocol import FrameParser
 
 
@@ -43,6 +43,7 @@ def scpi(path: str, *lines: str, timeout_s: float = 2.0) -> list[str]:
     """
     replies = []
     sync = () if lines and lines[-1].strip().endswith("?") else ("OUTP?",)
+    use_poll()  # pyserial's own waits, at any descriptor number
     with serial.Serial(path, timeout=timeout_s) as port:
         for line in (*lines, *sync):
             port.write(line.encode("ascii") + b"\n")
@@ -63,6 +64,7 @@ class StreamProbe:
     """Several fixture ports opened at once."""
 
     def __init__(self, paths: list[str]) -> None:
+        use_poll()
         self.ports = [serial.Serial(p, baudrate=921600, timeout=0) for p in paths]
         self.parsers = [FrameParser() for _ in paths]
         self.counts = [StreamCount(p) for p in paths]
@@ -96,7 +98,7 @@ class StreamProbe:
     def pump(self, timeout_s: float = 0.05) -> int:
         """Read whatever is waiting on every port; returns the bytes read."""
         fds = [p.fileno() for p in self.ports]
-        ready, _, _ = select.select(fds, [], [], timeout_s)
+        ready, _, _ = select_by_poll(fds, [], [], timeout_s)  # any descriptor number
         total = 0
         for fd in ready:
             i = fds.index(fd)

@@ -187,6 +187,7 @@ class ManualStop(StepType[ManualStopSettings]):
     def _one_move(self, ctx: RunContext) -> dict[int, _Watch]:
         """Prompt, wait for every alive part to move and come to rest, then rest."""
         cfg = self.settings
+        ctx.parts.require()  # every part dropped (an inclinometer unread): nobody to prompt for
         parts = ctx.parts.alive()
         sockets = [p.socket for p in parts]
         t_prompt = ctx.wait.now_s()

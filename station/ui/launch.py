@@ -20,6 +20,7 @@ from station.errors import UserError
 from station.ui import catalog
 from station.ui.app import Security, create_app
 from station.ui.auth import Operator, OperatorBook, check_hash_format
+from station.ui.connections import ConnectionLimits
 from station.ui.controller import Controller
 from station.ui.guard import LOOPBACK_HOSTS, allowed_hosts
 from station.ui.history import History
@@ -41,6 +42,7 @@ class UiStation:
     bench: Any  # drivers.sim.launcher.BenchHandle | None
     tls: Tls | None = None
     recovered: list[Path] = field(default_factory=list)
+    limits: ConnectionLimits = ConnectionLimits()  # station.yaml ui.max_connections...
 
 
 def is_loopback(host: str) -> bool:
@@ -200,7 +202,9 @@ def ui_station(
         stop_watch = threading.Event()
         controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)
         try:
-            yield UiStation(app, controller, runner, bench, tls, recovered)
+            ui = settings.settings.ui
+            limits = ConnectionLimits(ui.max_connections, ui.max_connections_per_client)
+            yield UiStation(app, controller, runner, bench, tls, recovered, limits)
         finally:
             stop_watch.set()
             controller.hub.close()

@@ -12,6 +12,8 @@ from typing import Any
 
 import uvicorn
 
+from station.ui.connections import ConnectionLimits, capped_protocol
+
 ASGIApp = Any  # the station's app: FastAPI routes inside station.ui.guard.Guard
 
 
@@ -44,13 +46,24 @@ class Tls:
 
 
 def _config(
-    app: ASGIApp, host: str, port: int, log_level: str, tls: Tls | None = None
+    app: ASGIApp,
+    host: str,
+    port: int,
+    log_level: str,
+    tls: Tls | None = None,
+    limits: ConnectionLimits | None = None,
 ) -> uvicorn.Config:
-    # Short graceful shutdown: open event streams would otherwise hold it up.
+    # Short graceful shutdown: open event streams would otherwise hold it up. Connections are
+    # capped per client and in total (station/ui/connections.py), whatever the caller says;
+    # the accept backlog no deeper than the cap, as asyncio accepts a whole backlog at once
+    # and each holds a descriptor until the cap closes it.
+    limits = limits or ConnectionLimits()
     return uvicorn.Config(
         app,
         host=host,
         port=port,
+        http=capped_protocol(limits),
+        backlog=limits.total,
         log_level=log_level,
         timeout_graceful_shutdown=1,
         access_log=False,
@@ -61,9 +74,14 @@ def _config(
 
 
 def serve_forever(
-    app: ASGIApp, host: str, port: int, log_level: str = "warning", tls: Tls | None = None
+    app: ASGIApp,
+    host: str,
+    port: int,
+    log_level: str = "warning",
+    tls: Tls | None = None,
+    limits: ConnectionLimits | None = None,
 ) -> None:
-    uvicorn.Server(_config(app, host, port, log_level, tls)).run()
+    uvicorn.Server(_config(app, host, port, log_level, tls, limits)).run()
 
 
 def serve_in_thread(
@@ -73,10 +91,11 @@ def serve_in_thread(
     startup_timeout_s: float = 10.0,
     before_stop: Callable[[], None] | None = None,
     tls: Tls | None = None,
+    limits: ConnectionLimits | None = None,
 ) -> BackgroundServer:
     """Start the app on a background thread; returns once it accepts connections."""
     port = port or free_port(host)
-    server = uvicorn.Server(_config(app, host, port, "warning", tls))
+    server = uvicorn.Server(_config(app, host, port, "warning", tls, limits))
     thread = threading.Thread(target=server.run, name="station-ui", daemon=True)
     thread.start()
     deadline = time.monotonic() + startup_timeout_s

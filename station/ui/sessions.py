@@ -7,9 +7,11 @@ everybody out, which suits a station restarted at shift change.
 
 Wrong PINs, badges and passwords are counted per client (per session), with a backoff that
 doubles at each further failure, so one client's guesses never lock out another. A client
-that throws its session away to start afresh is caught by a per-address budget: an address
-with many recent failures may not open new sessions until its backoff has passed (sessions it
-already holds, such as the station's own screen, keep working).
+that throws its session away to start afresh is caught by a per-address budget: a session
+opened from an address with many recent failures starts under that address's wait for signing
+in. The lockout limits sign-in attempts only: reading the session (a reloaded screen) and
+aborting a run are never locked out, and sessions the address already holds, such as the
+station's own screen, keep signing in.
 """
 
 from __future__ import annotations
@@ -156,6 +158,22 @@ class LoginThrottle:
         """A failure by one client: counted for it and towards its address's budget."""
         self.failed("addr:" + address, free=self.address_free)
         return self.failed(session_token)
+
+    def inherit(self, key: str, source: str) -> float:
+        """`key` (a new session) starts under `source`'s wait (its address's), with its free
+        tries spent: throwing a session away buys no guesses, yet the new session still reads
+        and aborts. Returns the wait carried over."""
+        with self._lock:
+            origin = self._entry(source, create=False)
+            now = time.monotonic()
+            if origin is None or origin.locked_until_s <= now:
+                return 0.0
+            entry = self._entry(key, create=True)
+            assert entry is not None
+            entry.count = max(entry.count, self.free)
+            entry.last_s = now
+            entry.locked_until_s = max(entry.locked_until_s, origin.locked_until_s)
+            return entry.locked_until_s - now
 
     def reset(self, key: str) -> None:
         with self._lock:

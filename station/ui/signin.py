@@ -65,13 +65,13 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
         if session is not None:
             return JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
         address = client_address(request)
-        wait_s = throttle.wait_s("addr:" + address)
-        if wait_s > 0:
-            return error(429, f"too many failed sign-ins from {address}; wait {wait_s:.0f} s")
         try:
             session = sessions.open(address)
         except TooManySessions:
             return error(429, f"too many new sessions from {address}; wait a minute")
+        # an address under a sign-in lockout still gets a session (a reloaded screen must be
+        # able to ABORT), but it starts locked for signing in: no fresh guesses
+        throttle.inherit(session.token, "addr:" + address)
         response = JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
         return with_cookie(response, session)
 

@@ -22,7 +22,7 @@ from drivers.errors import (
     InstrumentTimeout,
     SetpointOutOfRange,
 )
-from drivers.protocols import Chamber
+from drivers.protocols import Chamber, ChamberReadsBackSafe, Reconnectable
 from drivers.ramped_chamber import RampedChamber
 from drivers.sim.espec_twin import EspecP300Twin
 from drivers.sim.watlow_f4t_twin import WatlowF4TTwin
@@ -197,3 +197,38 @@ def test_espec_driver_over_a_serial_device_path(tmp_path):
         finally:
             bridge.terminate()
             bridge.wait(5)
+
+
+def test_check_safe_reads_the_controllers_own_setpoint_back(rig):
+    """Issue 25 finding 13: the F4T and P-300 read back their safe state as the F4 does."""
+    tt, chamber = rig
+    assert isinstance(chamber, ChamberReadsBackSafe)
+    chamber.run()
+    chamber.set_ramp_rate(0.0)
+    chamber.set_setpoint(80.0)
+    readback = chamber.check_safe(25.0)
+    assert not readback.safe and "setpoint 80 C (safe 25 C)" in readback.detail
+    chamber.safe_state(25.0)
+    readback = chamber.check_safe(25.0)
+    assert readback.safe and "running" in readback.detail, readback
+    assert chamber.check_safe(200.0).safe is False  # clamped to the limit, 140 C: not held
+    tt.call(lambda: setattr(tt.world.chamber, "setpoint_c", 60.0))  # changed at the panel
+    assert chamber.check_safe(25.0).safe is False
+
+
+def test_reconnect_gets_through_after_a_drop_with_a_longer_timeout(rig):
+    tt, chamber = rig
+    assert isinstance(chamber, Reconnectable)
+    chamber.read_temperature()  # the twin has taken the connection: drop closes it
+    tt.run(tt.twin.drop())
+    with pytest.raises(ConnectionLost):
+        chamber.read_temperature()
+    with pytest.raises(ConnectionLost):  # the reconnect itself is refused while dropped
+        chamber.reconnect()
+    tt.run(tt.twin.restore())
+    tt.twin.delay_s = 0.8  # slower than the configured 0.5 s
+    chamber.reconnect(timeout_s=3.0)
+    assert chamber.read_temperature() == pytest.approx(25.0, abs=0.5)
+    tt.twin.delay_s = 0.0
+    chamber.safe_state(25.0)
+    assert chamber.check_safe(25.0).safe

@@ -204,3 +204,36 @@ def test_channel_must_exist(module: object, channel: int) -> None:
 def test_station_yaml_serial_form_is_accepted_by_the_scpi_family() -> None:
     s = supply.Settings.model_validate({"address": "/dev/ttyUSB0", "baud": 115200})
     assert (s.address, s.baud, s.timeout_s) == ("/dev/ttyUSB0", 115200, 1.0)
+
+
+def test_reconnect_gets_through_to_a_dropped_lan_supply_with_a_longer_timeout() -> None:
+    """Issue 25 finding 13: the supply reconnects (the safe-state pass's way through to a slow
+    or re-plugged supply), against the Keysight LAN twin."""
+    from drivers.errors import ConnectionLost
+    from drivers.protocols import Reconnectable
+    from drivers.sim.scpi_lan_twins import KeysightE36300Twin
+    from tests.drivers._chamber_twin_thread import TwinThread
+
+    with TwinThread(KeysightE36300Twin) as tt:
+        psu = keysight_e36300.factory({"address": tt.endpoint, "timeout_s": 0.5})
+        try:
+            assert isinstance(psu, Reconnectable)
+            psu.output(True)
+            tt.run(tt.twin.drop())
+            with pytest.raises(ConnectionLost):
+                psu.output_is_on()
+            with pytest.raises(ConnectionLost):  # refused while dropped
+                psu.reconnect()
+            tt.run(tt.twin.restore())
+            tt.twin.delay_s = 0.8  # slower than the configured 0.5 s
+            with pytest.raises(ConnectionLost):  # the dead link stays dead until reconnect
+                psu.output_is_on()
+            psu.reconnect(timeout_s=3.0)
+            assert psu.output_is_on() is True  # the world's supply kept its state
+            psu.safe_state()
+            assert psu.check_safe().safe and not tt.world.supply.output_on
+        finally:
+            psu.close()
+    given = ScpiSupply(type("Given", (), {"instrument": "psu", "close": lambda self: None})())
+    with pytest.raises(ConnectionLost, match="cannot reconnect"):
+        given.reconnect()  # a transport handed in: nothing to reopen it with

@@ -122,3 +122,57 @@ def test_an_over_ranged_move_is_warned_and_repeated_and_a_bounce_is_warned(
     stop = record["analysis"]["stop_method"]["T25_V5"]
     assert [m["over_range_samples"] > 0 for m in stop["moves"]] == [False, True, False]
     assert abs(stop["scale"] - SCALE) <= 2 * stop["u_scale"], stop
+
+
+class _Parts:
+    """The run's parts as the step sees them: dropping one takes it out of `alive`."""
+
+    def __init__(self, sockets: list[int]) -> None:
+        from types import SimpleNamespace
+
+        self.parts = [SimpleNamespace(socket=s, alive=True, stream=None) for s in sockets]
+        self.dropped: list[str] = []
+
+    def alive(self) -> list:
+        return [p for p in self.parts if p.alive]
+
+    def drop(self, part, verdict, reason: str) -> None:  # noqa: ANN001
+        part.alive = False
+        self.dropped.append(reason)
+
+    def require(self) -> None:
+        from procedures.run_context import NoPartsLeft
+
+        if not self.alive():
+            raise NoPartsLeft("every part has dropped out of the run")
+
+
+def test_every_socket_dropped_before_the_prompt_ends_the_step_without_a_prompt() -> None:
+    """Issue 25 finding 12: the inclinometer unread on every socket drops them all; the next
+    prompt was built for no sockets and raised IndexError (a logged traceback)."""
+    from types import SimpleNamespace
+
+    from drivers.errors import ConnectionLost
+    from procedures.run_context import NoPartsLeft
+
+    class DeadInclinometer:
+        def read_angle(self, socket: int) -> tuple[float, float]:
+            raise ConnectionLost(f"inclinometer {socket}: connection dropped")
+
+    prompts: list[str] = []
+    parts = _Parts([1, 2])
+    t = [0.0]
+    ctx = SimpleNamespace(
+        parts=parts,
+        wait=SimpleNamespace(now_s=lambda: t[0], sleep=lambda s: t.__setitem__(0, t[0] + s),
+                             clock=SimpleNamespace(speed=1.0)),
+        progress=SimpleNamespace(prompt=lambda m, s: prompts.append(m),
+                                 prompt_done=lambda s: None),
+        instruments=SimpleNamespace(bench=SimpleNamespace(inclinometer=DeadInclinometer())),
+    )
+    step = ManualStop(ManualStop.Settings())
+    step.setup(ctx)  # type: ignore[arg-type]
+    with pytest.raises(NoPartsLeft):
+        step.main(ctx)  # type: ignore[arg-type]
+    assert prompts == [] and len(parts.dropped) == 2
+    assert all("could not be read" in r for r in parts.dropped)

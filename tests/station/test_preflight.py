@@ -152,8 +152,9 @@ def factory(settings):
 '''
 
 
-def test_unreachable_instrument_on_the_bench_refuses_the_run(tmp_path: Path) -> None:
-    """The optional inclinometer (no twin on the bench, a plugin driver) at a dead address."""
+def test_a_plugin_role_the_bench_does_not_serve_is_refused_not_reached(tmp_path: Path) -> None:
+    """The optional inclinometer (no twin on the bench, a plugin driver): --sim never goes to
+    station.yaml's own address for it (tests/station/test_sim_stays_on_bench.py)."""
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "acme_inclinometer.py").write_text(INCLINOMETER)
     port = _closed_port()
@@ -171,8 +172,8 @@ def test_unreachable_instrument_on_the_bench_refuses_the_run(tmp_path: Path) -> 
         "--out", str(out), env=env,
     )  # fmt: skip
     (line,) = _refused(r, out)
-    assert f"cannot reach the inclinometer at 127.0.0.1:{port}" in line
-    assert "acme_inclinometer:factory" in line
+    assert "station.yaml names the inclinometer but the simulated bench does not serve it" in line
+    assert "instruments.inclinometer: ascii-xy in the sim config" in line
 
 
 @pytest.mark.parametrize(

@@ -169,10 +169,42 @@ def test_a_client_that_drops_its_session_to_retry_is_stopped(signed: Station) ->
         c = signed.client(address="10.0.0.66")
         for i in range(3):
             c.post("/api/signin", json={"badge": f"99999{i}"})
-    r = TestClient(signed.app, base_url=BASE, client=("10.0.0.66", 1)).get("/api/session")
+    fresh = TestClient(signed.app, base_url=BASE, client=("10.0.0.66", 1))
+    r = fresh.get("/api/session")  # a session to read and abort with, but no fresh guesses
+    assert r.status_code == 200
+    fresh.headers["X-CSRF-Token"] = r.json()["csrf"]
+    r = fresh.post("/api/signin", json={"badge": ANA_BADGE})
     assert r.status_code == 429 and "too many failed sign-ins" in r.json()["error"]
     r = keeper.post("/api/signin", json={"badge": ANA_BADGE})
     assert r.status_code == 200 and r.json()["operator"] == "Ana Silva"
+
+
+def test_a_screen_reloaded_during_a_lockout_reads_its_session_and_aborts(
+    signed: Station,
+) -> None:
+    """Finding 9: every loopback client shares one address, so guesses from it must not leave
+    the station's own screen, reloaded (no cookie), without a session and unable to ABORT."""
+    screen = signed.client(address="127.0.0.1")
+    assert _renew(screen, screen.post("/api/signin", json={"badge": ANA_BADGE})).status_code == 200
+    signed.runner.step_s = 60.0  # the run lasts until aborted, however slow the guesses are
+    assert screen.post("/api/start", json=START).status_code == 200
+    signed.app.app.state.throttle.address_free = 3
+    for _ in range(3):  # guesses from loopback, each on a fresh session, until the address locks
+        guesser = signed.client(address="127.0.0.1")
+        for i in range(3):
+            guesser.post("/api/signin", json={"badge": f"88888{i}"})
+    reloaded = TestClient(signed.app, base_url=BASE, client=("127.0.0.1", 2))
+    r = reloaded.get("/api/session")
+    assert r.status_code == 200, r.text
+    reloaded.headers["X-CSRF-Token"] = r.json()["csrf"]
+    assert reloaded.get("/api/session").json()["csrf"] == r.json()["csrf"]  # read again: same
+    assert reloaded.post("/api/signin", json={"badge": ANA_BADGE}).status_code == 429
+    no_token = reloaded.post("/api/abort", json={}, headers={"X-CSRF-Token": "x"})
+    assert no_token.status_code == 403  # CSRF rules still apply
+    assert reloaded.post("/api/abort", json={}).status_code == 200
+    signed.runner.wait()
+    folders = list((signed.runner.out_dir).glob("*/record.json"))
+    assert folders and all('"ABORTED"' in f.read_text() for f in folders)
 
 
 def test_csrf_token_missing_or_wrong_is_refused(station: Station) -> None:
