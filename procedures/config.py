@@ -204,6 +204,45 @@ class CalibrationStorage(_Strict):
     )
 
 
+class ConsistencyRule(_Strict):
+    """How often the stop-vs-table judgement (`stop_table_consistency`, E_n at each condition)
+    may reject a good part. The |E_n| limit at each condition is derived from these and the
+    number of conditions the procedure judges (procedures.analysis.consistency, Sidak), so
+    the rate holds for the part over all its conditions, whatever the procedure."""
+
+    false_reject_rate: float = Field(
+        ge=1e-6, le=0.2, description="share of good parts the judgement may reject, over all "
+        "the conditions a part is judged at (0.001: one in a thousand)"
+    )
+    marginal_rate: float | None = Field(
+        None, ge=1e-6, le=0.5, description="share of good parts flagged MARGINAL over all "
+        "their conditions (omit: no marginal band)"
+    )
+
+    @model_validator(mode="after")
+    def _marginal_above_reject(self) -> ConsistencyRule:
+        if self.marginal_rate is not None and self.marginal_rate <= self.false_reject_rate:
+            raise ValueError(
+                f"marginal_rate ({self.marginal_rate:g}) must exceed false_reject_rate "
+                f"({self.false_reject_rate:g}): the marginal band lies inside the limits"
+            )
+        return self
+
+    def limit(self, judgements: int) -> Limit:
+        """The per-condition |E_n| limit for a part judged at `judgements` conditions."""
+        from procedures.analysis.consistency import per_condition_limit
+
+        k = per_condition_limit(self.false_reject_rate, judgements)
+        marginal = None
+        if self.marginal_rate is not None:
+            marginal = per_condition_limit(self.marginal_rate, judgements)
+        return Limit(
+            low=-k, high=k, units="1",
+            marginal_low=None if marginal is None else -marginal,
+            marginal_high=marginal,
+        )
+
+
 class Dispositions(_Strict):
     """What the operator does with a part of each verdict, shown with the verdict."""
 
@@ -301,6 +340,12 @@ class ProductConfig(_Strict):
         description="rate axes of the part: 1 (a single-axis gyro) or 3 (x, y, z in one "
         "package, calibrated in cube orientations: docs/three-axis.md)",
     )
+    consistency: ConsistencyRule | None = Field(
+        None,
+        description="the stop-vs-table judgement's false-reject rate per part "
+        "(false_reject_rate, marginal_rate); its per-condition limit is derived for each "
+        "procedure. Give this or limits.stop_table_consistency, not both",
+    )
 
     @property
     def supply_limits_v(self) -> tuple[float, float]:
@@ -317,6 +362,16 @@ class ProductConfig(_Strict):
         except re.error as exc:
             raise ValueError(f"not a valid regular expression ({exc})") from exc
         return value
+
+    @model_validator(mode="after")
+    def _one_consistency_rule(self) -> ProductConfig:
+        if self.consistency is not None and self.limits.stop_table_consistency is not None:
+            raise ValueError(
+                "consistency: and limits.stop_table_consistency both judge the stop-vs-table "
+                "consistency: keep consistency.false_reject_rate (the limit is derived from it) "
+                "and remove limits.stop_table_consistency"
+            )
+        return self
 
     @model_validator(mode="after")
     def _codes_cover_range(self) -> ProductConfig:
@@ -486,6 +541,27 @@ def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
     return load_yaml_model(path, ProcedureConfig)
 
 
+def consistency_judgements(procedure: ProcedureConfig) -> int:
+    """How many stop-vs-table judgements the procedure can make on one part: one per
+    stop_method step it runs (each judges at its condition where a rate-table fit exists)."""
+    conditions = procedure.planned_conditions()
+    return sum(1 for step in expand(procedure.nodes, conditions) if step.type_name == "stop_method")
+
+
+def product_for_procedure(product: ProductConfig, procedure: ProcedureConfig) -> ProductConfig:
+    """The product as this procedure judges it: with `consistency:` the per-condition limit
+    `limits.stop_table_consistency` derived for the procedure's number of judgements."""
+    if product.consistency is None or product.limits.stop_table_consistency is not None:
+        return product
+    judgements = consistency_judgements(procedure)
+    if judgements == 0:
+        return product
+    limits = product.limits.model_copy(
+        update={"stop_table_consistency": product.consistency.limit(judgements)}
+    )
+    return product.model_copy(update={"limits": limits})
+
+
 def check_procedure_for_product(
     procedure: ProcedureConfig,
     procedure_file: LoadedYaml,
@@ -497,6 +573,7 @@ def check_procedure_for_product(
     every supply level within the part's supply range. ConfigError with one line per problem,
     naming the procedure's file and line and the product's limit. Returns warnings: the
     product limits the procedure never measures."""
+    product = product_for_procedure(product, procedure)
     limit_names = {k for k in LIMIT_NAMES if getattr(product.limits, k) is not None}
     measured, warnings = measurement_problems(
         procedure.nodes, limit_names, lambda p: _where(procedure_file, *p), str(product_file.path)
