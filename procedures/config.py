@@ -12,7 +12,16 @@ import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from drivers.bounded import (
     MAX_LIST,
@@ -484,7 +493,9 @@ class ProcedureConfig(_Strict):
     _nodes: tuple[Node, ...] = PrivateAttr(default=())
 
     @model_validator(mode="after")
-    def _parse_steps(self) -> ProcedureConfig:
+    def _parse_steps(self, info: ValidationInfo) -> ProcedureConfig:
+        if info.context and info.context.get(FIELDS_ONLY):
+            return self  # the steps' problems are reported by parse_steps with file:line
         self._nodes = parse_steps(self.steps)
         return self
 
@@ -537,8 +548,33 @@ def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
             f"with: station procedure convert {loaded.path} -o NEW.yaml"
         )
     if isinstance(loaded.data, dict) and "steps" in loaded.data:
-        parse_steps(loaded.data["steps"], loaded)  # file:line for every entry's problems
+        try:
+            parse_steps(loaded.data["steps"], loaded)  # file:line for every entry's problems
+        except ConfigError as exc:
+            # every mistake of the file at once: the other fields' too, one line each
+            raise ConfigError("\n".join(_in_file_order(
+                [*_field_problems(loaded), *str(exc).splitlines()]))) from None
     return load_yaml_model(path, ProcedureConfig)
+
+
+FIELDS_ONLY = "fields_only"  # validation context: check the fields, not the steps' entries
+
+
+def _field_problems(loaded: LoadedYaml) -> list[str]:
+    """The problems of a procedure file's fields other than its steps' entries."""
+    try:
+        ProcedureConfig.model_validate(loaded.data, context={FIELDS_ONLY: True})
+    except ValidationError as exc:
+        return format_validation_error(exc, loaded, ProcedureConfig).splitlines()
+    return []
+
+
+def _in_file_order(lines: list[str]) -> list[str]:
+    """Problem lines (`file:line: ...`) sorted by their line, each once."""
+    def line_no(text: str) -> int:
+        m = re.match(r"^.*?:(\d+): ", text)
+        return int(m.group(1)) if m else 0
+    return sorted(dict.fromkeys(lines), key=line_no)
 
 
 def consistency_judgements(procedure: ProcedureConfig) -> int:
