@@ -121,6 +121,7 @@ steps:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_a_part_failing_only_consistency_is_measured_once_more_and_recorded(
     tmp_path: Path,
@@ -169,6 +170,8 @@ def test_a_part_failing_only_consistency_is_measured_once_more_and_recorded(
         assert "Measured again" in " ".join(text.split())
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_a_part_with_another_failure_is_not_measured_again(tmp_path: Path) -> None:
     """Only a lone consistency failure earns the second measurement: with the bias also
     failing (a limit no part meets) the part is FAIL on its first judgement."""
