@@ -27,10 +27,11 @@ from procedures.analysis.stop_method import (
     analyze_stop_method,
 )
 from procedures.config import Seconds, Volts
-from procedures.record import Outcome, Verdict
+from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
+from procedures.steps.program import failed_limits
 from procedures.steps.registry import Declared, StepSettings, StepType
 
 # the table counts as already at the first stop within this (a move is skipped)
@@ -51,10 +52,8 @@ def stop_noise_model(ctx: RunContext, part: PartRun) -> NoiseModel | None:
     return replace(noise, bias_instability_dps=max(noise.bias_instability_dps, floor_dps))
 
 
-def failed_labels(part: PartRun) -> list[str]:
-    """The part's failed measurements so far (name@condition), from its record."""
-    return [f"{m.name}@{m.condition}" if m.condition else m.name
-            for m in part.record.measurements if m.outcome is Outcome.FAIL]
+def _limit_text(value: float | None) -> str:
+    return "none" if value is None else f"{value:.3g}"
 
 
 def _take_back(part: PartRun, name: str, condition: str) -> dict[str, Any]:
@@ -125,7 +124,7 @@ class StopMethod(StepType[Any]):
         ~10x the table's), so the second E_n is nearly independent of the first: a good part
         is rejected only if both fail, a bad one fails again."""
         label = f"stop_table_consistency@{self.condition}"
-        lone = [p for p in ctx.parts.alive() if failed_labels(p) == [label]]
+        lone = [p for p in ctx.parts.alive() if failed_limits(p) == [label]]
         if not lone:
             return
         firsts = {p.socket: _take_back(p, "stop_table_consistency", self.condition) for p in lone}
@@ -133,8 +132,8 @@ class StopMethod(StepType[Any]):
             first = firsts[part.socket]
             ctx.records.event(
                 f"socket {part.socket}: {label} failed alone (E_n {first['value']:+.2f}, "
-                f"limits {first['low']:g}..{first['high']:g}): the stop moves at "
-                f"{self.condition} are measured once more before the verdict",
+                f"limits {_limit_text(first['low'])}..{_limit_text(first['high'])}): the "
+                f"stop moves at {self.condition} are measured once more before the verdict",
                 "WARNING", [part],
             )
         t_start, t_end = self._moves(ctx)
