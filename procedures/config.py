@@ -18,6 +18,7 @@ from pydantic import (
     Field,
     PrivateAttr,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -212,6 +213,45 @@ class CalibrationStorage(_Strict):
     )
 
 
+class ConsistencyRule(_Strict):
+    """How often the stop-vs-table judgement (`stop_table_consistency`, E_n at each condition)
+    may reject a good part. The |E_n| limit at each condition is derived from these and the
+    number of conditions the procedure judges (procedures.analysis.consistency, Sidak), so
+    the rate holds for the part over all its conditions, whatever the procedure."""
+
+    false_reject_rate: float = Field(
+        ge=1e-6, le=0.2, description="share of good parts the judgement may reject, over all "
+        "the conditions a part is judged at (0.001: one in a thousand)"
+    )
+    marginal_rate: float | None = Field(
+        None, ge=1e-6, le=0.5, description="share of good parts flagged MARGINAL over all "
+        "their conditions (omit: no marginal band)"
+    )
+
+    @model_validator(mode="after")
+    def _marginal_above_reject(self) -> ConsistencyRule:
+        if self.marginal_rate is not None and self.marginal_rate <= self.false_reject_rate:
+            raise ValueError(
+                f"marginal_rate ({self.marginal_rate:g}) must exceed false_reject_rate "
+                f"({self.false_reject_rate:g}): the marginal band lies inside the limits"
+            )
+        return self
+
+    def limit(self, judgements: int) -> Limit:
+        """The per-condition |E_n| limit for a part judged at `judgements` conditions."""
+        from procedures.analysis.consistency import per_condition_limit
+
+        k = per_condition_limit(self.false_reject_rate, judgements)
+        marginal = None
+        if self.marginal_rate is not None:
+            marginal = per_condition_limit(self.marginal_rate, judgements)
+        return Limit(
+            low=-k, high=k, units="1",
+            marginal_low=None if marginal is None else -marginal,
+            marginal_high=marginal,
+        )
+
+
 class Dispositions(_Strict):
     """What the operator does with a part of each verdict, shown with the verdict."""
 
@@ -309,6 +349,12 @@ class ProductConfig(_Strict):
         description="rate axes of the part: 1 (a single-axis gyro) or 3 (x, y, z in one "
         "package, calibrated in cube orientations: docs/three-axis.md)",
     )
+    consistency: ConsistencyRule | None = Field(
+        None,
+        description="the stop-vs-table judgement's false-reject rate per part "
+        "(false_reject_rate, marginal_rate); its per-condition limit is derived for each "
+        "procedure. Give this or limits.stop_table_consistency, not both",
+    )
 
     @property
     def supply_limits_v(self) -> tuple[float, float]:
@@ -325,6 +371,16 @@ class ProductConfig(_Strict):
         except re.error as exc:
             raise ValueError(f"not a valid regular expression ({exc})") from exc
         return value
+
+    @model_validator(mode="after")
+    def _one_consistency_rule(self) -> ProductConfig:
+        if self.consistency is not None and self.limits.stop_table_consistency is not None:
+            raise ValueError(
+                "consistency: and limits.stop_table_consistency both judge the stop-vs-table "
+                "consistency: keep consistency.false_reject_rate (the limit is derived from it) "
+                "and remove limits.stop_table_consistency"
+            )
+        return self
 
     @model_validator(mode="after")
     def _codes_cover_range(self) -> ProductConfig:
@@ -437,7 +493,9 @@ class ProcedureConfig(_Strict):
     _nodes: tuple[Node, ...] = PrivateAttr(default=())
 
     @model_validator(mode="after")
-    def _parse_steps(self) -> ProcedureConfig:
+    def _parse_steps(self, info: ValidationInfo) -> ProcedureConfig:
+        if info.context and info.context.get(FIELDS_ONLY):
+            return self  # the steps' problems are reported by parse_steps with file:line
         self._nodes = parse_steps(self.steps)
         return self
 
@@ -492,21 +550,52 @@ def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
     if isinstance(loaded.data, dict) and "steps" in loaded.data:
         try:
             parse_steps(loaded.data["steps"], loaded)  # file:line for every entry's problems
-        except ConfigError as exc:  # and the run-wide fields' problems: every mistake at once
-            raise ConfigError("\n".join([str(exc), *_problems_beside_steps(loaded)])) from None
+        except ConfigError as exc:
+            # every mistake of the file at once: the other fields' too, one line each
+            raise ConfigError("\n".join(_in_file_order(
+                [*_field_problems(loaded), *str(exc).splitlines()]))) from None
     return load_yaml_model(path, ProcedureConfig)
 
 
-def _problems_beside_steps(loaded: LoadedYaml) -> list[str]:
-    """The problems of a procedure's fields other than `steps` (already reported)."""
-    rest = {k: v for k, v in loaded.data.items() if k != "steps"}
+FIELDS_ONLY = "fields_only"  # validation context: check the fields, not the steps' entries
+
+
+def _field_problems(loaded: LoadedYaml) -> list[str]:
+    """The problems of a procedure file's fields other than its steps' entries."""
     try:
-        ProcedureConfig.model_validate({**rest, "steps": []})
+        ProcedureConfig.model_validate(loaded.data, context={FIELDS_ONLY: True})
     except ValidationError as exc:
-        text = format_validation_error(exc, loaded, ProcedureConfig)
-        return [ln for ln in text.splitlines() if ": field steps" not in ln
-                and "field (top level)" not in ln]
+        return format_validation_error(exc, loaded, ProcedureConfig).splitlines()
     return []
+
+
+def _in_file_order(lines: list[str]) -> list[str]:
+    """Problem lines (`file:line: ...`) sorted by their line, each once."""
+    def line_no(text: str) -> int:
+        m = re.match(r"^.*?:(\d+): ", text)
+        return int(m.group(1)) if m else 0
+    return sorted(dict.fromkeys(lines), key=line_no)
+
+
+def consistency_judgements(procedure: ProcedureConfig) -> int:
+    """How many stop-vs-table judgements the procedure can make on one part: one per
+    stop_method step it runs (each judges at its condition where a rate-table fit exists)."""
+    conditions = procedure.planned_conditions()
+    return sum(1 for step in expand(procedure.nodes, conditions) if step.type_name == "stop_method")
+
+
+def product_for_procedure(product: ProductConfig, procedure: ProcedureConfig) -> ProductConfig:
+    """The product as this procedure judges it: with `consistency:` the per-condition limit
+    `limits.stop_table_consistency` derived for the procedure's number of judgements."""
+    if product.consistency is None or product.limits.stop_table_consistency is not None:
+        return product
+    judgements = consistency_judgements(procedure)
+    if judgements == 0:
+        return product
+    limits = product.limits.model_copy(
+        update={"stop_table_consistency": product.consistency.limit(judgements)}
+    )
+    return product.model_copy(update={"limits": limits})
 
 
 def check_procedure_for_product(
@@ -520,6 +609,7 @@ def check_procedure_for_product(
     every supply level within the part's supply range. ConfigError with one line per problem,
     naming the procedure's file and line and the product's limit. Returns warnings: the
     product limits the procedure never measures."""
+    product = product_for_procedure(product, procedure)
     limit_names = {k for k in LIMIT_NAMES if getattr(product.limits, k) is not None}
     measured, warnings = measurement_problems(
         procedure.nodes, limit_names, lambda p: _where(procedure_file, *p), str(product_file.path)

@@ -30,6 +30,7 @@ from reportlab.platypus import Flowable, KeepTogether, Spacer
 from procedures.record import CERTIFICATE_FILE
 from reports import (
     cert_plots,
+    cert_remeasured,
     cert_sections,
     cert_standards,
     cert_temperature_fit,
@@ -63,6 +64,7 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story += cert_standards.standards(inputs)
     story += cert_sections.conditions(inputs)
     story += cert_sections.results(inputs)
+    story += cert_remeasured.remeasured(inputs)
     three_axis = cert_three_axis.three_axis(inputs)
     story += three_axis or cert_sections.calibration(inputs)
     story += cert_temperature_fit.temperature_fit(inputs)

@@ -44,6 +44,7 @@ from procedures.config import (
     check_procedure_for_product,
     load_procedure,
     load_product,
+    product_for_procedure,
 )
 from procedures.engine import Bench, Engine, PartRun, RunContext
 from procedures.progress import ProgressBus, ProgressEvent
@@ -314,6 +315,8 @@ class UutRunner:
             product_path = (self.procedure_path.parent / self.procedure.product).resolve()
         self.product_path = Path(product_path)
         self.product, self.product_file = load_product(self.product_path)
+        # limits derived for this procedure (the consistency judgement's per-condition limit)
+        self.product = product_for_procedure(self.product, self.procedure)
         # the product limits this procedure never measures: an event on every record
         self.limit_warnings = check_procedure_for_product(
             self.procedure, self.procedure_file, self.product, self.product_file
@@ -815,7 +818,7 @@ def procedure_product(
         product_path = (procedure_path.parent / procedure.product).resolve()
     product, product_file = load_product(product_path)
     check_procedure_for_product(procedure, procedure_file, product, product_file)
-    return procedure, product
+    return procedure, product_for_procedure(product, procedure)
 
 
 def run_simulated(

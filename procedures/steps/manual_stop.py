@@ -39,6 +39,7 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
+from procedures.config import Volts
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, condition_record
@@ -127,6 +128,7 @@ class ManualStop(StepType[ManualStopSettings]):
 
     type_name = "manual_stop"
     Settings = ManualStopSettings
+    provides = frozenset({"scale_stop"})  # a fit may take its scale (source: stop_method)
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -392,4 +394,77 @@ class ManualStop(StepType[ManualStopSettings]):
                 for m in result.moves
             ],
             "warnings": list(result.warnings),
+        }
+
+
+class VerifyManualStopSettings(ManualStopSettings):
+    supply_v: Volts | None = Field(
+        None, description="supply during verification (default: the product's V0)"
+    )
+
+
+class VerifyManualStop(ManualStop):
+    """Verification on the hand-turned bench: the operator turns the fixture again, now on
+    the part's own compensated output; the residual scale error is the compensated scale
+    minus one, the residual bias the compensated output at rest."""
+
+    type_name = "verify_manual_stop"
+    Settings = VerifyManualStopSettings
+    provides = frozenset()
+
+    @classmethod
+    def requires(cls, settings: Any) -> set[str]:
+        return {"programmed"}
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [
+            Declared("residual_bias_dps", "deg/s", "compensated output at rest (turned by hand)"),
+            Declared("residual_scale_error", "1", "compensated stop-method scale - 1 (turned "
+                     "by hand)"),
+        ]
+
+    def setup(self, ctx: RunContext) -> None:
+        super().setup(ctx)
+        supply_v = self.settings.supply_v  # type: ignore[attr-defined]
+        self.supply_v = ctx.product.reference_supply_v if supply_v is None else supply_v
+        ctx.instruments.set_supply_voltage(self.supply_v)
+
+    def _record(self, ctx: RunContext, part: PartRun, result: StopMethodResult, ref: float,
+                u_ref: float, condition: str, data_temp_c: NDArray[Any]) -> None:
+        scale, u_scale = result.scale, result.u_scale
+        assert scale is not None and u_scale is not None
+        ctx.records.measure(
+            part, "residual_bias_dps", result.bias_dps, units="deg/s",
+            uncertainty_k2=2 * result.bias.u_bias_dps, condition="verify",
+            description="compensated output at rest (fixture turned by hand)",
+        )
+        ctx.records.measure(
+            part, "residual_scale_error", scale - 1.0, units="1",
+            uncertainty_k2=2 * u_scale, condition="verify@stop",
+            description="compensated stop-method scale - 1 (fixture turned by hand)",
+        )
+        for i, mv in enumerate(result.moves):
+            ctx.records.segment(
+                part, "verify", i, mv.start_s, mv.end_s,
+                ref_angle_deg=ref * (1 if mv.direction > 0 else -1), supply_v=self.supply_v,
+            )
+        # a hand move has no set rate: its mean rate stands for "the rate" of the row
+        move_s = float(np.mean([m.end_s - m.start_s for m in result.moves]))
+        rate_in = ref / move_s if move_s > 0 else math.nan
+        part.record.verification = {
+            "method": "manual_stop",
+            "residuals": [{
+                "condition": "verify@stop",
+                "rate_in_dps": rate_in,
+                "error_dps": (scale - 1.0) * rate_in,
+                "error_pct": 100 * (scale - 1.0),
+                "u_error_pct_k2": 200 * u_scale,
+            }],
+            "residual_bias_dps": result.bias_dps,
+            "max_error_pct": abs(100 * (scale - 1.0)),
+            "supply_v": self.supply_v,
+            "reference": self.settings.reference,
+            "reference_angle_deg": ref,
+            "u_reference_angle_deg": u_ref,
         }

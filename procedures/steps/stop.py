@@ -31,6 +31,7 @@ from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
+from procedures.steps.program import failed_limits
 from procedures.steps.registry import Declared, StepSettings, StepType
 
 # the table counts as already at the first stop within this (a move is skipped)
@@ -49,6 +50,24 @@ def stop_noise_model(ctx: RunContext, part: PartRun) -> NoiseModel | None:
         return None
     floor_dps = ctx.product.bias_instability_deg_per_h / 3600.0
     return replace(noise, bias_instability_dps=max(noise.bias_instability_dps, floor_dps))
+
+
+def _limit_text(value: float | None) -> str:
+    return "none" if value is None else f"{value:.3g}"
+
+
+def _take_back(part: PartRun, name: str, condition: str) -> dict[str, Any]:
+    """Take a judged measurement off the part's record (it is measured again); what it was,
+    with its stop-method scale, for `analysis.remeasured`."""
+    m = next(m for m in reversed(part.record.measurements)
+             if m.name == name and m.condition == condition)
+    part.record.measurements.remove(m)
+    label = f"{name}@{condition}"
+    if label in part.failed_limits:
+        part.failed_limits.remove(label)
+    stop = part.record.analysis.get("stop_method", {}).get(condition, {})
+    return {"value": m.value, "outcome": m.outcome.value, "low": m.low, "high": m.high,
+            "scale_stop": stop.get("scale"), "u_scale_stop": stop.get("u_scale")}
 
 
 class StopSettings(StepSettings):
@@ -80,6 +99,7 @@ class StopMethod(StepType[Any]):
     Settings = StopSettings
     uses_table = True
     provides = frozenset({"scale_stop"})
+    _again = False  # True while the stop moves are measured once more (a lone failure)
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -92,6 +112,52 @@ class StopMethod(StepType[Any]):
         return cfg.static_s + cfg.repeats * 2 * (cfg.move_time_s + cfg.static_s + 1.0) + 2.0
 
     def main(self, ctx: RunContext) -> None:
+        t_start, t_end = self._moves(ctx)
+        ctx.parts.each(lambda part: self._analyse(ctx, part, t_start, t_end))
+        self._remeasure_lone_failures(ctx)
+
+    def _remeasure_lone_failures(self, ctx: RunContext) -> None:
+        """A part whose only failure is the consistency judgement here has the stop moves at
+        this condition measured once more before its verdict (the table and chamber are still
+        at it); the second judgement stands and the first is kept on the record
+        (`analysis.remeasured`). The stop scale holds nearly all of E_n's variance (its u is
+        ~10x the table's), so the second E_n is nearly independent of the first: a good part
+        is rejected only if both fail, a bad one fails again."""
+        label = f"stop_table_consistency@{self.condition}"
+        lone = [p for p in ctx.parts.alive() if failed_limits(p) == [label]]
+        if not lone:
+            return
+        firsts = {p.socket: _take_back(p, "stop_table_consistency", self.condition) for p in lone}
+        for part in lone:
+            first = firsts[part.socket]
+            ctx.records.event(
+                f"socket {part.socket}: {label} failed alone (E_n {first['value']:+.2f}, "
+                f"limits {_limit_text(first['low'])}..{_limit_text(first['high'])}): the "
+                f"stop moves at {self.condition} are measured once more before the verdict",
+                "WARNING", [part],
+            )
+        t_start, t_end = self._moves(ctx)
+        self._again = True
+        for part in lone:
+            if not part.alive:
+                continue
+            ctx.parts.per_part(part, lambda p: self._analyse(ctx, p, t_start, t_end))
+            second = next((m for m in reversed(part.record.measurements)
+                           if m.name == "stop_table_consistency"
+                           and m.condition == self.condition), None)
+            part.record.analysis.setdefault("remeasured", []).append({
+                "measurement": "stop_table_consistency",
+                "condition": self.condition,
+                "why": "the part failed only this judgement: the stop moves were measured "
+                       "once more and the second judgement stands",
+                "first": firsts[part.socket],
+                "second": None if second is None else {
+                    "value": second.value, "outcome": second.outcome.value},
+            })
+        ctx.parts.require()
+
+    def _moves(self, ctx: RunContext) -> tuple[float, float]:
+        """The table moves the parts between the stops; the station times of the record."""
         cfg = self.settings
         table = ctx.instruments.need_table()
         table.enable()
@@ -126,7 +192,7 @@ class StopMethod(StepType[Any]):
         # each end quantised to one count; two ends per move, averaged over the moves
         count_deg = 360.0 / table.counts_per_rev()  # the table driver's encoder resolution
         self._encoder_u = count_deg * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
-        ctx.parts.each(lambda part: self._analyse(ctx, part, t_start, t_end))
+        return t_start, t_end
 
     def _scale(
         self, ctx: RunContext, part: PartRun, data: dict[str, Any]
@@ -235,7 +301,9 @@ class StopMethod(StepType[Any]):
                 cons.normalised_difference,
                 units="1",
                 condition=self.condition,
-                description="(stop scale - table scale) / combined standard (k=1) uncertainty",
+                description="(stop scale - table scale) / combined standard (k=1) uncertainty"
+                + ("; measured again: the first judgement at this condition failed alone"
+                   if self._again else ""),
             )
 
 

@@ -155,6 +155,7 @@ def grid_procedure(folder: Path) -> Path:
     product_path = (GRID_PROCEDURE.parent / data["product"]).resolve()
     product = yaml.safe_load(product_path.read_text())
     product["limits"].update(OPENED_LIMITS)
+    product.pop("consistency", None)  # the opened limit replaces the product's derived one
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "grid-product.yaml").write_text(yaml.safe_dump(product, sort_keys=False))
     data["product"] = "grid-product.yaml"
