@@ -32,7 +32,7 @@ from drivers.protocols import ENCODER_MODULO, SampleStatus
 from procedures.model.data import load_csv
 from procedures.model.trajectory import FloatArray, Segment, Trajectory
 from procedures.rawdata import RawDataError, read_raw
-from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record
+from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record, three_axis_block
 
 log = logging.getLogger(__name__)
 
@@ -123,26 +123,37 @@ def find_run_folder(path: Path, dut: str | None) -> RunFolderChoice:
 def unusable_reason(folder: Path) -> str | None:
     """Why a run folder holds nothing to analyse (None if it does), from its record's
     verdict and the size of its raw data, without reading the samples themselves."""
-    import h5py
-
     try:
-        verdict = str(read_record(folder).verdict.value)
+        record = read_record(folder)
+        verdict = str(record.verdict.value)
+        fitted_xyz = three_axis_block(record) is not None
     except (ValueError, AttributeError):
-        verdict = "unknown"
+        verdict, fitted_xyz = "unknown", False
     path = folder / RAW_DATA_FILE
     if not path.exists():
         return f"verdict {verdict}, no {RAW_DATA_FILE}"
     try:
-        with h5py.File(path, "r", libver="latest", swmr=True) as f:
-            n = int(f["samples/time_s"].shape[0]) if "samples/time_s" in f else 0
-            windows = int(f["segments/kind"].shape[0]) if "segments/kind" in f else 0
+        n, windows, xyz = raw_sizes(path)
     except (OSError, KeyError, ValueError) as exc:
         return f"verdict {verdict}, {RAW_DATA_FILE} cannot be read ({exc})"
     if n < MIN_SAMPLES:
         return f"verdict {verdict}, {n} samples"
     if windows == 0:
         return f"verdict {verdict}, no analysed window"
+    if xyz and not fitted_xyz:  # a three-axis part is analysed with its run's fit
+        return f"verdict {verdict}, a three-axis run that ended before its fit"
     return None
+
+
+def raw_sizes(path: Path) -> tuple[int, int, bool]:
+    """(samples, analysed windows, whether it holds a three-axis part's per-axis samples)
+    of a raw data file, from the datasets' shapes alone."""
+    import h5py
+
+    with h5py.File(path, "r", libver="latest", swmr=True) as f:
+        n = int(f["samples/time_s"].shape[0]) if "samples/time_s" in f else 0
+        windows = int(f["segments/kind"].shape[0]) if "segments/kind" in f else 0
+        return n, windows, "samples_xyz" in f
 
 
 def _serial(folder: Path) -> str | None:

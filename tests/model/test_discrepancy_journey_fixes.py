@@ -8,6 +8,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fake_run_folder import write_run_folder
 from helpers_model import TINY, as_trajectory
@@ -17,7 +18,7 @@ from procedures.model import fit
 from procedures.model.discrepancy import run_discrepancy
 from procedures.model.gyro_model import base_model
 from procedures.model.run_folder import find_run_folder, unusable_reason
-from procedures.rawdata import RawDataWriter
+from procedures.rawdata import EXTRA_GROUPS, RawDataWriter
 from procedures.record import Dut, FileRef, RunRecord, Verdict, write_record
 
 
@@ -94,3 +95,30 @@ def test_no_usable_run_folder_is_one_line_naming_each(tmp_path: Path) -> None:
                        r"20260104T080000Z_SIM-0009 \(verdict ERROR, 0 samples\); run the "
                        r"part again"):
         find_run_folder(root, "SIM-0009")
+
+
+def test_a_three_axis_run_that_ended_before_its_fit_is_refused_not_read_as_one_axis(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Found by the journey (tests/journeys/test_discrepancy.py): a three-axis run that
+    ended in ERROR before its fit has no three-axis block in its record, so it was analysed
+    as a single-axis part (its x axis against the table with the cube turning: a 24 deg/s
+    gap and a scale term named). Its raw data's per-axis samples now mark it three-axis: it
+    is refused with one line, and under a results folder it is skipped."""
+    import h5py
+
+    from station import cli
+
+    folder = write_run_folder(tmp_path / "results" / "20260102T000000Z_IMU-0001",
+                              generate(Part(), 5, TINY), serial="IMU-0001")
+    with h5py.File(folder / "raw.h5", "a") as f:  # the per-axis samples, x = /samples
+        n = f["samples/time_s"].shape[0]
+        g = f.create_group("samples_xyz")
+        for name, (dtype, _units) in EXTRA_GROUPS["samples_xyz"].items():
+            g.create_dataset(name, data=f["samples/rate_dps"][()] if name == "rate_x_dps"
+                             else np.zeros(n, dtype=dtype))
+    assert cli.main(["discrepancy", str(folder), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a three-axis run without its fit (verdict PASS" in err[0]
+    assert not (tmp_path / "out").exists()
+    assert unusable_reason(folder) == "verdict PASS, a three-axis run that ended before its fit"
