@@ -7,13 +7,17 @@ alarm rate over all candidates of the iteration is held at `alpha` with Holm's s
 procedure. Among significant candidates the best is the one with the lowest BIC. If another
 significant candidate fits almost the same signature (whitened signature correlation above
 `SEPARABLE_CORRELATION`) and its BIC is within `SEPARABLE_DELTA_BIC`, the data cannot tell
-them apart: they are reported as not separable and the workflow stops without guessing.
+them apart: they are reported as not separable and neither is added (nor later a look-alike
+of theirs); the other effects are still named in turn. A term is named only when it shrinks
+the gap, and an interaction only once its main effects are in the model or shown not to
+explain the gap (marginality.py).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Collection
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -297,13 +301,21 @@ def _judge(tests: list[CandidateTest], current: FitResult, blocks: Blocks,
 
 
 def _choose(
-    fitter: Fitter, current: FitResult, tests: list[CandidateTest], blocks: Blocks
+    fitter: Fitter, current: FitResult, tests: list[CandidateTest], blocks: Blocks,
+    set_aside: Collection[str] = (),
 ) -> tuple[CandidateTest, FitResult] | dict[str, Any] | None:
     """The effect to name (lowest BIC among those that may be named) and the model with it,
     every time constant refitted together; the not-separable report when a look-alike is
     as good; None when nothing may be named. A candidate whose refit no longer shrinks the
-    gap is passed over for the next."""
-    eligible = [c for c in tests if c.named_candidate]
+    gap is passed over for the next. Effects set aside (reported not separable earlier) are
+    not named, nor a candidate whose signature looks like one of theirs."""
+    aside = [c.fit for c in tests if c.effect in set_aside and c.fit is not None]
+    eligible = [
+        c for c in tests
+        if c.named_candidate and c.effect not in set_aside and c.fit is not None
+        and all(_signature_correlation(current, c.fit, a) < SEPARABLE_CORRELATION
+                for a in aside)
+    ]
     floor = floor_dps(fitter.noise.floor_per_block_dps(blocks), blocks.duration_s)
     for i, best in enumerate(eligible):
         assert best.fit is not None
@@ -351,13 +363,16 @@ def _run(
     tests: list[CandidateTest] = []
     if max_iterations == 0:
         tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
+    set_aside: set[str] = set()  # reported not separable: neither is named, nor a look-alike
     for _ in range(max_iterations):
         tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
         tests = _judge(tests, current, blocks, fitter.noise)
-        chosen = _choose(fitter, current, tests, blocks)
+        chosen = _choose(fitter, current, tests, blocks, set_aside)
         if isinstance(chosen, dict):
+            # the look-alikes are set aside; the part's other effects are still named in turn
             not_separable.append(chosen)
-            break
+            set_aside.update(chosen["effects"])
+            continue
         if chosen is None:
             break
         best, new = chosen
