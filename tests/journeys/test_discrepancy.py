@@ -13,8 +13,8 @@ gap, until the gap is within 1.5 x the floor.
 
 The whole grid (every config, every socket; SIM-0108 from `first_order` and from `base`) is
 marked station_grid (CI's long step); the default run keeps one cell: the every-effect part
-alone on its socket, from `first_order` (about 70 s on an idle 2-core machine: the station
-run 50 s, the analysis 20 s).
+alone on its socket, from `first_order` (29 s at load average 3 on the 2-core machine: the
+station run 12 s, the analysis 17 s; 7 min at load average 20).
 """
 
 from __future__ import annotations
