@@ -7,13 +7,17 @@ alarm rate over all candidates of the iteration is held at `alpha` with Holm's s
 procedure. Among significant candidates the best is the one with the lowest BIC. If another
 significant candidate fits almost the same signature (whitened signature correlation above
 `SEPARABLE_CORRELATION`) and its BIC is within `SEPARABLE_DELTA_BIC`, the data cannot tell
-them apart: they are reported as not separable and the workflow stops without guessing.
+them apart: they are reported as not separable and neither is added (nor later a look-alike
+of theirs); the other effects are still named in turn. A term is named only when it shrinks
+the gap, and an interaction only once its main effects are in the model or shown not to
+explain the gap (marginality.py).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Collection
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -22,7 +26,7 @@ import numpy as np
 from scipy import stats
 
 from procedures.model import effects as fx
-from procedures.model import library, structure
+from procedures.model import library, marginality, structure
 from procedures.model.blocks import Blocks, make_blocks
 from procedures.model.data import check_rate_varies
 from procedures.model.fit import FitResult, Fitter
@@ -30,7 +34,14 @@ from procedures.model.gyro_model import GyroModel, zero_params
 from procedures.model.lag import contiguous_runs
 from procedures.model.noise import NoiseModel, measure_noise
 from procedures.model.reml import estimate_slow_noise
-from procedures.model.residuals import BinSummary, floor_dps, gap_dps, summarize, worst_z
+from procedures.model.residuals import (
+    BinSummary,
+    about_mean,
+    floor_dps,
+    record_gap_dps,
+    summarize,
+    worst_z,
+)
 from procedures.model.trajectory import FloatArray, Trajectory
 
 log = logging.getLogger(__name__)
@@ -39,7 +50,7 @@ DEFAULT_ALPHA = 0.01
 SEPARABLE_CORRELATION = 0.9
 SEPARABLE_DELTA_BIC = 10.0
 MIN_INDEPENDENT_FRACTION = 1e-3  # below this an effect's regressor is already in the model
-MAX_ITERATIONS = 10
+MAX_ITERATIONS = 20  # the catalog's ten and the library's terms, each named in turn
 CATALOG_ALPHA_SHARE = 0.9  # of the family-wise alpha, spent on the catalog's candidates
 UNEXPLAINED_GAP_RATIO = 1.5  # gap above this x floor after the loop: structure remains
 
@@ -58,6 +69,16 @@ class CandidateTest:
     parameters: dict[str, float]
     uncertainties: dict[str, float]
     fit: FitResult | None = None
+    # the candidate's fit shrinks the gap by more than noise alone would (judged only for
+    # significant candidates)
+    shrinks_gap: bool = False
+    # main effects it waits for (marginality.py): significant, not yet in the model
+    waits_for: tuple[str, ...] = ()
+
+    @property
+    def named_candidate(self) -> bool:
+        """May be named in this iteration: significant, shrinks the gap, waits for nothing."""
+        return self.significant and self.shrinks_gap and not self.waits_for
 
 
 @dataclass(frozen=True)
@@ -246,6 +267,82 @@ def _signature_correlation(current: FitResult, a: FitResult, b: FitResult) -> fl
     return float(abs(sa @ sb) / (na * nb))
 
 
+def _centred(fit: FitResult, blocks: Blocks) -> FloatArray:
+    """A fit's block residuals about their duration-weighted mean, as the gap and the floor
+    see them (residuals.py)."""
+    return about_mean(fit.residual_dps, blocks.duration_s)
+
+
+def _shrinks(blocks: Blocks, before: FloatArray, after: FloatArray, q: int,
+             floor: float) -> bool:
+    """The gap squared falls by more than q columns of noise alone would take out of it
+    (about q / n_blocks of the floor squared): a significant drop of the whitened chi^2
+    that leaves the gap as it was, or larger, explains nothing of it."""
+    g0 = record_gap_dps(before, blocks.duration_s)
+    g1 = record_gap_dps(after, blocks.duration_s)
+    return g0**2 - g1**2 > max(q, 1) * floor**2 / blocks.count
+
+
+def _judge(tests: list[CandidateTest], current: FitResult, blocks: Blocks,
+           noise: NoiseModel) -> list[CandidateTest]:
+    """Each candidate with whether it shrinks the gap and the main effects it waits for.
+    A main effect that is significant but does not shrink the gap has been shown not to
+    explain it, so it holds no interaction back."""
+    floor = floor_dps(noise.floor_per_block_dps(blocks), blocks.duration_s)
+    explains = {
+        c.effect: c.significant and c.fit is not None
+        and _shrinks(blocks, current.residual_dps, c.fit.residual_dps, c.q, floor)
+        for c in tests
+    }
+    in_model = set(current.model.effects)
+    return [replace(c, shrinks_gap=explains[c.effect],
+                    waits_for=marginality.waiting_for(c.effect, in_model, explains))
+            for c in tests]
+
+
+def _choose(
+    fitter: Fitter, current: FitResult, tests: list[CandidateTest], blocks: Blocks,
+    set_aside: Collection[str] = (),
+) -> tuple[CandidateTest, FitResult] | dict[str, Any] | None:
+    """The effect to name (lowest BIC among those that may be named) and the model with it,
+    every time constant refitted together; the not-separable report when a look-alike is
+    as good; None when nothing may be named. A candidate whose refit no longer shrinks the
+    gap is passed over for the next. Effects set aside (reported not separable earlier) are
+    not named, nor a candidate whose signature looks like one of theirs."""
+    aside = [c.fit for c in tests if c.effect in set_aside and c.fit is not None]
+    eligible = [
+        c for c in tests
+        if c.named_candidate and c.effect not in set_aside and c.fit is not None
+        and all(_signature_correlation(current, c.fit, a) < SEPARABLE_CORRELATION
+                for a in aside)
+    ]
+    floor = floor_dps(fitter.noise.floor_per_block_dps(blocks), blocks.duration_s)
+    for i, best in enumerate(eligible):
+        assert best.fit is not None
+        rivals = []
+        for other in eligible[i + 1:]:
+            assert other.fit is not None
+            corr = _signature_correlation(current, best.fit, other.fit)
+            if corr >= SEPARABLE_CORRELATION and other.bic - best.bic < SEPARABLE_DELTA_BIC:
+                rivals.append((other, corr))
+        if rivals:
+            return {
+                "effects": [best.effect, *[r.effect for r, _ in rivals]],
+                "delta_bic": [round(r.bic - best.bic, 3) for r, _ in rivals],
+                "signature_correlation": [round(c, 4) for _, c in rivals],
+                "reason": (
+                    "each explains the gap about equally well with almost the same "
+                    "residual signature; the data (e.g. the rate set) cannot tell them "
+                    "apart, so none was added"
+                ),
+            }
+        new = fitter.fit(best.fit.model, local=True)  # every time constant refitted together
+        if _shrinks(blocks, current.residual_dps, new.residual_dps, best.q, floor):
+            return best, new
+        log.info("%s passed over: refitted, it does not shrink the gap", best.effect)
+    return None
+
+
 def _run(
     traj: Trajectory,
     model: GyroModel,
@@ -266,47 +363,28 @@ def _run(
     tests: list[CandidateTest] = []
     if max_iterations == 0:
         tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
+    set_aside: set[str] = set()  # reported not separable: neither is named, nor a look-alike
     for _ in range(max_iterations):
         tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
-        # an effect is named only if it also shrinks the gap: a significant drop of the
-        # whitened chi^2 that makes the disagreement larger explains nothing of it
-        gap_now = gap_dps(current.residual_dps, blocks.duration_s)
-        significant = [
-            c for c in tests
-            if c.significant and c.fit is not None
-            and gap_dps(c.fit.residual_dps, blocks.duration_s) < gap_now
-        ]
-        if not significant:
+        tests = _judge(tests, current, blocks, fitter.noise)
+        chosen = _choose(fitter, current, tests, blocks, set_aside)
+        if isinstance(chosen, dict):
+            # the look-alikes are set aside; the part's other effects are still named in turn
+            not_separable.append(chosen)
+            set_aside.update(chosen["effects"])
+            continue
+        if chosen is None:
             break
-        best = significant[0]
+        best, new = chosen
         assert best.fit is not None
-        rivals = []
-        for other in significant[1:]:
-            assert other.fit is not None
-            corr = _signature_correlation(current, best.fit, other.fit)
-            if corr >= SEPARABLE_CORRELATION and other.bic - best.bic < SEPARABLE_DELTA_BIC:
-                rivals.append((other, corr))
-        if rivals:
-            not_separable.append(
-                {
-                    "effects": [best.effect, *[r.effect for r, _ in rivals]],
-                    "delta_bic": [round(r.bic - best.bic, 3) for r, _ in rivals],
-                    "signature_correlation": [round(c, 4) for _, c in rivals],
-                    "reason": (
-                        "each explains the gap about equally well with almost the same "
-                        "residual signature; the data (e.g. the rate set) cannot tell them "
-                        "apart, so none was added"
-                    ),
-                }
-            )
-            break
+        significant = [c for c in tests if c.named_candidate]
         sigma_now = fitter.noise.floor_per_block_dps(blocks)
-        new = fitter.fit(best.fit.model, local=True)  # every time constant refitted together
-        summary_before = summarize(blocks, current.residual_dps, sigma_now)
-        summary_after = summarize(blocks, new.residual_dps, sigma_now)
+        summary_before = summarize(blocks, _centred(current, blocks), sigma_now)
+        summary_after = summarize(blocks, _centred(new, blocks), sigma_now)
         zb, za = worst_z(summary_before), worst_z(summary_after)
         pattern = max(zb, key=lambda k: zb[k] - za[k])
-        runner = significant[1] if len(significant) > 1 else None
+        later = significant[significant.index(best) + 1:]  # those passed over are not rivals
+        runner = later[0] if later else None
         evidence = {
             "delta_chi2": round(best.delta_chi2, 3),
             "f_statistic": round(best.f_statistic, 3),
@@ -331,8 +409,8 @@ def _run(
         iterations.append(
             Iteration(
                 effect=best.effect,
-                gap_before_dps=gap_dps(current.residual_dps, blocks.duration_s),
-                gap_after_dps=gap_dps(new.residual_dps, blocks.duration_s),
+                gap_before_dps=record_gap_dps(current.residual_dps, blocks.duration_s),
+                gap_after_dps=record_gap_dps(new.residual_dps, blocks.duration_s),
                 parameters=dict(new.model.effects[best.effect]),
                 uncertainties={
                     k.split(".", 1)[1]: v
@@ -341,8 +419,8 @@ def _run(
                 },
                 evidence=evidence,
                 candidates=tuple(tests),
-                residual_before_dps=current.residual_dps,
-                residual_after_dps=new.residual_dps,
+                residual_before_dps=_centred(current, blocks),
+                residual_after_dps=_centred(new, blocks),
                 regressors=fx.check_effect_id(best.effect).regressors,
                 formula=fx.formula_of(best.effect, new.model.effects[best.effect]),
             )
@@ -353,7 +431,7 @@ def _run(
     noise = fitter.noise
     sigma = noise.floor_per_block_dps(blocks)
     floor = floor_dps(sigma, blocks.duration_s)
-    gap_final = gap_dps(current.residual_dps, blocks.duration_s)
+    gap_final = record_gap_dps(current.residual_dps, blocks.duration_s)
     unexplained: tuple[structure.VariableTest, ...] = ()
     if gap_final > UNEXPLAINED_GAP_RATIO * floor:
         unexplained = tuple(structure.unexplained_structure(fitter, current))
@@ -370,14 +448,14 @@ def _run(
         noise=noise,
         blocks=blocks,
         sigma_block_dps=sigma,
-        gap_initial_dps=gap_dps(initial.residual_dps, blocks.duration_s),
+        gap_initial_dps=record_gap_dps(initial.residual_dps, blocks.duration_s),
         noise_floor_dps=floor,
         iterations=tuple(iterations),
         gap_final_dps=gap_final,
-        residual_initial_dps=initial.residual_dps,
-        residual_final_dps=current.residual_dps,
-        summary_initial=summarize(blocks, initial.residual_dps, sigma),
-        summary_final=summarize(blocks, current.residual_dps, sigma),
+        residual_initial_dps=_centred(initial, blocks),
+        residual_final_dps=_centred(current, blocks),
+        summary_initial=summarize(blocks, _centred(initial, blocks), sigma),
+        summary_final=summarize(blocks, _centred(current, blocks), sigma),
         not_separable=tuple(not_separable),
         not_identifiable=tuple(not_identifiable),
         last_candidates=tuple(tests),

@@ -156,7 +156,10 @@ class Fitter:
         and a candidate added to a lagged model filters only its own; the terms not yet
         kept are filtered together in one pass."""
         keys = [(e, tuple(sorted(structure.get(e, {}).values())), tau_s) for e in terms]
-        todo = [(e, k) for e, k in zip(terms, keys, strict=True) if k not in self._lag_cache]
+        # this solve's columns are taken out first: clearing a full cache below must not
+        # lose the ones already kept (a KeyError once the cache had filled up)
+        found = {k: self._lag_cache[k] for k in keys if k in self._lag_cache}
+        todo = [(e, k) for e, k in zip(terms, keys, strict=True) if k not in found]
         if todo:
             if len(self._lag_cache) > LAG_CACHE_ENTRIES:
                 self._lag_cache.clear()
@@ -166,9 +169,9 @@ class Fitter:
             )
             first = 0
             for (_, key), c in zip(todo, cols, strict=True):
-                self._lag_cache[key] = filtered[:, first : first + c.shape[1]]
+                found[key] = self._lag_cache[key] = filtered[:, first : first + c.shape[1]]
                 first += c.shape[1]
-        return [self._lag_cache[k] for k in keys]
+        return [found[k] for k in keys]
 
     def solve(self, structure: Mapping[str, Mapping[str, float]]) -> _Solution:
         """Fit with fixed time constants; `structure` maps effect id -> nonlinear params."""

@@ -57,6 +57,8 @@ def _candidate(c: CandidateTest) -> dict[str, Any]:
         "delta_bic": c.delta_bic,
         "significant": c.significant,
         "parameters": c.parameters,
+        "shrinks_gap": c.shrinks_gap,
+        "waits_for": list(c.waits_for),
     }
 
 

@@ -32,7 +32,7 @@ from drivers.protocols import ENCODER_MODULO, SampleStatus
 from procedures.model.data import load_csv
 from procedures.model.trajectory import FloatArray, Segment, Trajectory
 from procedures.rawdata import RawDataError, read_raw
-from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record
+from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record, three_axis_block
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,9 @@ UNUSABLE = int(
 )
 
 
+MIN_SAMPLES = 100  # fewer samples than this: nothing to analyse
+
+
 @dataclass(frozen=True)
 class RunFolderChoice:
     """The run folder the data is read from, and how it was picked under a results folder."""
@@ -62,21 +65,32 @@ class RunFolderChoice:
     folder: Path
     serial: str | None = None  # the part asked for (--dut), if any
     candidates: int = 1  # run folders of that part (or in total) found there
+    # newer run folders of the part passed over, each with why it holds nothing to analyse
+    skipped: tuple[tuple[str, str], ...] = ()
 
     @property
     def note(self) -> str | None:
-        """Which of several run folders of the part was used, or None if there was one."""
+        """Which of several run folders of the part was used (and which newer ones were
+        skipped, and why), or None if there was one."""
         if self.candidates <= 1:
             return None
+        if not self.skipped:
+            return (
+                f"{self.candidates} run folders for {self.serial}; the newest, "
+                f"{self.folder.name}, was used"
+            )
+        why = "; ".join(f"{name} ({reason})" for name, reason in self.skipped)
         return (
-            f"{self.candidates} run folders for {self.serial}; the newest, "
-            f"{self.folder.name}, was used"
+            f"{self.candidates} run folders for {self.serial}; the newest usable one, "
+            f"{self.folder.name}, was used; skipped, newer but with nothing to analyse: {why}"
         )
 
 
 def find_run_folder(path: Path, dut: str | None) -> RunFolderChoice:
-    """The run folder itself, or the newest run folder of `dut` under a results folder
-    (newest = last by folder name: run folder names start with their UTC start time)."""
+    """The run folder itself, or the newest usable run folder of `dut` under a results
+    folder (newest = last by folder name: run folder names start with their UTC start time;
+    usable = its raw data holds samples to analyse: a run that ended in ERROR before it
+    measured anything is skipped, and the choice says so)."""
     if (path / RECORD_FILE).exists():
         return RunFolderChoice(path, dut)
     candidates = sorted((p.parent for p in path.glob(f"*/{RECORD_FILE}")), key=lambda p: p.name)
@@ -93,7 +107,53 @@ def find_run_folder(path: Path, dut: str | None) -> RunFolderChoice:
             f"{path}: holds {len(candidates)} run folders; pick one with --dut SERIAL "
             "or give the run folder itself"
         )
-    return RunFolderChoice(candidates[-1], dut, len(candidates))
+    skipped: list[tuple[str, str]] = []
+    for folder in reversed(candidates):
+        why = unusable_reason(folder)
+        if why is None:
+            return RunFolderChoice(folder, dut, len(candidates), tuple(skipped))
+        skipped.append((folder.name, why))
+    listed = "; ".join(f"{name} ({reason})" for name, reason in skipped)
+    raise ValueError(
+        f"{path}: no run folder{f' of {dut}' if dut else ''} holds data to analyse: {listed}; "
+        "run the part again"
+    )
+
+
+def unusable_reason(folder: Path) -> str | None:
+    """Why a run folder holds nothing to analyse (None if it does), from its record's
+    verdict and the size of its raw data, without reading the samples themselves."""
+    try:
+        record = read_record(folder)
+        verdict = str(record.verdict.value)
+        fitted_xyz = three_axis_block(record) is not None
+    except (ValueError, AttributeError):
+        verdict, fitted_xyz = "unknown", False
+    path = folder / RAW_DATA_FILE
+    if not path.exists():
+        return f"verdict {verdict}, no {RAW_DATA_FILE}"
+    try:
+        n, windows, xyz = raw_sizes(path)
+    except (OSError, KeyError, ValueError) as exc:
+        return f"verdict {verdict}, {RAW_DATA_FILE} cannot be read ({exc})"
+    if n < MIN_SAMPLES:
+        return f"verdict {verdict}, {n} samples"
+    if windows == 0:
+        return f"verdict {verdict}, no analysed window"
+    if xyz and not fitted_xyz:  # a three-axis part is analysed with its run's fit
+        return f"verdict {verdict}, a three-axis run that ended before its fit"
+    return None
+
+
+def raw_sizes(path: Path) -> tuple[int, int, bool]:
+    """(samples, analysed windows, whether it holds a three-axis part's per-axis samples)
+    of a raw data file, from the datasets' shapes alone."""
+    import h5py
+
+    with h5py.File(path, "r", libver="latest", swmr=True) as f:
+        n = int(f["samples/time_s"].shape[0]) if "samples/time_s" in f else 0
+        windows = int(f["segments/kind"].shape[0]) if "segments/kind" in f else 0
+        return n, windows, "samples_xyz" in f
 
 
 def _serial(folder: Path) -> str | None:
@@ -182,7 +242,7 @@ def _read(folder: Path, dut: str | None) -> _Record:
     except RawDataError as exc:
         raise ValueError(str(exc)) from exc
     s = raw["samples"]
-    if s["time_s"].size < 100:
+    if s["time_s"].size < MIN_SAMPLES:
         raise ValueError(f"{folder}: the raw data holds only {s['time_s'].size} samples")
     order = np.argsort(s["time_s"], kind="stable")
     t_sorted = s["time_s"][order]

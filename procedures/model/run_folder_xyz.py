@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from procedures.model.run_folder import _read, _windowed_trajectory
+from procedures.model.run_folder import _read, _windowed_trajectory, raw_sizes
 from procedures.model.trajectory import Trajectory
 from procedures.rawdata import RawDataError, read_raw
 from procedures.record import RAW_DATA_FILE, read_record, three_axis_block
@@ -32,10 +32,14 @@ AXES = ("x", "y", "z")
 
 
 def is_three_axis(folder: Path) -> bool:
-    """Whether a run folder is a three-axis part's (its record has the three-axis block)."""
+    """Whether a run folder is a three-axis part's: its record has the three-axis block, or
+    (a run that ended before its fit) its raw data hold per-axis samples; the latter is then
+    refused by load_axis with one line instead of read as a single-axis part."""
     try:
-        return three_axis_block(read_record(folder)) is not None
-    except (OSError, ValueError):
+        if three_axis_block(read_record(folder)) is not None:
+            return True
+        return raw_sizes(folder / RAW_DATA_FILE)[2]
+    except (OSError, ValueError, KeyError):
         return False
 
 
@@ -53,8 +57,9 @@ def load_axis(folder: Path, axis: str, dut: str | None = None) -> Trajectory:
     windows = record.analysis.get("three_axis_windows") or []
     if cal is None or not windows:
         raise ValueError(
-            f"{folder}: not a three-axis run folder with its fitted windows (record.json has "
-            "no calibration_three_axis or analysis.three_axis_windows); was the fit reached?"
+            f"{folder}: a three-axis run without its fit (verdict {record.verdict.value}; "
+            "record.json has no calibration_three_axis or analysis.three_axis_windows): each "
+            "axis is analysed with the run's fit; give a run that reached it"
         )
     rec = _read(folder, dut)
     try:

@@ -255,7 +255,7 @@ def test_docs_describe_the_cli_and_refer_only_to_files_in_the_repository() -> No
     for path in set(re.findall(r"\b[\w./-]+/[\w.-]+\.(?:py|yaml|md)\b", doc)):
         found = list(ROOT.glob(path)) if "*" in path else [ROOT / path]
         assert found and all(p.exists() for p in found), path
-    for needle in ("--export-csv", "--json -", "_discrepancy/", "the newest is used",
+    for needle in ("--export-csv", "--json -", "_discrepancy/", "the newest usable one is used",
                    "supply low", "the record's first sample"):
         assert needle in doc, needle
 
