@@ -24,6 +24,7 @@ import contextlib
 import io
 import json
 import os
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -127,7 +128,17 @@ def make_station(folder: Path, phase: str) -> Path:
                    procedure="procedures/signal-grid.yaml")
     station["instruments"]["fixture"]["sockets"] = 1
     (folder / "station.yaml").write_text(yaml.safe_dump(station), encoding="utf-8")
+    if _SIGNING:  # the first cell's station key and certificate: making one costs seconds
+        shutil.copytree(_SIGNING[0], folder / "signing")
     return folder / "station.yaml"
+
+
+_SIGNING: list[Path] = []
+
+
+def _keep_signing(config: Path) -> None:
+    if not _SIGNING and (config / "signing" / "station-key.pem").is_file():
+        _SIGNING.append(config / "signing")
 
 
 class _Lines:
@@ -258,6 +269,7 @@ def run_cell(command: str, phase: str, sig: str, tmp: Path, timeout_s: float = 2
         truth = bench.control.truth()
     cell.truth_safe = {TRUTH_KEYS[k]: bool(v) for k, v in truth["safe"].items() if k in TRUTH_KEYS}
     _judge(cell, runs, station_yaml)
+    _keep_signing(station_yaml.parent)
     cell.wall_s = time.monotonic() - wall0
     return cell
 
@@ -293,7 +305,8 @@ def _judge(cell: SignalCell, runs: Path, station_yaml: Path) -> None:
     folder = folders[0]
     rec = read_record(folder)
     cell.verdict, cell.reason = str(rec.verdict), rec.reason
-    cell.hit_step = rec.reason.rpartition(" in step ")[2].strip(") ") if " in step " in rec.reason else ""
+    if " in step " in rec.reason:
+        cell.hit_step = rec.reason.rpartition(" in step ")[2].strip(") ")
     cell.lock_left = (folder / ".running").exists()
     cell.sealed = _verify(folder, station_yaml)
     cell.indexed = _indexed(runs / "results.sqlite", folder.name, str(rec.verdict))
@@ -331,12 +344,12 @@ def _judge(cell: SignalCell, runs: Path, station_yaml: Path) -> None:
 
 
 def _verify(folder: Path, station_yaml: Path) -> bool:
-    done = subprocess.run(
-        [sys.executable, "-m", "station", "verify", str(folder), "--station", str(station_yaml)],
-        capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
-        timeout=120, check=False,
-    )
-    return done.returncode == 0
+    """`station verify FOLDER` says intact (run here: the command, without a process start)."""
+    from station.cli import main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        return main(["verify", str(folder), "--station", str(station_yaml)]) == 0
 
 
 def _indexed(db: Path, run_id: str, verdict: str) -> bool:
