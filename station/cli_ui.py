@@ -112,9 +112,7 @@ def _serve(station: Any, args: argparse.Namespace, exit_path: Any) -> bool:
 
     exit_path.attach(stop)
     try:
-        server.run()
-    except KeyboardInterrupt:  # a Ctrl-C before the exit path was attached: a normal stop
-        pass
+        server.run()  # returns once `stop` has set should_exit (no KeyboardInterrupt now)
     except OSError as exc:
         raise UserError(
             f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port"
