@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGQUIT)
 # why the run stopped, as its record says it (the engine adds "in step ...")
-REASONS = {
+REASONS: dict[signal.Signals, str] = {
     signal.SIGTERM: "station asked to stop (SIGTERM)",
     signal.SIGINT: "operator abort (Ctrl-C)",
     signal.SIGHUP: "the station's terminal or session closed (SIGHUP)",
@@ -189,10 +189,11 @@ class ExitPath:
 
     def _signal(self, signum: int) -> None:
         self.signals.append(signum)
-        name = signal.Signals(signum).name
+        sig = signal.Signals(signum)
+        name = sig.name
         if signum == signal.SIGHUP:  # the terminal may be gone: output must not fail the run
-            sys.stdout = _Tolerant(sys.stdout)  # type: ignore[assignment]
-            sys.stderr = _Tolerant(sys.stderr)  # type: ignore[assignment]
+            sys.stdout = _Tolerant(sys.stdout)
+            sys.stderr = _Tolerant(sys.stderr)
         if self._stop is None:
             return  # before the run: the handler raised KeyboardInterrupt in the main thread
         if len(self.signals) > 1:
@@ -203,7 +204,7 @@ class ExitPath:
             return
         self._say(f"{name}: abort requested: making the bench safe...")
         self._arm_deadline()
-        self._ask_stop(REASONS.get(signum, f"station stopped by {name}"), error=False)
+        self._ask_stop(REASONS.get(sig, f"station stopped by {name}"), error=False)
 
     def _exception(self, reason: str) -> None:
         self._say(f"{reason}: ending the run")

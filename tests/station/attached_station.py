@@ -34,7 +34,7 @@ def main() -> int:
         finally:
             control.close()
 
-    launcher.launch_bench = attach  # type: ignore[assignment]
+    launcher.launch_bench = attach
     from station.cli import main as station_main
 
     return station_main(sys.argv[2:])
