@@ -12,6 +12,15 @@ on a scaled clock instead (the grid before lockstep), where a slow link's wall s
 many station seconds.
 
     python3 benchmarks/bench_faults.py [--quick] [--speed X] [--only FAULT ...] [--steps STEP ...]
+
+`--signals` runs the signal grid instead (tests/station/signal_grid.py): SIGTERM, SIGINT,
+SIGHUP, SIGQUIT and a double SIGTERM sent to `station run` and `station ui` in each phase, the
+bench its own process; per signal kind the time from the signal to the safe state in station
+seconds (the stop request to the last instrument read back safe, from the record) and wall
+seconds (the signal to the bench's own truth all safe), and to the process's exit.
+
+    python3 benchmarks/bench_faults.py --signals [--quick] [--commands run ui]
+        [--phases PHASE ...] [--kinds SIGTERM ...]
 """
 
 from __future__ import annotations
@@ -29,6 +38,9 @@ sys.path.insert(0, str(ROOT / "tests" / "procedures"))
 
 import fault_grid  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "tests" / "station"))
+import signal_grid  # noqa: E402
+
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -37,7 +49,13 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"a scaled clock (e.g. {fault_grid.GRID_SPEED:g}) instead of lockstep")
     ap.add_argument("--only", nargs="*", default=None, help="fault ids to run")
     ap.add_argument("--steps", nargs="*", default=None, help="steps to run")
+    ap.add_argument("--signals", action="store_true", help="the signal grid instead")
+    ap.add_argument("--commands", nargs="*", default=None, help="with --signals: run, ui")
+    ap.add_argument("--phases", nargs="*", default=None, help="with --signals: phases to run")
+    ap.add_argument("--kinds", nargs="*", default=None, help="with --signals: signal kinds")
     args = ap.parse_args(argv)
+    if args.signals:
+        return signal_main(args)
     cells = list(fault_grid.REPRESENTATIVE) if args.quick else fault_grid.grid_cells()
     if args.only:
         cells = [c for c in cells if c[0] in args.only]
@@ -82,6 +100,65 @@ def main(argv: list[str] | None = None) -> int:
                   f"cells); fault -> end of run: median {statistics.median(walls):.1f} s, "
                   f"max {max(walls):.1f} s wall")
     return 0 if correct == n else 1
+
+
+def signal_cells(args: argparse.Namespace) -> list[tuple[str, str, str]]:
+    cells = list(signal_grid.REPRESENTATIVE) if args.quick else signal_grid.grid_cells()
+    for attr, index in (("commands", 0), ("phases", 1), ("kinds", 2)):
+        wanted = getattr(args, attr)
+        if wanted:
+            cells = [c for c in cells if c[index] in wanted]
+    return cells
+
+
+def signal_main(args: argparse.Namespace) -> int:
+    """The signal grid: one line per cell, then the figures per signal kind."""
+    results = []
+    wall0 = time.monotonic()
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (command, phase, kind) in enumerate(signal_cells(args)):
+            cell = signal_grid.run_cell(command, phase, kind, Path(tmp) / f"s{i}")
+            results.append(cell)
+            print(_signal_line(cell), flush=True)
+    n = len(results)
+    correct = sum(c.correct for c in results)
+    print(f"\nsignal grid: {n} cells ({time.monotonic() - wall0:.0f} s wall)")
+    print(f"  correct (bench truth safe after exit, record ended and sealed, indexed, no lock, "
+          f"exit 2): {correct}/{n}")
+    for kind in signal_grid.SIGNALS:
+        print(_signal_figures(kind, [c for c in results if c.signal == kind]))
+    return 0 if correct == n else 1
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def _signal_line(cell: signal_grid.SignalCell) -> str:
+    return (
+        f"{cell.command:3s} {cell.phase:13s} {cell.signal:15s} {cell.verdict:8s} "
+        f"exit={cell.exit_code!s:3s} correct={cell.correct!s:5s} "
+        f"signal->safe {_fmt(cell.fault_to_safe_s):>6s} station s "
+        f"{_fmt(cell.fault_to_safe_wall_s):>5s} wall s, signal->exit "
+        f"{_fmt(cell.fault_to_exit_wall_s):>5s} wall s ({cell.wall_s:.0f} wall s)"
+        + (f"  PROBLEMS: {'; '.join(cell.problems)}" if cell.problems else "")
+    )
+
+
+def _signal_figures(kind: str, cells: list[signal_grid.SignalCell]) -> str:
+    """Median and max per kind; the certificate cells count for the exit only (the run had
+    ended and the bench was safe before the signal)."""
+    parts = [f"  {kind}: {len(cells)} cells"]
+    running = [c for c in cells if c.phase != "certificate"]
+    for label, values in (
+        ("signal->safe station s", [c.fault_to_safe_s for c in running]),
+        ("signal->safe wall s", [c.fault_to_safe_wall_s for c in running]),
+        ("signal->exit wall s", [c.fault_to_exit_wall_s for c in cells]),
+    ):
+        got = [v for v in values if v is not None]
+        if got:
+            parts.append(f"{label} median {statistics.median(got):.2f} max {max(got):.2f}")
+    return "; ".join(parts)
 
 
 if __name__ == "__main__":

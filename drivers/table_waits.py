@@ -62,7 +62,9 @@ class TableWaits:
         deadline = self._clock.now_s() + timeout_s
         while True:
             status = self.check()
-            if done(status):
+            if done(status) or getattr(self._clock, "interrupted", False):
+                # interrupted: the run was asked to stop (an abort, a signal); its next check
+                # ends the step, and the safe-state pass stops the table, not the end of a move
                 return status
             if self._clock.now_s() >= deadline:
                 raise InstrumentTimeout(

@@ -133,8 +133,9 @@ class Engine:
                     self._run_step(step, estimate)
             except Aborted as exc:
                 run_error = (
-                    Verdict.ABORTED,
-                    f"aborted by the operator ({exc}) in step {step_name}",
+                    (Verdict.ERROR, f"{exc} (in step {step_name})")
+                    if exc.error
+                    else (Verdict.ABORTED, f"aborted by the operator ({exc}) in step {step_name}")
                 )
             except NoPartsLeft:
                 pass
@@ -294,6 +295,8 @@ class Engine:
             rec.timings["total"] = round(ctx.wait.now_s() - started_s, 3)
             rec.analysis["safe_state"] = dict(self.safe_state_report)
             rec.analysis["safe_state_report"] = report.as_record()
+            if ctx.wait.abort_at_s is not None:  # when the stop was asked (signal, operator)
+                rec.analysis["stop_requested_station_s"] = round(ctx.wait.abort_at_s, 3)
             if part.stream is not None:
                 rec.analysis["stream"] = {
                     "frames_ok": part.stream.frames_ok,

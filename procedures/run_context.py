@@ -40,7 +40,12 @@ SUPPLY_SETTLE_S = 0.2  # station seconds after a change of supply setting before
 
 
 class Aborted(Exception):  # noqa: N818 - reads as the event it is
-    """The operator aborted the run."""
+    """The run was asked to stop: by the operator or a signal (ABORTED), or because the
+    station itself failed (`error`: an uncaught exception in one of its threads, ERROR)."""
+
+    def __init__(self, reason: str = "operator abort", error: bool = False) -> None:
+        super().__init__(reason)
+        self.error = error
 
 
 class StepTimeout(Exception):  # noqa: N818
@@ -338,6 +343,8 @@ class Waiting:
         self.watchdog = watchdog
         self._abort = threading.Event()
         self.abort_reason = ""
+        self.abort_error = False
+        self.abort_at_s: float | None = None  # station time of the first abort request
         self.deadline_s: float | None = None
         self.timeout_s = 0.0  # of the running step, for the message
         self.on_silent: Callable[[], Any] | None = None  # reads the supply (current limit)
@@ -345,9 +352,13 @@ class Waiting:
     def now_s(self) -> float:
         return self.clock.now_s()
 
-    def abort(self, reason: str = "operator abort") -> None:
-        """Ask the run to stop now (thread-safe; SIGINT handlers and the UI call this)."""
-        self.abort_reason = reason
+    def abort(self, reason: str = "operator abort", error: bool = False) -> None:
+        """Ask the run to stop now (thread-safe; station/exit_path.py and the UI call this).
+        The first reason stands: a later abort (the UI closing after a SIGTERM) must not
+        rename why the run stopped."""
+        if not self._abort.is_set():
+            self.abort_reason, self.abort_error = reason, error
+            self.abort_at_s = self.clock.now_s()
         self._abort.set()
         self.clock.interrupt()
 
@@ -358,7 +369,7 @@ class Waiting:
     def check(self) -> None:
         """Raise Aborted / StepTimeout when due; drop parts whose stream failed."""
         if self._abort.is_set():
-            raise Aborted(self.abort_reason or "operator abort")
+            raise Aborted(self.abort_reason or "operator abort", self.abort_error)
         self.watchdog.poll()
         limit = self._procedure.stream.max_lost_fraction
         for part in self._parts.alive():
@@ -533,9 +544,9 @@ class RunContext:
         self.wait.on_silent = self.instruments.supply_reading
 
     # the few names the station layer (station/uut.py, the UI) calls on a live run
-    def abort(self, reason: str = "operator abort") -> None:
-        """Ask the run to stop now (thread-safe)."""
-        self.wait.abort(reason)
+    def abort(self, reason: str = "operator abort", error: bool = False) -> None:
+        """Ask the run to stop now (thread-safe); `error`: it ends ERROR, not ABORTED."""
+        self.wait.abort(reason, error)
 
     @property
     def aborted(self) -> bool:

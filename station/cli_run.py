@@ -2,8 +2,9 @@
 
 `run` is one UUT cycle (exit 0 PASS, 1 FAIL, 2 error or abort); `--sim` starts the simulated
 bench as its own process for the duration of the run. `demo` runs the default procedure on
-one simulated part. Both show a progress display and turn Ctrl-C into a clean abort (the
-bench is made safe and the record says ABORTED).
+one simulated part. Both show a progress display; SIGTERM, Ctrl-C, SIGHUP and SIGQUIT end
+the run as a clean abort (the bench made safe, the record ABORTED and sealed, exit 2), see
+station/exit_path.py.
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -24,6 +24,7 @@ from procedures.config import ConfigError, ProcedureConfig, ProductConfig
 from procedures.progress import ProgressEvent
 from procedures.step_list import procedure_json_schema
 from station.errors import UserError
+from station.exit_path import ExitPath, exit_bound_s
 from station.settings import CONFIG_DIR, StationSettings, load_settings
 
 DEMO_SERIAL = "SIM-0001"
@@ -101,46 +102,6 @@ class ProgressDisplay:
             text = f"    done{who}" + (f": {ev.message}" if ev.message else "")
         lead = "\n" if self.tty else ""
         print(lead + text, file=self.stream, flush=True)
-
-
-@contextlib.contextmanager
-def _sigint_aborts(runner: Any) -> Iterator[None]:
-    """First Ctrl-C or SIGTERM: clean abort (bench made safe, record ABORTED); second: hard
-    interrupt. SIGTERM is what a service manager or `kill` sends; it must not leave a run
-    RUNNING with no certificate."""
-    hits = {"n": 0}
-
-    def handler(signum: int, frame: Any) -> None:
-        hits["n"] += 1
-        if hits["n"] > 1:
-            raise KeyboardInterrupt
-        print("\nabort requested: making the bench safe...", file=sys.stderr, flush=True)
-        if signum == signal.SIGTERM:
-            runner.abort("station asked to stop (SIGTERM)")
-        else:
-            runner.abort("operator abort (Ctrl-C)")
-
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
-@contextlib.contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """Before the run starts (bench starting), SIGTERM unwinds like Ctrl-C: bench stopped, its
-    temp folder removed, exit 2."""
-
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _duts(values: list[str]) -> dict[int, str]:
@@ -281,7 +242,10 @@ def run_cycle(
             lockstep=speed is None,  # pinned: lockstep unless a speed is given
         )
     wall0 = time.monotonic()
-    with _sigterm_interrupts(), _bench_errors(), bench_cm as bench:
+    # every signal and any thread's uncaught exception end the run one way (station/exit_path.py)
+    bound_s = exit_bound_s(probe.safe_state_policy)
+    exit_path = ExitPath(getattr(args, "command", "run"), bound_s=bound_s)
+    with exit_path, _bench_errors(), bench_cm as bench:
         endpoints = None
         if bench is not None:
             endpoints = Endpoints.of_bench(bench.endpoints)
@@ -290,8 +254,8 @@ def run_cycle(
         runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)  # type: ignore[arg-type]
         display = ProgressDisplay()
         runner.progress.subscribe(display)
-        with _sigint_aborts(runner):
-            result = runner.run(duts)
+        exit_path.attach(lambda reason, error: runner.abort(reason, error=error))
+        result = runner.run(duts)
     wall = time.monotonic() - wall0
     for sock in sorted(result.verdicts):
         print(

@@ -7,6 +7,7 @@ import getpass
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from station.errors import UserError
 
@@ -57,10 +58,14 @@ def _ui(args: argparse.Namespace) -> int:
 
         if problem := speed_problem(args.speed):
             raise UserError(problem)
+    from station.exit_path import ExitPath, exit_bound_s
     from station.ui.launch import ui_station
-    from station.ui.server import serve_forever
+    from station.uut import safe_state_policy_of
 
-    with ui_station(
+    # signals and uncaught thread exceptions: one exit path (station/exit_path.py); before
+    # the screen is up a signal unwinds as Ctrl-C does
+    exit_path = ExitPath("ui")
+    with exit_path, ui_station(
         Path(args.station) if args.station else None,
         sim=args.sim,
         sim_config=Path(args.sim_config) if args.sim_config else None,
@@ -83,15 +88,37 @@ def _ui(args: argparse.Namespace) -> int:
             f"review: {scheme}://{args.host}:{args.port}/review   (Ctrl-C stops)",
             flush=True,
         )
-        try:
-            serve_forever(station.app, args.host, args.port, tls=station.tls, limits=station.limits)
-        except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it handled: a normal stop
-            pass
-        except OSError as exc:
-            raise UserError(
-                f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port"
-            ) from None
-    return 0
+        exit_path.bound_s = exit_bound_s(safe_state_policy_of(station.runner.settings))
+        ended_run = _serve(station, args, exit_path)
+    # a signal that ended a run is an abort (2); a screen stopped between runs stopped cleanly
+    return 2 if ended_run else 0
+
+
+def _serve(station: Any, args: argparse.Namespace, exit_path: Any) -> bool:
+    """Serve until a signal; True when that signal ended a run in progress. The run itself
+    ends (safe state, record sealed) as `ui_station` closes, after the server stopped."""
+    from station.ui.server import station_server
+
+    server = station_server(station.app, args.host, args.port, tls=station.tls,
+                            limits=station.limits)
+    ended = {"run": False}
+
+    def stop(reason: str, error: bool) -> None:
+        if error:  # a station thread failed: that run ends ERROR, the screen stays up
+            station.runner.abort(reason, error=True)
+            return
+        ended["run"] = station.runner.busy()
+        station.runner.abort(reason)
+        server.should_exit = True
+
+    exit_path.attach(stop)
+    try:
+        server.run()  # returns once `stop` has set should_exit (no KeyboardInterrupt now)
+    except OSError as exc:
+        raise UserError(
+            f"cannot listen on {args.host}:{args.port} ({exc.strerror}); choose another --port"
+        ) from None
+    return ended["run"]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -280,6 +280,13 @@ def open_bench(
 # ---------------------------------------------------------------- the runner
 
 
+def safe_state_policy_of(settings: LoadedSettings) -> SafeStatePolicy:
+    """How long the safe-state pass keeps trying an instrument it cannot reach: the station
+    file's safe_state section."""
+    retry = settings.settings.safe_state
+    return SafeStatePolicy(deadline_s=retry.retry_for_s, wall_floor_s=retry.wall_floor_s)
+
+
 class UutRunner:
     """One UUT cycle at a time for one station; thread-safe `abort` and `state`."""
 
@@ -300,10 +307,7 @@ class UutRunner:
         self.settings = settings
         # how long the safe-state pass keeps trying an instrument it cannot reach: the station
         # file's safe_state section, unless the caller (a test rig) gives its own
-        retry = settings.settings.safe_state
-        self.safe_state_policy = safe_state_policy or SafeStatePolicy(
-            deadline_s=retry.retry_for_s, wall_floor_s=retry.wall_floor_s
-        )
+        self.safe_state_policy = safe_state_policy or safe_state_policy_of(settings)
         self.procedure_path = Path(procedure_path) if procedure_path else settings.procedure
         self.procedure, self.procedure_file = load_procedure(self.procedure_path)
         if product_path is None:
@@ -342,6 +346,7 @@ class UutRunner:
         self._result: UutResult | None = None
         self._state = "idle"
         self._abort_requested = ""
+        self._abort_error = False
         self._error: BaseException | None = None
 
     # ------------------------------------------------------------ API for the CLI and the UI
@@ -495,12 +500,16 @@ class UutRunner:
             raise self._error
         return self._result
 
-    def abort(self, reason: str = "operator abort") -> None:
+    def abort(self, reason: str = "operator abort", *, error: bool = False) -> None:
+        """Stop the run in progress (or the one about to start): ABORTED, or ERROR when
+        `error` (station/exit_path.py: an uncaught exception in a station thread). The first
+        request's reason stands."""
         with self._lock:
             ctx = self._ctx
-            self._abort_requested = reason
+            if not self._abort_requested:
+                self._abort_requested, self._abort_error = reason, error
         if ctx is not None:
-            ctx.abort(reason)
+            ctx.abort(reason, error)
 
     @property
     def context(self) -> RunContext | None:
@@ -645,9 +654,9 @@ class UutRunner:
         ctx = RunContext(bench, self.procedure, self.product, parts, self.progress)
         with self._lock:
             self._ctx = ctx
-            pending_abort = self._abort_requested
+            pending_abort, pending_error = self._abort_requested, self._abort_error
         if pending_abort:
-            ctx.abort(pending_abort)
+            ctx.abort(pending_abort, pending_error)
         for warning in [*(warnings or []), *self.limit_warnings]:
             ctx.records.event(warning, level="WARNING")
         for part in parts:  # the supply limit must allow for parts that may sit there

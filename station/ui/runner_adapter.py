@@ -361,14 +361,20 @@ class EngineRunner:
         self._thread.start()
         return run_id
 
-    def abort(self) -> None:
+    def abort(self, reason: str = "operator abort (station UI)", error: bool = False) -> None:
+        """Stop the run in progress (`error`: ERROR, an uncaught exception in the station)."""
         if self._uut is not None:
-            self._uut.abort("operator abort (station UI)")
+            self._uut.abort(reason, error=error)
 
     def close(self) -> None:
+        """Abort a run in progress and wait, bounded, for its end (the safe state, the
+        record sealed): as long as the station's exit path gives a stop."""
+        from station.exit_path import exit_bound_s
+        from station.uut import safe_state_policy_of
+
         self.abort()
         if self._thread is not None:
-            self._thread.join(60)
+            self._thread.join(exit_bound_s(safe_state_policy_of(self.settings)))
 
     def _load_sim_parts(self, serials: dict[int, str]) -> None:
         if self.control is None:

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,6 +83,29 @@ def serve_forever(
     limits: ConnectionLimits | None = None,
 ) -> None:
     uvicorn.Server(_config(app, host, port, log_level, tls, limits)).run()
+
+
+class SignalFreeServer(uvicorn.Server):
+    """uvicorn without signal handlers of its own: the station's exit path
+    (station/exit_path.py) owns SIGTERM, SIGINT, SIGHUP and SIGQUIT and stops this server by
+    `should_exit` once it has asked the run to stop. (uvicorn's own would re-raise a SIGTERM
+    after its shutdown, killing the process before the run is made safe and sealed.)"""
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        yield
+
+    def install_signal_handlers(self) -> None:  # the name in uvicorn before 0.29
+        pass
+
+
+def station_server(
+    app: ASGIApp, host: str, port: int, log_level: str = "warning", tls: Tls | None = None,
+    limits: ConnectionLimits | None = None,
+) -> SignalFreeServer:
+    """The operator screen's server for the foreground (`server.run()`), signals left to the
+    caller."""
+    return SignalFreeServer(_config(app, host, port, log_level, tls, limits))
 
 
 def serve_in_thread(

@@ -199,6 +199,17 @@ def test_wait_in_position_times_out_in_station_time():
     finish(server, table)
 
 
+def test_a_wait_ends_at_once_when_the_clock_is_interrupted():
+    """An abort (operator, SIGTERM) interrupts the station clock: a step waiting for a long
+    move must not wait the move out before the safe-state pass may stop the table."""
+    clock = ManualClock()
+    server, table = make([status_read(bits=READY_ENABLED | Status.MOVING)], clock=clock)
+    clock.interrupted = True  # type: ignore[attr-defined]
+    s = table.wait_in_position(60.0)
+    assert s.moving and clock.now_s() == 0.0
+    finish(server, table)
+
+
 def test_refused_command_raises_instrument_error_naming_the_values():
     server, table = make([
         Exchange(read_pdu(1, 9), read_reply(cmd_regs())),

@@ -146,6 +146,25 @@ def test_abort_from_another_thread_stops_a_long_dwell(tmp_path: Path) -> None:
     assert events[-1].kind == "finished"
 
 
+def test_an_error_stop_ends_error_and_the_first_reason_stands(tmp_path: Path) -> None:
+    """station/exit_path.py: an uncaught exception in a station thread stops the run as
+    ERROR (not ABORTED); a later abort (the UI closing) does not rename why it stopped."""
+    ctx, calls = _ctx(tmp_path, speed=1.0)
+    engine = Engine(ctx, [Scripted(name="dwell", sleep_s=3600.0)])  # type: ignore[arg-type]
+
+    def stop() -> None:
+        ctx.abort("internal error in thread 'acquisition' (ValueError: x)", error=True)
+        ctx.abort("operator abort (station UI)")
+
+    threading.Timer(0.3, stop).start()
+    assert engine.run() == {1: Verdict.ERROR}
+    assert calls == SAFE
+    rec = read_record(tmp_path / "p1")
+    assert rec.reason.startswith("internal error in thread 'acquisition'"), rec.reason
+    assert "station UI" not in rec.reason and "dwell" in rec.reason
+    assert 0.0 < rec.analysis["stop_requested_station_s"] < 60.0
+
+
 def test_step_timeout_and_retry_policy(tmp_path: Path) -> None:
     ctx, calls = _ctx(tmp_path)
     # power has retries: 1 in the procedure file: one timeout is retried, then it passes
