@@ -26,7 +26,7 @@ from typing import Protocol
 
 from drivers.errors import InstrumentError, InstrumentTimeout
 from procedures.limits import overall
-from procedures.record import Event, Outcome, Verdict
+from procedures.record import Event, Outcome, Verdict, os_error_text, save_record_anywhere
 from procedures.run_context import (
     SUPPLY_SETTLE_S,
     Aborted,
@@ -144,6 +144,9 @@ class Engine:
                 run_error = (Verdict.ERROR, f"{exc.instrument}: {exc} (in step {step_name})")
             except KeyboardInterrupt:
                 run_error = (Verdict.ABORTED, f"interrupted (SIGINT) in step {step_name}")
+            except OSError as exc:  # a disk full, read-only or failing: named, not a bug
+                log.error("step %s: %s", step_name, exc)
+                run_error = (Verdict.ERROR, f"{os_error_text(exc)} (in step {step_name})")
             except Exception as exc:  # a bug must still end in a safe bench and a record
                 log.exception("unexpected error in step %s", step_name)
                 run_error = (
@@ -267,6 +270,15 @@ class Engine:
                 if not part.alive:
                     part.verdict = Verdict.ERROR
                     part.reason = f"{part.reason}; {unsafe}" if part.reason else unsafe
+        for part in ctx.parts:  # before any verdict: raw data that could not be kept is ERROR
+            lost = self._close_raw(part)
+            if lost and lost not in (run_error or (None, ""))[1]:
+                if part.alive and run_error is None:
+                    part.alive = False
+                    part.verdict, part.reason = Verdict.ERROR, lost
+                elif part.verdict not in (None, Verdict.ERROR, Verdict.ABORTED):
+                    part.verdict = Verdict.ERROR
+                    part.reason = f"{part.reason}; {lost}" if part.reason else lost
         for part in ctx.parts:
             # judged parts (alive, or taken out FAIL) get the run's lost-frame figure
             judged = part.alive or part.verdict is Verdict.FAIL
@@ -309,17 +321,30 @@ class Engine:
                     message=f"verdict {rec.verdict}" + (f": {rec.reason}" if rec.reason else ""),
                 )
             )
-            part.rows.flush()
-            if part.writer is not None:
-                try:
-                    part.writer.close()
-                except Exception:
-                    log.exception("closing raw data of socket %d", part.socket)
-            ctx.records.save(part)
+            self._keep(part)
         ctx.progress.step = ""
         ctx.progress.publish(
             "finished", message=", ".join(f"{p.socket}:{p.verdict}" for p in ctx.parts)
         )
+
+    @staticmethod
+    def _close_raw(part: PartRun) -> str:
+        """Flush and close the part's raw data; the one-line failure ('' if none)."""
+        try:
+            part.rows.flush()
+            if part.writer is not None:
+                part.writer.close()
+        except OSError as exc:  # a StorageError naming raw.h5
+            return os_error_text(exc)
+        except Exception:
+            log.exception("closing raw data of socket %d", part.socket)
+        return ""
+
+    @staticmethod
+    def _keep(part: PartRun) -> None:
+        """Write the record whatever the disk does: in the run folder, else in the fallback
+        folder (procedures.record.save_record_anywhere, docs/safety.md); never raises."""
+        part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
 
     def _judge(self, part: PartRun) -> None:
         ok, failed, marginal = overall(part.record.measurements)

@@ -15,6 +15,7 @@ import logging
 import os
 import re
 import socket
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -82,8 +83,34 @@ def create_run_folder(out: Path, serial: str, now: dt.datetime | None = None) ->
 
 
 def release(folder: Path) -> None:
-    """The run has finished (any verdict): drop its lock."""
-    (folder / LOCK_FILE).unlink(missing_ok=True)
+    """The run has finished (any verdict): drop its lock (a folder gone read-only keeps it,
+    said in the log; the next start's recovery finds the run finished)."""
+    try:
+        (folder / LOCK_FILE).unlink(missing_ok=True)
+    except OSError as exc:
+        log.error("cannot remove the lock %s: %s", folder / LOCK_FILE, exc.strerror or exc)
+
+
+def check_output_folder(out: Path, min_free_mb: float) -> None:
+    """Before a run: the output folder exists (or is made), can be written, and has at least
+    `min_free_mb` MB free (station.yaml min_free_space_mb); UserError in one line if not."""
+    where = f"the output folder {out}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out, prefix=".write-check-"):
+            pass
+        st = os.statvfs(out)
+    except OSError as exc:
+        raise UserError(
+            f"{where} cannot be written ({exc.strerror or exc}); choose another --out or "
+            "fix the disk"
+        ) from None
+    free_mb = st.f_bavail * st.f_frsize / 1e6
+    if free_mb < min_free_mb:
+        raise UserError(
+            f"{where} has {free_mb:.1f} MB free, less than the {min_free_mb:g} MB a run needs "
+            "(station.yaml min_free_space_mb); free space or choose another --out"
+        )
 
 
 def _process_alive(lock: Path) -> bool:
