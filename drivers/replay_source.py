@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from drivers.errors import ConnectionLost
 from drivers.fixture_protocol import SEQ_MODULO, SampleStatus
+from drivers.h5_input import H5InputError, one_line, open_h5
 from drivers.part_codes import CodeFormat
 
 RAW_FORMAT = "gyrocal-raw/1"  # procedures.rawdata.FORMAT (a test keeps the two equal)
@@ -102,7 +103,7 @@ def load_recording(path: Path, codes: CodeFormat) -> Recording:
 
 def _load_raw(path: Path, codes: CodeFormat) -> Recording:
     try:
-        with h5py.File(path, "r", libver="latest", swmr=True) as f:
+        with open_h5(path) as f:
             found = f.attrs.get("format")
             if found != RAW_FORMAT:
                 raise RecordingError(
@@ -125,8 +126,10 @@ def _load_raw(path: Path, codes: CodeFormat) -> Recording:
             attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
     except RecordingError:
         raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise RecordingError(f"{path}: raw data file cannot be read ({exc})") from exc
+    except H5InputError as exc:
+        raise RecordingError(str(exc)) from None
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+        raise RecordingError(f"{path}: raw data file cannot be read ({one_line(exc)})") from None
     if any(c.size != n for c in (*cols.values(), encoder)):
         raise RecordingError(f"{path}: the /samples columns have different lengths")
     _check_conversion(path, codes, cols["rate_code"], cols["rate_dps"])

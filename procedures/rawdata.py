@@ -46,6 +46,7 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.h5_input import H5InputError, one_line, open_h5
 from procedures.record import StorageError, storage_error
 
 log = logging.getLogger(__name__)
@@ -337,7 +338,7 @@ def read_raw(path: Path) -> RawData:
     if not path.exists():
         raise RawDataError(f"{path}: raw data file is missing")
     try:
-        with h5py.File(path, "r", libver="latest", swmr=True) as f:
+        with open_h5(path) as f:
             if f.attrs.get("format") != FORMAT:
                 raise RawDataError(
                     f"{path}: not a raw data file of format {FORMAT} "
@@ -351,8 +352,10 @@ def read_raw(path: Path) -> RawData:
             return RawData(attrs=attrs, groups=groups)
     except RawDataError:
         raise
-    except (OSError, KeyError, ValueError) as exc:
-        raise RawDataError(f"{path}: raw data file cannot be read ({exc})") from exc
+    except H5InputError as exc:
+        raise RawDataError(str(exc)) from None
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+        raise RawDataError(f"{path}: raw data file cannot be read ({one_line(exc)})") from None
 
 
 def _read_group(
