@@ -263,6 +263,9 @@ class Engine:
         ctx.progress.step, ctx.progress.condition = "cleanup", ""
         ctx.records.declared = None
         report = self._safe_state(acquisition)
+        failure = ctx.parts.storage_failure()  # a record or raw.h5 the disk refused, unchecked
+        if failure is not None and run_error is None:
+            run_error = (Verdict.ERROR, os_error_text(failure))
         unsafe = report.failure_text()
         if unsafe:  # a bench left unsafe is an ERROR whatever else happened, and says so
             run_error = (Verdict.ERROR, f"{run_error[1]}; {unsafe}" if run_error else unsafe)
