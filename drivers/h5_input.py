@@ -27,6 +27,7 @@ from h5py import h5f, h5p
 
 SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _MESSAGE_CHARS = 300
+_UNREADABLE = "raw data file cannot be read"
 
 
 class H5InputError(ValueError):
@@ -48,23 +49,20 @@ def check_header(path: Path) -> None:
         with path.open("rb") as fh:
             head = fh.read(48)
     except OSError as exc:
-        raise H5InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+        raise H5InputError(f"{path}: {_UNREADABLE} ({exc.strerror or exc})") from None
     if len(head) < len(SIGNATURE) or not head.startswith(SIGNATURE):
-        what = "empty" if size == 0 else "not an HDF5 file (no HDF5 signature)"
-        raise H5InputError(f"{path}: {what}; the raw data file is damaged")
+        what = "an empty file" if size == 0 else "not HDF5: no HDF5 signature"
+        raise H5InputError(f"{path}: {_UNREADABLE} ({what})")
     if len(head) < 12:
-        raise H5InputError(f"{path}: truncated to {size} bytes; the raw data file is damaged")
+        raise H5InputError(f"{path}: {_UNREADABLE} (truncated to {size} bytes)")
     version, size_of_offsets = head[8], head[9]
     if version in (2, 3) and size_of_offsets == 8:
         if len(head) < 36:
-            raise H5InputError(
-                f"{path}: truncated to {size} bytes; the raw data file is damaged"
-            )
+            raise H5InputError(f"{path}: {_UNREADABLE} (truncated to {size} bytes)")
         (stored_eof,) = struct.unpack_from("<Q", head, 28)
         if size < stored_eof:
             raise H5InputError(
-                f"{path}: truncated ({size} of its {stored_eof} bytes); the raw data file "
-                "is damaged"
+                f"{path}: {_UNREADABLE} (truncated: {size} of its {stored_eof} bytes)"
             )
 
 
@@ -80,7 +78,7 @@ def open_h5(path: Path) -> h5py.File:
             return h5py.File(fid)
         return h5py.File(path, "r")
     except (OSError, RuntimeError, ValueError, KeyError) as exc:
-        raise H5InputError(f"{path}: cannot be read ({one_line(exc)})") from None
+        raise H5InputError(f"{path}: {_UNREADABLE} ({one_line(exc)})") from None
 
 
 _HDF5: list[Any] = []  # the library handle, looked up once ([None] if not found)

@@ -92,14 +92,18 @@ def release(folder: Path) -> None:
 
 
 def check_output_folder(out: Path, min_free_mb: float) -> None:
-    """Before a run: the output folder exists (or is made), can be written, and has at least
-    `min_free_mb` MB free (station.yaml min_free_space_mb); UserError in one line if not."""
+    """Before a run: the output folder (or the folder it will be made in) can be written and
+    has at least `min_free_mb` MB free (station.yaml min_free_space_mb); UserError in one
+    line if not."""
     where = f"the output folder {out}"
+    # nothing is made here: a folder not there yet is judged by the folder it would go in
+    existing = next((p for p in (out, *out.parents) if p.exists()), Path("/"))
+    if not existing.is_dir():
+        raise UserError(f"{where} cannot be made: {existing} is a file; choose another --out")
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out, prefix=".write-check-"):
+        with tempfile.TemporaryFile(dir=existing, prefix=".write-check-"):
             pass
-        st = os.statvfs(out)
+        st = os.statvfs(existing)
     except OSError as exc:
         raise UserError(
             f"{where} cannot be written ({exc.strerror or exc}); choose another --out or "

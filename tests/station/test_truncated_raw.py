@@ -163,5 +163,5 @@ def test_station_run_with_a_replay_of_it_is_refused_in_one_line(
         env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert r.returncode == 2, (r.stdout, r.stderr)
     line = one_line(r.stderr)
-    assert "raw.h5: truncated" in line and "replay" in line
+    assert "raw.h5: raw data file cannot be read (truncated" in line and "replay" in line
     assert not list((tmp_path / "runs").glob("*/record.json"))
