@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 log = logging.getLogger(__name__)
 
 RECORD_FILE = "record.json"
+MAX_RECORD_BYTES = 64 * 2**20  # read_record reads no more (a record is tens of kB)
 RAW_DATA_FILE = "raw.h5"
 CERTIFICATE_FILE = "certificate.pdf"
 
@@ -324,11 +325,20 @@ def read_record(folder: Path) -> RunRecord:
     """Read and validate record.json; raises ValueError naming the file if it is not valid."""
     path = folder / RECORD_FILE
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        with path.open("rb") as fh:  # bounded: a record is tens of kB
+            raw = fh.read(MAX_RECORD_BYTES + 1)
+        if len(raw) > MAX_RECORD_BYTES:
+            raise ValueError(f"{path}: larger than {MAX_RECORD_BYTES // 2**20} MB; a run record "
+                             "is tens of kB: not a record the station wrote")
+        data = json.loads(raw.decode("utf-8"))
     except FileNotFoundError as exc:
         raise ValueError(f"{path}: no record.json in this run folder") from exc
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:
         return RunRecord.model_validate(data)
     except Exception as exc:  # pydantic.ValidationError, shown in full

@@ -168,3 +168,14 @@ def test_a_failed_writer_refuses_every_later_call(tmp_path: Path,
         with pytest.raises(StorageError) as info:
             call()
         assert info.value is w.failure
+
+
+def test_a_huge_record_json_is_refused_without_reading_it(tmp_path: Path) -> None:
+    import time
+
+    with (tmp_path / "record.json").open("wb") as fh:
+        fh.truncate(4 * 1024**3)  # sparse 4 GB
+    t0 = time.monotonic()
+    with pytest.raises(ValueError, match="larger than 64 MB"):
+        read_record(tmp_path)
+    assert time.monotonic() - t0 < 5.0
