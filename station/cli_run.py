@@ -258,13 +258,13 @@ def run_cycle(
         )
         probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
         _check_out(args.out)
-        # bad serials, an output folder that cannot be written: refused before a bench or a
-        # folder exists (and before recovery writes to the folder)
-        probe.validate(duts)
-        for folder in probe.recover():
+        for folder in probe.recover():  # a folder it cannot write is logged and left as it is
             print(
                 f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr
             )
+        # bad serials, an output folder that cannot be written or is short of space: refused
+        # before a bench or a run folder exists
+        probe.validate(duts)
     except ConfigError as exc:
         raise UserError(str(exc)) from None
     if speed is not None:

@@ -119,7 +119,10 @@ def check_output_folder(out: Path, min_free_mb: float) -> None:
 
 def _process_alive(lock: Path) -> bool:
     try:
-        info = json.loads(lock.read_text(encoding="utf-8"))
+        with lock.open("rb") as fh:  # a lock is one short line; read no more than a page
+            info = json.loads(fh.read(4096).decode("utf-8"))
+        if not isinstance(info, dict):
+            return False
     except (OSError, ValueError):
         return False
     if info.get("host") != socket.gethostname():
