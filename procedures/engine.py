@@ -274,14 +274,14 @@ class Engine:
                     part.verdict = Verdict.ERROR
                     part.reason = f"{part.reason}; {unsafe}" if part.reason else unsafe
         for part in ctx.parts:  # before any verdict: raw data that could not be kept is ERROR
-            lost = self._close_raw(part)
-            if lost and lost not in (run_error or (None, ""))[1]:
+            unkept = self._close_raw(part)
+            if unkept and unkept not in (run_error or (None, ""))[1]:
                 if part.alive and run_error is None:
                     part.alive = False
-                    part.verdict, part.reason = Verdict.ERROR, lost
+                    part.verdict, part.reason = Verdict.ERROR, unkept
                 elif part.verdict not in (None, Verdict.ERROR, Verdict.ABORTED):
                     part.verdict = Verdict.ERROR
-                    part.reason = f"{part.reason}; {lost}" if part.reason else lost
+                    part.reason = f"{part.reason}; {unkept}" if part.reason else unkept
         for part in ctx.parts:
             # judged parts (alive, or taken out FAIL) get the run's lost-frame figure
             judged = part.alive or part.verdict is Verdict.FAIL

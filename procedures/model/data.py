@@ -274,8 +274,8 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
                 ) from None
             if not math.isfinite(value):
                 raise ValueError(
-                    f"{path}: line {lineno}: column {c} is {shown(text)}, not a finite number; "
-                    "remove the row or give the measured value"
+                    f"{path}: line {lineno}: column {c} is {shown(str(text))}, not a finite "
+                    "number; remove the row or give the measured value"
                 )
             if abs(value) > MAX_ABS_VALUE:
                 raise ValueError(
