@@ -14,7 +14,6 @@ to read them back.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,8 +23,10 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.csv_rows import CsvInputError, csv_rows, shown
 from drivers.errors import ConnectionLost
 from drivers.fixture_protocol import SEQ_MODULO, SampleStatus
+from drivers.h5_input import H5InputError, one_line, open_h5
 from drivers.part_codes import CodeFormat
 
 RAW_FORMAT = "gyrocal-raw/1"  # procedures.rawdata.FORMAT (a test keeps the two equal)
@@ -102,7 +103,7 @@ def load_recording(path: Path, codes: CodeFormat) -> Recording:
 
 def _load_raw(path: Path, codes: CodeFormat) -> Recording:
     try:
-        with h5py.File(path, "r", libver="latest", swmr=True) as f:
+        with open_h5(path) as f:
             found = f.attrs.get("format")
             if found != RAW_FORMAT:
                 raise RecordingError(
@@ -125,8 +126,10 @@ def _load_raw(path: Path, codes: CodeFormat) -> Recording:
             attrs = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
     except RecordingError:
         raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise RecordingError(f"{path}: raw data file cannot be read ({exc})") from exc
+    except H5InputError as exc:
+        raise RecordingError(str(exc)) from None
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+        raise RecordingError(f"{path}: raw data file cannot be read ({one_line(exc)})") from None
     if any(c.size != n for c in (*cols.values(), encoder)):
         raise RecordingError(f"{path}: the /samples columns have different lengths")
     _check_conversion(path, codes, cols["rate_code"], cols["rate_dps"])
@@ -204,18 +207,17 @@ def _check_conversion(
 
 def _load_csv(path: Path, codes: CodeFormat) -> Recording:
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise RecordingError(f"{path}: CSV file cannot be read ({exc})") from exc
-    numbered = [(i + 1, r) for i, r in enumerate(rows) if any(cell.strip() for cell in r)]
+        numbered = list(csv_rows(path))  # bounded: drivers.csv_rows
+    except CsvInputError as exc:
+        raise RecordingError(str(exc)) from None
     if not numbered:
         raise RecordingError(f"{path}: empty CSV; it needs a header row {', '.join(CSV_COLUMNS)}")
     header = [h.strip() for h in numbered[0][1]]
     missing = [c for c in CSV_COLUMNS if c not in header]
     if missing:
         raise RecordingError(
-            f"{path}: CSV header {header!r} lacks {', '.join(missing)}; the replay needs the "
+            f"{path}: CSV header {shown(','.join(header))} lacks {', '.join(missing)}; "
+            "the replay needs the "
             f"columns {', '.join(CSV_COLUMNS)} (and optionally {', '.join(CSV_OPTIONAL_COLUMNS)})"
         )
     data = numbered[1:]
@@ -251,9 +253,9 @@ def _number(path: Path, line: int, column: str, row: list[str], i: int) -> float
     try:
         value = float(text)
     except ValueError:
-        raise RecordingError(f"{path}:{line}: {column} is {text!r}, not a number") from None
+        raise RecordingError(f"{path}:{line}: {column} is {shown(text)}, not a number") from None
     if not math.isfinite(value):
-        raise RecordingError(f"{path}:{line}: {column} is {text!r}, not a finite number")
+        raise RecordingError(f"{path}:{line}: {column} is {shown(text)}, not a finite number")
     return value
 
 

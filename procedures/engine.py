@@ -26,7 +26,7 @@ from typing import Protocol
 
 from drivers.errors import InstrumentError, InstrumentTimeout
 from procedures.limits import overall
-from procedures.record import Event, Outcome, Verdict
+from procedures.record import Event, Outcome, Verdict, os_error_text, save_record_anywhere
 from procedures.run_context import (
     SUPPLY_SETTLE_S,
     Aborted,
@@ -145,6 +145,9 @@ class Engine:
                 run_error = (Verdict.ERROR, f"{exc.instrument}: {exc} (in step {step_name})")
             except KeyboardInterrupt:
                 run_error = (Verdict.ABORTED, f"interrupted (SIGINT) in step {step_name}")
+            except OSError as exc:  # a disk full, read-only or failing: named, not a bug
+                log.error("step %s: %s", step_name, exc)
+                run_error = (Verdict.ERROR, f"{os_error_text(exc)} (in step {step_name})")
             except Exception as exc:  # a bug must still end in a safe bench and a record
                 log.exception("unexpected error in step %s", step_name)
                 run_error = (
@@ -261,6 +264,9 @@ class Engine:
         ctx.progress.step, ctx.progress.condition = "cleanup", ""
         ctx.records.declared = None
         report = self._safe_state(acquisition)
+        failure = ctx.parts.storage_failure()  # a record or raw.h5 the disk refused, unchecked
+        if failure is not None and run_error is None:
+            run_error = (Verdict.ERROR, os_error_text(failure))
         unsafe = report.failure_text()
         if unsafe:  # a bench left unsafe is an ERROR whatever else happened, and says so
             run_error = (Verdict.ERROR, f"{run_error[1]}; {unsafe}" if run_error else unsafe)
@@ -268,6 +274,15 @@ class Engine:
                 if not part.alive:
                     part.verdict = Verdict.ERROR
                     part.reason = f"{part.reason}; {unsafe}" if part.reason else unsafe
+        for part in ctx.parts:  # before any verdict: raw data that could not be kept is ERROR
+            unkept = self._close_raw(part)
+            if unkept and unkept not in (run_error or (None, ""))[1]:
+                if part.alive and run_error is None:
+                    part.alive = False
+                    part.verdict, part.reason = Verdict.ERROR, unkept
+                elif part.verdict not in (None, Verdict.ERROR, Verdict.ABORTED):
+                    part.verdict = Verdict.ERROR
+                    part.reason = f"{part.reason}; {unkept}" if part.reason else unkept
         for part in ctx.parts:
             # judged parts (alive, or taken out FAIL) get the run's lost-frame figure
             judged = part.alive or part.verdict is Verdict.FAIL
@@ -312,17 +327,30 @@ class Engine:
                     message=f"verdict {rec.verdict}" + (f": {rec.reason}" if rec.reason else ""),
                 )
             )
-            part.rows.flush()
-            if part.writer is not None:
-                try:
-                    part.writer.close()
-                except Exception:
-                    log.exception("closing raw data of socket %d", part.socket)
-            ctx.records.save(part)
+            self._keep(part)
         ctx.progress.step = ""
         ctx.progress.publish(
             "finished", message=", ".join(f"{p.socket}:{p.verdict}" for p in ctx.parts)
         )
+
+    @staticmethod
+    def _close_raw(part: PartRun) -> str:
+        """Flush and close the part's raw data; the one-line failure ('' if none)."""
+        try:
+            part.rows.flush()
+            if part.writer is not None:
+                part.writer.close()
+        except OSError as exc:  # a StorageError naming raw.h5
+            return os_error_text(exc)
+        except Exception:
+            log.exception("closing raw data of socket %d", part.socket)
+        return ""
+
+    @staticmethod
+    def _keep(part: PartRun) -> None:
+        """Write the record whatever the disk does: in the run folder, else in the fallback
+        folder (procedures.record.save_record_anywhere, docs/safety.md); never raises."""
+        part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
 
     def _judge(self, part: PartRun) -> None:
         ok, failed, marginal = overall(part.record.measurements)

@@ -32,8 +32,12 @@ older sample windows back with `RawDataWriter.read_window`.
 
 from __future__ import annotations
 
+import errno
 import hashlib
-from collections.abc import Mapping, Sequence
+import logging
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,8 +46,17 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.h5_input import H5InputError, one_line, open_h5
+from procedures.record import StorageError, storage_error
+
+log = logging.getLogger(__name__)
+
 FORMAT = "gyrocal-raw/1"
 CHUNK_CACHE_BYTES = 1 << 16  # two 4096-row chunks of 8-byte values
+
+# free space a raw data file leaves on its disk: room for HDF5 to close it cleanly and for
+# record.json (tens of kB) after it
+RESERVE_BYTES = 1 << 20
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -128,9 +141,19 @@ class RawDataWriter:
             raise ValueError(f"raw data: unknown groups {sorted(unknown)}")
         # every group is created now: no dataset can be added once readers may attach (SWMR)
         self._groups = {**GROUPS, **{g: EXTRA_GROUPS[g] for g in extra_groups}}
+        # the first write that failed (disk full, read-only, I/O error): every later call
+        # raises it again, and the HDF5 file is already closed (see _fail)
+        self.failure: StorageError | None = None
         # a small chunk cache per dataset (HDF5's default is 1 MiB each, 32 datasets a file):
         # rows are appended, so only the chunk being filled needs to stay in memory
-        self._file = h5py.File(path, "w", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
+        try:
+            self._file = h5py.File(path, "w", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
+        except (OSError, RuntimeError) as exc:
+            raise storage_error(path, exc) from exc
+        with self._writing():
+            self._create(attrs)
+
+    def _create(self, attrs: Mapping[str, Any]) -> None:
         self._file.attrs["format"] = FORMAT
         for key, value in attrs.items():
             self._file.attrs[key] = value
@@ -174,17 +197,73 @@ class RawDataWriter:
         (n,) = lengths
         if n == 0:
             return
-        datasets = self._datasets[group]
-        old = self._rows[group]
-        for column, values in arrays.items():
-            ds = datasets[column]
-            ds.resize((old + n,))
-            if expected[column][0] is _STR:
-                ds[old : old + n] = [str(v) for v in values]
-            else:
-                ds[old : old + n] = values
-        self._rows[group] = old + n
-        self._file.flush()
+        with self._writing():
+            self._room_for(sum(a.nbytes if a.dtype != object else 64 * n
+                               for a in arrays.values()))
+            datasets = self._datasets[group]
+            old = self._rows[group]
+            for column, values in arrays.items():
+                ds = datasets[column]
+                ds.resize((old + n,))
+                if expected[column][0] is _STR:
+                    ds[old : old + n] = [str(v) for v in values]
+                else:
+                    ds[old : old + n] = values
+            self._rows[group] = old + n
+            self._file.flush()
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Every HDF5 write goes through here: a failure (h5py raises OSError or
+        RuntimeError) becomes one StorageError naming the file, kept in `failure`."""
+        if self.failure is not None:
+            raise self.failure
+        try:
+            yield
+        except StorageError as exc:  # _room_for: refused before the disk did
+            self._fail(exc, disk_refused=False)
+            raise
+        except (OSError, RuntimeError) as exc:
+            error = storage_error(self.path, exc)
+            self._fail(error, disk_refused=True)
+            raise error from exc
+
+    def _room_for(self, nbytes: int) -> None:
+        """Refuse a write that would leave less than RESERVE_BYTES free on the disk: HDF5
+        closes the file cleanly (readable) only while it can still write its metadata, and
+        record.json must still fit after it."""
+        try:
+            st = os.statvfs(self.path.parent)
+        except OSError:
+            return  # the write itself will say what is wrong
+        if st.f_bavail * st.f_frsize < nbytes + RESERVE_BYTES:
+            raise StorageError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path))
+
+    def _fail(self, error: StorageError, disk_refused: bool) -> None:
+        """Close the file after a failed write without letting HDF5 write again. After a
+        failed write HDF5's close fails too and the library crashes the process at exit
+        (SIGSEGV); so a disk that refused (ENOSPC, EROFS, EIO) gets its descriptor pointed at
+        /dev/null first, and HDF5 closes cleanly. The file keeps what the last successful
+        flush wrote; a proactive refusal (_room_for) closes it properly instead."""
+        self.failure = error
+        if not self._file.id.valid:
+            return
+        if not disk_refused:
+            try:  # still room for the metadata (_room_for refused in time): a clean close
+                self._file.close()
+                return
+            except (OSError, RuntimeError):
+                pass
+        try:
+            fd = self._file.id.get_vfd_handle()
+            null = os.open(os.devnull, os.O_RDWR)
+            try:
+                os.dup2(null, fd)
+            finally:
+                os.close(null)
+            self._file.close()
+        except (OSError, RuntimeError, ValueError) as exc:
+            log.error("%s: raw data file left open after a failed write: %s", self.path, exc)
 
     def read_window(
         self, group: str, key: str, start: float, end: float
@@ -192,6 +271,8 @@ class RawDataWriter:
         """The rows written so far whose `key` column (sorted ascending, e.g. samples'
         time_s) lies in [start, end): every column of the group, read back from the file
         (only the window and a binary search's few values come into memory)."""
+        if self.failure is not None:
+            raise self.failure
         g = self._file[group]
         ds = g[key]
         i0, i1 = _bisect(ds, start), _bisect(ds, end)
@@ -199,10 +280,14 @@ class RawDataWriter:
 
     def row_of(self, group: str, key: str, value: float) -> int:
         """The first row whose sorted `key` column is not below `value`."""
+        if self.failure is not None:
+            raise self.failure
         return _bisect(self._file[group][key], value)
 
     def read_rows(self, group: str, start: int, end: int) -> dict[str, NDArray[Any]]:
         """Rows [start, end) written so far of every column of `group`."""
+        if self.failure is not None:
+            raise self.failure
         g = self._file[group]
         return {column: g[column][start:end] for column in self._groups[group]}
 
@@ -210,9 +295,14 @@ class RawDataWriter:
         return group in self._groups
 
     def close(self) -> None:
+        """Flush and close; a failed write (now or before) raises StorageError, and the
+        file is closed in every case."""
+        if self.failure is not None:
+            raise self.failure
         if self._file.id.valid:
-            self._file.flush()
-            self._file.close()
+            with self._writing():
+                self._file.flush()
+                self._file.close()
 
     def __enter__(self) -> RawDataWriter:
         return self
@@ -248,7 +338,7 @@ def read_raw(path: Path) -> RawData:
     if not path.exists():
         raise RawDataError(f"{path}: raw data file is missing")
     try:
-        with h5py.File(path, "r", libver="latest", swmr=True) as f:
+        with open_h5(path) as f:
             if f.attrs.get("format") != FORMAT:
                 raise RawDataError(
                     f"{path}: not a raw data file of format {FORMAT} "
@@ -262,8 +352,10 @@ def read_raw(path: Path) -> RawData:
             return RawData(attrs=attrs, groups=groups)
     except RawDataError:
         raise
-    except (OSError, KeyError, ValueError) as exc:
-        raise RawDataError(f"{path}: raw data file cannot be read ({exc})") from exc
+    except H5InputError as exc:
+        raise RawDataError(str(exc)) from None
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+        raise RawDataError(f"{path}: raw data file cannot be read ({one_line(exc)})") from None
 
 
 def _read_group(

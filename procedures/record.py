@@ -8,8 +8,11 @@ database and the discrepancy workflow. Keys pinned in docs/interfaces.md (`verdi
 
 from __future__ import annotations
 
+import errno
 import json
+import logging
 import os
+import re
 import tempfile
 from enum import StrEnum
 from pathlib import Path
@@ -17,9 +20,41 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+log = logging.getLogger(__name__)
+
 RECORD_FILE = "record.json"
+MAX_RECORD_BYTES = 64 * 2**20  # read_record reads no more (a record is tens of kB)
 RAW_DATA_FILE = "raw.h5"
 CERTIFICATE_FILE = "certificate.pdf"
+
+
+class StorageError(OSError):
+    """A file of a run folder could not be written: the disk is full (ENOSPC), read-only
+    (EROFS) or failing (EIO). The message names the file; the run ends ERROR with it."""
+
+    def __str__(self) -> str:
+        what = self.strerror or "write failed"
+        return f"cannot write {self.filename}: {what}"
+
+
+def storage_error(path: Path | str, exc: BaseException) -> StorageError:
+    """`exc` (an OSError, or h5py's RuntimeError carrying 'errno = N') as a StorageError
+    naming `path`."""
+    if isinstance(exc, StorageError):
+        return exc
+    code = getattr(exc, "errno", None)
+    if not isinstance(code, int):
+        found = re.search(r"errno = (\d+)", str(exc))
+        code = int(found.group(1)) if found else errno.EIO
+    return StorageError(code, os.strerror(code), str(path))
+
+
+def os_error_text(exc: OSError) -> str:
+    """An OSError in one line naming its file: 'cannot write PATH: No space left on device'
+    for a StorageError, 'PATH: Permission denied' otherwise."""
+    if isinstance(exc, StorageError) or not exc.filename:
+        return str(exc)
+    return f"{exc.filename}: {exc.strerror or exc}"
 
 
 class Verdict(StrEnum):
@@ -237,10 +272,19 @@ def new_file_mode() -> int:
 
 
 def write_record(folder: Path, record: RunRecord) -> Path:
-    """Write record.json atomically (temp file + rename), so a crash never leaves half a file."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """Write record.json atomically (temp file + rename), so a crash never leaves half a file.
+    A folder that cannot be written raises StorageError naming record.json."""
     target = folder / RECORD_FILE
     text = record.model_dump_json(indent=2)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        _write_atomic(folder, target, text)
+    except OSError as exc:
+        raise storage_error(target, exc) from exc
+    return target
+
+
+def _write_atomic(folder: Path, target: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(prefix=".record-", suffix=".json", dir=folder)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -252,6 +296,28 @@ def write_record(folder: Path, record: RunRecord) -> Path:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+FALLBACK_FOLDER = Path(tempfile.gettempdir()) / "gyrocal-unsaved-records"
+
+
+def save_record_anywhere(folder: Path, record: RunRecord) -> Path | None:
+    """record.json in its run folder; if that folder cannot be written, `<run id>.json` in
+    FALLBACK_FOLDER (docs/safety.md); None if neither can be written (the caller then logs
+    the verdict). Never raises an OSError: the run's end must not be lost over a disk."""
+    try:
+        return write_record(folder, record)
+    except OSError as exc:
+        first = exc
+    try:
+        FALLBACK_FOLDER.mkdir(parents=True, exist_ok=True)
+        target = FALLBACK_FOLDER / f"{record.run_id}.json"
+        _write_atomic(FALLBACK_FOLDER, target, record.model_dump_json(indent=2))
+    except OSError as exc:
+        log.error("%s; the record could not be kept in %s either (%s): %s %s",
+                  first, FALLBACK_FOLDER, exc.strerror or exc, record.verdict, record.reason)
+        return None
+    log.error("%s; the record was written to %s instead", first, target)
     return target
 
 
@@ -259,11 +325,20 @@ def read_record(folder: Path) -> RunRecord:
     """Read and validate record.json; raises ValueError naming the file if it is not valid."""
     path = folder / RECORD_FILE
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        with path.open("rb") as fh:  # bounded: a record is tens of kB
+            raw = fh.read(MAX_RECORD_BYTES + 1)
+        if len(raw) > MAX_RECORD_BYTES:
+            raise ValueError(f"{path}: larger than {MAX_RECORD_BYTES // 2**20} MB; a run record "
+                             "is tens of kB: not a record the station wrote")
+        data = json.loads(raw.decode("utf-8"))
     except FileNotFoundError as exc:
         raise ValueError(f"{path}: no record.json in this run folder") from exc
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:
         return RunRecord.model_validate(data)
     except Exception as exc:  # pydantic.ValidationError, shown in full

@@ -153,6 +153,8 @@ class Records:
         # names the running step may set (None: no check), and what each part set in it
         self.declared: set[str] | None = None
         self.made: dict[int, set[str]] = {}
+        # the first record or raw data file that could not be written (disk full, read-only)
+        self.failure: OSError | None = None
         # set by Parts: called with (part, reason) when a stop_part limit fails
         self.on_stop_part: Callable[[PartRun, str], None] | None = None
 
@@ -262,11 +264,14 @@ class Records:
         write_record(part.folder, part.record)
 
     def save_all(self) -> None:
+        """Every part's record; one that cannot be written is kept in `failure`, which the
+        run's next check raises (the run ends ERROR naming the file)."""
         for part in self._parts:
             try:
                 self.save(part)
-            except OSError:
-                log.exception("could not write record of socket %d", part.socket)
+            except OSError as exc:
+                log.error("could not write the record of socket %d: %s", part.socket, exc)
+                self.failure = self.failure or exc
 
 
 # ---------------------------------------------------------------- parts
@@ -323,6 +328,13 @@ class Parts(list[PartRun]):
             self.per_part(part, fn)
         self.require()
 
+    def storage_failure(self) -> OSError | None:
+        """The first file of the run that could not be written, if any."""
+        for part in self:
+            if part.writer is not None and part.writer.failure is not None:
+                return part.writer.failure
+        return self._records.failure
+
     def require(self) -> None:
         if not self.alive():
             raise NoPartsLeft("every part has dropped out of the run")
@@ -374,6 +386,9 @@ class Waiting:
         limit = self._procedure.stream.max_lost_fraction
         for part in self._parts.alive():
             part.rows.flush_if_due()
+        if (failure := self._parts.storage_failure()) is not None:
+            raise failure  # a disk that refused ends the run (Engine: ERROR naming the file)
+        for part in self._parts.alive():
             stream = part.stream
             if stream is None:
                 continue

@@ -17,7 +17,7 @@ import numpy as np
 from drivers.clock import ScaledClock
 from drivers.protocols import Chamber, PartLink, RateTable, Supply
 from procedures.rawdata import RawDataWriter
-from procedures.record import ConditionRecord, RunRecord, Verdict
+from procedures.record import ConditionRecord, RunRecord, StorageError, Verdict
 from procedures.streams import PartStream
 from procedures.thermal_control import PartThermal
 
@@ -102,6 +102,8 @@ class RowBuffer:
             merged = {k: [row[k] for row in items] for k in items[0]}
             try:
                 self.writer.append(group, **merged)
+            except StorageError:  # the writer keeps it; the run's next check ends the run
+                return
             except Exception:  # never lose a run over a log row
                 log.exception("could not write %d rows to raw data group %s", len(items), group)
 

@@ -32,6 +32,7 @@ from drivers.fixture_protocol import SEQ_MODULO
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import PartLink, SampleBlock
 from procedures.rawdata import RawDataWriter
+from procedures.record import StorageError
 
 log = logging.getLogger(__name__)
 
@@ -298,6 +299,8 @@ class PartStream:
                 self.writer.append("samples", **merged)
                 if self.writer.has_group(XYZ_GROUP):
                     self.writer.append(XYZ_GROUP, **_xyz_rows(pending))
+            except StorageError:  # the writer keeps it; the run's next check ends the run
+                pass
             except Exception:  # the raw file must never kill the acquisition
                 log.exception("socket %d: could not append samples to raw data", self.socket)
 

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.bounded import MAX_RATE_DPS
+from drivers.csv_rows import shown
 from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
 from procedures.analysis.allan import check_static
@@ -83,7 +84,7 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
     missing = [c for c in REQUIRED if c not in header]
     if missing:
         raise UserError(
-            f"{path}: missing column(s) {', '.join(missing)} (found {', '.join(header)}); "
+            f"{path}: missing column(s) {', '.join(missing)} (found {shown(','.join(header))}); "
             "the header row must name time_s and rate_dps"
         )
     wanted = [c for c in (*REQUIRED, "status") if c in header]
@@ -96,7 +97,7 @@ def read_rate_csv(path: Path) -> dict[str, NDArray[np.float64]]:
                 cols[c].append(float(text))
             except ValueError:
                 raise UserError(
-                    f"{path}: line {line_no}, column {c}: {text!r} is not a number"
+                    f"{path}: line {line_no}, column {c}: {shown(text)} is not a number"
                 ) from None
     data = {c: np.asarray(v, dtype=np.float64) for c, v in cols.items()}
     n = data["time_s"].size

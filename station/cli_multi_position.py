@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from drivers.bounded import MAX_RATE_DPS
+from drivers.csv_rows import shown
 from procedures.analysis import AnalysisError
 from procedures.analysis.multi_position import (
     AXES,
@@ -223,11 +224,11 @@ def _columns(
                 value = float(text)
             except ValueError:
                 raise UserError(
-                    f"{path}: line {r + 2}, column {name}: {text!r} is not a number"
+                    f"{path}: line {r + 2}, column {name}: {shown(text)} is not a number"
                 ) from None
             if not math.isfinite(value):
                 raise UserError(
-                    f"{path}: line {r + 2}, column {name}: {text!r}; NaN or infinite values "
+                    f"{path}: line {r + 2}, column {name}: {shown(text)}; NaN or infinite values "
                     "cannot be analysed: repair or remove that row"
                 )
             if abs(value) > bound:

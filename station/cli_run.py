@@ -218,14 +218,16 @@ def run_cycle(
             out=Path(args.out) if args.out else None,
         )
         probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
-        for folder in probe.recover():
+        _check_out(args.out)
+        for folder in probe.recover():  # a folder it cannot write is logged and left as it is
             print(
                 f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr
             )
-        probe.validate(duts)  # bad serials: refuse before a bench or a folder exists
+        # bad serials, an output folder that cannot be written or is short of space: refused
+        # before a bench or a run folder exists
+        probe.validate(duts)
     except ConfigError as exc:
         raise UserError(str(exc)) from None
-    _check_out(args.out)
     if speed is not None:
         from drivers.sim.config import speed_problem
 
@@ -263,10 +265,13 @@ def run_cycle(
             + (f" - {result.reasons[sock]}" if result.reasons[sock] else "")
         )
         print(f"  run folder: {result.folders[sock]}")
+        record = result.record_files.get(sock, result.folders[sock] / "record.json")
         if sock in result.certificates:
             print(f"  certificate: {result.certificates[sock]}")
+        elif record is None:
+            print("  record: could not be written anywhere (its verdict is in the log above)")
         else:
-            print(f"  record: {result.folders[sock] / 'record.json'}")
+            print(f"  record: {record}")
     print(f"station time {result.station_time_s / 60:.1f} min, wall time {wall:.1f} s")
     return result.exit_code
 

@@ -20,6 +20,8 @@ import datetime as dt
 import hashlib
 import json
 import os
+import re
+import stat
 import tempfile
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -39,6 +41,16 @@ APPROVALS_FILE = "approvals.json"
 FORMAT = "gyrocal-manifest/1"
 ALGORITHM = "rsa-pkcs1v15-sha256"
 SEALED_FILES = (RECORD_FILE, RAW_DATA_FILE, CERTIFICATE_FILE, APPROVALS_FILE)
+# files the station itself adds to a sealed folder without sealing them (docs/records.md):
+# the manifest, `station report --unverified`'s certificate, the lock of a run in progress
+UNVERIFIED_FILE = "certificate-UNVERIFIED.pdf"
+UNSEALED_FILES = (MANIFEST_FILE, UNVERIFIED_FILE, ".running")
+# ... and the temp file of an atomic write (tempfile.mkstemp's names), left by a crash
+_TEMP_FILE = re.compile(
+    r"\.(record|manifest|certificate|certificate-UNVERIFIED|approvals)-[a-z0-9_]{8}\.(json|pdf)"
+)
+# a manifest is a few kB (its signer certificate most of it); read none beyond this
+MAX_MANIFEST_BYTES = 1 << 20
 _CHUNK = 1 << 20
 
 
@@ -133,16 +145,23 @@ def seal(folder: Path, identity: StationIdentity, origin: str) -> Path:
 
 def _read_manifest(folder: Path) -> tuple[dict[str, Any] | None, str]:
     path = folder / MANIFEST_FILE
+    if path.is_symlink():
+        return None, f"{MANIFEST_FILE} is a symbolic link (the station writes a plain file)"
     if not path.is_file():
         return None, (f"{MANIFEST_FILE} is missing: the folder was never sealed (a run from "
                       "before signing) or its manifest was removed")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        with path.open("rb") as fh:
+            data = fh.read(MAX_MANIFEST_BYTES + 1)
+        if len(data) > MAX_MANIFEST_BYTES:
+            return None, (f"{MANIFEST_FILE} is larger than {MAX_MANIFEST_BYTES:,} bytes "
+                          "(a manifest is a few kB)")
+        doc = json.loads(data.decode("utf-8"))
         if doc.get("format") != FORMAT or not isinstance(doc.get("body"), dict):
             return None, f"{MANIFEST_FILE} is not a {FORMAT} manifest"
         return doc, ""
     except (OSError, ValueError, AttributeError) as exc:
-        return None, f"{MANIFEST_FILE} cannot be read ({exc})"
+        return None, f"{MANIFEST_FILE} cannot be read ({' '.join(str(exc).split())[:200]})"
 
 
 def _check_signature(doc: dict[str, Any], trusted: set[str] | None) -> tuple[str, str]:
@@ -169,18 +188,48 @@ def _check_signature(doc: dict[str, Any], trusted: set[str] | None) -> tuple[str
     return fingerprint, ""
 
 
-def _check_files(folder: Path, files: dict[str, Any]) -> list[str]:
-    """Names of files whose bytes differ from the manifest (changed, removed or added)."""
-    altered = []
+def _check_files(folder: Path, files: dict[str, Any]) -> dict[str, str]:
+    """The files that differ from the manifest, each with what happened: changed, removed,
+    a symbolic link, or added after sealing (any name but the sealed files and the ones the
+    station adds later, UNSEALED_FILES)."""
+    altered: dict[str, str] = {}
     for name in SEALED_FILES:
         expected = files.get(name)
         path = folder / name
-        if expected is None:
+        if path.is_symlink():  # even to an identical copy: the folder must hold its data
+            altered[name] = "replaced by a symbolic link"
+        elif expected is None:
             if path.exists():
-                altered.append(name)
-        elif not path.is_file() or file_digest(path) != expected:
-            altered.append(name)
+                altered[name] = "added after sealing"
+        elif not path.exists():
+            altered[name] = "removed"
+        elif not _same(path, expected):
+            altered[name] = "changed"
+    try:
+        names = sorted(os.listdir(folder))
+    except OSError as exc:
+        return {**altered, ".": f"unreadable ({exc.strerror or exc})"}
+    for name in names:
+        if name in SEALED_FILES or _TEMP_FILE.fullmatch(name):
+            continue
+        if name in UNSEALED_FILES and not (folder / name).is_symlink():
+            continue
+        altered[name] = "added after sealing"
     return altered
+
+
+def _same(path: Path, expected: Any) -> bool:
+    """A regular file of the manifest's size and hash (the size first: a file grown to any
+    length is not read through)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    if not stat.S_ISREG(st.st_mode):
+        return False
+    if isinstance(expected, dict) and expected.get("bytes") != st.st_size:
+        return False
+    return file_digest(path) == expected
 
 
 def verify_folder(folder: Path, trusted: set[str] | None = None) -> Verification:
@@ -207,10 +256,8 @@ def verify_folder(folder: Path, trusted: set[str] | None = None) -> Verification
     files = doc["body"].get("files")
     if not isinstance(files, dict):
         return Verification(Status.ALTERED, [f"{MANIFEST_FILE}: no file list"], [MANIFEST_FILE])
-    for name in _check_files(folder, files):
+    for name, state in _check_files(folder, files).items():
         result.status = Status.ALTERED
         result.altered_files.append(name)
-        state = "removed" if files.get(name) and not (folder / name).exists() else (
-            "added after sealing" if files.get(name) is None else "changed")
         result.problems.append(f"{name} was {state} since the folder was sealed")
     return result

@@ -15,6 +15,7 @@ import logging
 import os
 import re
 import socket
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -82,13 +83,46 @@ def create_run_folder(out: Path, serial: str, now: dt.datetime | None = None) ->
 
 
 def release(folder: Path) -> None:
-    """The run has finished (any verdict): drop its lock."""
-    (folder / LOCK_FILE).unlink(missing_ok=True)
+    """The run has finished (any verdict): drop its lock (a folder gone read-only keeps it,
+    said in the log; the next start's recovery finds the run finished)."""
+    try:
+        (folder / LOCK_FILE).unlink(missing_ok=True)
+    except OSError as exc:
+        log.error("cannot remove the lock %s: %s", folder / LOCK_FILE, exc.strerror or exc)
+
+
+def check_output_folder(out: Path, min_free_mb: float) -> None:
+    """Before a run: the output folder (or the folder it will be made in) can be written and
+    has at least `min_free_mb` MB free (station.yaml min_free_space_mb); UserError in one
+    line if not."""
+    where = f"the output folder {out}"
+    # nothing is made here: a folder not there yet is judged by the folder it would go in
+    existing = next((p for p in (out, *out.parents) if p.exists()), Path("/"))
+    if not existing.is_dir():
+        raise UserError(f"{where} cannot be made: {existing} is a file; choose another --out")
+    try:
+        with tempfile.TemporaryFile(dir=existing, prefix=".write-check-"):
+            pass
+        st = os.statvfs(existing)
+    except OSError as exc:
+        raise UserError(
+            f"{where} cannot be written ({exc.strerror or exc}); choose another --out or "
+            "fix the disk"
+        ) from None
+    free_mb = st.f_bavail * st.f_frsize / 1e6
+    if free_mb < min_free_mb:
+        raise UserError(
+            f"{where} has {free_mb:.1f} MB free, less than the {min_free_mb:g} MB a run needs "
+            "(station.yaml min_free_space_mb); free space or choose another --out"
+        )
 
 
 def _process_alive(lock: Path) -> bool:
     try:
-        info = json.loads(lock.read_text(encoding="utf-8"))
+        with lock.open("rb") as fh:  # a lock is one short line; read no more than a page
+            info = json.loads(fh.read(4096).decode("utf-8"))
+        if not isinstance(info, dict):
+            return False
     except (OSError, ValueError):
         return False
     if info.get("host") != socket.gethostname():

@@ -339,6 +339,11 @@ class StationSettings(_Strict):
     output_folder: PathText = Field(
         "runs", description="run folders go here (relative to this file)"
     )
+    min_free_space_mb: float = Field(
+        200.0, ge=0.0, le=1e7,
+        description="free space (MB) the output folder must have before a run starts (a "
+        "part's run writes about 16 MB; a run that fills the disk ends ERROR)",
+    )
     results_db: PathText = Field(
         "runs/results.sqlite",
         description="results database: a SQLite file path (relative to this file) or a URL "

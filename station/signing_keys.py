@@ -168,9 +168,23 @@ def load_or_create_identity(key_path: Path, certificate_path: Path,
                            certificate=_load_certificate(certificate_path, key))
 
 
+# a PEM certificate is 1-2 kB (a chain a few); `--trust` reads no more than this
+MAX_CERTIFICATE_BYTES = 64 * 1024
+
+
 def load_trusted_certificate(path: Path) -> x509.Certificate:
     try:
-        return x509.load_pem_x509_certificate(Path(path).read_bytes())
-    except (OSError, ValueError) as exc:
-        raise SigningKeyError(f"trusted certificate {path} cannot be read ({exc}); give a "
+        with Path(path).open("rb") as fh:
+            data = fh.read(MAX_CERTIFICATE_BYTES + 1)
+    except OSError as exc:
+        raise SigningKeyError(f"trusted certificate {path} cannot be read "
+                              f"({exc.strerror or exc}); give a PEM certificate") from None
+    if len(data) > MAX_CERTIFICATE_BYTES:
+        raise SigningKeyError(f"trusted certificate {path} is larger than "
+                              f"{MAX_CERTIFICATE_BYTES // 1024} kB; give a PEM certificate")
+    try:
+        return x509.load_pem_x509_certificate(data)
+    except ValueError as exc:
+        text = " ".join(str(exc).split())[:200]
+        raise SigningKeyError(f"trusted certificate {path} cannot be read ({text}); give a "
                               "PEM certificate") from None

@@ -57,6 +57,8 @@ from procedures.record import (
     InstrumentRecord,
     RunRecord,
     Verdict,
+    os_error_text,
+    save_record_anywhere,
     write_record,
 )
 from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
@@ -67,7 +69,13 @@ from station import __version__, preflight
 from station import instruments as roles
 from station.bench_clock import station_clock
 from station.errors import UserError
-from station.run_folder import create_run_folder, recover_crashed_runs, release, validate_serial
+from station.run_folder import (
+    check_output_folder,
+    create_run_folder,
+    recover_crashed_runs,
+    release,
+    validate_serial,
+)
 from station.settings import LoadedSettings
 
 if TYPE_CHECKING:
@@ -124,6 +132,9 @@ class UutResult:
     verdicts: dict[int, Verdict] = field(default_factory=dict)
     reasons: dict[int, str] = field(default_factory=dict)
     certificates: dict[int, Path] = field(default_factory=dict)
+    # where each record.json was written: its run folder, the fallback folder when that
+    # could not be written (procedures.record.save_record_anywhere), None when nowhere
+    record_files: dict[int, Path | None] = field(default_factory=dict)
     station_time_s: float = 0.0
     wall_time_s: float = 0.0
 
@@ -364,6 +375,7 @@ class UutRunner:
         instrument is touched; UserError says what to fix."""
         self.check_link_speed()
         self.check_safe_settings()
+        check_output_folder(self.out, self.settings.settings.min_free_space_mb)
         if not duts:
             raise UserError("no part given: scan at least one serial (--dut SERIAL)")
         n_sockets = self.settings.settings.instruments.fixture.sockets
@@ -560,7 +572,12 @@ class UutRunner:
             self._state = "running"
             counts = opened.bench.table.counts_per_rev() if opened.bench.table else None
             for sock, serial in sorted(duts.items()):
-                parts.append(self._new_part(sock, serial, counts))
+                try:
+                    parts.append(self._new_part(sock, serial, counts))
+                except OSError as exc:  # the disk filled or went read-only since validate
+                    raise UserError(
+                        f"{os_error_text(exc)}; free space or choose another --out"
+                    ) from None
             unscanned, unknown = self._unscanned_parts(opened.bench.clock, set(duts))
             if unscanned:
                 for part in parts:
@@ -581,6 +598,8 @@ class UutRunner:
                 release(part.folder)
         result = UutResult(folders={p.socket: p.folder for p in parts})
         for part in parts:
+            if "record_file" in part.extra:  # where the record went (None: nowhere)
+                result.record_files[part.socket] = part.extra["record_file"]
             result.verdicts[part.socket] = part.record.verdict
             result.reasons[part.socket] = part.record.reason
             cert = self._certificate(part.folder)
@@ -681,9 +700,15 @@ class UutRunner:
         self._engine = engine
         engine.run()
         for part in parts:
-            if (part.folder / RAW_DATA_FILE).exists() and part.record.raw_data is not None:
-                part.record.raw_data.sha256 = file_sha256(part.folder / RAW_DATA_FILE)
-                write_record(part.folder, part.record)
+            kept = part.writer is None or part.writer.failure is None
+            raw = part.folder / RAW_DATA_FILE
+            if kept and raw.exists() and part.record.raw_data is not None:
+                try:
+                    part.record.raw_data.sha256 = file_sha256(raw)
+                except OSError as exc:
+                    log.error("cannot hash %s: %s", raw, exc.strerror or exc)
+                    continue
+                part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
         with self._lock:
             self._ctx = None
 
@@ -703,8 +728,11 @@ class UutRunner:
                 )
             )
             if part.writer is not None:
-                part.writer.close()
-            write_record(part.folder, part.record)
+                try:
+                    part.writer.close()
+                except OSError as exc:
+                    log.error("%s", exc)
+            part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
 
     def _new_part(self, sock: int, serial: str, counts_per_rev: int | None) -> PartRun:
         folder = create_run_folder(self.out, serial)

@@ -23,6 +23,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from drivers.csv_rows import check_csv_file, shown
 from procedures.model.trajectory import SEGMENT_KINDS, FloatArray, Segment, Trajectory
 
 CSV_COLUMNS = ("time_s", "gyro_dps", "ref_rate_dps", "ref_angle_deg", "temp_c", "supply_v")
@@ -188,6 +189,7 @@ def load_csv(path: Path) -> Trajectory:
         raise ValueError(f"{path}: file not found")
     if path.is_dir():
         raise ValueError(f"{path}: is a folder; give a CSV file")
+    check_csv_file(path)  # a regular file of bounded size (a device never ends)
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
             return _read_csv(path, fh)
@@ -250,6 +252,12 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
         lineno = header_line + reader.line_num
         if not any(f.strip() for f in row):
             continue  # blank line, or a spreadsheet's empty row
+        short_of_pinned = any(i >= len(row) for i in index.values())  # named below
+        if len(row) != len(fields) and not short_of_pinned:
+            raise ValueError(
+                f"{path}:{lineno}: {len(row):,} columns, but the header has {len(fields)}; "
+                "every row needs one value per header column"
+            )
         for c, i in index.items():
             text = row[i] if i < len(row) else None
             try:
@@ -262,12 +270,12 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
                         "the row"
                     ) from None
                 raise ValueError(
-                    f"{path}: line {lineno}: column {c} is {text!r}, not a number"
+                    f"{path}: line {lineno}: column {c} is {shown(text)}, not a number"
                 ) from None
             if not math.isfinite(value):
                 raise ValueError(
-                    f"{path}: line {lineno}: column {c} is {text!r}, not a finite number; "
-                    "remove the row or give the measured value"
+                    f"{path}: line {lineno}: column {c} is {shown(str(text))}, not a finite "
+                    "number; remove the row or give the measured value"
                 )
             if abs(value) > MAX_ABS_VALUE:
                 raise ValueError(
@@ -282,7 +290,7 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
                 close = difflib.get_close_matches(kind, SEGMENT_KINDS, n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 raise ValueError(
-                    f"{path}: line {lineno}: column segment_kind is {kind!r}, not a window "
+                    f"{path}: line {lineno}: column segment_kind is {shown(kind)}, not a window "
                     f"kind{hint}; allowed: {', '.join(SEGMENT_KINDS)}, or empty for a "
                     "transition"
                 )
