@@ -66,6 +66,7 @@ from station import __version__, preflight
 from station import instruments as roles
 from station.bench_clock import station_clock
 from station.errors import UserError
+from station.instrument_lock import InstrumentLock, lock_instruments
 from station.run_folder import create_run_folder, recover_crashed_runs, release, validate_serial
 from station.settings import LoadedSettings
 
@@ -445,7 +446,8 @@ class UutRunner:
         START): UserError, one line per problem, nothing written."""
         duts = self.validate(duts)
         self.check_ports(duts)
-        self.connect(sorted(duts)).close()
+        with self.lock_instruments():  # another process's instruments are not even asked
+            self.connect(sorted(duts)).close()
         return duts
 
     def fixture_ports(self) -> dict[int, str]:
@@ -527,11 +529,36 @@ class UutRunner:
     # ------------------------------------------------------------ one cycle
 
     def run(self, duts: dict[int, str]) -> UutResult:
-        """Validate, open the instruments and check the procedure against them (nothing is
-        written if any check fails), create run folders, run the procedure, certificates,
-        results database."""
+        """Validate, lock the instruments against any other station process (refused in one
+        line when one holds them), open them and check the procedure against them (nothing
+        is written if any check fails), create run folders, run the procedure,
+        certificates, results database."""
         duts = self.validate(duts)
         self.check_ports(duts)
+        lock = self.lock_instruments()
+        try:
+            return self._run_locked(duts)
+        finally:
+            lock.release()
+
+    def lock_instruments(self) -> InstrumentLock:
+        """OS locks on every instrument a run of this station drives: the roles' addresses
+        and every fixture port (the run asks the unscanned sockets too); InstrumentsBusy,
+        one line, when another process holds one (station/instrument_lock.py)."""
+        pairs: list[tuple[str, str]] = []
+        for role in roles.station_roles(self.needs_table):
+            plan = roles.plan_role(self.settings, role, self.endpoints)
+            if plan is None:
+                continue
+            ports = plan.settings.get("ports") or {}
+            addresses = [str(a) for a in ports.values()] or [plan.address]
+            pairs += [(a, f"{plan.label} at {a}") for a in addresses if a]
+        for sock, port in sorted(self.fixture_ports().items()):
+            if port:
+                pairs.append((port, f"fixture of socket {sock} at {port}"))
+        return lock_instruments(pairs)
+
+    def _run_locked(self, duts: dict[int, str]) -> UutResult:
         self._engine = None
         wall0 = dt.datetime.now(dt.UTC)
         self.recover()
