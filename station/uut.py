@@ -36,7 +36,14 @@ from drivers.fixture_protocol import (
     SAMPLE_FRAME_SIZE,
     sample_stream_baud,
 )
-from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
+from drivers.protocols import (
+    Chamber,
+    InstrumentIdentity,
+    PartLink,
+    RateTable,
+    StreamReadsBackSafe,
+    Supply,
+)
 from procedures.config import (
     ConfigError,
     ProcedureConfig,
@@ -623,6 +630,7 @@ class UutRunner:
                 )
                 if link.part_present():
                     present.append(sock)
+                _stop_stream(link, sock)  # a crashed run may have left it streaming
             except (InstrumentError, OSError) as exc:
                 unknown.append(
                     f"socket {sock} (not scanned) could not be asked whether it holds a part "
@@ -820,6 +828,19 @@ class UutRunner:
                 db.add_run(folder, read_record(folder))
         except Exception as exc:
             log.error("results database: could not record crashed runs: %s", exc)
+
+
+def _stop_stream(link: PartLink, sock: int) -> None:
+    """STOP an unscanned socket's stream and read it back (logged when it does not stop: the
+    run never configures that socket, so it goes on)."""
+    try:
+        link.stop_stream()
+        back = link.check_stream_stopped() if isinstance(link, StreamReadsBackSafe) else None
+    except (InstrumentError, OSError) as exc:
+        log.warning("socket %d (not scanned): could not stop its stream: %s", sock, exc)
+        return
+    if back is not None and not back.safe:
+        log.warning("socket %d (not scanned): its stream did not stop: %s", sock, back.detail)
 
 
 def procedure_product(
