@@ -116,9 +116,10 @@ def crash_cells(steps: list[str] | None) -> int:
             except cc.CellFailed as exc:
                 print(f"kill -9 in {step:15s} NOT RUN: {str(exc).splitlines()[0]}", flush=True)
                 continue
-            results.append(cell)
-            print(_crash_line(cell), flush=True)
-    ok = [c for c in results if _crash_correct(c)]
+            correct = _crash_correct(cell)  # reads the run folders while they exist
+            results.append((cell, correct))
+            print(_crash_line(cell) + f" correct={correct}", flush=True)
+    ok = [c for c, correct in results if correct]
     print(f"\ncrash cells in lockstep: {len(chosen)} cells ({time.monotonic() - wall0:.0f} s "
           f"wall)")
     print(f"  correct (bench safe when power_identify began, crashed run recovered, new run "
@@ -144,12 +145,13 @@ def _crash_line(c: CrashCell) -> str:
     found = c.found
     left = (f"left: table {found['table']['rate_dps']:.0f} deg/s "
             f"{'enabled' if found['table']['enabled'] else 'disabled'}, supply "
-            f"{'on' if found['supply']['output'] else 'off'}, stream "
+            f"{'on' if found['supply']['output'] else 'off'}, chamber "
+            f"{found['chamber']['setpoint_c']:g} C, stream "
             f"{'on' if found['sockets']['1']['stream_enabled'] else 'off'}")
     t = "-" if c.kill_to_safe_station_s is None else f"{c.kill_to_safe_station_s:.1f}"
     w = "-" if c.kill_to_safe_wall_s is None else f"{c.kill_to_safe_wall_s:.1f}"
     safe = c.at_power.get("safe", {}).get("all")
-    return (f"kill -9 in {c.step:15s} {left:55s} next run exit {c.code} safe at power_identify="
+    return (f"kill -9 in {c.step:15s} {left:70s} next run exit {c.code} safe at power_identify="
             f"{safe!s:5s} kill->safe {t:>5s} s station {w:>5s} s wall ({c.wall_s:.0f} wall s)")
 
 
