@@ -32,11 +32,11 @@ SERIAL = "SIM-0001"
 SAFE_TEMP_C = 25.0  # short.yaml's chamber.safe_temp_c
 START_SAFE_EVENT = "safe before the first step"
 
-# step -> station s into it when the run is frozen and killed ('' = program: after its first
-# calibration write, the step takes no station time)
+# step[#N: its Nth beginning] -> station s into it when the run is frozen and killed ('' =
+# program: after its first calibration write, the step takes no station time)
 KILL_POINTS = {
     "power_identify": "1.0",  # supply on, settling
-    "thermal": "10",  # chamber running to its condition, streams on
+    "thermal#3": "10",  # the chamber on its way from 25 to 35 C, streams on
     "bias": "5",
     "rate_table": "15",  # the table at a plateau
     "stop_method": "6",
@@ -164,7 +164,7 @@ def run_crash_cell(step: str, folder: Path) -> CrashCell:
         crashed = station_run(folder, state, out, folder / "crashed.jsonl",
                               "--freeze-at", f"{step}:{KILL_POINTS[step]}")
         frozen = wait_mark(folder / "crashed.jsonl", "frozen", crashed)
-        if frozen["frozen"] != step:
+        if frozen["frozen"] != step.partition("#")[0]:
             raise CellFailed(f"frozen in {frozen['frozen']}, not {step}")
         crashed.kill()  # SIGKILL: no handler, no safe state, no record written
         killed_utc = dt.datetime.now(dt.UTC)

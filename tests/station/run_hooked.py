@@ -5,7 +5,8 @@
 
 The real station CLI runs unchanged; the hooks only watch it:
 
---freeze-at STEP:SECONDS  when the lockstep clock passes SECONDS station s into STEP (for the
+--freeze-at STEP[#N]:SECONDS  when the lockstep clock passes SECONDS station s into STEP (its
+    Nth beginning, one per condition; the first by default) (for the
     program step, which takes no station time: right after its first calibration write), write
     {"frozen": STEP, ...} to MARKS_FILE and block the run there for good. In lockstep the bench's
     world moves only when the station asks, so the bench stays exactly as it was mid-step (the
@@ -40,6 +41,8 @@ def install(
     from station import uut
 
     step_name, _, seconds = (freeze_at or "").partition(":")
+    step_name, _, nth = step_name.partition("#")  # STEP#N: the Nth time STEP begins
+    begun: dict[str, int] = {}
     state: dict[str, Any] = {"step": ""}
 
     def freeze(why: str) -> None:
@@ -62,13 +65,15 @@ def install(
             if ev.kind != "step" or ev.step == state["step"]:
                 return
             state["step"] = ev.step
+            begun[ev.step] = begun.get(ev.step, 0) + 1
             if truth_at and ev.step == truth_at and "truth" not in state:
                 from drivers.sim.control_client import ControlClient
 
                 with ControlClient(self.endpoints.control) as control:
                     state["truth"] = control.truth()
                 _mark(marks, truth=state["truth"], step=ev.step)
-            if step_name and ev.step == step_name and seconds and "at" not in armed:
+            if (step_name and ev.step == step_name and seconds and "at" not in armed
+                    and begun[ev.step] == int(nth or 1)):
                 armed["at"] = clock.now_s() + float(seconds)
 
         def waiter(t_s: float, reply: Any) -> None:

@@ -51,6 +51,8 @@ def test_kill9_mid_step_then_the_next_run_starts_safe_and_passes(
     assert found["supply"]["output"] is True, found["supply"]
     if step not in ("power_identify", "program"):  # program writes with the stream stopped
         assert found["sockets"]["1"]["stream_enabled"] is True
+    if step.startswith("thermal"):  # on its way to the next condition's temperature
+        assert found["chamber"]["setpoint_c"] != pytest.approx(SAFE_TEMP_C)
     if step in TABLE_TURNING:
         assert found["table"]["enabled"] and abs(found["table"]["rate_dps"]) > 1.0
     assert cell.crashed_folder is not None
