@@ -21,6 +21,15 @@ seconds (the signal to the bench's own truth all safe), and to the process's exi
 
     python3 benchmarks/bench_faults.py --signals [--quick] [--commands run ui]
         [--phases PHASE ...] [--kinds SIGTERM ...]
+
+`--crashes` runs the crash cells instead (tests/station/crash_cells.py): a real `station run`
+on a bench of its own process, killed with -9 mid-step (each step, or those of --steps), then a
+new `station run` on that bench; it prints the time from the kill to the new run's safe state
+before its first step (every instrument read back safe): station seconds (the bench in
+lockstep stands still between the two runs, so these are the seconds the pass itself takes,
+chiefly the table braking) and wall seconds (with the new process's start), median and max.
+
+    python3 benchmarks/bench_faults.py --crashes [--steps STEP ...]
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -40,6 +50,9 @@ import fault_grid  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "tests" / "station"))
 import signal_grid  # noqa: E402
+
+if TYPE_CHECKING:
+    from tests.station.crash_cells import CrashCell
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,9 +66,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--commands", nargs="*", default=None, help="with --signals: run, ui")
     ap.add_argument("--phases", nargs="*", default=None, help="with --signals: phases to run")
     ap.add_argument("--kinds", nargs="*", default=None, help="with --signals: signal kinds")
+    ap.add_argument("--crashes", action="store_true",
+                    help="kill -9 cells: crash mid-step, then the next start's safe state")
     args = ap.parse_args(argv)
     if args.signals:
         return signal_main(args)
+    if args.crashes:
+        return crash_cells(args.steps)
     cells = list(fault_grid.REPRESENTATIVE) if args.quick else fault_grid.grid_cells()
     if args.only:
         cells = [c for c in cells if c[0] in args.only]
@@ -159,6 +176,60 @@ def _signal_figures(kind: str, cells: list[signal_grid.SignalCell]) -> str:
         if got:
             parts.append(f"{label} median {statistics.median(got):.2f} max {max(got):.2f}")
     return "; ".join(parts)
+
+
+def crash_cells(steps: list[str] | None) -> int:
+    """kill -9 mid-step, then a new run on the same bench: one line per cell, then the time
+    from the kill to the new run's read-back safe state (station and wall s, median and max)."""
+    from tests.station import crash_cells as cc
+
+    chosen = [s for s in cc.KILL_POINTS if not steps or s in steps]
+    results = []
+    wall0 = time.monotonic()
+    with tempfile.TemporaryDirectory() as tmp:
+        for step in chosen:
+            try:
+                cell = cc.run_crash_cell(step, Path(tmp) / step)
+            except cc.CellFailed as exc:
+                print(f"kill -9 in {step:15s} NOT RUN: {str(exc).splitlines()[0]}", flush=True)
+                continue
+            correct = _crash_correct(cell)  # reads the run folders while they exist
+            results.append((cell, correct))
+            print(_crash_line(cell) + f" correct={correct}", flush=True)
+    ok = [c for c, correct in results if correct]
+    print(f"\ncrash cells in lockstep: {len(chosen)} cells ({time.monotonic() - wall0:.0f} s "
+          f"wall)")
+    print(f"  correct (bench safe when power_identify began, crashed run recovered, new run "
+          f"PASS): {len(ok)}/{len(chosen)}")
+    station = [c.kill_to_safe_station_s for c in ok if c.kill_to_safe_station_s is not None]
+    wall = [c.kill_to_safe_wall_s for c in ok if c.kill_to_safe_wall_s is not None]
+    if station and wall:
+        print(f"  kill -9 -> safe state at the next start: median {statistics.median(station):.1f}"
+              f" s, max {max(station):.1f} s station; median {statistics.median(wall):.1f} s, "
+              f"max {max(wall):.1f} s wall ({len(wall)} cells)")
+    return 0 if len(ok) == len(chosen) else 1
+
+
+def _crash_correct(c: CrashCell) -> bool:
+    from procedures.record import Verdict, read_record
+
+    if c.code != 0 or not c.at_power.get("safe", {}).get("all") or c.crashed_folder is None:
+        return False
+    return read_record(c.crashed_folder).verdict is Verdict.ERROR
+
+
+def _crash_line(c: CrashCell) -> str:
+    found = c.found
+    left = (f"left: table {found['table']['rate_dps']:.0f} deg/s "
+            f"{'enabled' if found['table']['enabled'] else 'disabled'}, supply "
+            f"{'on' if found['supply']['output'] else 'off'}, chamber "
+            f"{found['chamber']['setpoint_c']:g} C, stream "
+            f"{'on' if found['sockets']['1']['stream_enabled'] else 'off'}")
+    t = "-" if c.kill_to_safe_station_s is None else f"{c.kill_to_safe_station_s:.1f}"
+    w = "-" if c.kill_to_safe_wall_s is None else f"{c.kill_to_safe_wall_s:.1f}"
+    safe = c.at_power.get("safe", {}).get("all")
+    return (f"kill -9 in {c.step:15s} {left:70s} next run exit {c.code} safe at power_identify="
+            f"{safe!s:5s} kill->safe {t:>5s} s station {w:>5s} s wall ({c.wall_s:.0f} wall s)")
 
 
 if __name__ == "__main__":

@@ -126,6 +126,9 @@ class Command:
     OUTPUT_RATE = "ODR {hz:d}"  # -> OK         | ERR 3 rate not supported
     START = "START"  # -> OK, then sample frames
     STOP = "STOP"  # -> OK after the last sample frame
+    # -> OK 1 from START to STOP (whether or not the part is powered and sending) | OK 0;
+    # firmware before 1.5 answers ERR 2 (the host then relies on STOP's OK)
+    STREAM_STATE = "STREAM?"
     # CAL? -> OK bias=.. scale=.. bias_tc=.. scale_tc=.. bias_vc=.. scale_vc=.. t0=.. v0=..
     CAL_READ = "CAL?"
     CAL_WRITE = "CAL {assignments}"  # key=value pairs as CAL? gives them -> OK | ERR 4 ...

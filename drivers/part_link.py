@@ -47,6 +47,7 @@ from drivers.protocols import (
     CalibrationRegisters3,
     InstrumentIdentity,
     LinkStats,
+    SafeReadback,
     SampleBlock,
 )
 from drivers.scpi import SerialLike, open_serial
@@ -573,8 +574,26 @@ class SerialPartLink:
             self._last_frame_s = self._clock.now_s()
 
     def stop_stream(self) -> None:
+        """STOP whatever this link believes (a stream another process started is stopped too:
+        STOP while stopped answers OK)."""
         self._streaming = False
         self.command(Command.STOP)
+
+    def check_stream_stopped(self) -> SafeReadback:
+        """The fixture's own stream state (`STREAM?`). Firmware that does not know the query
+        (ERR 2) is asked `STOP` again: its OK says that no sample frame follows."""
+        try:
+            reply = self.command(Command.STREAM_STATE).strip()
+        except FixtureRefused as exc:
+            if exc.code != ReplyError.UNKNOWN_COMMAND:
+                raise
+            self.command(Command.STOP)
+            return SafeReadback(True, "STOP answered OK (this fixture cannot report its stream)")
+        if reply not in ("0", "1"):
+            raise ProtocolError(f"STREAM? answered {reply!r}, not 0 or 1", instrument=self.name)
+        if reply == "1":
+            return SafeReadback(False, "the fixture reports its stream still started (STREAM? 1)")
+        return SafeReadback(True, "stream stopped (STREAM? 0)")
 
     def _take(self) -> SampleBlock:
         with self._lock:

@@ -430,6 +430,14 @@ class ChamberReadsBackSafe(Protocol):
 
 
 @runtime_checkable
+class StreamReadsBackSafe(Protocol):
+    """A part link that can read back from its fixture whether the sample stream is stopped
+    (the fixture's own state: a stream a crashed station started is still started)."""
+
+    def check_stream_stopped(self) -> SafeReadback: ...
+
+
+@runtime_checkable
 class Reconnectable(Protocol):
     """A driver that can drop its connection and open a new one, optionally with a longer
     reply timeout (wall seconds) for a slow link."""

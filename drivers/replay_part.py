@@ -47,7 +47,13 @@ from drivers.errors import ConnectionLost, PartSilent
 from drivers.fixture_protocol import OUTPUT_RATES_HZ, ReplyError, SampleStatus
 from drivers.part_codes import CodeFormat
 from drivers.part_link import FixtureRefused
-from drivers.protocols import CalibrationRegisters, InstrumentIdentity, LinkStats, SampleBlock
+from drivers.protocols import (
+    CalibrationRegisters,
+    InstrumentIdentity,
+    LinkStats,
+    SafeReadback,
+    SampleBlock,
+)
 from drivers.replay_source import Recording, RecordingError, load_recording
 
 log = logging.getLogger(__name__)
@@ -263,6 +269,11 @@ class ReplayPartLink:
             if self._streaming:
                 self._held.append(self._due(self._clock.now_s()))
             self._streaming = False
+
+    def check_stream_stopped(self) -> SafeReadback:
+        with self._lock:
+            streaming = self._streaming
+        return SafeReadback(not streaming, "stream started" if streaming else "stream stopped")
 
     def read_samples(self, max_wait_s: float = 0.0) -> SampleBlock:
         self._check_open()

@@ -44,6 +44,7 @@ from procedures.safe_state import (
     SafeStateReport,
     SafeTarget,
     chamber_target,
+    streams_target,
     supply_target,
     table_target,
 )
@@ -91,6 +92,11 @@ def finalize(cleanup: Callable[[], None]) -> Iterator[None]:
 RETRYABLE = (InstrumentTimeout, StepTimeout)
 
 
+class BenchNotSafe(Exception):  # noqa: N818 - a state, like Aborted
+    """The bench could not be made safe before the first step (the message says which
+    instrument and what it read back)."""
+
+
 class Engine:
     """Runs a plan of steps for every loaded part; see the module docstring."""
 
@@ -126,6 +132,7 @@ class Engine:
             acquisition.__enter__()
             step_name = ""
             try:
+                self._start_safe()
                 for step, estimate in zip(self.steps, estimates, strict=True):
                     if not ctx.parts.alive():
                         break
@@ -139,6 +146,8 @@ class Engine:
                 )
             except NoPartsLeft:
                 pass
+            except BenchNotSafe as exc:
+                run_error = (Verdict.ERROR, str(exc))
             except StepTimeout as exc:
                 run_error = (Verdict.ERROR, str(exc))
             except InstrumentError as exc:
@@ -214,19 +223,59 @@ class Engine:
                 if d.name not in made:
                     ctx.records.not_measured(part, d.name, d.units, step.condition or None)
 
+    # ------------------------------------------------------------ the safe start
+
+    def _start_safe(self) -> None:
+        """Before the first step, the bench is made safe whatever state it was found in (a
+        crashed run may have left the table turning, the supply on and the fixtures
+        streaming): the same pass as at the end, each instrument read back. A bench that
+        cannot be made safe ends the run before any step, as ERROR."""
+        ctx = self.ctx
+        targets = self._safe_targets(None)
+        try:
+            report = SafeStatePass(targets, ctx.wait.clock, self.safe_state_policy).run()
+        except Exception as exc:  # a bug here must not start a run on an unknown bench
+            log.exception("the safe-state pass before the first step failed")
+            raise BenchNotSafe(
+                f"internal error making the bench safe before the first step: {exc}; "
+                "report this with the run folder"
+            ) from exc
+        report.safe_temp_c = ctx.procedure.chamber.safe_temp_c
+        for part in ctx.parts:
+            part.record.analysis["start_safe_state"] = report.as_record()
+        for state in report.instruments.values():
+            if state.safe:
+                ctx.records.event(f"safe before the first step: {state.label} ({state.detail})")
+            else:
+                ctx.records.event(
+                    f"NOT SAFE before the first step: {state.label}: {state.detail}",
+                    level="ERROR",
+                )
+        if not report.all_safe:
+            raise BenchNotSafe(
+                "the bench could not be made safe before the first step, nothing was run: "
+                + report.failure_text()
+            )
+
+    def _safe_targets(self, before_streams: Callable[[], None] | None) -> list[SafeTarget]:
+        """Table, streams (`before_streams` first: the station's own), supply, chamber."""
+        bench, ctx = self.ctx.bench, self.ctx
+        targets: list[SafeTarget] = []
+        if bench.table is not None:
+            targets.append(table_target(bench.table))
+        targets.append(streams_target(bench.links, before_streams))
+        targets.append(supply_target(bench.supply))
+        targets.append(chamber_target(bench.chamber, ctx.procedure.chamber.safe_temp_c))
+        return targets
+
     # ------------------------------------------------------------ the guaranteed end
 
     def _safe_state(self, acquisition: Acquisition) -> SafeStateReport:
         """Table to rest, streams stopped, supply off, chamber to its safe setpoint: each
         read back from the instrument itself, retried until safe or the deadline passes."""
-        bench, ctx = self.ctx.bench, self.ctx
+        ctx = self.ctx
         safe_temp_c = ctx.procedure.chamber.safe_temp_c
-        targets: list[SafeTarget] = []
-        if bench.table is not None:
-            targets.append(table_target(bench.table))
-        targets.append(SafeTarget("streams", acquisition.close, retry=False))
-        targets.append(supply_target(bench.supply))
-        targets.append(chamber_target(bench.chamber, safe_temp_c))
+        targets = self._safe_targets(acquisition.close)
         try:
             report = SafeStatePass(targets, ctx.wait.clock, self.safe_state_policy).run()
         except Exception as exc:  # a bug here must still end in a record that says so

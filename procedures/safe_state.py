@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -28,6 +28,7 @@ from drivers.protocols import (
     ReadsBackSafe,
     Reconnectable,
     SafeReadback,
+    StreamReadsBackSafe,
 )
 
 log = logging.getLogger(__name__)
@@ -157,6 +158,50 @@ def _table_readback(table: Any) -> Callable[[], SafeReadback] | None:
         return SafeReadback(safe, f"rate {s.rate_dps:.3f} deg/s, enabled {s.enabled}")
 
     return readback
+
+
+def streams_target(
+    links: Mapping[int, Any], before: Callable[[], None] | None = None
+) -> SafeTarget:
+    """Every socket's sample stream stopped: the station's own streams drained first
+    (`before`), then STOP to every fixture whatever the station believes (a stream that a
+    crashed station started is still started, and a fixture refuses any configuration while
+    it streams), each read back from the fixture itself (`check_stream_stopped`)."""
+    stop_failed: dict[int, str] = {}
+
+    def command() -> None:
+        stop_failed.clear()
+        if before is not None:
+            before()
+        for sock, link in sorted(links.items()):
+            try:
+                link.stop_stream()
+            except Exception as exc:  # the others are still stopped; read back says which
+                stop_failed[sock] = f"STOP failed: {type(exc).__name__}: {exc}"
+
+    def readback() -> SafeReadback:
+        details: dict[str, list[int]] = {}
+        safe = True
+        for sock, link in sorted(links.items()):
+            if sock in stop_failed:
+                one = SafeReadback(False, stop_failed[sock])
+            elif isinstance(link, StreamReadsBackSafe):
+                try:
+                    one = link.check_stream_stopped()
+                except Exception as exc:  # a fixture that cannot say is not safe
+                    one = SafeReadback(False, f"{type(exc).__name__}: {exc}")
+            else:
+                one = SafeReadback(True, "STOP sent (this driver cannot read its stream back)")
+            safe = safe and one.safe
+            details.setdefault(one.detail, []).append(sock)
+        text = "; ".join(
+            f"socket{'s' if len(socks) > 1 else ''} {', '.join(map(str, socks))}: {detail}"
+            for detail, socks in details.items()
+        )
+        return SafeReadback(safe, text or "no fixture socket in this run")
+
+    # a fixture that does not answer is not retried: each try costs its reply timeout
+    return SafeTarget("streams", command, readback, retry=False)
 
 
 def supply_target(supply: Any) -> SafeTarget:

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -189,6 +191,39 @@ def _bench_errors() -> Iterator[None]:
         raise UserError(f"the simulated bench did not start: {detail}") from None
 
 
+@dataclasses.dataclass(frozen=True)
+class AttachedBench:
+    """A simulated bench this station did not start (`station bench --state FILE`): it keeps
+    running after the run, whatever becomes of this process."""
+
+    endpoints: Any
+
+
+@contextlib.contextmanager
+def _attached_bench(state: Path) -> Iterator[AttachedBench]:
+    """The bench whose state file `state` is, checked alive before anything else happens."""
+    from drivers.sim.launcher import BenchEndpoints
+
+    try:
+        endpoints = BenchEndpoints.from_state(json.loads(state.read_text(encoding="utf-8")))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UserError(
+            f"--sim-bench {state}: not a bench state file ({exc}); give the file that "
+            "`station bench --state FILE` wrote"
+        ) from None
+    if endpoints.pid:
+        try:
+            os.kill(endpoints.pid, 0)
+        except ProcessLookupError:
+            raise UserError(
+                f"--sim-bench {state}: the bench (pid {endpoints.pid}) is not running; start "
+                "it again with station bench --state"
+            ) from None
+        except PermissionError:
+            pass  # alive, another user's
+    yield AttachedBench(endpoints)
+
+
 def run_cycle(
     args: argparse.Namespace,
     duts: dict[int, str],
@@ -196,6 +231,7 @@ def run_cycle(
     sim: bool,
     sim_config: Any = None,
     speed: float | None = None,
+    sim_bench: Path | None = None,
 ) -> int:
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
     from station.uut import Endpoints, UutRunner
@@ -234,7 +270,9 @@ def run_cycle(
         if problem := speed_problem(speed):
             raise UserError(problem)
     bench_cm: Any = contextlib.nullcontext(None)
-    if sim:
+    if sim_bench is not None:
+        bench_cm = _attached_bench(sim_bench)
+    elif sim:
         from drivers.sim.launcher import launch_bench
 
         bench_cm = launch_bench(
@@ -278,6 +316,13 @@ def run_cycle(
 
 def _run(args: argparse.Namespace) -> int:
     duts = _duts(args.dut)
+    if args.sim_bench:
+        if args.sim_config or args.speed is not None:
+            raise UserError(
+                "--sim-bench runs on a bench already started: its config and speed are that "
+                "bench's; leave out --sim-config and --speed"
+            )
+        return run_cycle(args, duts, sim=True, sim_bench=Path(args.sim_bench))
     sim_path = args.sim_config
     if args.sim and not sim_path:
         try:
@@ -329,6 +374,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "part)",
     )
     r.add_argument("--speed", type=float, help="simulated bench speed factor (with --sim)")
+    r.add_argument(
+        "--sim-bench",
+        metavar="STATE_FILE",
+        help="run on the simulated bench already running as its own process (the state file "
+        "`station bench --state STATE_FILE` wrote) instead of starting one; implies --sim, "
+        "and the bench keeps running after the run",
+    )
     r.add_argument(
         "--out",
         help="output folder for run folders (default: station.yaml's output_folder); an --out "

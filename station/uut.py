@@ -36,7 +36,14 @@ from drivers.fixture_protocol import (
     SAMPLE_FRAME_SIZE,
     sample_stream_baud,
 )
-from drivers.protocols import Chamber, InstrumentIdentity, PartLink, RateTable, Supply
+from drivers.protocols import (
+    Chamber,
+    InstrumentIdentity,
+    PartLink,
+    RateTable,
+    StreamReadsBackSafe,
+    Supply,
+)
 from procedures.config import (
     ConfigError,
     ProcedureConfig,
@@ -69,6 +76,7 @@ from station import __version__, preflight
 from station import instruments as roles
 from station.bench_clock import station_clock
 from station.errors import UserError
+from station.instrument_lock import InstrumentLock, lock_instruments
 from station.run_folder import (
     check_output_folder,
     create_run_folder,
@@ -472,7 +480,8 @@ class UutRunner:
         START): UserError, one line per problem, nothing written."""
         duts = self.validate(duts)
         self.check_ports(duts)
-        self.connect(sorted(duts)).close()
+        with self.lock_instruments():  # another process's instruments are not even asked
+            self.connect(sorted(duts)).close()
         return duts
 
     def fixture_ports(self) -> dict[int, str]:
@@ -558,11 +567,36 @@ class UutRunner:
     # ------------------------------------------------------------ one cycle
 
     def run(self, duts: dict[int, str]) -> UutResult:
-        """Validate, open the instruments and check the procedure against them (nothing is
-        written if any check fails), create run folders, run the procedure, certificates,
-        results database."""
+        """Validate, lock the instruments against any other station process (refused in one
+        line when one holds them), open them and check the procedure against them (nothing
+        is written if any check fails), create run folders, run the procedure,
+        certificates, results database."""
         duts = self.validate(duts)
         self.check_ports(duts)
+        lock = self.lock_instruments()
+        try:
+            return self._run_locked(duts)
+        finally:
+            lock.release()
+
+    def lock_instruments(self) -> InstrumentLock:
+        """OS locks on every instrument a run of this station drives: the roles' addresses
+        and every fixture port (the run asks the unscanned sockets too); InstrumentsBusy,
+        one line, when another process holds one (station/instrument_lock.py)."""
+        pairs: list[tuple[str, str]] = []
+        for role in roles.station_roles(self.needs_table):
+            plan = roles.plan_role(self.settings, role, self.endpoints)
+            if plan is None:
+                continue
+            ports = plan.settings.get("ports") or {}
+            addresses = [str(a) for a in ports.values()] or [plan.address]
+            pairs += [(a, f"{plan.label} at {a}") for a in addresses if a]
+        for sock, port in sorted(self.fixture_ports().items()):
+            if port:
+                pairs.append((port, f"fixture of socket {sock} at {port}"))
+        return lock_instruments(pairs)
+
+    def _run_locked(self, duts: dict[int, str]) -> UutResult:
         self._engine = None
         wall0 = dt.datetime.now(dt.UTC)
         self.recover()
@@ -634,6 +668,7 @@ class UutRunner:
                 )
                 if link.part_present():
                     present.append(sock)
+                _stop_stream(link, sock)  # a crashed run may have left it streaming
             except (InstrumentError, OSError) as exc:
                 unknown.append(
                     f"socket {sock} (not scanned) could not be asked whether it holds a part "
@@ -840,6 +875,19 @@ class UutRunner:
                 db.add_run(folder, read_record(folder))
         except Exception as exc:
             log.error("results database: could not record crashed runs: %s", exc)
+
+
+def _stop_stream(link: PartLink, sock: int) -> None:
+    """STOP an unscanned socket's stream and read it back (logged when it does not stop: the
+    run never configures that socket, so it goes on)."""
+    try:
+        link.stop_stream()
+        back = link.check_stream_stopped() if isinstance(link, StreamReadsBackSafe) else None
+    except (InstrumentError, OSError) as exc:
+        log.warning("socket %d (not scanned): could not stop its stream: %s", sock, exc)
+        return
+    if back is not None and not back.safe:
+        log.warning("socket %d (not scanned): its stream did not stop: %s", sock, back.detail)
 
 
 def procedure_product(

@@ -139,6 +139,8 @@ class FixtureSocket:
         if upper == fp.Command.STOP:
             self.streaming = False
             return "OK"
+        if upper == fp.Command.STREAM_STATE:  # the stream's state, powered part or not
+            return f"OK {int(self.streaming)}"
         part_error = self._part_error()
         three_axis = fixture3.answer(self, text, part_error)  # AXES?, CAL3?, CAL3
         if three_axis is not None:

@@ -34,6 +34,8 @@ class FakeFixture:
         self.go_silent = False
         self.cal_sticky_bias: float | None = None  # a part that does not keep bias
         self.cal_keys: set[str] | None = None  # registers the part holds (None: any written)
+        self.knows_stream_query = False  # STREAM? (older firmware answers ERR 2)
+        self.stop_ignored = False  # a fixture whose STOP says OK and streams on
         self.mangle: Callable[[bytes, int], bytes] | None = None  # (frames, first_seq) -> bytes
         self.sent = 0
         self.wall_streaming_s = 0.0  # START to STOP, wall seconds
@@ -89,6 +91,10 @@ class FakeFixture:
             self.reply("OK")
             self._t_start = time.monotonic()
             self._streaming.set()
+        elif word == "STREAM?" and self.knows_stream_query:
+            self.reply(f"OK {int(self._streaming.is_set())}")
+        elif word == "STOP" and self.stop_ignored:
+            self.reply("OK")
         elif word == "STOP":
             self._streaming.clear()
             with self._wlock:  # wait for the batch in flight to be written

@@ -6,7 +6,9 @@ the bench with the code before the change (tests/data/baseline/make_baseline.py)
 Values are never compared (the bench is noisy); names and keys are. The one key the list
 form adds is `analysis.not_measured` (a declared measurement the run could not set, e.g. a
 bias instability the short record does not resolve, is now NOT_MEASURED on the record); the
-one certificate section added since is the decision rule / standards / ambient section."""
+one certificate section added since is the decision rule / standards / ambient section. Since
+issue 25 a record also keeps `analysis.start_safe_state` (the safe state before the first
+step)."""
 
 from __future__ import annotations
 
@@ -41,6 +43,9 @@ def _compare(procedure: Path, tmp_path: Path, speed: float) -> None:
     # (and marginal_measurements appears only when a value lands in a guard band, which a
     # run on the scaled clock may or may not do: not part of the record's shape)
     conditional = {"not_measured", "marginal_measurements"}
+    # new since the baselines: what the safe-state pass before the first step read back
+    # (docs/safety.md, issue 25)
+    conditional.add("start_safe_state")
     got["analysis_keys"] = [k for k in got["analysis_keys"] if k not in conditional]
     # new since the baselines: the certificate states the decision rule, the reference
     # standards and the ambient conditions (issue 16), whatever the procedure's form

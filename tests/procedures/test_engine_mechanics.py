@@ -91,6 +91,8 @@ def _ctx(tmp_path: Path, n_parts: int = 1, speed: float = 1000.0) -> tuple[RunCo
 
 
 SAFE = ["table.safe_state", "supply.safe_state", "chamber.safe_state"]
+# the bench is made safe before the first step, and again at the end
+SAFE_START_AND_END = SAFE + SAFE
 
 
 def test_pass_path_cleans_up_and_judges(tmp_path: Path) -> None:
@@ -98,7 +100,7 @@ def test_pass_path_cleans_up_and_judges(tmp_path: Path) -> None:
     steps = [Scripted(name="a"), Scripted(name="b")]
     verdicts = Engine(ctx, steps).run()  # type: ignore[arg-type]
     assert verdicts == {1: Verdict.PASS}
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     assert ctx.parts[0].extra["cleanups"] == ["a", "b"]
     rec = read_record(tmp_path / "p1")
     assert (
@@ -116,7 +118,7 @@ def test_instrument_error_ends_in_error_with_cleanup(tmp_path: Path) -> None:
 
     verdicts = Engine(ctx, [Scripted(name="sweep", action=boom), Scripted(name="never")]).run()  # type: ignore[arg-type]
     assert verdicts == {1: Verdict.ERROR}
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     rec = read_record(tmp_path / "p1")
     assert "following error" in rec.reason and "sweep" in rec.reason
     assert "never" not in rec.timings
@@ -129,7 +131,7 @@ def test_bug_in_a_step_still_cleans_up(tmp_path: Path) -> None:
         raise ZeroDivisionError("oops")
 
     assert Engine(ctx, [Scripted(name="x", action=bug)]).run() == {1: Verdict.ERROR}  # type: ignore[arg-type]
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     assert "internal error" in read_record(tmp_path / "p1").reason
 
 
@@ -141,7 +143,7 @@ def test_abort_from_another_thread_stops_a_long_dwell(tmp_path: Path) -> None:
     threading.Timer(0.3, engine.abort, args=("operator pressed abort",)).start()
     verdicts = engine.run()
     assert verdicts == {1: Verdict.ABORTED}
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     assert "operator pressed abort" in read_record(tmp_path / "p1").reason
     assert events[-1].kind == "finished"
 

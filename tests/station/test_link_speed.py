@@ -105,6 +105,9 @@ class _Instrument:
     def part_present(self) -> bool:
         return False
 
+    def stop_stream(self) -> None:  # every socket's stream is stopped at the start
+        pass
+
     def close(self) -> None:
         pass
 

@@ -1,0 +1,63 @@
+"""The OS lock per instrument address (station/instrument_lock.py): a second holder is refused
+in one line naming the instrument and the holder; the kernel frees it when the holder dies."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from station.instrument_lock import InstrumentLock, InstrumentsBusy
+
+ROOT = Path(__file__).resolve().parents[2]
+TABLE = {"127.0.0.1:5020": "rate table at 127.0.0.1:5020"}
+
+
+def test_a_second_holder_is_refused_in_one_line(tmp_path: Path) -> None:
+    with InstrumentLock(TABLE, tmp_path):
+        with pytest.raises(InstrumentsBusy) as caught:
+            InstrumentLock({"/dev/null": "supply", **TABLE}, tmp_path).acquire()
+        text = str(caught.value)
+        assert "\n" not in text
+        assert text.startswith("the rate table at 127.0.0.1:5020 is in use by another station")
+        assert f"pid {os.getpid()}" in text
+        # the refused one kept nothing: the supply it got first is free again
+        InstrumentLock({"/dev/null": "supply"}, tmp_path).acquire().release()
+        InstrumentLock({"127.0.0.1:5021": "another table"}, tmp_path).acquire().release()
+    InstrumentLock(TABLE, tmp_path).acquire().release()  # released with the block
+
+
+def test_one_port_by_two_names_is_one_instrument(tmp_path: Path) -> None:
+    link = tmp_path / "by-id"
+    link.symlink_to("/dev/null")
+    locks = tmp_path / "locks"
+    with (
+        InstrumentLock({"/dev/null": "fixture of socket 1"}, locks),
+        pytest.raises(InstrumentsBusy, match="fixture of socket 1 at by-id"),
+    ):
+        InstrumentLock({str(link): "fixture of socket 1 at by-id"}, locks).acquire()
+
+
+def test_the_kernel_frees_the_lock_of_a_killed_holder(tmp_path: Path) -> None:
+    code = (
+        "import sys, time\n"
+        "from pathlib import Path\n"
+        "from station.instrument_lock import InstrumentLock\n"
+        f"InstrumentLock({TABLE!r}, Path({str(tmp_path)!r})).acquire()\n"
+        "print('held', flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    holder = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE,
+                              text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(InstrumentsBusy, match=f"pid {holder.pid}"):
+            InstrumentLock(TABLE, tmp_path).acquire()
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(10)
+    InstrumentLock(TABLE, tmp_path).acquire().release()  # no stale lock after kill -9

@@ -1,0 +1,114 @@
+"""A station that dies by kill -9 leaves the bench as it was (table turning, supply on, chamber
+away from its handling temperature, fixtures streaming); the next `station run` on that same
+bench recovers the crashed run and makes the bench safe before its first step, then PASSes.
+Two `station run` processes on one bench: the second is refused in one line and touches no
+instrument; the first PASSes. How the cells run: tests/station/crash_cells.py.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from procedures.record import Verdict, read_record
+from station.manifest import Status, verify_folder
+from tests.station.crash_cells import (
+    KILL_POINTS,
+    SAFE_TEMP_C,
+    SERIAL,
+    START_SAFE_EVENT,
+    bench_process,
+    finish,
+    run_crash_cell,
+    station_run,
+    truth,
+    wait_mark,
+)
+
+pytestmark = pytest.mark.slow
+TABLE_TURNING = ("rate_table", "verify")
+
+
+def _cells() -> list[Any]:
+    # one representative cell in the default run (the finding: the table still turning at
+    # 200 deg/s and the fixture streaming); the others in the station grid
+    return [
+        pytest.param(step, marks=() if step == "rate_table" else pytest.mark.station_grid)
+        for step in KILL_POINTS
+    ]
+
+
+@pytest.mark.parametrize("step", _cells())
+def test_kill9_mid_step_then_the_next_run_starts_safe_and_passes(
+    tmp_path: Path, step: str
+) -> None:
+    cell = run_crash_cell(step, tmp_path)
+    assert cell.killed_code == -9
+    found = cell.found
+    # the bench as the dead station left it: not safe (else the cell proves nothing)
+    assert found["supply"]["output"] is True, found["supply"]
+    if step not in ("power_identify", "program"):  # program writes with the stream stopped
+        assert found["sockets"]["1"]["stream_enabled"] is True
+    if step.startswith("thermal"):  # on its way to the next condition's temperature
+        assert found["chamber"]["setpoint_c"] != pytest.approx(SAFE_TEMP_C)
+    if step in TABLE_TURNING:
+        assert found["table"]["enabled"] and abs(found["table"]["rate_dps"]) > 1.0
+    assert cell.crashed_folder is not None
+
+    assert cell.code == 0, cell.stdout + cell.stderr
+    assert f"socket 1 {SERIAL}: PASS" in cell.stdout
+    # the bench's own truth when the new run's power_identify began: safe, streams stopped
+    at_power = cell.at_power
+    assert at_power["safe"]["all"], at_power["safe"]
+    assert at_power["table"]["enabled"] is False and abs(at_power["table"]["rate_dps"]) < 1e-6
+    assert at_power["supply"]["output"] is False
+    assert at_power["chamber"]["setpoint_c"] == pytest.approx(SAFE_TEMP_C)
+    assert not any(s["stream_enabled"] for s in at_power["sockets"].values())
+    # the crashed run: recovered (ERROR, naming the crash), sealed, no lock left
+    crashed = read_record(cell.crashed_folder)
+    assert crashed.verdict is Verdict.ERROR
+    assert "stopped during the run" in crashed.reason
+    assert not (cell.crashed_folder / ".running").exists()
+    assert verify_folder(cell.crashed_folder).status is Status.INTACT
+    # the new run says what it found and read back before its first step
+    assert cell.new_folder is not None
+    start = read_record(cell.new_folder).analysis["start_safe_state"]
+    assert start["all_safe"], start
+    assert "STREAM? 0" in start["instruments"]["streams"]["detail"]
+    assert cell.kill_to_safe_station_s is not None and cell.kill_to_safe_wall_s is not None
+
+
+def test_two_station_runs_on_one_bench_the_second_is_refused(tmp_path: Path) -> None:
+    out_first, out_second = tmp_path / "first", tmp_path / "second"
+    release = tmp_path / "release"
+    with bench_process(tmp_path) as state:
+        first = station_run(
+            tmp_path, state, out_first, tmp_path / "first.jsonl",
+            "--freeze-at", "thermal:5", "--until", str(release),
+        )
+        wait_mark(tmp_path / "first.jsonl", "frozen", first)  # mid-run, holding the bench
+        before = truth(state)["modbus"]
+        code, stdout, stderr = finish(
+            station_run(tmp_path, state, out_second, tmp_path / "second.jsonl"), 60
+        )
+        after = truth(state)["modbus"]
+        release.touch()
+        first_code, first_out, first_err = finish(first)
+
+    assert code == 2, stdout + stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in stderr, stderr
+    assert "in use by another station process" in lines[0] and f"pid {first.pid}" in lines[0]
+    # the second never touched an instrument nor wrote a run
+    assert after["table"]["requests"] == before["table"]["requests"]
+    assert after["chamber"]["requests"] == before["chamber"]["requests"]
+    assert not list(out_second.glob(f"*_{SERIAL}"))
+    # the first was unaffected
+    assert first_code == 0, first_out + first_err
+    (folder,) = list(out_first.glob(f"*_{SERIAL}"))
+    record = read_record(folder)
+    assert record.verdict is Verdict.PASS
+    starts = [e for e in record.events if e.message.startswith(START_SAFE_EVENT)]
+    assert len(starts) == 4  # table, streams, supply, chamber: its own pass, once
