@@ -203,6 +203,16 @@ class DieState:
         return self.heat_final_c + (self.heat_c - self.heat_final_c) * decay
 
 
+def steady_die_c(
+    setpoint_c: float, supply_v: float, current_a: float, c_per_w: float | None
+) -> float:
+    """Where a part's die settles with the air at `setpoint_c`: the air plus its self-heating,
+    the product's C/W times the power it draws (`supply_v` x `current_a`). Every thermal
+    strategy ends a condition there (an overshoot is planned within the part's limits around
+    it), so it is what the pre-flight checks; without a C/W only the air is known."""
+    return setpoint_c + (c_per_w or 0.0) * supply_v * max(current_a, 0.0)
+
+
 def _lag(x: NDArray[np.float64], k: float, y0: NDArray[np.float64] | float) -> NDArray[np.float64]:
     """y[i+1] = y[i] + (mean(x[i], x[i+1]) - y[i]) * k along the last axis, y[0] = y0: a
     first-order lag driven by a piecewise-linear input (exact for the bench's chamber step)."""

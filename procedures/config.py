@@ -285,8 +285,14 @@ class ProductConfig(_Strict):
         "the starting value the fastest thermal strategy learns from each part's own sensor"
     )
     max_part_temperature_c: ChamberTemp | None = Field(
-        None, description="highest temperature the part may see, C (the fastest thermal "
-        "strategy's overshoot stays below it); default: the chamber's limits only"
+        None, description="highest temperature the part may see, C: the pre-flight refuses a "
+        "condition whose die, self-heating included, is predicted above it, and the fastest "
+        "thermal strategy's overshoot stays below it; default: the chamber's limits only"
+    )
+    min_part_temperature_c: ChamberTemp | None = Field(
+        None, description="lowest temperature the part may see, C (the pre-flight refuses a "
+        "colder condition; the fastest strategy's undershoot stays above it); default: the "
+        "chamber's limits only"
     )
     self_heating_c_per_w: float | None = Field(
         None, ge=0, le=1e4, description="die temperature rise per watt the part draws, C/W "
@@ -317,6 +323,16 @@ class ProductConfig(_Strict):
         except re.error as exc:
             raise ValueError(f"not a valid regular expression ({exc})") from exc
         return value
+
+    @model_validator(mode="after")
+    def _part_temperature_range(self) -> ProductConfig:
+        low, high = self.min_part_temperature_c, self.max_part_temperature_c
+        if low is not None and high is not None and low >= high:
+            raise ValueError(
+                f"min_part_temperature_c {low:g} C must be below max_part_temperature_c "
+                f"{high:g} C"
+            )
+        return self
 
     @model_validator(mode="after")
     def _codes_cover_range(self) -> ProductConfig:
