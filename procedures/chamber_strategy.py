@@ -284,6 +284,30 @@ def settled_from_s(
     return np.where(any_bad, after, ends[0])
 
 
+def straight_settle_s(
+    model: ThermalModel, air_c: float, die: DieState, target_c: float, crit: Criterion
+) -> float:
+    """Predicted station seconds from a condition's start until its stability criterion is
+    met with the setpoint straight at the target (the `setpoint` strategy; `fastest` is no
+    slower): the ramped setpoint moves from the air at the ramp limit, the air lags it, the
+    die lags the air and its self-heating moves to the new supply's (`die.heat_final_c`).
+    Used for the time left the screens show."""
+    ramp = model.ramp_c_per_min if model.ramp_c_per_min > 0 else 1e6  # 0: no ramp limit
+    travel_s = abs(target_c - air_c) / ramp * 60.0
+    horizon_s = (
+        travel_s + 8.0 * die.tau_s + 4.0 * model.air_tau_s + 8.0 * die.heat_tau_s
+        + 2.0 * crit.window_s
+    )
+    t = np.arange(int(math.ceil(horizon_s / STEP_S)) + 1, dtype=np.float64) * STEP_S
+    still = np.zeros(1)
+    ramped = ramped_profiles(
+        ThermalModel(model.air_tau_s, die.tau_s, ramp), air_c, target_c, still, still, t
+    )
+    air = _lag(ramped, 1.0 - math.exp(-STEP_S / model.air_tau_s), air_c)
+    reading = _lag(air, 1.0 - math.exp(-STEP_S / die.tau_s), die.die_c - die.heat_c)
+    return float(settled_from_s(t, reading + die.heat_at(t), crit)[0])
+
+
 def representative_dies(dies: list[DieState], target_c: float) -> list[DieState]:
     """At most MAX_REPRESENTATIVE_DIES dies that bound the rest: the extremes of lag, of
     distance to go and of self-heating still to come."""

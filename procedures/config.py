@@ -309,6 +309,17 @@ class ProductConfig(_Strict):
     )
 
     @property
+    def typical_current_a(self) -> float:
+        """A typical part's supply current, A: the middle of its supply_current_a limits,
+        else half the current limit (for predictions such as the self-heating's)."""
+        limit = self.limits.supply_current_a
+        if limit is not None and limit.low is not None and limit.high is not None:
+            return 0.5 * (limit.low + limit.high)
+        if limit is not None and limit.high is not None:
+            return 0.5 * limit.high
+        return 0.5 * self.current_limit_a
+
+    @property
     def supply_limits_v(self) -> tuple[float, float]:
         """The supply levels the part may be run at, V."""
         if self.supply_range_v is not None:
