@@ -134,7 +134,9 @@ class Engine:
             except Aborted as exc:
                 run_error = (
                     Verdict.ABORTED,
-                    f"aborted by the operator ({exc}) in step {step_name}",
+                    # the reason says who asked ("the operator pressed ABORT on the station
+                    # screen", "... (SIGTERM)"): said once, not wrapped in a second "operator"
+                    f"aborted: {exc}, in step {step_name}",
                 )
             except NoPartsLeft:
                 pass

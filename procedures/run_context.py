@@ -345,7 +345,7 @@ class Waiting:
     def now_s(self) -> float:
         return self.clock.now_s()
 
-    def abort(self, reason: str = "operator abort") -> None:
+    def abort(self, reason: str = "the operator aborted the run") -> None:
         """Ask the run to stop now (thread-safe; SIGINT handlers and the UI call this)."""
         self.abort_reason = reason
         self._abort.set()
@@ -358,7 +358,7 @@ class Waiting:
     def check(self) -> None:
         """Raise Aborted / StepTimeout when due; drop parts whose stream failed."""
         if self._abort.is_set():
-            raise Aborted(self.abort_reason or "operator abort")
+            raise Aborted(self.abort_reason or "the operator aborted the run")
         self.watchdog.poll()
         limit = self._procedure.stream.max_lost_fraction
         for part in self._parts.alive():
@@ -533,7 +533,7 @@ class RunContext:
         self.wait.on_silent = self.instruments.supply_reading
 
     # the few names the station layer (station/uut.py, the UI) calls on a live run
-    def abort(self, reason: str = "operator abort") -> None:
+    def abort(self, reason: str = "the operator aborted the run") -> None:
         """Ask the run to stop now (thread-safe)."""
         self.wait.abort(reason)
 

@@ -485,7 +485,7 @@ class UutRunner:
             raise self._error
         return self._result
 
-    def abort(self, reason: str = "operator abort") -> None:
+    def abort(self, reason: str = "the operator aborted the run") -> None:
         with self._lock:
             ctx = self._ctx
             self._abort_requested = reason

@@ -392,7 +392,7 @@ class EngineRunner:
 
     def abort(self) -> None:
         if self._uut is not None:
-            self._uut.abort("operator abort (station UI)")
+            self._uut.abort("the operator pressed ABORT on the station screen")
 
     def close(self) -> None:
         self.abort()
