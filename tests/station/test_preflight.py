@@ -260,3 +260,29 @@ def test_the_predicted_die_counts_self_heating_near_the_maximum(tmp_path: Path) 
     procedure, loaded = load_procedure(cold)
     (line,) = part_temperature_problems(procedure, loaded, product, (-60.0, 125.0))
     assert "die would be at -45 C, below the part's minimum of -40 C" in line, line
+
+
+def test_start_on_the_operator_screen_refuses_a_part_heated_past_its_maximum(
+    tmp_path: Path,
+) -> None:
+    """The operator screen's START runs the same pre-flight: refused, nothing written."""
+    from drivers.sim.launcher import launch_bench
+    from station.errors import UserError
+    from station.settings import load_settings
+    from station.ui.runner_adapter import EngineRunner, StartRequest
+    from station.uut import Endpoints
+
+    proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 40, 100]")
+    out = tmp_path / "out"
+    with launch_bench(config={"parts": [{"socket": 1, "serial": "SIM-0001"}]},
+                      lockstep=True) as bench:
+        runner = EngineRunner(load_settings(None), out=out,
+                              endpoints=Endpoints.of_bench(bench.endpoints),
+                              control=bench.control)
+        request = StartRequest({1: "SIM-0001"}, str(proc), str(PRODUCT))
+        with pytest.raises(UserError, match="condition T100_V5.25: the die is predicted to "
+                                            "reach 108.4 C") as refused:
+            runner.start(request, lambda event: None)
+        runner.close()
+    assert len(str(refused.value).splitlines()) == 1, refused.value
+    assert not out.exists()
