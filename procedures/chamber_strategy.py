@@ -203,6 +203,16 @@ class DieState:
         return self.heat_final_c + (self.heat_c - self.heat_final_c) * decay
 
 
+def steady_die_c(
+    setpoint_c: float, supply_v: float, current_a: float, c_per_w: float | None
+) -> float:
+    """Where a part's die settles with the air at `setpoint_c`: the air plus its self-heating,
+    the product's C/W times the power it draws (`supply_v` x `current_a`). Every thermal
+    strategy ends a condition there (an overshoot is planned within the part's limits around
+    it), so it is what the pre-flight checks; without a C/W only the air is known."""
+    return setpoint_c + (c_per_w or 0.0) * supply_v * max(current_a, 0.0)
+
+
 def _lag(x: NDArray[np.float64], k: float, y0: NDArray[np.float64] | float) -> NDArray[np.float64]:
     """y[i+1] = y[i] + (mean(x[i], x[i+1]) - y[i]) * k along the last axis, y[0] = y0: a
     first-order lag driven by a piecewise-linear input (exact for the bench's chamber step)."""
@@ -272,6 +282,30 @@ def settled_from_s(
     last = bad.shape[-1] - 1 - np.argmax(bad[:, ::-1], axis=-1)
     after = np.append(ends, math.inf)[np.minimum(last + 1, ends.size)]
     return np.where(any_bad, after, ends[0])
+
+
+def straight_settle_s(
+    model: ThermalModel, air_c: float, die: DieState, target_c: float, crit: Criterion
+) -> float:
+    """Predicted station seconds from a condition's start until its stability criterion is
+    met with the setpoint straight at the target (the `setpoint` strategy; `fastest` is no
+    slower): the ramped setpoint moves from the air at the ramp limit, the air lags it, the
+    die lags the air and its self-heating moves to the new supply's (`die.heat_final_c`).
+    Used for the time left the screens show."""
+    ramp = model.ramp_c_per_min if model.ramp_c_per_min > 0 else 1e6  # 0: no ramp limit
+    travel_s = abs(target_c - air_c) / ramp * 60.0
+    horizon_s = (
+        travel_s + 8.0 * die.tau_s + 4.0 * model.air_tau_s + 8.0 * die.heat_tau_s
+        + 2.0 * crit.window_s
+    )
+    t = np.arange(int(math.ceil(horizon_s / STEP_S)) + 1, dtype=np.float64) * STEP_S
+    still = np.zeros(1)
+    ramped = ramped_profiles(
+        ThermalModel(model.air_tau_s, die.tau_s, ramp), air_c, target_c, still, still, t
+    )
+    air = _lag(ramped, 1.0 - math.exp(-STEP_S / model.air_tau_s), air_c)
+    reading = _lag(air, 1.0 - math.exp(-STEP_S / die.tau_s), die.die_c - die.heat_c)
+    return float(settled_from_s(t, reading + die.heat_at(t), crit)[0])
 
 
 def representative_dies(dies: list[DieState], target_c: float) -> list[DieState]:

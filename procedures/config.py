@@ -333,8 +333,14 @@ class ProductConfig(_Strict):
         "the starting value the fastest thermal strategy learns from each part's own sensor"
     )
     max_part_temperature_c: ChamberTemp | None = Field(
-        None, description="highest temperature the part may see, C (the fastest thermal "
-        "strategy's overshoot stays below it); default: the chamber's limits only"
+        None, description="highest temperature the part may see, C: the pre-flight refuses a "
+        "condition whose die, self-heating included, is predicted above it, and the fastest "
+        "thermal strategy's overshoot stays below it; default: the chamber's limits only"
+    )
+    min_part_temperature_c: ChamberTemp | None = Field(
+        None, description="lowest temperature the part may see, C (the pre-flight refuses a "
+        "colder condition; the fastest strategy's undershoot stays above it); default: the "
+        "chamber's limits only"
     )
     self_heating_c_per_w: float | None = Field(
         None, ge=0, le=1e4, description="die temperature rise per watt the part draws, C/W "
@@ -355,6 +361,17 @@ class ProductConfig(_Strict):
         "(false_reject_rate, marginal_rate); its per-condition limit is derived for each "
         "procedure. Give this or limits.stop_table_consistency, not both",
     )
+
+    @property
+    def typical_current_a(self) -> float:
+        """A typical part's supply current, A: the middle of its supply_current_a limits,
+        else half the current limit (for predictions such as the self-heating's)."""
+        limit = self.limits.supply_current_a
+        if limit is not None and limit.low is not None and limit.high is not None:
+            return 0.5 * (limit.low + limit.high)
+        if limit is not None and limit.high is not None:
+            return 0.5 * limit.high
+        return 0.5 * self.current_limit_a
 
     @property
     def supply_limits_v(self) -> tuple[float, float]:
@@ -379,6 +396,16 @@ class ProductConfig(_Strict):
                 "consistency: and limits.stop_table_consistency both judge the stop-vs-table "
                 "consistency: keep consistency.false_reject_rate (the limit is derived from it) "
                 "and remove limits.stop_table_consistency"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _part_temperature_range(self) -> ProductConfig:
+        low, high = self.min_part_temperature_c, self.max_part_temperature_c
+        if low is not None and high is not None and low >= high:
+            raise ValueError(
+                f"min_part_temperature_c {low:g} C must be below max_part_temperature_c "
+                f"{high:g} C"
             )
         return self
 

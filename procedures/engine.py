@@ -112,7 +112,7 @@ class Engine:
         self.safe_state: SafeStateReport | None = None
         self.safe_state_policy = safe_state_policy or SafeStatePolicy()
 
-    def abort(self, reason: str = "operator abort") -> None:
+    def abort(self, reason: str = "the operator aborted the run") -> None:
         self.ctx.wait.abort(reason)
 
     def run(self) -> dict[int, Verdict]:
@@ -142,7 +142,9 @@ class Engine:
                 run_error = (
                     (Verdict.ERROR, f"{exc} (in step {step_name})")
                     if exc.error
-                    else (Verdict.ABORTED, f"aborted by the operator ({exc}) in step {step_name}")
+                    # the reason says who asked ("the operator pressed ABORT on the station
+                    # screen", "... (SIGTERM)"): said once, not wrapped in a second "operator"
+                    else (Verdict.ABORTED, f"aborted: {exc}, in step {step_name}")
                 )
             except NoPartsLeft:
                 pass

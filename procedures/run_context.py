@@ -43,7 +43,7 @@ class Aborted(Exception):  # noqa: N818 - reads as the event it is
     """The run was asked to stop: by the operator or a signal (ABORTED), or because the
     station itself failed (`error`: an uncaught exception in one of its threads, ERROR)."""
 
-    def __init__(self, reason: str = "operator abort", error: bool = False) -> None:
+    def __init__(self, reason: str = "the operator aborted the run", error: bool = False) -> None:
         super().__init__(reason)
         self.error = error
 
@@ -364,7 +364,7 @@ class Waiting:
     def now_s(self) -> float:
         return self.clock.now_s()
 
-    def abort(self, reason: str = "operator abort", error: bool = False) -> None:
+    def abort(self, reason: str = "the operator aborted the run", error: bool = False) -> None:
         """Ask the run to stop now (thread-safe; station/exit_path.py and the UI call this).
         The first reason stands: a later abort (the UI closing after a SIGTERM) must not
         rename why the run stopped."""
@@ -381,7 +381,7 @@ class Waiting:
     def check(self) -> None:
         """Raise Aborted / StepTimeout when due; drop parts whose stream failed."""
         if self._abort.is_set():
-            raise Aborted(self.abort_reason or "operator abort", self.abort_error)
+            raise Aborted(self.abort_reason or "the operator aborted the run", self.abort_error)
         self.watchdog.poll()
         limit = self._procedure.stream.max_lost_fraction
         for part in self._parts.alive():
@@ -559,7 +559,7 @@ class RunContext:
         self.wait.on_silent = self.instruments.supply_reading
 
     # the few names the station layer (station/uut.py, the UI) calls on a live run
-    def abort(self, reason: str = "operator abort", error: bool = False) -> None:
+    def abort(self, reason: str = "the operator aborted the run", error: bool = False) -> None:
         """Ask the run to stop now (thread-safe); `error`: it ends ERROR, not ABORTED."""
         self.wait.abort(reason, error)
 

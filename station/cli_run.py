@@ -14,6 +14,7 @@ import contextlib
 import dataclasses
 import json
 import os
+import shutil
 import sys
 import time
 from collections.abc import Iterator
@@ -58,12 +59,38 @@ def _schema(args: argparse.Namespace) -> int:
     return 0
 
 
-class ProgressDisplay:
-    """One updating line on a terminal; one line per step otherwise."""
+LINE_WIDTH = 100  # a progress line's bound when the output is not a terminal (a log)
 
-    def __init__(self, stream: Any = None) -> None:
+
+def sockets_text(states: dict[int, str], width: int) -> str:
+    """Each socket's state in at most `width` characters: "1:RUNNING 2:FAIL" while it fits,
+    else the commonest state counted and the others with their sockets ("30 RUNNING;
+    FAIL: 3,17; ERROR: 9"), cut with "..." only if even that is too long."""
+    full = " ".join(f"{k}:{v}" for k, v in sorted(states.items()))
+    if len(full) <= width:
+        return full
+    by_state: dict[str, list[int]] = {}
+    for sock, state in sorted(states.items()):
+        by_state.setdefault(state, []).append(sock)
+    common = max(by_state, key=lambda v: len(by_state[v]))
+    text = "; ".join(
+        [f"{len(by_state[common])} {common}"]
+        + [f"{v}: {','.join(map(str, ks))}" for v, ks in by_state.items() if v != common]
+    )
+    return text if len(text) <= width else text[: max(width - 3, 0)] + "..."
+
+
+class ProgressDisplay:
+    """One updating line on a terminal (within its width); one line per step otherwise
+    (within LINE_WIDTH): 32 sockets' states once made 405-character lines."""
+
+    def __init__(self, stream: Any = None, width: int | None = None) -> None:
         self.stream = stream or sys.stdout
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        if width is None:
+            columns = shutil.get_terminal_size((LINE_WIDTH + 1, 24)).columns
+            width = columns - 1 if self.tty else LINE_WIDTH
+        self.width = max(width, 40)
         self._last_step = ""
 
     def __call__(self, ev: ProgressEvent) -> None:
@@ -72,13 +99,13 @@ class ProgressDisplay:
             return
         step = f"{ev.step} {ev.condition}".strip()
         remaining = "" if ev.remaining_s is None else f"~{ev.remaining_s / 60:4.1f} min left"
-        sockets = " ".join(f"{k}:{v}" for k, v in sorted(ev.sockets.items()))
-        line = (
+        head = (
             f"[{100 * ev.fraction:3.0f}%] {step:<26} {remaining:<15} "
-            f"t={ev.station_time_s:7.0f} s  {sockets}"
+            f"t={ev.station_time_s:7.0f} s  "
         )
+        line = (head + sockets_text(ev.sockets, self.width - len(head)))[: self.width]
         if self.tty:
-            self.stream.write("\r" + line[:110].ljust(110))
+            self.stream.write("\r" + line.ljust(self.width))
             if ev.kind == "finished":
                 self.stream.write("\n")
             self.stream.flush()

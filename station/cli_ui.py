@@ -75,11 +75,7 @@ def _ui(args: argparse.Namespace) -> int:
         host=args.host,
     ) as station:
         if station.bench is not None:
-            print(
-                f"simulated bench running at {station.bench.speed:g}x "
-                f"(pid {station.bench.endpoints.pid})",
-                flush=True,
-            )
+            print(station.bench_line(), flush=True)
         for folder in station.recovered:
             print(f"marked as ERROR (the station stopped during that run): {folder}", flush=True)
         scheme = "https" if station.tls else "http"
@@ -132,7 +128,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080)")
     p.add_argument("--sim", action="store_true", help="start the simulated bench and run on it")
     p.add_argument("--sim-config", help="simulated bench configuration (YAML), with --sim")
-    p.add_argument("--speed", type=float, help="simulated bench speed factor (default 100)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        help="simulated bench speed factor: a scaled clock (default: lockstep, as station run "
+        "--sim; a sim config's speed: is used only by station bench)",
+    )
     p.add_argument(
         "--sockets", type=int, help="simulated fixture sockets (default: the sim config's)"
     )

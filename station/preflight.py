@@ -18,6 +18,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from drivers.protocols import OutputLimited, RateLimited, SetpointLimited
+from procedures.chamber_strategy import steady_die_c
+from procedures.conditions import Condition
 from procedures.config import LoadedYaml, ProcedureConfig, ProductConfig
 from procedures.engine import Bench
 
@@ -81,8 +83,12 @@ def instrument_problems(
 ) -> list[str]:
     """Settings the opened instruments refuse, as they report their own limits."""
     names = names or {}
+    chamber_limits = (
+        bench.chamber.setpoint_limits() if isinstance(bench.chamber, SetpointLimited) else None
+    )
     return [
         *_chamber(procedure, loaded, bench, names.get("chamber", "the chamber")),
+        *part_temperature_problems(procedure, loaded, product, chamber_limits),
         *_table(procedure, loaded, bench, names.get("rate_table", "the rate table")),
         *_supply(procedure, loaded, product, bench, n_parts, names.get("supply", "the supply")),
     ]
@@ -104,6 +110,61 @@ def _chamber(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: 
         for s in settings
         if not low <= s.value <= high
     ]
+
+
+def part_temperature_problems(
+    procedure: ProcedureConfig,
+    loaded: LoadedYaml,
+    product: ProductConfig,
+    chamber_limits: tuple[float, float] | None = None,
+) -> list[str]:
+    """Each planned temperature whose die, at its hottest condition, is predicted beyond the
+    product's part temperature range: the setpoint plus the self-heating (the product's C/W
+    times the supply times the most current a passing part may draw). Every thermal strategy
+    settles there; the fastest one's overshoot is planned inside the same range at run time.
+    A setpoint the chamber itself refuses is reported by the chamber's check only."""
+    high, low = product.max_part_temperature_c, product.min_part_temperature_c
+    if high is None and low is None:
+        return []
+    current_a = _part_current_a(product)
+    out = []
+    for i, temp in enumerate(procedure.conditions.temperatures_c):
+        if chamber_limits is not None and not chamber_limits[0] <= temp <= chamber_limits[1]:
+            continue
+        where = _where(loaded, ("conditions", "temperatures_c", i))
+        hottest = max(
+            (Condition(temp, v) for v in procedure.conditions.supplies_v),
+            key=lambda c: c.supply_v,
+            default=Condition(temp, product.reference_supply_v),
+        )
+        die_c = steady_die_c(temp, hottest.supply_v, current_a, product.self_heating_c_per_w)
+        if high is not None and die_c > high:
+            heating = (
+                f"{temp:g} C + {die_c - temp:.1f} C self-heating at {hottest.supply_v:g} V and "
+                f"{current_a * 1e3:g} mA"
+                if die_c > temp else "the setpoint; the product gives no self_heating_c_per_w"
+            )
+            out.append(
+                f"{where}: condition {hottest.name}: the die is predicted to reach {die_c:.1f} C "
+                f"({heating}), above the part's maximum of {high:g} C (the product's "
+                "max_part_temperature_c): lower the procedure's temperature"
+            )
+        elif low is not None and temp < low:  # self-heating only warms it: the air is the floor
+            out.append(
+                f"{where}: condition {Condition(temp, hottest.supply_v).name}: the die would be "
+                f"at {temp:g} C, below the part's minimum of {low:g} C (the product's "
+                "min_part_temperature_c): raise the procedure's temperature"
+            )
+    return out
+
+
+def _part_current_a(product: ProductConfig) -> float:
+    """The most current a part may draw and still pass (its supply_current_a limit), else
+    the supply's limit per part: the self-heating is predicted for the hottest good part."""
+    limit = product.limits.supply_current_a
+    if limit is not None and limit.high is not None:
+        return float(limit.high)
+    return float(product.current_limit_a)
 
 
 def _table(procedure: ProcedureConfig, loaded: LoadedYaml, bench: Bench, who: str) -> list[str]:

@@ -521,7 +521,7 @@ class UutRunner:
             raise self._error
         return self._result
 
-    def abort(self, reason: str = "operator abort", *, error: bool = False) -> None:
+    def abort(self, reason: str = "the operator aborted the run", *, error: bool = False) -> None:
         """Stop the run in progress (or the one about to start): ABORTED, or ERROR when
         `error` (station/exit_path.py: an uncaught exception in a station thread). The first
         request's reason stands."""

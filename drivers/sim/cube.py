@@ -60,6 +60,13 @@ def _min_jerk_rate(s: FloatArray) -> FloatArray:
     return np.where(inside, 30.0 * s * s * (1.0 - s) ** 2, 0.0)
 
 
+def _rotation() -> Any:
+    """scipy's Rotation, imported on first need (a bench with cubes)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
+
+
 @dataclass(frozen=True)
 class CubeTurn:
     """One reorientation: R(t) = R_from Rot(k, theta s(t)) over [start_s, end_s]; the body
@@ -78,16 +85,13 @@ class CubeTurn:
 
     def attitude(self, t: FloatArray) -> NDArray[np.float64]:
         """(n, 3, 3) attitudes at times `t` inside or around the turn."""
-        from scipy.spatial.transform import Rotation  # only while a cube turns: 0.4 s import
-
+        rotation = _rotation()
         s = self.progress(t)
-        rel = Rotation.from_rotvec(np.outer(s, self.rotvec)).as_matrix()
+        rel = rotation.from_rotvec(np.outer(s, self.rotvec)).as_matrix()
         return np.asarray(np.asarray(self.from_attitude) @ rel, dtype=np.float64)
 
     def final_attitude(self) -> FloatArray:
-        from scipy.spatial.transform import Rotation  # only while a cube turns: 0.4 s import
-
-        return np.asarray(self.from_attitude) @ Rotation.from_rotvec(self.rotvec).as_matrix()
+        return np.asarray(self.from_attitude) @ _rotation().from_rotvec(self.rotvec).as_matrix()
 
     def body_rate_dps(self, t: FloatArray) -> FloatArray:
         s = (t - self.start_s) / (self.end_s - self.start_s)
@@ -110,6 +114,9 @@ class Cube:
         self.turns: list[CubeTurn] = []
         self.prompts_seen = 0
         self._attitude = resting_attitude(self.initial_face)  # after the planned turns
+        # the turns' rotations need scipy (0.4 s of import): imported with the cube, never
+        # inside the bench's sample path, where it would stall every twin at a scaled clock
+        _rotation()
 
     def place(self, face: str) -> None:
         """Put the cube down on `face` with no turns (a test's or a bench operator's setup)."""

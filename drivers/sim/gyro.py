@@ -79,6 +79,13 @@ def _gm_sigma_for_bias_instability(bi_dps: float) -> float:
     return 0.664 * bi_dps / math.sqrt(float(np.max(avar)))
 
 
+def _lfilter() -> Any:
+    """scipy.signal.lfilter, imported on first need (only a part with a sensor lag)."""
+    from scipy.signal import lfilter
+
+    return lfilter
+
+
 class PartModel:
     """One part: parameters, calibration registers, die temperature, power and noise state."""
 
@@ -114,6 +121,11 @@ class PartModel:
             else None
         )
         self._lag_tau = fx.get("sensor_lag", {}).get("tau_s")
+        # scipy.signal costs seconds to import: here, when the part is made (bench start or a
+        # load at START), never in the sample path. There it stopped the bench's one loop for
+        # seconds the first time a lagged part streamed: at a scaled clock the whole bench
+        # fell silent (every socket ERROR at the first START; issue 26 (3)).
+        self._lfilter = _lfilter() if self._lag_tau is not None else None
         w = fx.get("warmup_drift")
         self._warmup = (w["amplitude_dps"], w["tau_s"]) if w else None
         self._generic = build_terms(fx)  # generic terms of an extended model (lib_...)
@@ -264,9 +276,8 @@ class PartModel:
         if state is None or t_s[0] - state[2] > 1.5 * dt_s:
             state = (float(x[0]), float(x[0]), float(t_s[0]) - dt_s)
         x_prev, y_prev, _ = state
-        from scipy.signal import lfilter  # only a part with a sensor lag: seconds of import
-
-        y, _ = lfilter([b0, b1], [1.0, -alpha], x, zi=[b1 * x_prev + alpha * y_prev])
+        assert self._lfilter is not None  # made with the part when it has a lag
+        y, _ = self._lfilter([b0, b1], [1.0, -alpha], x, zi=[b1 * x_prev + alpha * y_prev])
         self._lag_state = (float(x[-1]), float(y[-1]), float(t_s[-1]))
         return np.asarray(y, dtype=float)
 

@@ -36,14 +36,15 @@ def control_settings(ctx: RunContext, step: Stabilise) -> ControlSettings:
     setpoint limits from the chamber itself, the die lag and maximum from the product."""
     cfg, product = ctx.procedure.chamber, ctx.product
     low_c, high_c = ctx.instruments.chamber.setpoint_limits()
-    max_part_c = product.max_part_temperature_c
+    max_part_c, min_part_c = product.max_part_temperature_c, product.min_part_temperature_c
     high_c = high_c if max_part_c is None else min(high_c, max_part_c)
+    low_c = low_c if min_part_c is None else max(low_c, min_part_c)
     target: Any = step.target
     if not low_c <= target.temperature_c <= high_c:
         raise SetpointOutOfRange(
             f"{step.condition}: {target.temperature_c:g} C is outside what the chamber and the "
             f"product allow ({low_c:g}..{high_c:g} C): lower the procedure's temperature or "
-            "check max_part_temperature_c in the product file",
+            "check max_part_temperature_c / min_part_temperature_c in the product file",
             instrument="chamber",
         )
     limits = ThermalLimits(

@@ -45,6 +45,8 @@ def result_from_record(record: RunRecord, folder: Path) -> dict[str, Any]:
         "verdict": str(record.verdict),
         "reason": record.reason,
         "failed": failed,
+        # passed, but inside a marginal band: the card says how many, in plain words
+        "marginal": sum(1 for m in record.measurements if m.outcome == "MARGINAL"),
         "run_folder": str(folder),
     }
 

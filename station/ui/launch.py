@@ -30,7 +30,6 @@ from station.ui.server import Tls
 
 log = logging.getLogger(__name__)
 
-DEFAULT_SIM_SPEED = 100.0
 INSTRUMENT_POLL_S = 10.0  # between runs; the engine owns the instruments during a run
 
 
@@ -43,6 +42,26 @@ class UiStation:
     tls: Tls | None = None
     recovered: list[Path] = field(default_factory=list)
     limits: ConnectionLimits = ConnectionLimits()  # station.yaml ui.max_connections...
+    sim_config_speed: float | None = None  # the sim config's `speed:` (a --speed overrides it)
+
+    def bench_line(self) -> str:
+        """How the simulated bench runs, in one line: lockstep (the default, as `station run
+        --sim`), or the --speed asked for, saying when it overrides the sim config's."""
+        if self.bench is None:
+            return ""
+        pid = self.bench.endpoints.pid
+        if self.bench.endpoints.lockstep:
+            return (
+                f"simulated bench running in lockstep (pid {pid}): station time is physics "
+                "time; --speed X gives a scaled clock"
+            )
+        speed = self.bench.speed
+        over = self.sim_config_speed
+        note = (
+            f"; --speed {speed:g} overrides the sim config's speed: {over:g}"
+            if over is not None and over != speed else ""
+        )
+        return f"simulated bench running at {speed:g}x (pid {pid}){note}"
 
 
 def is_loopback(host: str) -> bool:
@@ -115,22 +134,23 @@ def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
     return security, tls
 
 
-def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int]:
-    """Parts of the sim config by serial, and the number of sockets it needs."""
+def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int, float | None]:
+    """Parts of the sim config by serial, the number of sockets it needs, and the speed it
+    states (None when it states none)."""
     if sim_config is None:
-        return {}, 0
+        return {}, 0, None
     from drivers.sim.config import SimConfigError, load_sim_config
     from drivers.yaml_input import read_yaml
 
     try:
-        load_sim_config(sim_config)  # bounded reader and schema: refused here, in one line
+        config = load_sim_config(sim_config)  # bounded reader and schema: refused in one line
         data = read_yaml(sim_config).data or {}
     except (SimConfigError, ValueError) as exc:
         raise UserError(f"--sim-config {exc}") from None
     parts = data.get("parts") or [] if isinstance(data, dict) else []
     by_serial = {str(p["serial"]): dict(p) for p in parts if isinstance(p, dict) and "serial" in p}
-    sockets = max([int(p.get("socket", 1)) for p in parts if isinstance(p, dict)], default=0)
-    return by_serial, sockets
+    stated = isinstance(data, dict) and "speed" in data
+    return by_serial, config.socket_count, config.speed if stated else None
 
 
 @contextlib.contextmanager
@@ -159,15 +179,21 @@ def ui_station(
         sim_config = settings.resolve(settings.settings.sim_config)
     if sim_config is not None and not sim_config.is_file():
         raise UserError(f"--sim-config {sim_config}: no such file")
-    parts, config_sockets = _sim_parts(sim_config)
+    parts, config_sockets, config_speed = _sim_parts(sim_config)
     bench_cm: Any = contextlib.nullcontext(None)
     if sim:
         from drivers.sim.launcher import launch_bench
 
-        n = sockets or config_sockets or 1
+        # the station's fixture (station.yaml instruments.fixture.sockets), grown to hold
+        # every part the sim config places
+        n = sockets or max(settings.settings.instruments.fixture.sockets, config_sockets)
         if not 1 <= n <= 32:  # one 1280 x 800 screen shows up to 32 sockets (8 x 4)
             raise UserError(f"--sockets must be 1..32, got {n}")
-        bench_cm = launch_bench(config=sim_config, speed=speed or DEFAULT_SIM_SPEED, sockets=n)
+        # lockstep, as `station run --sim`: station time is physics time, whatever the load
+        # on the machine; a --speed asks for a scaled clock (and is said, never assumed)
+        bench_cm = launch_bench(
+            config=sim_config, speed=speed, sockets=n, lockstep=speed is None
+        )
     with bench_cm as bench:
         endpoints = None
         control = None
@@ -204,7 +230,8 @@ def ui_station(
         try:
             ui = settings.settings.ui
             limits = ConnectionLimits(ui.max_connections, ui.max_connections_per_client)
-            yield UiStation(app, controller, runner, bench, tls, recovered, limits)
+            yield UiStation(app, controller, runner, bench, tls, recovered, limits=limits,
+                            sim_config_speed=config_speed)
         finally:
             stop_watch.set()
             controller.hub.close()

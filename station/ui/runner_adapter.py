@@ -13,6 +13,7 @@ import datetime as dt
 import logging
 import re
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,6 +142,34 @@ CONNECT_STEP = "connect"  # the step type of the connecting phase (plain words: 
 
 def _label(name: str, condition: str) -> str:
     return f"{name} {condition}".strip()
+
+
+class WallPace:
+    """Station seconds per wall second, to show the time left in wall time: 1 on real
+    instruments, the bench's speed on a scaled clock; in lockstep (the station runs as fast
+    as it computes) measured over the run so far, once `settle_wall_s` have passed."""
+
+    def __init__(self, endpoints: Any, settle_wall_s: float = 2.0) -> None:
+        self.speed: float | None = 1.0
+        if endpoints is not None:
+            self.speed = None if getattr(endpoints, "lockstep", False) else endpoints.speed
+        self.settle_wall_s = settle_wall_s
+        self._start: tuple[float, float] | None = None
+
+    def wall_s(self, remaining_s: float | None, station_s: float) -> float | None:
+        """The wall seconds left for `remaining_s` station seconds (None: not known yet)."""
+        if remaining_s is None:
+            return None
+        if self.speed is not None:
+            return remaining_s / self.speed
+        now = time.monotonic()
+        if self._start is None:
+            self._start = (now, station_s)
+            return None
+        wall, station = now - self._start[0], station_s - self._start[1]
+        if wall < self.settle_wall_s or station <= 0:
+            return None
+        return remaining_s * wall / station
 
 
 class EngineRunner:
@@ -361,7 +390,9 @@ class EngineRunner:
         self._thread.start()
         return run_id
 
-    def abort(self, reason: str = "operator abort (station UI)", error: bool = False) -> None:
+    def abort(
+        self, reason: str = "the operator pressed ABORT on the station screen", error: bool = False
+    ) -> None:
         """Stop the run in progress (`error`: ERROR, an uncaught exception in the station)."""
         if self._uut is not None:
             self._uut.abort(reason, error=error)
@@ -391,7 +422,7 @@ class EngineRunner:
     def _run(self, uut: Any, serials: dict[int, str], sink: EventSink) -> None:
         from procedures.steps.plan import build_plan
 
-        speed = self.endpoints.speed if self.endpoints is not None else 1.0
+        pace = WallPace(self.endpoints)
         plan = build_plan(uut.procedure)
         labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in plan]
         items = [{"step": CONNECT_STEP, "condition": ""}] + [
@@ -444,9 +475,7 @@ class EngineRunner:
                     "step_count": len(labels),
                     "condition": ev.condition,
                     "fraction": float(ev.fraction),
-                    "remaining_s": None
-                    if ev.remaining_s is None
-                    else float(ev.remaining_s) / speed,
+                    "remaining_s": pace.wall_s(ev.remaining_s, ev.station_time_s),
                     "sockets": {str(k): v for k, v in ev.sockets.items()},
                 }
             )

@@ -140,11 +140,13 @@ def test_abort_from_another_thread_stops_a_long_dwell(tmp_path: Path) -> None:
     engine = Engine(ctx, [Scripted(name="dwell", sleep_s=3600.0)])  # type: ignore[arg-type]
     events: list[ProgressEvent] = []
     ctx.progress.subscribe(events.append)
-    threading.Timer(0.3, engine.abort, args=("operator pressed abort",)).start()
+    why = "the operator pressed ABORT on the station screen"  # the UI's reason
+    threading.Timer(0.3, engine.abort, args=(why,)).start()
     verdicts = engine.run()
     assert verdicts == {1: Verdict.ABORTED}
     assert calls == SAFE_START_AND_END
-    assert "operator pressed abort" in read_record(tmp_path / "p1").reason
+    # said once (was "aborted by the operator (operator abort (station UI)) in step dwell")
+    assert read_record(tmp_path / "p1").reason == f"aborted: {why}, in step dwell"
     assert events[-1].kind == "finished"
 
 

@@ -139,7 +139,8 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
                                   ramp_c_per_min=ramp_c_per_min)
         ),
         product=SimpleNamespace(
-            die_tau_s=300.0, max_part_temperature_c=max_part_c, self_heating_c_per_w=40.0,
+            die_tau_s=300.0, max_part_temperature_c=max_part_c, min_part_temperature_c=None,
+            self_heating_c_per_w=40.0,
             self_heating_tau_s=90.0,
         ),
     )

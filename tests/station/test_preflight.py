@@ -220,3 +220,70 @@ def test_every_product_problem_is_its_own_line(tmp_path: Path) -> None:
     assert supply.startswith(f"{proc}:{_line_of(proc, 'supplies_v:')}: "), supply
     assert "25 V is outside the supply range [4.75, 5.25] V" in supply, supply
     assert "simulated bench running" not in r.stdout  # refused from the files alone
+
+
+@pytest.mark.parametrize("strategy", ["setpoint", "fastest"])
+def test_a_condition_that_heats_the_die_past_the_parts_maximum_is_refused(
+    tmp_path: Path, strategy: str
+) -> None:
+    # issue 26 (1): [25, 40, 100] on gyr130 (max_part_temperature_c 85) ran to PASS with the
+    # die at 104.2 C (setpoint); with `fastest` it was refused only after 26 station minutes,
+    # a run folder written. 100 C is inside the chamber's own limits [-40, 125].
+    proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 40, 100]")
+    if strategy == "fastest":
+        text = proc.read_text()
+        proc.write_text(text.replace("  ramp_c_per_min: 5.0\n",
+                                     "  ramp_c_per_min: 5.0\n  strategy: fastest\n", 1))
+    out = tmp_path / "out"
+    r = station("run", "--sim", "--dut", "SIM-0001", "--procedure", str(proc), "--out", str(out))
+    (line,) = _refused(r, out)
+    assert line.startswith(f"{proc}:{_line_of(proc, 'temperatures_c')}: "), line
+    # the hottest condition at 100 C, the die with its self-heating: 40 C/W x 5.25 V x 40 mA
+    assert "condition T100_V5.25: the die is predicted to reach 108.4 C" in line, line
+    assert "100 C + 8.4 C self-heating at 5.25 V and 40 mA" in line, line
+    assert "above the part's maximum of 85 C" in line, line
+
+
+def test_the_predicted_die_counts_self_heating_near_the_maximum(tmp_path: Path) -> None:
+    """A setpoint below the maximum whose die, self-heated, would pass it: refused too."""
+    from procedures.config import load_procedure, load_product
+    from station.preflight import part_temperature_problems
+
+    proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 80]")
+    procedure, loaded = load_procedure(proc)
+    product, _ = load_product(PRODUCT)
+    (line,) = part_temperature_problems(procedure, loaded, product, (-40.0, 125.0))
+    assert "condition T80_V5.25: the die is predicted to reach 88.4 C" in line, line
+    cool = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 75]")
+    procedure, loaded = load_procedure(cool)
+    assert part_temperature_problems(procedure, loaded, product, (-40.0, 125.0)) == []
+    cold = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [-45, 25]")
+    procedure, loaded = load_procedure(cold)
+    (line,) = part_temperature_problems(procedure, loaded, product, (-60.0, 125.0))
+    assert "die would be at -45 C, below the part's minimum of -40 C" in line, line
+
+
+def test_start_on_the_operator_screen_refuses_a_part_heated_past_its_maximum(
+    tmp_path: Path,
+) -> None:
+    """The operator screen's START runs the same pre-flight: refused, nothing written."""
+    from drivers.sim.launcher import launch_bench
+    from station.errors import UserError
+    from station.settings import load_settings
+    from station.ui.runner_adapter import EngineRunner, StartRequest
+    from station.uut import Endpoints
+
+    proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 40, 100]")
+    out = tmp_path / "out"
+    with launch_bench(config={"parts": [{"socket": 1, "serial": "SIM-0001"}]},
+                      lockstep=True) as bench:
+        runner = EngineRunner(load_settings(None), out=out,
+                              endpoints=Endpoints.of_bench(bench.endpoints),
+                              control=bench.control)
+        request = StartRequest({1: "SIM-0001"}, str(proc), str(PRODUCT))
+        with pytest.raises(UserError, match="condition T100_V5.25: the die is predicted to "
+                                            "reach 108.4 C") as refused:
+            runner.start(request, lambda event: None)
+        runner.close()
+    assert len(str(refused.value).splitlines()) == 1, refused.value
+    assert not out.exists()

@@ -41,3 +41,32 @@ def test_on_a_terminal_the_prompt_breaks_the_progress_line_and_rings() -> None:
     )
     text = out.getvalue()
     assert "\n\a>>> OPERATOR (sockets 1, 2): Turn the fixtures\n" in text
+
+
+def _states(n: int) -> dict[int, str]:
+    states = {s: "RUNNING" for s in range(1, n + 1)}
+    states.update({3: "FAIL", 17: "FAIL", 9: "ERROR"})
+    return states
+
+
+def test_progress_lines_of_32_sockets_stay_within_the_width() -> None:
+    # issue 26 (14): 32 sockets made 405-character lines in a log
+    out = io.StringIO()
+    display = ProgressDisplay(out)
+    display(ProgressEvent(kind="step", step="thermal", condition="T45_V5.25", fraction=0.4,
+                          remaining_s=900, station_time_s=1200, sockets=_states(32)))
+    (line,) = out.getvalue().splitlines()
+    assert len(line) <= 100, (len(line), line)
+    assert line.endswith("29 RUNNING; FAIL: 3,17; ERROR: 9"), line  # every socket accounted
+
+
+def test_on_a_terminal_the_line_fits_its_width_and_few_sockets_are_named() -> None:
+    out = _Tty()
+    display = ProgressDisplay(out, width=79)
+    display(ProgressEvent(kind="progress", step="thermal", condition="T45_V5.25",
+                          sockets=_states(32)))
+    assert max(len(part) for part in out.getvalue().split("\r")) <= 79
+    out = io.StringIO()
+    display = ProgressDisplay(out)
+    display(ProgressEvent(kind="step", step="bias", sockets={1: "RUNNING", 2: "FAIL"}))
+    assert out.getvalue().rstrip().endswith("1:RUNNING 2:FAIL")

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from procedures.config import load_procedure
+from procedures.config import load_procedure, load_product
 from procedures.run_parts import Bench
 from station import instruments as roles
 from station.preflight import instrument_problems
@@ -50,7 +50,7 @@ def test_a_procedure_that_moves_a_table_is_refused_on_a_station_without_one() ->
     bench: Any = Bench(chamber=object(), supply=object(), links={}, clock=None)  # type: ignore[arg-type]
     table_proc, table_file = load_procedure(ROOT / "config/procedures/eol-stop-method.yaml")
     manual_proc, manual_file = load_procedure(ROOT / "config/procedures/eol-manual-stop.yaml")
-    product: Any = None
+    product, _ = load_product(ROOT / "config/products/gyr130.yaml")  # its part temperatures
     problems = instrument_problems(table_proc, table_file, product, bench, 1)
     assert any("this station has no rate table" in p and "eol-manual-stop.yaml" in p
                for p in problems), problems

@@ -93,7 +93,9 @@ def bench_control_of(ui_log: Path, timeout_s: float = 10.0) -> str:
 
     deadline = time.monotonic() + timeout_s
     while True:
-        m = re.search(r"simulated bench running at \S+ \(pid (\d+)\)", ui_log.read_text())
+        m = re.search(
+            r"simulated bench running (?:at \S+|in lockstep) \(pid (\d+)\)", ui_log.read_text()
+        )
         if m or time.monotonic() > deadline:
             break
         time.sleep(0.05)

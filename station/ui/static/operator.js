@@ -132,15 +132,27 @@ function renderInstruments() {
     d.title = i.detail || "";
     const cal = i.in_calibration === null ? "warn" : i.in_calibration ? "on" : "bad";
     d.innerHTML = "<b></b>" +
-      `<span class="light ${i.connected ? "on" : "bad"}" data-light="connected"></span><span class="lt"></span>` +
-      `<span class="light ${cal}" data-light="calibration"></span><span class="lt"></span>` +
-      `<span class="light ${i.faulted ? "bad" : ""}" data-light="fault"></span><span class="lt"></span>`;
+      `<span class="light ${i.connected ? "on" : "bad"}" data-light="connected"></span>` +
+      `<span class="light ${cal}" data-light="calibration"></span>` +
+      `<span class="light ${i.faulted ? "bad" : ""}" data-light="fault"></span>`;
     d.querySelector("b").textContent = instrumentName(i.name);
     if (i.calibration_due) d.title = t("inst.due", { date: i.calibration_due }) + (i.detail ? "; " + i.detail : "");
-    const labels = d.querySelectorAll(".lt");
-    labels[0].textContent = t("inst.connected"); labels[1].textContent = t("inst.calibration"); labels[2].textContent = t("inst.fault");
+    for (const light of d.querySelectorAll(".light")) light.setAttribute("aria-label", t(LIGHT_WORDS[light.dataset.light]));
+    if (!box.firstChild) box.appendChild(lightLegend());
     box.appendChild(d);
   }
+}
+
+// The three lights' names once, above their columns (each row's lights line up under them).
+const LIGHT_WORDS = { connected: "inst.connected", calibration: "inst.calibration", fault: "inst.fault" };
+function lightLegend() {
+  const head = document.createElement("div");
+  head.className = "inst-legend";
+  head.innerHTML = "<span></span><span></span><span></span><span></span>";
+  const cells = head.querySelectorAll("span");
+  cells[0].textContent = t("inst.lights");
+  Object.values(LIGHT_WORDS).forEach((key, k) => { cells[k + 1].textContent = t(key); });
+  return head;
 }
 
 // The station's instrument names in the page's language ("rate table" -> "Drehtisch").
@@ -294,13 +306,22 @@ function renderLast() {
     s.vserial.textContent = r.serial;
     s.disposition.textContent = r.disposition || "";
     s.reasons.textContent = "";
+    // plain words only: the failing measurements, how many passed near a limit, or that an
+    // error or an abort ended the run; the engine's own reason (engineering names) is in
+    // the socket's detail view
     const lines = failureLines(r.failed || []);
-    if (r.reason && !lines.length) lines.push(r.reason);  // the failing measurements say it all
+    if (!lines.length) lines.push(...plainReason(r));
     for (const line of lines) { const li = document.createElement("li"); li.textContent = line; s.reasons.appendChild(li); }
     s.cert.hidden = !r.certificate_url;
     if (r.certificate_url) s.cert.href = r.certificate_url;
   }
   if (detailSocket !== null) renderDetail();
+}
+
+function plainReason(r) {
+  if (r.verdict === "ERROR") return [t("reason.error_detail")];
+  if (r.verdict === "ABORTED") return [t("reason.aborted")];
+  return r.marginal ? [t("reason.marginal", { n: r.marginal })] : [];
 }
 
 // One line per failed measurement (its worst condition), with how many conditions failed.
