@@ -44,7 +44,7 @@ SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGQUIT)
 # why the run stopped, as its record says it (the engine adds "in step ...")
 REASONS: dict[signal.Signals, str] = {
     signal.SIGTERM: "station asked to stop (SIGTERM)",
-    signal.SIGINT: "operator abort (Ctrl-C)",
+    signal.SIGINT: "the operator pressed Ctrl-C (SIGINT)",
     signal.SIGHUP: "the station's terminal or session closed (SIGHUP)",
     signal.SIGQUIT: "station asked to quit (SIGQUIT)",
 }
