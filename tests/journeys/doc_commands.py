@@ -13,6 +13,8 @@ comment (invisible when rendered) on the line before its code block:
     <!-- doc-test: serve URL|FILE -->  runs until Ctrl-C: started, URL answers or FILE
                                        appears, then Ctrl-C, and it must exit 0
     <!-- doc-test: stdin TEXT -->      what the user types (\\n for Enter)
+    <!-- doc-test: journey FILE::TEST --> run by that journey test of tests/journeys/, which
+                                       checks more than the exit code (not run twice)
 
 Several comments may stand before one block; `<!-- doc-test "station run --station": skip
 ... -->` applies only to the block's commands that start with the quoted words. A command

@@ -134,6 +134,17 @@ def _help_lists_options(command: DocCommand, cwd: Path) -> None:
     assert not missing, f"{command.where}: {' '.join(head)} --help does not list {missing}"
 
 
+def _journey_runs_it(command: DocCommand) -> None:
+    """`journey FILE::TEST`: a journey test runs this very command with more to check (its
+    verdicts, certificates, progress lines); it must exist and use the command's files."""
+    file, _, test = command.markers["journey"].partition("::")
+    source = (REPO / "tests" / "journeys" / file).read_text(encoding="utf-8")
+    assert f"def {test}(" in source, f"{command.where}: no test {test} in {file}"
+    files = [w for w in command.argv() if w.endswith(".yaml")]
+    missing = [f for f in files if f not in source]
+    assert not missing, f"{command.where}: {file}::{test} does not run {missing}"
+
+
 def _wait_until_up(target: str, proc: subprocess.Popen[str], cwd: Path) -> None:
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
@@ -173,6 +184,9 @@ def test_doc_command_runs_as_shown(
 ) -> None:
     if "skip" in command.markers:
         pytest.skip(f"{command.where}: {command.markers['skip']}")
+    if "journey" in command.markers:
+        _journey_runs_it(command)
+        return
     if command.is_synopsis:
         _help_lists_options(command, workdir)
         return
@@ -200,7 +214,7 @@ def test_the_docs_show_commands_and_each_is_known() -> None:
     where = {c.where.split(":")[0] for c in COMMANDS}
     assert {"README.md", "docs/records.md", "docs/discrepancy.md"} <= where
     assert len(COMMANDS) >= 30
-    known = {"skip", "long", "exit", "serve", "stdin", "cwd"}
+    known = {"skip", "long", "exit", "serve", "stdin", "cwd", "journey"}
     for c in COMMANDS:
         assert set(c.markers) <= known, f"{c.where}: unknown doc-test marker {c.markers}"
         if "skip" in c.markers:
