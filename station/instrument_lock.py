@@ -115,7 +115,8 @@ class InstrumentLock:
                 os.close(self._fds.pop())
 
     def __enter__(self) -> InstrumentLock:
-        return self.acquire()
+        # lock_instruments() hands out a lock already taken: entering it holds it, no more
+        return self if self._fds else self.acquire()
 
     def __exit__(
         self,

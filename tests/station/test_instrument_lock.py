@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from station.instrument_lock import InstrumentLock, InstrumentsBusy
+from station.instrument_lock import InstrumentLock, InstrumentsBusy, lock_instruments
 
 ROOT = Path(__file__).resolve().parents[2]
 TABLE = {"127.0.0.1:5020": "rate table at 127.0.0.1:5020"}
@@ -61,3 +61,14 @@ def test_the_kernel_frees_the_lock_of_a_killed_holder(tmp_path: Path) -> None:
         holder.send_signal(signal.SIGKILL)
         holder.wait(10)
     InstrumentLock(TABLE, tmp_path).acquire().release()  # no stale lock after kill -9
+
+
+
+def test_a_lock_taken_then_entered_is_held_once_and_released(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # UutRunner.preflight: `with self.lock_instruments():` on a lock already taken
+    monkeypatch.setenv("STATION_LOCK_DIR", str(tmp_path))
+    with lock_instruments(TABLE.items()), pytest.raises(InstrumentsBusy):
+        InstrumentLock(TABLE, tmp_path).acquire()
+    InstrumentLock(TABLE, tmp_path).acquire().release()
