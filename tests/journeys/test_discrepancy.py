@@ -30,6 +30,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests.journeys.sim_runs import station_run_once
+
 REPO = Path(__file__).resolve().parents[2]
 STATION = Path(sys.executable).parent / "station"  # the installed console script
 EVERY_EFFECT_CONFIG = "eight_sockets"
@@ -44,6 +46,9 @@ class Bench:
 
     config: str  # config/sim/<config>.yaml
     args: tuple[str, ...] = ()
+    # the station file names the sim config itself (README's 32-socket command): no
+    # --sim-config, so the run is the operator journey's own (tests/journeys/sim_runs.py)
+    station_names_it: bool = False
     # the documented one-line refusal (exit 2) when the run holds no rate reference the
     # workflow can use (docs/discrepancy.md, "Input")
     refused: str | None = None
@@ -55,7 +60,8 @@ BENCHES = {
     "default": Bench("default"),
     "article_part": Bench("article_part"),
     "eight_sockets": Bench("eight_sockets"),
-    "thirty_two_sockets": Bench("thirty_two_sockets", ("--station", "config/station-32.yaml")),
+    "thirty_two_sockets": Bench("thirty_two_sockets", ("--station", "config/station-32.yaml"),
+                                station_names_it=True),
     "manual": Bench("manual", ("--station", "config/station-manual.yaml"),
                     refused="the reference rate never changes"),
     "three_axis": Bench("three_axis",
@@ -86,17 +92,18 @@ def _no_traceback(proc: subprocess.CompletedProcess[str]) -> None:
         assert "Traceback" not in stream, stream[-3000:]
 
 
-def _run(bench: Bench, results: Path, parts: list[tuple[int, str]],
-         sim_config: Path | None = None) -> float:
-    """`station run --sim` of the parts; PASS or FAIL (exit 0 or 1), never an error."""
+def _run(bench: Bench, parts: list[tuple[int, str]], sim_config: Path | None = None
+         ) -> tuple[Path, float]:
+    """`station run --sim` of the parts (once per session for a shipped config: the operator
+    journey runs the same loads); PASS or FAIL (exit 0 or 1), never an error. Returns the
+    run's output folder and its wall seconds."""
     duts = [a for socket, serial in parts for a in ("--dut", f"{socket}={serial}")]
-    start = time.monotonic()
     config = str(sim_config) if sim_config else f"config/sim/{bench.config}.yaml"
-    proc = _station("run", "--sim", "--sim-config", config, *bench.args, *duts,
-                    "--out", str(results))
-    _no_traceback(proc)
-    assert proc.returncode in (0, 1), proc.stdout[-3000:] + proc.stderr[-3000:]
-    return time.monotonic() - start
+    sim = () if bench.station_names_it else ("--sim-config", config)
+    run = station_run_once("--sim", *sim, *bench.args, *duts)
+    _no_traceback(run.proc)
+    assert run.proc.returncode in (0, 1), run.proc.stdout[-3000:] + run.proc.stderr[-3000:]
+    return run.out, run.wall_s
 
 
 def _discrepancy(results: Path, serial: str, model: str, out: Path | None = None
@@ -187,8 +194,7 @@ def test_the_every_effect_part_has_every_effect_named(tmp_path: Path) -> None:
     sim_config = tmp_path / "every_effect.yaml"
     sim_config.write_text(yaml.safe_dump(data))
     parts = [(int(p["socket"]), str(p["serial"])) for p in data["parts"]]
-    results = tmp_path / "results"
-    took = _run(BENCHES[EVERY_EFFECT_CONFIG], results, parts, sim_config)
+    results, took = _run(BENCHES[EVERY_EFFECT_CONFIG], parts, sim_config)
     start = time.monotonic()
     _hidden_named_from_first_order(results, EVERY_EFFECT_CONFIG, EVERY_EFFECT_SERIAL)
     print(f"station run {took:.0f} s, discrepancy {time.monotonic() - start:.0f} s")
@@ -205,8 +211,7 @@ def test_discrepancy_on_every_socket_of_every_shipped_sim_config(
         pytest.skip(f"no installed station command at {STATION}")
     bench = BENCHES[config]
     parts = _parts(config)
-    results = tmp_path / "results"
-    took = _run(bench, results, parts)
+    results, took = _run(bench, parts)
     start = time.monotonic()
     for _socket, serial in parts:
         if bench.refused:

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+
+from tests.journeys.sim_runs import station_run_once
 
 ROOT = Path(__file__).resolve().parents[2]
 STATION = Path(sys.executable).parent / "station"  # the installed command (dev.py's .venv)
@@ -34,13 +34,13 @@ class Run:
     wall_s: float
 
 
-def station_run(*args: str, out: Path, timeout_s: float = 3000) -> Run:
+def station_run(*args: str) -> Run:
+    """The run of `station run ARGS --out <a temporary folder>` (once per session: the
+    discrepancy journey analyses the same loads, tests/journeys/sim_runs.py)."""
     if not STATION.exists():
         pytest.skip(f"no installed station command at {STATION}: run `python3 dev.py test`")
-    t0 = time.monotonic()
-    r = subprocess.run([str(STATION), "run", *args, "--out", str(out)], cwd=ROOT,
-                       capture_output=True, text=True, timeout=timeout_s)
-    wall = time.monotonic() - t0
+    shared = station_run_once(*args)
+    r, wall = shared.proc, shared.wall_s
     verdicts = {int(m[1]): (m[2], m[3]) for m in
                 re.finditer(r"^socket (\d+) (\S+): (PASS|FAIL|ERROR|ABORTED)", r.stdout, re.M)}
     certs: dict[int, Path] = {}
@@ -69,9 +69,9 @@ def _progress_lines_bounded(run: Run) -> None:
     assert max(len(line) for line in progress) <= LINE_WIDTH, max(progress, key=len)
 
 
-def test_one_part_on_config_station_yaml(tmp_path: Path) -> None:
+def test_one_part_on_config_station_yaml() -> None:
     """README: `station run --sim --dut SIM-0001` (config/station.yaml, the bench in lockstep)."""
-    run = station_run("--sim", "--dut", "SIM-0001", out=tmp_path)
+    run = station_run("--sim", "--dut", "SIM-0001")
     _every_part_passed(run, {1: "SIM-0001"})
     assert "simulated bench running in lockstep" in run.stdout
     _progress_lines_bounded(run)
@@ -88,24 +88,13 @@ EIGHT = {k: f"SIM-010{k}" for k in range(1, 9)}
 
 @pytest.mark.station_grid
 @pytest.mark.timeout(3600)
-def test_eight_parts_on_config_station_yaml(tmp_path: Path) -> None:
-    """config/station.yaml has eight sockets: a full load, each part drawn from the population."""
-    run = station_run("--sim", *[a for k, s in EIGHT.items() for a in ("--dut", f"{k}={s}")],
-                      out=tmp_path)
-    _every_part_passed(run, EIGHT)
-    _progress_lines_bounded(run)
-    print(f"8 sockets (station.yaml): wall {run.wall_s:.0f} s")
-
-
-@pytest.mark.station_grid
-@pytest.mark.timeout(3600)
-def test_eight_sockets_sim_config_as_readme_shows(tmp_path: Path) -> None:
+def test_eight_sockets_sim_config_as_readme_shows() -> None:
     """README: `station run --sim --sim-config config/sim/eight_sockets.yaml --dut 1=SIM-0101
     ...`. Socket 8's part has every optional effect (k2, k3, asymmetry, ...), beyond the
     first-order model the station fits: it is the one part built to FAIL its verification,
     certificate and all; the seven others PASS."""
     run = station_run("--sim", "--sim-config", "config/sim/eight_sockets.yaml",
-                      *[a for k, s in EIGHT.items() for a in ("--dut", f"{k}={s}")], out=tmp_path)
+                      *[a for k, s in EIGHT.items() for a in ("--dut", f"{k}={s}")])
     assert run.code == 1, run.stdout[-3000:] + run.stderr[-2000:]
     assert run.verdicts == {**{k: (s, "PASS") for k, s in EIGHT.items() if k < 8},
                             8: ("SIM-0108", "FAIL")}, run.stdout[-3000:]
@@ -116,13 +105,12 @@ def test_eight_sockets_sim_config_as_readme_shows(tmp_path: Path) -> None:
 
 @pytest.mark.station_grid
 @pytest.mark.timeout(3600)
-def test_thirty_two_parts_on_station_32(tmp_path: Path) -> None:
+def test_thirty_two_parts_on_station_32() -> None:
     """README: `station run --sim --station config/station-32.yaml --dut 1=SIM-3201 ...
     --dut 32=SIM-3232` (its sim config: config/sim/thirty_two_sockets.yaml)."""
     serials = {k: f"SIM-32{k:02d}" for k in range(1, 33)}
     run = station_run("--sim", "--station", "config/station-32.yaml",
-                      *[a for k, s in serials.items() for a in ("--dut", f"{k}={s}")],
-                      out=tmp_path)
+                      *[a for k, s in serials.items() for a in ("--dut", f"{k}={s}")])
     _progress_lines_bounded(run)  # 32 sockets once made 405-character lines
     _every_part_passed(run, serials)
     print(f"32 sockets: wall {run.wall_s:.0f} s")
@@ -130,11 +118,10 @@ def test_thirty_two_parts_on_station_32(tmp_path: Path) -> None:
 
 @pytest.mark.station_grid
 @pytest.mark.timeout(3600)
-def test_one_part_on_the_hand_turned_bench(tmp_path: Path) -> None:
+def test_one_part_on_the_hand_turned_bench() -> None:
     """docs/manual-stop.md: `station run --sim --station config/station-manual.yaml --dut
     SIM-0001`; the simulated operator answers each prompt by turning the fixture."""
-    run = station_run("--sim", "--station", "config/station-manual.yaml", "--dut", "SIM-0001",
-                      out=tmp_path)
+    run = station_run("--sim", "--station", "config/station-manual.yaml", "--dut", "SIM-0001")
     prompts = [line for line in run.stdout.splitlines() if line.startswith(">>> OPERATOR")]
     assert prompts and all("socket 1" in p for p in prompts), run.stdout[-2000:]
     _every_part_passed(run, {1: "SIM-0001"})
