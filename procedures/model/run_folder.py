@@ -147,10 +147,11 @@ def unusable_reason(folder: Path) -> str | None:
 
 def raw_sizes(path: Path) -> tuple[int, int, bool]:
     """(samples, analysed windows, whether it holds a three-axis part's per-axis samples)
-    of a raw data file, from the datasets' shapes alone."""
-    import h5py
+    of a raw data file, from the datasets' shapes alone (a truncated file is refused at once,
+    ValueError, by the bounded opener: HDF5 itself retries it for minutes)."""
+    from drivers.h5_input import open_h5
 
-    with h5py.File(path, "r", libver="latest", swmr=True) as f:
+    with open_h5(path) as f:
         n = int(f["samples/time_s"].shape[0]) if "samples/time_s" in f else 0
         windows = int(f["segments/kind"].shape[0]) if "segments/kind" in f else 0
         return n, windows, "samples_xyz" in f
