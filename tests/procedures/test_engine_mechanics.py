@@ -162,7 +162,7 @@ def test_an_error_stop_ends_error_and_the_first_reason_stands(tmp_path: Path) ->
 
     threading.Timer(0.3, stop).start()
     assert engine.run() == {1: Verdict.ERROR}
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     rec = read_record(tmp_path / "p1")
     assert rec.reason.startswith("internal error in thread 'acquisition'"), rec.reason
     assert "station UI" not in rec.reason and "dwell" in rec.reason
