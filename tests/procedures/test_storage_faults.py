@@ -19,7 +19,7 @@ import procedures.record as record_module
 from procedures.engine import Engine, RunContext
 from procedures.rawdata import RawDataWriter, read_raw
 from procedures.record import StorageError, Verdict, read_record, storage_error
-from tests.procedures.test_engine_mechanics import SAFE, Scripted, _ctx
+from tests.procedures.test_engine_mechanics import SAFE_START_AND_END, Scripted, _ctx
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,7 +33,7 @@ def test_an_os_error_in_a_step_is_an_error_naming_the_file(tmp_path: Path) -> No
 
     verdicts = Engine(ctx, [Scripted(name="export", action=write)]).run()  # type: ignore[arg-type]
     assert verdicts == {1: Verdict.ERROR}
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     reason = read_record(tmp_path / "p1").reason
     assert "internal error" not in reason
     assert str(target) in reason and "in step export" in reason
@@ -58,7 +58,7 @@ def test_raw_data_the_disk_refuses_ends_the_run_error_naming_raw_h5(
              Scripted(name="third")]
     verdicts = Engine(ctx, steps).run()  # type: ignore[arg-type]
     assert verdicts == {1: Verdict.ERROR}
-    assert calls == SAFE  # the safe state was done
+    assert calls == SAFE_START_AND_END  # the safe state was done, at the start and the end
     rec = read_record(part.folder)
     raw = part.folder / "raw.h5"
     assert f"cannot write {raw}: No space left on device" in rec.reason
@@ -84,7 +84,7 @@ def test_a_record_whose_folder_cannot_be_written_goes_to_the_fallback_folder(
 
     verdicts = Engine(ctx, [Scripted(name="a", action=folder_goes)]).run()  # type: ignore[arg-type]
     assert verdicts == {1: Verdict.ERROR}
-    assert calls == SAFE
+    assert calls == SAFE_START_AND_END
     kept = fallback / "r1.json"
     assert part.extra["record_file"] == kept
     rec = record_module.RunRecord.model_validate_json(kept.read_text())
