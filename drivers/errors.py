@@ -23,6 +23,12 @@ class ConnectionLost(InstrumentError):
     """The link to the instrument is down (socket closed, port gone, no answer at all)."""
 
 
+class WrongInstrument(ConnectionLost):
+    """After a reconnect by address, the address leads to another device than the one first
+    opened (a USB serial adapter re-enumerated, a port number given to another device):
+    nothing is commanded there, and retrying cannot help."""
+
+
 class InstrumentTimeout(InstrumentError):
     """The instrument answered too late, or a wait (at rate, in position, setpoint) ran out."""
 

@@ -23,6 +23,7 @@ from drivers.errors import (
     ProtocolError,
     ScpiError,
     SupplyCurrentLimit,
+    WrongInstrument,
 )
 from drivers.protocols import InstrumentIdentity, SafeReadback
 from drivers.scpi import ScpiCommands, ScpiTransport, parse_float
@@ -89,6 +90,8 @@ class ScpiSupply:
         # opens the transport again at a reply timeout (wall s): set by `open`; None for a
         # transport handed in, which this driver cannot reopen
         self._reopen: Callable[[float | None], ScpiTransport] | None = None
+        # who *IDN? first said it is: a reconnect commands nothing until it says so again
+        self._identity: InstrumentIdentity | None = None
 
     @classmethod
     def open(
@@ -124,8 +127,41 @@ class ScpiSupply:
             )
         self._scpi.close()  # VisaTransport.close logs, never raises: the old link may be dead
         self._scpi = ScpiCommands(self._reopen(timeout_s), error_query=self.dialect.error_query)
+        self._check_same_supply()
+
+    def _check_same_supply(self) -> None:
+        """The address may lead to another device now (an adapter re-enumerated, a
+        pseudo-terminal number given to another program): WrongInstrument, the port closed
+        again and nothing commanded, unless *IDN? names the supply first identified."""
+        known = self._identity
+        if known is None:
+            return
+        try:
+            found = self._ask_identity()
+        except InstrumentError as exc:
+            self._scpi.close()
+            raise WrongInstrument(
+                f"the {self.name}'s address no longer answers *IDN? as the supply ({exc}); "
+                "nothing was commanded there: switch the supply off at its front panel and "
+                "check which device the address names",
+                instrument=self.name,
+            ) from None
+        if _who(found) != _who(known):
+            self._scpi.close()
+            raise WrongInstrument(
+                f"the {self.name}'s address now answers as {', '.join(_who(found))}, not the "
+                f"{', '.join(_who(known))} first opened; nothing was commanded there: switch the "
+                "supply off at its front panel and check which device the address names",
+                instrument=self.name,
+            )
 
     def identify(self) -> InstrumentIdentity:
+        identity = self._ask_identity()
+        if self._identity is None:
+            self._identity = identity
+        return identity
+
+    def _ask_identity(self) -> InstrumentIdentity:
         reply = self._scpi.query("*IDN?")
         fields = [f.strip() for f in reply.split(",")]
         if len(fields) != 4:
@@ -225,6 +261,12 @@ class ScpiSupply:
         if self.output_is_on():
             return SafeReadback(False, f"output ON, measuring {self.measure_voltage():.3f} V")
         return SafeReadback(True, "output off")
+
+
+def _who(identity: InstrumentIdentity) -> tuple[str, str, str]:
+    """The part of an identity that names one instrument (the firmware may be updated)."""
+    return identity.manufacturer, identity.model, identity.serial
+
 
 # ---------------------------------------------------------------- configuration
 

@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from drivers.clock import Clock
+from drivers.errors import WrongInstrument
 from drivers.protocols import (
     ChamberReadsBackSafe,
     ReadsBackSafe,
@@ -314,6 +315,10 @@ class SafeStatePass:
                 timeout = min(timeout, max(deadline - time.monotonic(), 0.1))
                 try:
                     target.reconnect(timeout)
+                except WrongInstrument as exc:  # another device there now: never poke it
+                    state.safe, state.detail = False, f"{type(exc).__name__}: {exc}"
+                    log.error("safe state: %s is not safe: %s", state.label, state.detail)
+                    return
                 except Exception as exc:  # still unreachable: back off and try again
                     state.attempts += 1
                     state.safe, state.detail = False, f"{type(exc).__name__}: {exc}"

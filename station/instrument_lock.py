@@ -127,6 +127,24 @@ class InstrumentLock:
         self.release()
 
 
+def held_by_a_station(address: str, folder: Path | None = None) -> bool:
+    """Whether a station process holds the lock of `address` now (a probe: nothing is taken).
+    The simulated bench asks it of each pseudo-terminal it is given, so it never serves an
+    instrument at a port number a station still holds from a bench that died."""
+    path = _lock_path(folder or lock_dir(), same_instrument_key(address))
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False  # no lock file: nobody ever locked it
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)  # closing drops the probe's shared lock
+    return False
+
+
 def _write_holder(fd: int, key: str) -> None:
     """Who holds the lock, for the refusal of the next process (best effort)."""
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")

@@ -23,13 +23,27 @@ log = logging.getLogger(__name__)
 MAX_LINE = 4096
 
 
+MAX_PTYS_SKIPPED = 64
+
+
+def _never_held(path: str) -> bool:
+    return False
+
+
 class PtyPort:
-    """A pseudo-terminal pair: the slave path for the station, the master side here."""
+    """A pseudo-terminal pair: the slave path for the station, the master side here.
+
+    `held_elsewhere(path)` says whether a station process still holds a pty path (its
+    instrument lock, from a bench that died); such a number is passed over, so no station
+    ever commands this bench through an address it still keeps for another. The bench's
+    process sets it (station/cli_bench.py); by default nothing is held."""
+
+    held_elsewhere: Callable[[str], bool] = staticmethod(_never_held)
 
     def __init__(self, loop: asyncio.AbstractEventLoop, on_line: Callable[[str], None]) -> None:
         self._loop = loop
         self._on_line = on_line
-        self.master, self.slave = os.openpty()
+        self.master, self.slave = self._open_free_pty()
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
@@ -38,6 +52,27 @@ class PtyPort:
         self._writing = False
         self._closed = False
         loop.add_reader(self.master, self._readable)
+
+    @classmethod
+    def _open_free_pty(cls) -> tuple[int, int]:
+        """A pty pair whose path no station holds; the pairs passed over stay open until
+        then, so the kernel does not hand the same number out again at once."""
+        passed_over: list[int] = []
+        try:
+            for _ in range(MAX_PTYS_SKIPPED):
+                master, slave = os.openpty()
+                if not cls.held_elsewhere(os.ttyname(slave)):
+                    return master, slave
+                log.info("pty %s is still held by a station process: passed over",
+                         os.ttyname(slave))
+                passed_over += [master, slave]
+            raise OSError(
+                f"every one of {MAX_PTYS_SKIPPED} new pseudo-terminals is held by a station "
+                "process: end the stations left running from benches that stopped"
+            )
+        finally:
+            for fd in passed_over:
+                os.close(fd)
 
     @property
     def pending_bytes(self) -> int:

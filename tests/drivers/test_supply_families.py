@@ -237,3 +237,38 @@ def test_reconnect_gets_through_to_a_dropped_lan_supply_with_a_longer_timeout() 
     given = ScpiSupply(type("Given", (), {"instrument": "psu", "close": lambda self: None})())
     with pytest.raises(ConnectionLost, match="cannot reconnect"):
         given.reconnect()  # a transport handed in: nothing to reopen it with
+
+
+def test_a_reconnect_that_reaches_another_device_commands_nothing() -> None:
+    """CI finding: a station whose bench died reconnected by address to a pseudo-terminal
+    number the kernel had given to another bench, and commanded that bench. A re-enumerated
+    USB adapter does the same on a real line. After a reconnect the supply commands nothing
+    until *IDN? names the supply first identified; the safe-state pass then stops retrying."""
+    from drivers.errors import ConnectionLost, WrongInstrument
+    from drivers.sim.scpi_lan_twins import KeysightE36300Twin
+    from tests.drivers._chamber_twin_thread import TwinThread
+
+    with TwinThread(KeysightE36300Twin) as tt:
+        heard: list[str] = []
+        handle = tt.twin.handle
+
+        def listening(line: str) -> str | None:
+            heard.append(line)
+            return handle(line)
+
+        tt.twin.handle = listening  # type: ignore[method-assign]
+        psu = keysight_e36300.factory({"address": tt.endpoint, "timeout_s": 0.5})
+        try:
+            first = psu.identify()
+            psu.reconnect()  # the same supply: no complaint, and it still obeys
+            psu.output(False)
+            tt.twin.model_name = "E36313A"  # the address now leads to another instrument
+            heard.clear()
+            with pytest.raises(WrongInstrument, match="E36313A.*not the.*E36312A.*nothing was"):
+                psu.reconnect()
+            assert heard == ["*IDN?"], heard  # asked who it is, commanded nothing
+            with pytest.raises(ConnectionLost):  # and the port is closed again
+                psu.output(True)
+            assert heard == ["*IDN?"] and first.model == "E36312A"
+        finally:
+            psu.close()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from drivers.clock import ScaledClock
-from drivers.errors import ChamberFault, ConnectionLost, TableFault
+from drivers.errors import ChamberFault, ConnectionLost, TableFault, WrongInstrument
 from drivers.protocols import SafeReadback, TableStatus
 from procedures.config import load_procedure, load_product
 from procedures.engine import Bench, Engine, PartRun, RunContext
@@ -114,6 +114,25 @@ def test_reconnects_with_growing_timeouts_until_the_link_answers() -> None:
     assert report.instruments["rate_table"].safe
     timeouts = [t for t in table.reconnects if t is not None]
     assert timeouts == sorted(timeouts) and timeouts[-1] >= 3.0
+
+
+def test_a_reconnect_that_finds_another_device_is_not_retried() -> None:
+    """The address leads elsewhere now (WrongInstrument): every retry would poke that other
+    device, so the pass reports the instrument unsafe at once and asks no more of it."""
+
+    class Elsewhere(FakeTable):
+        def reconnect(self, timeout_s: float | None = None) -> None:
+            self.reconnects.append(timeout_s)
+            raise WrongInstrument("the rate table's address now answers as another device",
+                                  instrument="rate table")
+
+    table = Elsewhere(dead=True)
+    policy = SafeStatePolicy(deadline_s=0.0, wall_floor_s=5.0, first_backoff_wall_s=0.01)
+    t0 = time.monotonic()
+    report = SafeStatePass([table_target(table)], ScaledClock(100.0), policy).run()
+    state = report.instruments["rate_table"]
+    assert not state.safe and "another device" in state.detail
+    assert len(table.reconnects) == 1 and time.monotonic() - t0 < 2.0
 
 
 def test_a_dead_instrument_fails_by_the_deadline_and_does_not_hold_up_the_others() -> None:

@@ -50,8 +50,10 @@ class CellFailed(RuntimeError):
 
 
 def env(folder: Path) -> dict[str, str]:
-    # every station process of a cell shares one lock folder, as on one machine
-    return dict(os.environ, PYTHONPATH=str(ROOT), STATION_LOCK_DIR=str(folder / "locks"))
+    # every station process of a cell shares the machine's lock folder with every other
+    # station and bench of the test run (a bench passes over a pty number a station holds)
+    del folder
+    return dict(os.environ, PYTHONPATH=str(ROOT))
 
 
 @contextlib.contextmanager

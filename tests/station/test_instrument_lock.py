@@ -72,3 +72,31 @@ def test_a_lock_taken_then_entered_is_held_once_and_released(
     with lock_instruments(TABLE.items()), pytest.raises(InstrumentsBusy):
         InstrumentLock(TABLE, tmp_path).acquire()
     InstrumentLock(TABLE, tmp_path).acquire().release()
+
+
+def test_a_bench_passes_over_a_pty_number_a_station_still_holds(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """CI finding: a station whose bench died still held its supply's pty path while its
+    safe-state pass reconnected by that path; the kernel gave the number to a new bench,
+    and the old station commanded the new bench's instrument. A bench now passes over
+    every pty number a station holds the lock of (the kernel hands out the lowest free
+    number, so without that the bench's first port would be the held one)."""
+    from drivers.sim.launcher import launch_bench
+    from station.instrument_lock import held_by_a_station
+
+    monkeypatch.setenv("STATION_LOCK_DIR", str(tmp_path))
+    master, slave = os.openpty()
+    held = os.ttyname(slave)
+    lock = InstrumentLock({held: f"DC supply at {held}"}).acquire()
+    os.close(master)
+    os.close(slave)  # the bench that served it is gone: the number is free again
+    try:
+        assert held_by_a_station(held)
+        with launch_bench(config={"parts": [{"socket": 1, "serial": "SIM-0001"}]}) as bench:
+            ports = [bench.endpoints.supply, *bench.endpoints.duts.values()]
+            assert all(p.startswith("/dev/pts/") for p in ports), ports
+            assert held not in ports, (held, ports)
+    finally:
+        lock.release()
+    assert not held_by_a_station(held)
