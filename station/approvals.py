@@ -33,6 +33,7 @@ from station.settings import LoadedSettings
 
 MAX_NAME_CHARS = 120
 MAX_REMARK_CHARS = 500
+MAX_APPROVALS_BYTES = 1024 * 1024  # an approval is under 1 kB; read no more than this
 
 
 def read_approvals(folder: Path) -> list[dict[str, Any]]:
@@ -40,7 +41,12 @@ def read_approvals(folder: Path) -> list[dict[str, Any]]:
     if not path.is_file():
         return []
     try:
-        entries = json.loads(path.read_text(encoding="utf-8")).get("approvals", [])
+        with path.open("rb") as fh:  # bounded: a few approvals are a few kB
+            raw = fh.read(MAX_APPROVALS_BYTES + 1)
+        if len(raw) > MAX_APPROVALS_BYTES:
+            raise ValueError(f"larger than {MAX_APPROVALS_BYTES // 1024} kB, not a file the "
+                             "station wrote")
+        entries = json.loads(raw.decode("utf-8")).get("approvals", [])
     except (OSError, ValueError, AttributeError) as exc:
         raise UserError(f"{path} cannot be read ({exc}); the run folder is damaged") from None
     return [e for e in entries if isinstance(e, dict)]
