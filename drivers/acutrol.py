@@ -30,6 +30,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drivers.acutrol_codes import Err, StatusBit, fault_text
+from drivers.address import split_host_port
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     InstrumentError,
@@ -38,7 +39,6 @@ from drivers.errors import (
     TableFault,
 )
 from drivers.protocols import InstrumentIdentity, TableStatus
-from drivers.rate_table import split_host_port
 from drivers.table_waits import TableWaits
 from drivers.tcp_lines import LineLink
 

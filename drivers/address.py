@@ -1,19 +1,38 @@
-"""Address forms shared by drivers' settings: `host:port` for TCP instruments."""
+"""The one `host:port` form of every TCP instrument's address (the Modbus servo tables, the
+Acutrol, the chambers, the inclinometers, the ASCII links): a host name, an IPv4 address or
+a bracketed IPv6 address, a colon, a port 1..65535."""
 
 from __future__ import annotations
 
+import re
+
+_HOST_PORT = re.compile(r"^(?P<host>[A-Za-z0-9_.\-]+|\[[0-9A-Fa-f:]+\]):(?P<port>\d{1,5})$")
+
+
+def parse_host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) from `host:port` (IPv6 brackets removed), None for any other form (a
+    serial device path, a VISA resource)."""
+    match = _HOST_PORT.match(address.strip())
+    if match is None:
+        return None
+    port = int(match["port"])
+    if not 0 < port < 65536:
+        return None
+    return match["host"].strip("[]"), port
+
 
 def split_host_port(address: str) -> tuple[str, int]:
-    """`host:port` -> (host, port); ValueError saying what is wrong otherwise."""
-    host, sep, port = address.strip().rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+    """`host:port` -> (host, port); ValueError saying the expected form otherwise."""
+    found = parse_host_port(address)
+    if found is None:
         raise ValueError(
-            f"{address!r} is not host:port (for example 192.168.1.20:502 or 127.0.0.1:5020)"
+            f"{address!r} is not host:port (for example 192.168.1.20:502, 127.0.0.1:5020 or "
+            "[fe80::1]:502)"
         )
-    return host, int(port)
+    return found
 
 
 def check_host_port(address: str) -> str:
-    """A pydantic validator body: the address unchanged if it is host:port."""
+    """A pydantic validator body: the address unchanged (stripped) if it is host:port."""
     split_host_port(address)
     return address.strip()

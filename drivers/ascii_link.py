@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import re
 import socket
 import threading
 import time
@@ -21,15 +20,13 @@ from typing import Protocol
 
 import serial
 
+from drivers.address import parse_host_port
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
 from drivers.fd_wait import use_poll
 
 log = logging.getLogger(__name__)
 
 EOL = b"\r\n"
-_HOST_PORT = re.compile(r"^(?P<host>[A-Za-z0-9_.\-]+|\[[0-9A-Fa-f:]+\]):(?P<port>\d{1,5})$")
-
-
 class LinePort(Protocol):
     """The part of pyserial's API the link uses (a test fake provides it too)."""
 
@@ -40,17 +37,6 @@ class LinePort(Protocol):
     def reset_input_buffer(self) -> None: ...
 
     def close(self) -> None: ...
-
-
-def parse_host_port(address: str) -> tuple[str, int] | None:
-    """(host, port) from `host:port`, None when `address` is not of that form."""
-    match = _HOST_PORT.match(address.strip())
-    if match is None:
-        return None
-    port = int(match["port"])
-    if not 0 < port < 65536:
-        return None
-    return match["host"].strip("[]"), port
 
 
 class TcpLinePort:

@@ -26,7 +26,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.ascii_link import LineLink, LinePort, open_port, parse_host_port
+from drivers.address import parse_host_port
+from drivers.ascii_link import LineLink, LinePort, open_port
 from drivers.clock import Clock
 from drivers.errors import ChamberRefused, InstrumentError, ProtocolError, SetpointOutOfRange
 from drivers.protocols import InstrumentIdentity

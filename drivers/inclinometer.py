@@ -23,9 +23,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from drivers.address import split_host_port
 from drivers.errors import ProtocolError
 from drivers.protocols import InstrumentIdentity
-from drivers.rate_table import split_host_port
 from drivers.tcp_lines import LineLink
 
 log = logging.getLogger(__name__)

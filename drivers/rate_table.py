@@ -18,6 +18,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from drivers.address import split_host_port
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ControllerHung,
@@ -48,16 +49,6 @@ SAFE_REST_DPS = 0.01  # |rate| below this, not moving: the table is at rest
 # apart than the window are not compared: the 16-bit counter may have wrapped)
 HEARTBEAT_STALL_S = 1.0
 HEARTBEAT_WINDOW_S = 300.0
-
-
-def split_host_port(address: str) -> tuple[str, int]:
-    """`host:port` -> (host, port); ValueError saying the expected form."""
-    host, sep, port = address.strip().rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ValueError(
-            f"address {address!r} is not host:port (for example 192.168.1.20:502)"
-        )
-    return host.strip("[]"), int(port)
 
 
 class Settings(BaseModel):

@@ -17,7 +17,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.ascii_link import parse_host_port
+from drivers.address import parse_host_port
 from drivers.clock import Clock
 from drivers.errors import ProtocolError, SetpointOutOfRange
 from drivers.modbus_link import ModbusLink, ModbusRefused, reopen_link

@@ -16,6 +16,7 @@ import socket
 import threading
 import time
 
+from drivers.address import split_host_port
 from procedures.progress import ProgressEvent
 
 log = logging.getLogger(__name__)
@@ -27,10 +28,7 @@ class PromptRelay:
     """A progress subscriber forwarding prompts to `endpoint` (host:port)."""
 
     def __init__(self, endpoint: str) -> None:
-        host, _, port = endpoint.rpartition(":")
-        if not host or not port.isdigit():
-            raise ValueError(f"operator endpoint {endpoint!r} is not host:port")
-        self.address = (host, int(port))
+        self.address = split_host_port(endpoint)  # ValueError naming the form
         self._sock: socket.socket | None = None
         self._lock = threading.Lock()
         self.sent = 0

@@ -14,16 +14,11 @@ import threading
 from types import TracebackType
 from typing import Any
 
+from drivers.address import split_host_port
+
 
 class ControlError(RuntimeError):
     """The bench refused a control request (the message says why) or cannot be reached."""
-
-
-def parse_endpoint(endpoint: str) -> tuple[str, int]:
-    host, sep, port = endpoint.rpartition(":")
-    if not sep or not port.isdigit():
-        raise ValueError(f"endpoint {endpoint!r} is not host:port")
-    return host or "127.0.0.1", int(port)
 
 
 class ControlClient:
@@ -31,7 +26,7 @@ class ControlClient:
 
     def __init__(self, endpoint: str, timeout_s: float = 10.0) -> None:
         self.endpoint = endpoint
-        host, port = parse_endpoint(endpoint)
+        host, port = split_host_port(endpoint)
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout_s)
         except OSError as exc:

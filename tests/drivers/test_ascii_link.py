@@ -12,7 +12,8 @@ from functools import partial
 
 import pytest
 
-from drivers.ascii_link import LineLink, open_port, parse_host_port
+from drivers.address import parse_host_port
+from drivers.ascii_link import LineLink, open_port
 from drivers.errors import ConnectionLost, InstrumentTimeout
 
 
@@ -136,3 +137,20 @@ def test_nothing_listening_is_connection_lost():
 )
 def test_host_port_form(address, expected):
     assert parse_host_port(address) == expected
+
+
+def test_one_host_port_form_for_every_tcp_address() -> None:
+    """Issue 27: one parser (drivers/address.py) for the tables, chambers, inclinometers, the
+    bench's control channel and the operator relay; the refusal names the form."""
+    from drivers.address import split_host_port
+    from drivers.sim.control_client import ControlClient
+    from station.prompt_relay import PromptRelay
+
+    assert split_host_port(" [fe80::1]:502 ") == ("fe80::1", 502)
+    for bad in ("127.0.0.1", "host name:502", "h:0", "/dev/ttyUSB0"):
+        with pytest.raises(ValueError, match="is not host:port"):
+            split_host_port(bad)
+        with pytest.raises(ValueError, match="is not host:port"):
+            PromptRelay(bad)
+        with pytest.raises(ValueError, match="is not host:port"):
+            ControlClient(bad)
