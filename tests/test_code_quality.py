@@ -33,3 +33,23 @@ def test_mypy_finds_nothing() -> None:
     done = subprocess.run([*_tool("mypy"), *PACKAGES], cwd=ROOT, capture_output=True,
                           text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+# Import cycles still in the tree (issue 27), each named by one of its modules. The list may
+# only shrink: a new cycle fails this test, and so does one fixed but still listed here.
+KNOWN_CYCLES = {
+    "drivers.sim.world": "the world makes fixture sockets, which read the world back",
+    "procedures.analysis": "the package __init__ re-exports what its modules import from it",
+    "procedures.config": "config is below the steps (their unit types) and above them (plan)",
+    "station.settings": "load_settings checks drivers (station.instruments) that read settings",
+}
+
+
+def test_import_cycles_only_shrink() -> None:
+    from tests.import_graph import cycles, graph
+
+    found = cycles(graph(ROOT, PACKAGES))
+    unknown = [sorted(c) for c in found if not c & KNOWN_CYCLES.keys()]
+    assert not unknown, f"new import cycles: {unknown}"
+    gone = [k for k in KNOWN_CYCLES if not any(k in c for c in found)]
+    assert not gone, f"cycles fixed: take {gone} out of KNOWN_CYCLES"

@@ -19,31 +19,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 
+from procedures.model import library
+from procedures.model.effect_spec import EffectSpec
 from procedures.model.trajectory import FloatArray, Trajectory
-
-
-@dataclass(frozen=True)
-class EffectSpec:
-    id: str
-    params: Mapping[str, str]  # parameter name -> units
-    description: str
-    pattern: str  # the variable its residual signature shows against
-    nonlinear: tuple[str, ...] = ()  # parameters profiled, not solved linearly
-    n_columns: int = 1
-    first_order: bool = False
-    # base variables the term depends on (vocabulary REGRESSOR_VOCABULARY)
-    regressors: tuple[str, ...] = ()
-    # readable formula, str.format()-ed with the parameters
-    formula: str = ""
-
-
-# Pinned vocabulary of the base variables a term may depend on (JSON `regressors`).
-REGRESSOR_VOCABULARY = ("rate", "temperature", "temperature_rate", "supply", "angle", "time")
-
 
 CATALOG: dict[str, EffectSpec] = {
     s.id: s
@@ -161,8 +142,6 @@ DEFAULT_TILT_DEG = 90.0
 
 def check_effect_id(effect_id: str) -> EffectSpec:
     """The spec of a catalog effect or of a library term (library.py, ids `lib_...`)."""
-    from procedures.model import library
-
     if library.is_library_id(effect_id):
         return library.spec(effect_id)
     try:
@@ -185,8 +164,6 @@ def formula_of(effect_id: str, params: Mapping[str, float]) -> str:
 
 def columns(effect_id: str, traj: Trajectory, nonlinear: Mapping[str, float]) -> FloatArray:
     """Regressors (n, k) of an effect for fixed nonlinear parameters."""
-    from procedures.model import library
-
     if library.is_library_id(effect_id):
         return library.columns(effect_id, traj)
     w = traj.ref_rate_dps
@@ -226,8 +203,6 @@ def to_params(
     tilt_deg: float = DEFAULT_TILT_DEG,
 ) -> tuple[dict[str, float], dict[str, float]]:
     """Physical parameters and their 1-sigma uncertainties from fitted coefficients."""
-    from procedures.model import library
-
     if library.is_library_id(effect_id):
         return library.to_params(effect_id, coefs, cov)
     c = [float(v) for v in coefs]
@@ -266,8 +241,6 @@ def to_params(
 
 def to_coefficients(effect_id: str, params: Mapping[str, float], scale: float) -> FloatArray:
     """Inverse of to_params: the linear coefficients that reproduce the parameters."""
-    from procedures.model import library
-
     if library.is_library_id(effect_id):
         return library.to_coefficients(effect_id, params)
     spec = check_effect_id(effect_id)

@@ -32,7 +32,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from procedures.model.effects import EffectSpec
+from procedures.model.effect_spec import EffectSpec
 from procedures.model.lag import contiguous_runs
 from procedures.model.trajectory import FloatArray, Trajectory
 
@@ -44,7 +44,7 @@ MAX_HARMONIC = 4
 
 @dataclass(frozen=True)
 class _Factor:
-    variable: str  # pinned regressor vocabulary (effects.REGRESSOR_VOCABULARY)
+    variable: str  # pinned regressor vocabulary (effect_spec.REGRESSOR_VOCABULARY)
     label: str
     unit: str
 

@@ -21,6 +21,7 @@ from scipy import stats
 
 from procedures.model import effects as fx
 from procedures.model import library
+from procedures.model.effect_spec import REGRESSOR_VOCABULARY
 from procedures.model.fit import FitResult, Fitter
 from procedures.model.gyro_model import GyroModel, zero_params
 
@@ -107,7 +108,7 @@ def unexplained_structure(fitter: Fitter, current: FitResult) -> list[VariableTe
     rank0 = int(np.linalg.matrix_rank(fitter.whiten(base.x_block)))
     out = []
     spanned = library.spanned_ids(fitter.traj)
-    for v in fx.REGRESSOR_VOCABULARY:
+    for v in REGRESSOR_VOCABULARY:
         terms = [e for e in _terms_of(v, structure, spanned)
                  if fitter.column_rank_gain(structure, e) >= MIN_INDEPENDENT_FRACTION]
         if not terms:

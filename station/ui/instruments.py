@@ -14,9 +14,20 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
-from station.ui.runner_adapter import InstrumentLight
-
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class InstrumentLight:
+    """An instrument's three lights: connected, in calibration (not overdue), faulted."""
+
+    name: str
+    connected: bool
+    in_calibration: bool | None  # None: the station does not know the due date
+    faulted: bool
+    calibration_due: str = ""  # ISO date
+    detail: str = ""
+    socket: int | None = None  # a socket's fixture: needed only when that socket is loaded
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from station.errors import UserError
+from station.ui.instruments import InstrumentAddress, InstrumentLight, probe
 
 log = logging.getLogger(__name__)
 
@@ -55,19 +56,6 @@ class StartRequest:
     operator: str = ""
     work_order: str = ""
     lot: str = ""
-
-
-@dataclass(frozen=True)
-class InstrumentLight:
-    """An instrument's three lights: connected, in calibration (not overdue), faulted."""
-
-    name: str
-    connected: bool
-    in_calibration: bool | None  # None: the station does not know the due date
-    faulted: bool
-    calibration_due: str = ""  # ISO date
-    detail: str = ""
-    socket: int | None = None  # a socket's fixture: needed only when that socket is loaded
 
 
 @dataclass
@@ -317,7 +305,6 @@ class EngineRunner:
 
     def instruments(self) -> list[InstrumentLight]:
         from station import instruments as roles
-        from station.ui.instruments import InstrumentAddress, probe
 
         if self.busy():
             return []

@@ -15,6 +15,7 @@ from synth_gyro import BEYOND_CATALOG, RAMPED, RAMPED3, generate, realistic_part
 from procedures.model import effects as fx
 from procedures.model import library
 from procedures.model.discrepancy import run_discrepancy
+from procedures.model.effect_spec import REGRESSOR_VOCABULARY
 from procedures.model.gyro_model import first_order_model
 from procedures.model.model_io import load_model, save_model
 from procedures.model.output import result_to_json
@@ -54,7 +55,7 @@ def test_catalog_effects_declare_their_regressors() -> None:
 def test_every_library_term_has_regressors_from_the_vocabulary_and_a_formula() -> None:
     for e in library.candidate_ids():
         spec = fx.check_effect_id(e)
-        assert spec.regressors and set(spec.regressors) <= set(fx.REGRESSOR_VOCABULARY), e
+        assert spec.regressors and set(spec.regressors) <= set(REGRESSOR_VOCABULARY), e
         assert "{" in spec.formula, e
 
 

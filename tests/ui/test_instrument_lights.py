@@ -7,7 +7,8 @@ from collections.abc import Callable
 
 from drivers.sim.launcher import launch_bench
 from station.settings import load_settings
-from station.ui.runner_adapter import EngineRunner, InstrumentLight
+from station.ui.instruments import InstrumentLight
+from station.ui.runner_adapter import EngineRunner
 from station.uut import Endpoints
 
 

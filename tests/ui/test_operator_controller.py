@@ -11,7 +11,8 @@ import pytest
 
 from station.ui.controller import Controller, RunRefusedError
 from station.ui.hub import Hub
-from station.ui.runner_adapter import InstrumentLight, StartRequest
+from station.ui.instruments import InstrumentLight
+from station.ui.runner_adapter import StartRequest
 from tests.ui.fake_runner import FakeRunner
 
 

@@ -24,7 +24,7 @@ from station.ui.app import create_app  # noqa: E402
 from station.ui.controller import Controller  # noqa: E402
 from station.ui.history import History  # noqa: E402
 from station.ui.hub import Hub  # noqa: E402
-from station.ui.runner_adapter import InstrumentLight  # noqa: E402
+from station.ui.instruments import InstrumentLight  # noqa: E402
 from station.ui.server import BackgroundServer, serve_in_thread  # noqa: E402
 from tests.ui.conftest import _HASH  # noqa: E402
 from tests.ui.fake_runner import FakeRunner  # noqa: E402

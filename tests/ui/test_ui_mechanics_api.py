@@ -204,7 +204,7 @@ def test_pages_are_small_and_self_hosted(fake_station: FakeStation) -> None:
 
 
 def test_instrument_lights_follow_the_probe(fake_station: FakeStation) -> None:
-    from station.ui.runner_adapter import InstrumentLight
+    from station.ui.instruments import InstrumentLight
 
     lights = httpx.get(fake_station.url + "/api/state").json()["instruments"]
     assert [x["faulted"] for x in lights] == [False, False, False]
