@@ -1,6 +1,7 @@
 """The import graph of the product's packages, read from the source (ast): every import,
-at module level or inside a function body, of one product module by another (a module also
-depends on the packages it sits in, whose __init__ runs first). Used by test_code_quality."""
+at module level or inside a function body (but not under `if TYPE_CHECKING:`), of one
+product module by another (a module also depends on the packages it sits in, whose __init__
+runs first). Used by test_code_quality."""
 
 from __future__ import annotations
 
@@ -30,14 +31,28 @@ def _targets(node: ast.Import | ast.ImportFrom, name: str, is_package: bool) -> 
     return [base] + [f"{base}.{a.name}" for a in node.names]
 
 
+def _imports(tree: ast.AST) -> list[ast.Import | ast.ImportFrom]:
+    """Every import statement of the module except those under `if TYPE_CHECKING:` (read
+    by the type checker only, never run)."""
+    found: list[ast.Import | ast.ImportFrom] = []
+    todo: list[ast.AST] = [tree]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            found.append(node)
+        elif isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            todo.extend(node.orelse)
+        else:
+            todo.extend(ast.iter_child_nodes(node))
+    return found
+
+
 def graph(root: Path, packages: Iterable[str]) -> dict[str, set[str]]:
     mods = modules(root, packages)
     out: dict[str, set[str]] = {}
     for name, path in mods.items():
         deps: set[str] = set()
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if not isinstance(node, ast.Import | ast.ImportFrom):
-                continue
+        for node in _imports(ast.parse(path.read_text(encoding="utf-8"))):
             for target in _targets(node, name, path.name == "__init__.py"):
                 parts = target.split(".")
                 deps |= {q for i in range(1, len(parts) + 1)
