@@ -37,18 +37,20 @@ from drivers.bounded import (
     Text,
 )
 from drivers.part_codes import CodeFormat
-from drivers.yaml_input import ConfigError as ConfigError
-from drivers.yaml_input import LoadedYaml as LoadedYaml
-from drivers.yaml_input import format_validation_error as format_validation_error
-from drivers.yaml_input import load_yaml_model as load_yaml_model
-from drivers.yaml_input import read_yaml
+from drivers.yaml_input import (
+    ConfigError,
+    LoadedYaml,
+    format_validation_error,
+    load_yaml_model,
+    read_yaml,
+)
 from procedures.conditions import Condition, plan_conditions
 from procedures.step_list import Node, StepEntry, entries, expand, measurement_problems, parse_steps
 from procedures.steps.registry import StepType
 
 # ---------------------------------------------------------------- YAML with line numbers
 # The bounded reader lives with the lowest layer (drivers.yaml_input) so that the simulated
-# bench's configuration is read by the same code; these names are re-exported from here.
+# bench's configuration and station.yaml are read by the same code; import it from there.
 
 
 def load_yaml(path: Path) -> LoadedYaml:

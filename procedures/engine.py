@@ -28,15 +28,13 @@ from drivers.errors import InstrumentError, InstrumentTimeout
 from procedures.limits import overall
 from procedures.record import Event, Outcome, Verdict, os_error_text, save_record_anywhere
 from procedures.run_context import (
-    SUPPLY_SETTLE_S,
     Aborted,
     NoPartsLeft,
     RunContext,
     StepTimeout,
-    UndeclaredMeasurement,
     utc_now,
 )
-from procedures.run_parts import Bench, ConditionResult, PartRun, condition_record
+from procedures.run_parts import PartRun
 from procedures.safe_state import (
     InstrumentSafeState,
     SafeStatePass,
@@ -49,12 +47,6 @@ from procedures.safe_state import (
     table_target,
 )
 from procedures.streams import Acquisition
-
-__all__ = [
-    "SUPPLY_SETTLE_S", "Aborted", "Bench", "ConditionResult", "Engine", "NoPartsLeft",
-    "PartRun", "RunContext", "Step", "StepTimeout", "UndeclaredMeasurement", "condition_record",
-    "finalize",
-]
 
 log = logging.getLogger(__name__)
 

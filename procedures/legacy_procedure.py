@@ -22,16 +22,15 @@ from drivers.bounded import (
     ShortName,
     Text,
 )
+from drivers.yaml_input import LoadedYaml, load_yaml_model
 from procedures.config import (
     ChamberConfig,
     ConditionsConfig,
-    LoadedYaml,
     Rate,
     Seconds,
     StreamConfig,
     Volts,
     _Strict,
-    load_yaml_model,
 )
 from procedures.steps.bias import BiasSettings
 from procedures.steps.fit import FitSettings

@@ -8,7 +8,8 @@ from typing import Any
 
 import yaml
 
-from procedures.config import ConfigError, load_procedure, load_yaml
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure, load_yaml
 from procedures.legacy_procedure import convert, is_section_form, load_section_procedure
 from station.errors import UserError
 

@@ -23,7 +23,8 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from procedures.config import ConfigError, ProcedureConfig, ProductConfig
+from drivers.yaml_input import ConfigError
+from procedures.config import ProcedureConfig, ProductConfig
 from procedures.progress import ProgressEvent
 from procedures.step_list import procedure_json_schema
 from station.errors import UserError

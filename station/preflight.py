@@ -18,10 +18,11 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from drivers.protocols import OutputLimited, RateLimited, SetpointLimited
+from drivers.yaml_input import LoadedYaml
 from procedures.chamber_strategy import steady_die_c
 from procedures.conditions import Condition
-from procedures.config import LoadedYaml, ProcedureConfig, ProductConfig
-from procedures.engine import Bench
+from procedures.config import ProcedureConfig, ProductConfig
+from procedures.run_parts import Bench
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """The station file (config/station.yaml): which instruments, where, and where results go.
 
 Validated with pydantic at the edge; errors name the file, line and field (see
-`procedures.config.load_yaml_model`). Relative paths inside the file are relative to the
+`drivers.yaml_input.load_yaml_model`). Relative paths inside the file are relative to the
 folder that holds it, so the file can travel with its configuration folder.
 """
 
@@ -16,7 +16,7 @@ from typing import Any, Literal
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.bounded import Name, PathText, ShortName
-from procedures.config import ConfigError, LoadedYaml, load_yaml_model
+from drivers.yaml_input import ConfigError, LoadedYaml, load_yaml_model
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"

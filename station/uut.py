@@ -44,8 +44,8 @@ from drivers.protocols import (
     StreamReadsBackSafe,
     Supply,
 )
+from drivers.yaml_input import ConfigError
 from procedures.config import (
-    ConfigError,
     ProcedureConfig,
     ProductConfig,
     check_procedure_for_product,
@@ -53,7 +53,7 @@ from procedures.config import (
     load_product,
     product_for_procedure,
 )
-from procedures.engine import Bench, Engine, PartRun, RunContext
+from procedures.engine import Engine
 from procedures.progress import ProgressBus, ProgressEvent
 from procedures.rawdata import RawDataWriter, file_sha256
 from procedures.record import (
@@ -68,6 +68,8 @@ from procedures.record import (
     save_record_anywhere,
     write_record,
 )
+from procedures.run_context import RunContext
+from procedures.run_parts import Bench, PartRun
 from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
 from procedures.steps.plan import build_plan
 from procedures.steps.power import UNASKED_SOCKETS

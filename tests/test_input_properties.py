@@ -20,7 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers.sim.config import SimConfigError, load_sim_config
-from procedures.config import ConfigError, load_procedure, load_product
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure, load_product
 from procedures.model.data import load_csv
 from procedures.model.model_io import load_model
 from station.cli_analyze import read_rate_csv

@@ -26,7 +26,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
 
 from drivers.bounded import MAX_RATE_DPS, Name, ShortName
-from procedures.config import ConfigError, LoadedYaml, format_validation_error, load_yaml
+from drivers.yaml_input import ConfigError, LoadedYaml, format_validation_error
+from procedures.config import load_yaml
 from procedures.model import effects as fx
 from procedures.model.effects import CATALOG
 from procedures.model.gyro_model import BUILT_IN, GyroModel, zero_params

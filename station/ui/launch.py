@@ -167,7 +167,7 @@ def ui_station(
     """The whole UI station; with `sim` the simulated bench runs for the block's duration."""
     if not engine_available():
         raise UserError("the end-of-line engine (station/uut.py) is not in this build")
-    from procedures.config import ConfigError
+    from drivers.yaml_input import ConfigError
     from station.settings import load_settings
 
     try:

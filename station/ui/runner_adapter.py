@@ -237,7 +237,8 @@ class EngineRunner:
         return sorted(folder.glob("*.yaml")) if folder.is_dir() else []
 
     def procedures(self) -> list[Choice]:
-        from procedures.config import ConfigError, load_procedure
+        from drivers.yaml_input import ConfigError
+        from procedures.config import load_procedure
 
         paths = {
             self.settings.procedure.resolve(),
@@ -254,7 +255,8 @@ class EngineRunner:
         return choices
 
     def products(self) -> list[ProductChoice]:
-        from procedures.config import ConfigError, load_product
+        from drivers.yaml_input import ConfigError
+        from procedures.config import load_product
 
         choices = []
         paths = {p.resolve() for p in self._yaml_files("products")}
@@ -279,7 +281,8 @@ class EngineRunner:
         return choices
 
     def _default_product(self) -> Path | None:
-        from procedures.config import ConfigError, load_procedure
+        from drivers.yaml_input import ConfigError
+        from procedures.config import load_procedure
 
         try:
             proc = self._cached(self.settings.procedure.resolve(), load_procedure)
@@ -348,7 +351,7 @@ class EngineRunner:
         return self._thread is not None and self._thread.is_alive()
 
     def start(self, request: StartRequest, sink: EventSink) -> str:
-        from procedures.config import ConfigError
+        from drivers.yaml_input import ConfigError
 
         if self._thread is not None:
             self._thread.join(2.0)  # "finished" is its last act; let it end

@@ -4,7 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from procedures.config import ConfigError, load_procedure, load_product
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure, load_product
 from station.settings import load_settings
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"

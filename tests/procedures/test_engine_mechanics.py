@@ -13,9 +13,11 @@ import pytest
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentTimeout, PartAbsent, TableFault
 from procedures.config import load_procedure, load_product
-from procedures.engine import Bench, Engine, PartRun, RunContext
+from procedures.engine import Engine
 from procedures.progress import ProgressEvent
 from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
+from procedures.run_context import RunContext
+from procedures.run_parts import Bench, PartRun
 from procedures.steps.registry import StepPolicy
 
 ROOT = Path(__file__).resolve().parents[2]

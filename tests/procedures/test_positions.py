@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from procedures.config import ConfigError, load_procedure
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure
 from procedures.rawdata import read_raw
 from procedures.record import RAW_DATA_FILE, Verdict, read_record
 from procedures.steps.plan import build_plan

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from procedures.config import ConfigError, load_procedure
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure
 
 REPO = Path(__file__).resolve().parents[2]
 

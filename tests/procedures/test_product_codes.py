@@ -15,8 +15,10 @@ from drivers import fixture_protocol as fp
 from drivers.clock import ScaledClock
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import SampleBlock
-from procedures.config import ConfigError, load_product
-from procedures.engine import PartRun, RunContext
+from drivers.yaml_input import ConfigError
+from procedures.config import load_product
+from procedures.run_context import RunContext
+from procedures.run_parts import PartRun
 from procedures.streams import PartStream
 from tests.procedures.test_streams import FakeLink
 

@@ -14,8 +14,10 @@ from drivers.clock import ScaledClock
 from drivers.errors import ChamberFault, ConnectionLost, TableFault, WrongInstrument
 from drivers.protocols import SafeReadback, TableStatus
 from procedures.config import load_procedure, load_product
-from procedures.engine import Bench, Engine, PartRun, RunContext
+from procedures.engine import Engine
 from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
+from procedures.run_context import RunContext
+from procedures.run_parts import Bench, PartRun
 from procedures.safe_state import (
     SafeSettingsError,
     SafeStatePass,

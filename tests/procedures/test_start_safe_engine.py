@@ -12,8 +12,10 @@ from typing import Any
 from drivers.clock import ScaledClock
 from drivers.protocols import SafeReadback
 from procedures.config import load_procedure, load_product
-from procedures.engine import Bench, Engine, PartRun, RunContext
+from procedures.engine import Engine
 from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
+from procedures.run_context import RunContext
+from procedures.run_parts import Bench, PartRun
 
 ROOT = Path(__file__).resolve().parents[2]
 

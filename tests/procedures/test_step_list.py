@@ -8,13 +8,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from drivers.yaml_input import ConfigError
 from procedures.conditions import Condition
-from procedures.config import (
-    ConfigError,
-    check_procedure_for_product,
-    load_procedure,
-    load_product,
-)
+from procedures.config import check_procedure_for_product, load_procedure, load_product
 from procedures.legacy_procedure import convert, load_section_procedure
 from procedures.steps.registry import STEP_GROUP, Declared, StepSettings, step_types
 from station.cli import main

@@ -16,9 +16,10 @@ import pytest
 
 import procedures.rawdata as rawdata
 import procedures.record as record_module
-from procedures.engine import Engine, RunContext
+from procedures.engine import Engine
 from procedures.rawdata import RawDataWriter, read_raw
 from procedures.record import StorageError, Verdict, read_record, storage_error
+from procedures.run_context import RunContext
 from tests.procedures.test_engine_mechanics import SAFE_START_AND_END, Scripted, _ctx
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.config import ConfigError
+from drivers.yaml_input import ConfigError
 from station import instruments as roles
 from station.settings import load_settings
 from station.uut import Endpoints

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from procedures.config import ConfigError
+from drivers.yaml_input import ConfigError
 from procedures.safe_state import SafeStatePolicy
 from station.settings import load_settings
 from station.uut import UutRunner
