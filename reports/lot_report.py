@@ -20,6 +20,7 @@ from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table,
 
 from reports import lot_stats, lot_three_axis
 from reports.charts import LIMIT_RED, PALETTE, Chart, bar_chart, message_box
+from reports.lot_rows import LotRows, MeasurementRow, RunRow
 from reports.pdfdoc import PageFurniture, build_pdf, page_count, parse_utc, write_atomic
 from reports.styles import (
     BODY,
@@ -37,7 +38,6 @@ from reports.styles import (
     unit_label,
 )
 from reports.table_fit import fitted_table
-from station.results_db import MeasurementRow, ResultsDB, RunRow
 
 FULL_W = 182 * mm
 HALF_W = 90 * mm
@@ -211,7 +211,7 @@ def _run_list(runs: list[RunRow]) -> Table:
     return fitted_table(rows, FULL_W, style, repeatRows=1)
 
 
-def _coverage_text(db: ResultsDB, runs: list[RunRow], filters: dict[str, object]) -> str:
+def _coverage_text(db: LotRows, runs: list[RunRow], filters: dict[str, object]) -> str:
     """Which runs the report covers: the filters, the runs' time span, the database."""
     where = f"Database: {db.path}."
     if not runs:
@@ -223,12 +223,12 @@ def _coverage_text(db: ResultsDB, runs: list[RunRow], filters: dict[str, object]
             f"{runs[-1].started_utc}{newest}. {where}")
 
 
-def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
+def build_lot(db: LotRows, issued: datetime | None = None, **filters: object
               ) -> tuple[list[Flowable], LotSummary, PageFurniture]:
     """The lot report's story; `issued` (default now) is the date printed and stamped."""
     issued = (issued or datetime.now(UTC)).astimezone(UTC).replace(microsecond=0)
-    runs = db.runs(**filters)  # type: ignore[arg-type]
-    rows: list[MeasurementRow] = db.measurement_values(**filters)  # type: ignore[arg-type]
+    runs = db.runs(**filters)
+    rows: list[MeasurementRow] = db.measurement_values(**filters)
     y = lot_stats.yield_summary(runs)
     pareto = lot_stats.failure_pareto(rows)
     caps = [lot_stats.capability(n, rows, c) for n, c in lot_stats.measurement_keys(rows)]
@@ -278,7 +278,7 @@ def build_lot(db: ResultsDB, issued: datetime | None = None, **filters: object
     return story, summary, furniture
 
 
-def render_lot_report(db: ResultsDB, out: Path, issued: datetime | None = None,
+def render_lot_report(db: LotRows, out: Path, issued: datetime | None = None,
                       **filters: object) -> LotSummary:
     """Write the lot report PDF for the runs matching the filters (see ResultsDB.runs).
 

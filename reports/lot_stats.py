@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.results_db import MeasurementRow, RunRow
+from reports.lot_rows import MeasurementRow, RunRow
 
 COMPLETED = ("PASS", "FAIL")
 

@@ -15,9 +15,9 @@ from collections.abc import Sequence
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, Paragraph
 
+from reports.lot_rows import CalibrationElement, RunRow
 from reports.styles import CELL, H2, NOTE, fmt, grid_style
 from reports.table_fit import fitted_table
-from station.results_db import CalibrationElement, RunRow
 
 LABELS = {
     "bias_dps": ("b", "deg/s"),

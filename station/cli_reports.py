@@ -19,8 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record
+from reports.lot_rows import RunRow
 from station.errors import UserError
-from station.results_db import ResultsDB, ResultsDBError, RunRow
+from station.results_db import ResultsDB, ResultsDBError
 
 log = logging.getLogger(__name__)
 

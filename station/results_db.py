@@ -17,7 +17,6 @@ when the database is opened (station/db/migrations). Times are ISO-8601 UTC text
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from datetime import UTC, date, datetime
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ import sqlalchemy as sa
 from sqlalchemy.exc import SQLAlchemyError
 
 from procedures.record import RECORD_FILE, RunRecord, read_record
+from reports.lot_rows import CalibrationElement, MeasurementRow, RunRow
 from station.db.connect import DatabaseError, database_url, engine_for, shown, sqlite_path
 from station.db.schema import CAL_KEYS, calibration_elements, measurements, runs
 from station.db.store import (
@@ -44,60 +44,6 @@ __all__ = ["CalibrationElement", "MeasurementRow", "ResultsDB", "ResultsDBError"
 
 class ResultsDBError(DatabaseError):
     """The database cannot be opened or a query is malformed; the message says what to do."""
-
-
-@dataclass(frozen=True)
-class RunRow:
-    run_id: str
-    serial: str
-    product: str
-    verdict: str
-    reason: str
-    failed_measurements: tuple[str, ...]
-    simulated: bool
-    started_utc: str
-    finished_utc: str | None
-    station_id: str
-    operator: str
-    software_version: str
-    procedure_name: str
-    procedure_sha256: str
-    folder: str
-    calibration: dict[str, float | None]  # coefficient key -> value (None when not written)
-    work_order: str = ""
-    lot: str = ""
-    attempt: int = 1  # 1 for a serial's first test, 2 for its first retest, ...
-    first_run_id: str = ""  # the run_id of the serial's first test
-    axes: int = 1  # 3: a three-axis part (its calibration: ResultsDB.calibration_elements)
-    socket: int = 0  # the fixture socket the part sat in; 0 when not recorded (schema < 5)
-
-
-@dataclass(frozen=True)
-class MeasurementRow:
-    run_id: str
-    serial: str
-    started_utc: str
-    verdict: str
-    name: str
-    condition: str | None
-    value: float | None
-    units: str
-    low: float | None
-    high: float | None
-    outcome: str
-
-
-@dataclass(frozen=True)
-class CalibrationElement:
-    """One element of a three-axis calibration (schema 4's calibration_elements)."""
-
-    run_id: str
-    serial: str
-    quantity: str  # bias_dps, matrix, g_sensitivity_dps_per_mps2, ...
-    axis: str  # x, y, z: the output axis (a matrix's row)
-    column_axis: str | None  # a matrix's column; None for a vector
-    value: float | None
-    uncertainty_k2: float | None
 
 
 def parse_since(value: str | date | datetime) -> str:

@@ -52,3 +52,21 @@ def test_import_cycles_only_shrink() -> None:
     assert not unknown, f"new import cycles: {unknown}"
     gone = [k for k in KNOWN_CYCLES if not any(k in c for c in found)]
     assert not gone, f"cycles fixed: take {gone} out of KNOWN_CYCLES"
+
+
+LAYERS = ("drivers", "procedures", "reports", "station")  # each may import only those before
+
+
+def test_dependencies_run_one_way() -> None:
+    """station -> reports -> procedures -> drivers: no module imports a layer above its own,
+    not even inside a function body (reports read records, never the station)."""
+    from tests.import_graph import graph
+
+    rank = {name: i for i, name in enumerate(LAYERS)}
+    upward = sorted(
+        f"{module} -> {dep}"
+        for module, deps in graph(ROOT, PACKAGES).items()
+        for dep in deps
+        if rank[dep.split(".")[0]] > rank[module.split(".")[0]]
+    )
+    assert not upward, "imports against the layers:\n" + "\n".join(upward)

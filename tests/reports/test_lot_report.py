@@ -102,7 +102,7 @@ def test_histograms_and_trend_are_in_the_report(lot: tuple[Path, list], tmp_path
 
 
 def test_capability_is_per_condition_not_pooled() -> None:
-    from station.results_db import MeasurementRow
+    from reports.lot_rows import MeasurementRow
 
     def row(run: str, cond: str, v: float) -> MeasurementRow:
         return MeasurementRow(run, "S", "2026-01-01T00:00:00+00:00", "PASS", "raw_bias_dps",
