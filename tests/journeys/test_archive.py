@@ -258,3 +258,13 @@ def test_a_file_that_is_no_archive_is_not_a_run(tmp_path: Path) -> None:
     assert station("verify", str(tmp_path / "notes.txt"))[0] == 2
     code, out, _ = station("verify", str(tmp_path / "empty.tar.xz"))
     assert code == 1 and "truncated or damaged" in out
+
+
+def test_station_help_lists_archive() -> None:
+    shown = subprocess.run([str(STATION_CMD), "--help"], capture_output=True, text=True,
+                           timeout=60)
+    assert shown.returncode == 0
+    assert "archive      pack finished run folders older than DAYS into archives" in shown.stdout
+    usage = subprocess.run([str(STATION_CMD), "archive", "--help"], capture_output=True,
+                           text=True, timeout=60).stdout
+    assert all(o in usage for o in ("--older-than DAYS", "--out FOLDER", "RUNS_DIR"))
