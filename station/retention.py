@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from procedures.record import RECORD_FILE, Verdict, read_record
+from procedures.record import RECORD_FILE, Verdict, os_error_text, read_record
 from station.manifest import MANIFEST_FILE, folder_changes, is_run_folder, verify_folder
 from station.results_db import ResultsDB, ResultsDBError
 from station.run_archive import SUFFIX, archive_ref, examine, write_archive
@@ -191,6 +191,11 @@ def archive_runs(root: Path, out: Path, days: float, db: ResultsDB | None,
         except ValueError as exc:
             report.skipped.append(str(exc))
             continue
+        except OSError as exc:  # renaming, removing: the steps' order keeps the data
+            raise ArchiveFailed(
+                f"{folder}: {os_error_text(exc)}; stopped, nothing lost (the folder stays "
+                "until its archive is written and verified): fix that and run the same "
+                "`station archive` again") from None
         report.archived.append(target)
         if progress is not None:
             progress(folder, target)

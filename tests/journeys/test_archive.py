@@ -21,10 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import sqlalchemy as sa
 
 from station import retention
 from station.certify import finish_run_folder
 from station.db.connect import dispose_all
+from station.db.schema import outbox
 from station.results_db import ResultsDB
 from station.settings import LoadedSettings, load_settings
 from tests.reports.synth_run import Part, make_run
@@ -106,6 +108,10 @@ def test_the_documented_command_archives_old_runs_only(line: Line) -> None:
     rows = {r.serial: r.folder for r in line.db.runs()}
     assert rows["SIM-OLD-1"] == f"{line.archive.resolve()}#{line.old.name}"
     assert rows["SIM-YOUNG-2"] == str(line.young.resolve())
+    with line.db.engine.connect() as con:  # queued again for the line's central database
+        versions = {r.run_id: r.version
+                    for r in con.execute(sa.select(outbox.c.run_id, outbox.c.version))}
+    assert [versions[r.run_id] for r in line.db.runs()] == [2, 1]
     names = [m.name for m, _ in _members(line.archive)]
     assert names[0] == line.old.name and names[-1] == f"{line.old.name}/raw.h5"
     assert f"{line.old.name}/manifest.json" in names
@@ -234,6 +240,21 @@ def test_disk_full_leaves_the_archive_out_and_keeps_the_folder(
     assert f"{line.old} kept" in lines[0] and "--out" in lines[0]
     assert line.old.is_dir() and sorted(p.name for p in (line.runs / "archive").iterdir()) == [
         ".archive.lock"]
+
+
+def test_a_folder_that_cannot_be_removed_stops_and_a_rerun_completes(
+        line: Line, monkeypatch: pytest.MonkeyPatch) -> None:
+    def refused(folder: Path) -> None:
+        raise PermissionError(13, "Permission denied", str(folder / "raw.h5"))
+
+    monkeypatch.setattr(retention, "_remove", refused)
+    code, _, err = line.archive_cmd()
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"{line.old}/raw.h5: Permission denied; stopped, nothing lost" in err
+    assert line.old.is_dir() and line.verify(line.archive)[0] == 0
+    assert line.db.runs(serial="SIM-OLD-1")[0].folder.endswith(f"#{line.old.name}")
+    monkeypatch.undo()
+    assert line.archive_cmd()[0] == 0 and not line.old.exists()
 
 
 @pytest.mark.parametrize("days", ["abc", "0", "-3", "nan", "inf"])
