@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "station.cli_ui",  # ui
     "station.cli_line",  # line, sync, export
     "station.cli_signing",  # verify, approve
+    "station.cli_archive",  # archive
     "station.cli_procedure",  # procedure convert
 )
 

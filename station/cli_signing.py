@@ -1,7 +1,8 @@
 """`station verify` and `station approve`: tamper evidence of run folders.
 
-    station verify RUN_FOLDER [--trust CERT.pem] [--station FILE]
-        exit 0 intact, 1 altered (naming the file), 2 not a run folder (pinned)
+    station verify RUN_FOLDER|RUN.tar.xz [--trust CERT.pem] [--station FILE]
+        exit 0 intact, 1 altered (naming the file), 2 not a run folder (pinned); a run
+        archive (`station archive`) is checked as its folder was
     station approve RUN_FOLDER --by NAME [--remark TEXT] [--station FILE]
         a quality engineer's approval: shown on the certificate, second PDF signature,
         approvals.json, new manifest (a FAIL run needs --remark)
@@ -36,7 +37,7 @@ def sealed_text(result: Verification) -> str:
     return text
 
 
-def _settings(path: str | None) -> object | None:
+def station_settings(path: str | None) -> object | None:
     from station.settings import load_settings
 
     try:
@@ -57,7 +58,7 @@ def trusted_for(args: argparse.Namespace) -> tuple[set[str] | None, str]:
     if args.trust:
         cert = load_trusted_certificate(Path(args.trust))
         return {certificate_fingerprint(cert)}, f"trusting {args.trust}"
-    settings = _settings(args.station)
+    settings = station_settings(args.station)
     if isinstance(settings, LoadedSettings):
         trusted = trusted_fingerprints(settings)
         if trusted is not None:
@@ -67,9 +68,12 @@ def trusted_for(args: argparse.Namespace) -> tuple[set[str] | None, str]:
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
+    from station.run_archive import verify_archive
+
     folder = Path(args.run_folder)
     trusted, basis = trusted_for(args)
-    result = verify_folder(folder, trusted)
+    result = (verify_folder(folder, trusted) if folder.is_dir() or not folder.exists()
+              else verify_archive(folder, trusted))
     if result.status is Status.NOT_A_RUN_FOLDER:
         for p in result.problems:
             print(p, file=sys.stderr)
@@ -88,7 +92,7 @@ def cmd_approve(args: argparse.Namespace) -> int:
     from station.approvals import approve
     from station.settings import LoadedSettings
 
-    settings = _settings(args.station)
+    settings = station_settings(args.station)
     if not isinstance(settings, LoadedSettings):
         raise UserError("no station settings: give --station FILE (its key signs approvals)")
     entry = approve(Path(args.run_folder), settings, by=args.by, role="quality",
@@ -98,8 +102,10 @@ def cmd_approve(args: argparse.Namespace) -> int:
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = subparsers.add_parser("verify", help="check a run folder against its signed manifest")
-    p.add_argument("run_folder", metavar="RUN_FOLDER")
+    p = subparsers.add_parser(
+        "verify", help="check a run folder or run archive against its signed manifest")
+    p.add_argument("run_folder", metavar="RUN_FOLDER", help="a run folder or its archive "
+                   "(RUN.tar.xz, from `station archive`)")
     p.add_argument("--trust", metavar="CERT.pem",
                    help="accept only this signer (default: the station's own certificate)")
     p.add_argument("--station", metavar="FILE", help="station file (default: config/station.yaml)")

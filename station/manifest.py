@@ -23,6 +23,7 @@ import os
 import re
 import stat
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path
@@ -153,14 +154,23 @@ def _read_manifest(folder: Path) -> tuple[dict[str, Any] | None, str]:
     try:
         with path.open("rb") as fh:
             data = fh.read(MAX_MANIFEST_BYTES + 1)
-        if len(data) > MAX_MANIFEST_BYTES:
-            return None, (f"{MANIFEST_FILE} is larger than {MAX_MANIFEST_BYTES:,} bytes "
-                          "(a manifest is a few kB)")
+    except OSError as exc:
+        return None, f"{MANIFEST_FILE} cannot be read ({' '.join(str(exc).split())[:200]})"
+    return parse_manifest(data)
+
+
+def parse_manifest(data: bytes) -> tuple[dict[str, Any] | None, str]:
+    """A manifest's document from its bytes (at most MAX_MANIFEST_BYTES + 1 of them), or
+    None and what is wrong with it."""
+    if len(data) > MAX_MANIFEST_BYTES:
+        return None, (f"{MANIFEST_FILE} is larger than {MAX_MANIFEST_BYTES:,} bytes "
+                      "(a manifest is a few kB)")
+    try:
         doc = json.loads(data.decode("utf-8"))
         if doc.get("format") != FORMAT or not isinstance(doc.get("body"), dict):
             return None, f"{MANIFEST_FILE} is not a {FORMAT} manifest"
         return doc, ""
-    except (OSError, ValueError, AttributeError) as exc:
+    except (ValueError, AttributeError) as exc:
         return None, f"{MANIFEST_FILE} cannot be read ({' '.join(str(exc).split())[:200]})"
 
 
@@ -188,34 +198,54 @@ def _check_signature(doc: dict[str, Any], trusted: set[str] | None) -> tuple[str
     return fingerprint, ""
 
 
-def _check_files(folder: Path, files: dict[str, Any]) -> dict[str, str]:
-    """The files that differ from the manifest, each with what happened: changed, removed,
-    a symbolic link, or added after sealing (any name but the sealed files and the ones the
-    station adds later, UNSEALED_FILES)."""
+def check_entries(files: dict[str, Any], kinds: dict[str, str],
+                  same: Callable[[str, Any], bool]) -> dict[str, str]:
+    """The entries that differ from the manifest's `files`, each with what happened: changed,
+    removed, a symbolic link, or added after sealing (any name but the sealed files and the
+    ones the station adds later, UNSEALED_FILES). `kinds`: each entry present, by name, as
+    "file", "link" or "other"; `same(name, expected)`: that file matches its manifest entry.
+    A folder and an archive (station/run_archive.py) are judged by this one rule."""
     altered: dict[str, str] = {}
     for name in SEALED_FILES:
-        expected = files.get(name)
-        path = folder / name
-        if path.is_symlink():  # even to an identical copy: the folder must hold its data
+        expected, kind = files.get(name), kinds.get(name)
+        if kind == "link":  # even to an identical copy: the folder must hold its data
             altered[name] = "replaced by a symbolic link"
         elif expected is None:
-            if path.exists():
+            if kind is not None:
                 altered[name] = "added after sealing"
-        elif not path.exists():
+        elif kind is None:
             altered[name] = "removed"
-        elif not _same(path, expected):
+        elif not same(name, expected):
             altered[name] = "changed"
-    try:
-        names = sorted(os.listdir(folder))
-    except OSError as exc:
-        return {**altered, ".": f"unreadable ({exc.strerror or exc})"}
-    for name in names:
+    for name in sorted(kinds):
         if name in SEALED_FILES or _TEMP_FILE.fullmatch(name):
             continue
-        if name in UNSEALED_FILES and not (folder / name).is_symlink():
+        if name in UNSEALED_FILES and kinds[name] != "link":
             continue
         altered[name] = "added after sealing"
     return altered
+
+
+def _kind(path: Path) -> str | None:
+    try:
+        mode = path.lstat().st_mode
+    except OSError:
+        return None
+    return "link" if stat.S_ISLNK(mode) else "file" if stat.S_ISREG(mode) else "other"
+
+
+def folder_changes(folder: Path, files: dict[str, Any]) -> dict[str, str]:
+    """check_entries over a folder's entries."""
+    try:
+        names = os.listdir(folder)
+    except OSError as exc:
+        names, unreadable = [], f"unreadable ({exc.strerror or exc})"
+    else:
+        unreadable = ""
+    kinds = {name: kind for name in {*SEALED_FILES, *names}
+             if (kind := _kind(folder / name)) is not None}
+    altered = check_entries(files, kinds, lambda name, expected: _same(folder / name, expected))
+    return {**altered, ".": unreadable} if unreadable else altered
 
 
 def _same(path: Path, expected: Any) -> bool:
@@ -240,6 +270,13 @@ def verify_folder(folder: Path, trusted: set[str] | None = None) -> Verification
         return Verification(Status.NOT_A_RUN_FOLDER, [
             f"{folder} is not a run folder (neither {RECORD_FILE} nor {RAW_DATA_FILE} in it)"])
     doc, problem = _read_manifest(folder)
+    return judge(doc, problem, trusted, lambda files: folder_changes(folder, files))
+
+
+def judge(doc: dict[str, Any] | None, problem: str, trusted: set[str] | None,
+          changes: Callable[[dict[str, Any]], dict[str, str]]) -> Verification:
+    """The verdict on a run's manifest (`doc`, or None and the `problem` reading it) and its
+    files: `changes(manifest files)` says which differ (check_entries)."""
     if doc is None:
         return Verification(Status.ALTERED, [problem], [MANIFEST_FILE])
     fingerprint, problem = _check_signature(doc, trusted)
@@ -256,7 +293,7 @@ def verify_folder(folder: Path, trusted: set[str] | None = None) -> Verification
     files = doc["body"].get("files")
     if not isinstance(files, dict):
         return Verification(Status.ALTERED, [f"{MANIFEST_FILE}: no file list"], [MANIFEST_FILE])
-    for name, state in _check_files(folder, files).items():
+    for name, state in changes(files).items():
         result.status = Status.ALTERED
         result.altered_files.append(name)
         result.problems.append(f"{name} was {state} since the folder was sealed")

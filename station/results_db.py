@@ -12,6 +12,7 @@ when the database is opened (station/db/migrations). Times are ISO-8601 UTC text
     db.runs(since=..., product=..., verdict=..., serial=..., lot=..., work_order=...)
     db.measurement_values("bias_dps", product=...)
     db.mark_error(run_id, reason)             # a crashed run, found later
+    db.relocate(run_id, folder)               # its files moved (an archive)
 """
 
 from __future__ import annotations
@@ -155,6 +156,14 @@ class ResultsDB:
 
     def mark_error(self, run_id: str, reason: str) -> None:
         """Set a run's verdict to ERROR with the reason (e.g. a crash found on restart)."""
+        self._rewrite(run_id, {"verdict": "ERROR", "reason": reason})
+
+    def relocate(self, run_id: str, folder: str) -> None:
+        """Point a run's row at where its files are now (`station archive`: ARCHIVE#RUN,
+        station/run_archive.py), queued for the line's central database like any change."""
+        self._rewrite(run_id, {"folder": folder})
+
+    def _rewrite(self, run_id: str, changes: dict[str, Any]) -> None:
         try:
             with self._begin() as con:
                 found = con.execute(
@@ -163,7 +172,7 @@ class ResultsDB:
                     raise ResultsDBError(
                         f"run {run_id!r} is not in {self.path}; index its folder first (add_run)"
                     )
-                full = {**found, "verdict": "ERROR", "reason": reason}
+                full = {**found, **changes}
                 meas = [dict(m) for m in con.execute(
                     sa.select(measurements).where(measurements.c.run_id == run_id)
                 ).mappings()]
@@ -197,6 +206,15 @@ class ResultsDB:
         except SQLAlchemyError as exc:
             raise self._fail(exc) from None
         return [_run_row(r) for r in found]
+
+    def folder_of(self, run_id: str) -> str | None:
+        """Where the run's files are (its row's `folder`), or None when it is not indexed."""
+        try:
+            with self.engine.connect() as con:
+                found = con.scalar(sa.select(runs.c.folder).where(runs.c.run_id == run_id))
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
+        return None if found is None else str(found)
 
     def measurement_values(
         self,

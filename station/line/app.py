@@ -3,7 +3,8 @@
 Pages: `/` the dashboard. JSON under `/api`: `stations` (with the filter choices), `yields`,
 `capability`, `chart` (a coefficient's control chart), `runs` (latest runs).
 `/certificate/{run_id}` serves the run's certificate from the run folder the station
-recorded, when this computer can reach it.
+recorded, when this computer can reach it (from inside its archive once `station archive`
+packed it: station/line/archived.py).
 Errors come back as {"error": message} (422 bad input, 404 not found, 503 database down).
 """
 
@@ -18,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import SQLAlchemyError
@@ -27,8 +28,10 @@ from procedures.record import CERTIFICATE_FILE
 from station.db.schema import CAL_KEYS
 from station.db.yields import DEFAULT_SHIFT_STARTS_H
 from station.line import queries
+from station.line.archived import archived_certificate
 from station.line.queries import Filters
 from station.results_db import ResultsDBError, parse_since
+from station.run_archive import split_ref
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +124,7 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
         return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1])}, request)
 
     @app.get("/certificate/{run_id}", response_model=None)
-    def certificate(run_id: str) -> FileResponse | JSONResponse:
+    def certificate(run_id: str) -> Response:
         if not _RUN_ID.match(run_id):
             return _error(422, "not a run id")
         try:
@@ -131,6 +134,8 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
             return _error(503, "the line database is not reachable; check the database server")
         if folder is None:
             return _error(404, f"run {run_id} is not in the line database")
+        if (archived := split_ref(folder)) is not None:  # `station archive` packed it
+            return archived_certificate(run_id, *archived)
         pdf = Path(folder) / CERTIFICATE_FILE
         if not pdf.is_file():
             return _error(404, f"the certificate of run {run_id} is not reachable from here: "
