@@ -24,7 +24,7 @@ import numpy as np
 
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError, PartAbsent, PartSilent, StreamCorrupted
-from drivers.protocols import RateTable, TableStatus
+from drivers.protocols import Chamber, RateTable, Supply, TableStatus
 from procedures.limits import judge
 from procedures.progress import ProgressBus, ProgressEvent
 from procedures.record import Event, Measurement, Outcome, Verdict, write_record
@@ -436,8 +436,8 @@ class Instruments:
         self._wait = wait
 
     @property
-    def table(self) -> Any:
-        """The rate table (drivers.protocols.RateTable) or None on a bench without one."""
+    def table(self) -> RateTable | None:
+        """The rate table, or None on a bench without one."""
         return self.bench.table
 
     def need_table(self) -> RateTable:
@@ -453,11 +453,11 @@ class Instruments:
         return self.bench.table
 
     @property
-    def chamber(self) -> Any:
+    def chamber(self) -> Chamber:
         return self.bench.chamber
 
     @property
-    def supply(self) -> Any:
+    def supply(self) -> Supply:
         return self.bench.supply
 
     def snapshot(self) -> tuple[float, TableStatus]:

@@ -25,11 +25,15 @@ from typing import Any
 from drivers.clock import Clock
 from drivers.errors import WrongInstrument
 from drivers.protocols import (
+    Chamber,
     ChamberReadsBackSafe,
+    PartLink,
+    RateTable,
     ReadsBackSafe,
     Reconnectable,
     SafeReadback,
     StreamReadsBackSafe,
+    Supply,
 )
 
 log = logging.getLogger(__name__)
@@ -139,7 +143,7 @@ def _link_timeout(driver: object) -> float:
     return float(getattr(link, "timeout_s", 1.0) or 1.0)
 
 
-def table_target(table: Any) -> SafeTarget:
+def table_target(table: RateTable) -> SafeTarget:
     return SafeTarget(
         "rate_table",
         table.safe_state,
@@ -149,7 +153,7 @@ def table_target(table: Any) -> SafeTarget:
     )
 
 
-def _table_readback(table: Any) -> Callable[[], SafeReadback] | None:
+def _table_readback(table: RateTable) -> Callable[[], SafeReadback] | None:
     if not callable(getattr(table, "read_status", None)):
         return None
 
@@ -162,7 +166,7 @@ def _table_readback(table: Any) -> Callable[[], SafeReadback] | None:
 
 
 def streams_target(
-    links: Mapping[int, Any], before: Callable[[], None] | None = None
+    links: Mapping[int, PartLink], before: Callable[[], None] | None = None
 ) -> SafeTarget:
     """Every socket's sample stream stopped: the station's own streams drained first
     (`before`), then STOP to every fixture whatever the station believes (a stream that a
@@ -205,7 +209,7 @@ def streams_target(
     return SafeTarget("streams", command, readback, retry=False)
 
 
-def supply_target(supply: Any) -> SafeTarget:
+def supply_target(supply: Supply) -> SafeTarget:
     readback: Callable[[], SafeReadback] | None = None
     if isinstance(supply, ReadsBackSafe):
         readback = supply.check_safe
@@ -224,7 +228,7 @@ def supply_target(supply: Any) -> SafeTarget:
     )
 
 
-def chamber_target(chamber: Any, safe_temp_c: float) -> SafeTarget:
+def chamber_target(chamber: Chamber, safe_temp_c: float) -> SafeTarget:
     readback: Callable[[], SafeReadback] | None = None
     if isinstance(chamber, ChamberReadsBackSafe):
 
