@@ -45,11 +45,10 @@ def dashboard(line: tuple[str, list[Any]], page: Any) -> Any:
     return page
 
 
-def _show(page: Any) -> None:
-    """Press Show and wait for the panels to load again."""
-    page.evaluate("document.body.dataset.loaded = ''")
+def _show(page: Any, query: str) -> None:
+    """Press Show and wait for the panels of this query (a newer refresh wins)."""
     page.click("#filters button[type=submit]")
-    wait_js(page, "document.body.dataset.loaded === '1'")
+    wait_js(page, f"document.body.dataset.query === {query!r}")
 
 
 def _units_tests(records: list[Any]) -> str:
@@ -70,7 +69,7 @@ def test_simulated_runs_switch(line: tuple[str, list[Any]], dashboard: Any) -> N
     assert note == f"{left_out} simulated runs left out"
     assert dashboard.locator(f'#stations .card[data-station="{BENCH}"]').count() == 0
     switch.check()
-    _show(dashboard)
+    _show(dashboard, "simulated=include")
     assert box.inner_text().startswith(_units_tests(records))
     assert "included" in dashboard.locator("#simulated-note").inner_text()
     assert dashboard.locator(f'#stations .card[data-station="{BENCH}"]').count() == 1
@@ -79,12 +78,12 @@ def test_simulated_runs_switch(line: tuple[str, list[Any]], dashboard: Any) -> N
 def test_cpk_too_few_reads_n_and_the_minimum(dashboard: Any) -> None:
     dashboard.locator('#filters input[name="simulated"]').check()
     dashboard.select_option('#filters select[name="station"]', BENCH)
-    _show(dashboard)
+    _show(dashboard, f"station={BENCH}&simulated=include")
     cell = dashboard.locator('#capability tr[data-name="bias_dps"] td.cpk')
     assert cell.inner_text() == f"too few (n = {N_BENCH}, need {MIN_CPK_N})"
     dashboard.locator('#filters input[name="simulated"]').uncheck()
     dashboard.select_option('#filters select[name="station"]', "")
-    _show(dashboard)
+    _show(dashboard, "")
     shown = dashboard.locator('#capability tr[data-name="bias_dps"] td.cpk').inner_text()
     assert re.fullmatch(r"-?\d+\.\d\d", shown), shown
 

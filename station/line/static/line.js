@@ -3,7 +3,7 @@
 // (textContent only: nothing from the database is parsed as HTML).
 "use strict";
 
-const state = { summary: null, group: "station" };
+const state = { summary: null, group: "station", asked: 0 };
 
 function el(tag, attrs = {}, text = "") {
   const e = document.createElement(tag);
@@ -257,6 +257,7 @@ async function refresh() {
   const status = document.getElementById("status");
   const q = query();
   const coef = document.getElementById("coefficient");
+  const asked = ++state.asked;
   try {
     const t0 = performance.now();
     const chartQuery = new URLSearchParams(q);
@@ -265,6 +266,7 @@ async function refresh() {
       getJson("/api/stations?" + q), getJson("/api/yields?" + q),
       getJson("/api/capability?" + q), getJson("/api/runs?" + q),
       getJson("/api/chart?" + chartQuery)]);
+    if (asked !== state.asked) return; // a newer refresh (other filters) is under way
     state.summary = { yields, ...capability };
     fillChoices(stations.choices);
     renderSimulated(q.get("simulated") === "include", stations.simulated_left_out);
@@ -275,6 +277,7 @@ async function refresh() {
     if (!coef.options.length) for (const c of stations.coefficients) coef.append(el("option", { value: c }, c));
     renderChart(chart);
     status.textContent = `updated ${new Date().toISOString().slice(11, 19)} UTC in ${((performance.now() - t0) / 1000).toFixed(2)} s`;
+    document.body.dataset.query = q.toString();
     document.body.dataset.loaded = "1";
   } catch (err) {
     status.textContent = "could not load: " + err.message;
@@ -286,5 +289,6 @@ document.getElementById("yield-tabs").addEventListener("click", (e) => {
   if (e.target.dataset.group && state.summary) { state.group = e.target.dataset.group; renderYields(); }
 });
 document.getElementById("coefficient").addEventListener("change", refresh);
+document.querySelector('#filters input[name="simulated"]').addEventListener("change", refresh);
 refresh();
 setInterval(refresh, 30000);
