@@ -59,12 +59,12 @@ class Filters:
 def station_states(con: sa.Connection, offline_after_s: float, now: datetime | None = None,
                    include_simulated: bool = False) -> list[dict[str, Any]]:
     """Each station: its sync's last word (state, queued runs, when) and its latest results
-    (simulated runs left out unless included)."""
+    (simulated runs left out unless included: a station never heard from with none left is
+    not shown)."""
     now = now or datetime.now(UTC)
     real = simulated_clauses(include_simulated)
     beats = {r.station_id: r for r in con.execute(sa.select(stations))}
-    ids = set(beats) | set(con.scalars(
-        sa.select(runs.c.station_id).where(*real).group_by(runs.c.station_id)))
+    ids = set(beats) | set(con.scalars(sa.select(runs.c.station_id).group_by(runs.c.station_id)))
     out = []
     for sid in sorted(ids):
         recent = con.execute(
@@ -74,19 +74,28 @@ def station_states(con: sa.Connection, offline_after_s: float, now: datetime | N
             .order_by(runs.c.started_utc.desc()).limit(RECENT_RESULTS)
         ).mappings().all()
         beat = beats.get(sid)
-        state, seen = "no sync", None
-        if beat is not None:
-            seen = beat.last_seen_utc
-            age_s = (now - datetime.fromisoformat(seen)).total_seconds()
-            state = beat.state if age_s <= offline_after_s else "offline"
-        if recent and recent[0]["verdict"] == "RUNNING" and state in ("no sync", "idle"):
-            state = "testing"
+        if beat is None and not recent:
+            continue  # only simulated runs, left out
+        state = _state(beat, recent, now, offline_after_s)
         out.append({
-            "station_id": sid, "state": state, "last_seen_utc": seen,
+            "station_id": sid, "state": state,
+            "last_seen_utc": beat.last_seen_utc if beat is not None else None,
             "pending_runs": beat.pending_runs if beat is not None else None,
             "recent": [dict(r) for r in recent],
         })
     return out
+
+
+def _state(beat: Any, recent: Sequence[Any], now: datetime, offline_after_s: float) -> str:
+    """From the sync's last word (offline when older than offline_after_s), testing when
+    the latest run is still running."""
+    state = "no sync"
+    if beat is not None:
+        age_s = (now - datetime.fromisoformat(beat.last_seen_utc)).total_seconds()
+        state = beat.state if age_s <= offline_after_s else "offline"
+    if recent and recent[0]["verdict"] == "RUNNING" and state in ("no sync", "idle"):
+        state = "testing"
+    return state
 
 
 def yield_tables(con: sa.Connection, flt: Filters,
