@@ -5,7 +5,9 @@ A unit is a (product, serial). Its first test is its attempt 1; the unit counts
   - for final yield when its latest test PASSed (unit_verdict),
 and belongs to the station, lot, work order and shift of its first test. Every finished test
 counts as an attempt: an ERROR or ABORTED first test is not a first pass. Runs still RUNNING
-are left out. Shifts are given as their starting hours in UTC (default 06, 14, 22).
+are left out, and so are simulated runs (`runs.simulated`: a bench simulator, no part)
+unless asked for (include_simulated). Shifts are given as their starting hours in UTC
+(default 06, 14, 22).
 """
 
 from __future__ import annotations
@@ -64,14 +66,17 @@ def yield_tables(
     con: sa.Connection,
     where: Sequence[sa.ColumnElement[bool]] = (),
     shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H,
+    include_simulated: bool = False,
 ) -> dict[str, list[YieldRow]]:
     """Yield rows for all units ("all") and per station, product, lot, work order and shift,
     largest group first. Two passes over the units' first tests, each reading one index in
     order (runs_groups): one grouped by station, product, lot and work order, rolled up here
     into the first five tables; one grouped by the hour of day, rolled up into shifts.
 
-    where: filters on the runs table; they select the units by their first test."""
-    first = (runs.c.attempt == 1, runs.c.verdict != "RUNNING", *where)
+    where: filters on the runs table; they select the units by their first test.
+    include_simulated: count simulated runs too (left out by default)."""
+    first = (runs.c.attempt == 1, runs.c.verdict != "RUNNING", *where,
+             *simulated_clauses(include_simulated))
     sums: dict[str, dict[str, list[int]]] = {g: {} for g in ("all", *GROUPS)}
     keys = [runs.c.station_id.label("station"), runs.c.product, runs.c.lot, runs.c.work_order]
     for row in con.execute(sa.select(*keys, *_COUNTS).where(*first).group_by(*keys)).mappings():
@@ -86,6 +91,11 @@ def yield_tables(
         g: sorted((YieldRow(k, *v) for k, v in groups.items()), key=lambda y: (-y.units, y.group))
         for g, groups in sums.items()
     }
+
+
+def simulated_clauses(include_simulated: bool) -> list[sa.ColumnElement[bool]]:
+    """The clause leaving simulated runs out (none when they are included)."""
+    return [] if include_simulated else [runs.c.simulated == 0]
 
 
 _COUNTS = (
@@ -107,8 +117,9 @@ def yields_by(
     group: str | None,
     where: Sequence[sa.ColumnElement[bool]] = (),
     shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H,
+    include_simulated: bool = False,
 ) -> list[YieldRow]:
     """Yield rows of one grouping (None: one row for all units); see yield_tables."""
     if group is not None and group not in GROUPS:
         raise ValueError(f"yield by {group!r}: choose one of {', '.join(GROUPS)}")
-    return yield_tables(con, where, shift_starts_h)[group or "all"]
+    return yield_tables(con, where, shift_starts_h, include_simulated)[group or "all"]

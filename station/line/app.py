@@ -1,7 +1,8 @@
 """The line's dashboard web app: read-only, over the line's central database.
 
 Pages: `/` the dashboard. JSON under `/api`: `stations` (with the filter choices), `yields`,
-`capability`, `chart` (a coefficient's control chart), `runs` (latest runs).
+`capability`, `chart` (a coefficient's control chart), `runs` (latest runs). Every panel
+leaves simulated runs (`runs.simulated`) out unless asked with `?simulated=include`.
 `/certificate/{run_id}` serves the run's certificate from the run folder the station
 recorded, when this computer can reach it (from inside its archive once `station archive`
 packed it: station/line/archived.py).
@@ -42,6 +43,7 @@ PAGE_HEADERS = {
 }
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.:+\-]{0,160}$")
 _TEXT = re.compile(r"^[^\x00-\x1f]{0,200}$")
+_SIMULATED = {"": False, "exclude": False, "include": True}
 
 
 @dataclass(frozen=True)
@@ -67,7 +69,14 @@ def _filters(request: Request) -> Filters:
         given = values[k]
         if given:
             parse_since(given)  # says what it wants when not a date
-    return Filters(**values)
+    return Filters(**values, include_simulated=_include_simulated(q.get("simulated")))
+
+
+def _include_simulated(given: str | None) -> bool:
+    choice = (given or "").strip()
+    if choice not in _SIMULATED:
+        raise ValueError("simulated: choose include or exclude (the default)")
+    return _SIMULATED[choice]
 
 
 def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastAPI:
@@ -98,7 +107,10 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
     # parallel (each on its own connection), so the page waits for the slowest, not the sum.
     @app.get("/api/stations")
     def station_list(request: Request) -> Any:
-        return answer(lambda a: {"stations": queries.station_states(a[0], opts.offline_after_s),
+        return answer(lambda a: {"stations": queries.station_states(
+                                     a[0], opts.offline_after_s,
+                                     include_simulated=a[1].include_simulated),
+                                 "simulated_left_out": queries.simulated_left_out(a[0], a[1]),
                                  "choices": queries.choices(a[0]),
                                  "coefficients": list(CAL_KEYS)}, request)
 

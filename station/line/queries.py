@@ -1,7 +1,8 @@
 """What the line's dashboard shows, aggregated in SQL over the central database.
 
-Everything is filtered by time (the first test's start), product, station and lot; the
-counts come from the database (GROUP BY over indexed columns), not from loading runs.
+Everything is filtered by time (the first test's start), product, station and lot, and
+leaves simulated runs out unless they are asked for; the counts come from the database
+(GROUP BY over indexed columns), not from loading runs.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import sqlalchemy as sa
 
 from station.db.schema import CAL_KEYS, measurements, runs, stations
-from station.db.yields import DEFAULT_SHIFT_STARTS_H
+from station.db.yields import DEFAULT_SHIFT_STARTS_H, simulated_clauses
 from station.db.yields import yield_tables as _yield_tables
 from station.line.spc import capability, mean_sd, western_electric
 from station.results_db import parse_since
@@ -33,8 +34,14 @@ class Filters:
     product: str | None = None
     station: str | None = None
     lot: str | None = None
+    include_simulated: bool = False  # simulated runs are no production: left out by default
+
+    def where(self) -> list[sa.ColumnElement[bool]]:
+        """The chosen selection, and simulated runs left out unless included."""
+        return [*self.clauses(), *simulated_clauses(self.include_simulated)]
 
     def clauses(self) -> list[sa.ColumnElement[bool]]:
+        """The chosen selection: time, product, station, lot."""
         c: list[sa.ColumnElement[bool]] = []
         if self.since:
             c.append(runs.c.started_utc >= parse_since(self.since))
@@ -49,10 +56,13 @@ class Filters:
         return c
 
 
-def station_states(con: sa.Connection, offline_after_s: float, now: datetime | None = None
-                   ) -> list[dict[str, Any]]:
-    """Each station: its sync's last word (state, queued runs, when) and its latest results."""
+def station_states(con: sa.Connection, offline_after_s: float, now: datetime | None = None,
+                   include_simulated: bool = False) -> list[dict[str, Any]]:
+    """Each station: its sync's last word (state, queued runs, when) and its latest results
+    (simulated runs left out unless included: a station never heard from with none left is
+    not shown)."""
     now = now or datetime.now(UTC)
+    real = simulated_clauses(include_simulated)
     beats = {r.station_id: r for r in con.execute(sa.select(stations))}
     ids = set(beats) | set(con.scalars(sa.select(runs.c.station_id).group_by(runs.c.station_id)))
     out = []
@@ -60,28 +70,37 @@ def station_states(con: sa.Connection, offline_after_s: float, now: datetime | N
         recent = con.execute(
             sa.select(runs.c.run_id, runs.c.serial, runs.c.product, runs.c.verdict,
                       runs.c.started_utc, runs.c.attempt)
-            .where(runs.c.station_id == sid)
+            .where(runs.c.station_id == sid, *real)
             .order_by(runs.c.started_utc.desc()).limit(RECENT_RESULTS)
         ).mappings().all()
         beat = beats.get(sid)
-        state, seen = "no sync", None
-        if beat is not None:
-            seen = beat.last_seen_utc
-            age_s = (now - datetime.fromisoformat(seen)).total_seconds()
-            state = beat.state if age_s <= offline_after_s else "offline"
-        if recent and recent[0]["verdict"] == "RUNNING" and state in ("no sync", "idle"):
-            state = "testing"
+        if beat is None and not recent:
+            continue  # only simulated runs, left out
+        state = _state(beat, recent, now, offline_after_s)
         out.append({
-            "station_id": sid, "state": state, "last_seen_utc": seen,
+            "station_id": sid, "state": state,
+            "last_seen_utc": beat.last_seen_utc if beat is not None else None,
             "pending_runs": beat.pending_runs if beat is not None else None,
             "recent": [dict(r) for r in recent],
         })
     return out
 
 
+def _state(beat: Any, recent: Sequence[Any], now: datetime, offline_after_s: float) -> str:
+    """From the sync's last word (offline when older than offline_after_s), testing when
+    the latest run is still running."""
+    state = "no sync"
+    if beat is not None:
+        age_s = (now - datetime.fromisoformat(beat.last_seen_utc)).total_seconds()
+        state = beat.state if age_s <= offline_after_s else "offline"
+    if recent and recent[0]["verdict"] == "RUNNING" and state in ("no sync", "idle"):
+        state = "testing"
+    return state
+
+
 def yield_tables(con: sa.Connection, flt: Filters,
                  shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H) -> dict[str, Any]:
-    tables = _yield_tables(con, flt.clauses(), shift_starts_h)
+    tables = _yield_tables(con, flt.clauses(), shift_starts_h, flt.include_simulated)
     return {group: _yield_json(rows) for group, rows in tables.items()}
 
 
@@ -100,7 +119,7 @@ def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95,
     m, r = measurements.c, runs.c
     latest = (
         sa.select(r.run_id)
-        .where(r.attempt == 1, r.verdict != "RUNNING", *flt.clauses())
+        .where(r.attempt == 1, r.verdict != "RUNNING", *flt.where())
         .order_by(r.started_utc.desc()).limit(window)
         .subquery()
     )
@@ -138,16 +157,40 @@ class _Values:
             self.high = high if self.high is None else max(self.high, high)
 
 
+@dataclass(frozen=True)
+class ChartPoint:
+    run_id: str
+    serial: str
+    started_utc: str
+    value: float
+    rules: list[int]  # the Western Electric rules this point completes
+
+
+@dataclass(frozen=True)
+class ControlChart:
+    """An individuals chart: centre = mean, sigma = mean moving range / 1.128, control limits
+    centre +/- 3 sigma (rule 1's line); product limits the measurement's low/high, if any."""
+    coefficient: str
+    units: str
+    centre: float
+    sigma: float
+    ucl: float
+    lcl: float
+    product_low: float | None
+    product_high: float | None
+    points: list[ChartPoint]
+
+
 def control_chart(con: sa.Connection, flt: Filters, coefficient: str, limit: int = 200
                   ) -> dict[str, Any]:
-    """An individuals chart of one calibration coefficient over the latest first tests:
-    centre = mean, sigma = mean moving range / 1.128, Western Electric rules flagged."""
+    """The individuals chart of one calibration coefficient over the latest first tests,
+    Western Electric rules flagged, with the product's limits of that measurement."""
     if coefficient not in CAL_KEYS:
         raise ValueError(f"coefficient {coefficient!r}: choose one of {', '.join(CAL_KEYS)}")
     col = runs.c[f"cal_{coefficient}"]
     rows = con.execute(
         sa.select(runs.c.run_id, runs.c.serial, runs.c.started_utc, col.label("v"))
-        .where(runs.c.attempt == 1, col.is_not(None), *flt.clauses())
+        .where(runs.c.attempt == 1, col.is_not(None), *flt.where())
         .order_by(runs.c.started_utc.desc()).limit(limit)
     ).all()[::-1]
     values = [float(r.v) for r in rows]
@@ -155,17 +198,24 @@ def control_chart(con: sa.Connection, flt: Filters, coefficient: str, limit: int
     ranges = [abs(b - a) for a, b in zip(values, values[1:], strict=False)]
     sigma = (sum(ranges) / len(ranges)) / 1.128 if ranges else 0.0
     flags = western_electric(values, centre, sigma)
-    return {
-        "coefficient": coefficient, "units": COEFFICIENT_UNITS[coefficient],
-        "centre": centre, "sigma": sigma,
-        # control limits: centre +/- 3 sigma (rule 1's line)
-        "ucl": centre + 3 * sigma, "lcl": centre - 3 * sigma,
-        "points": [
-            {"run_id": r.run_id, "serial": r.serial, "started_utc": r.started_utc,
-             "value": v, "rules": f}
-            for r, v, f in zip(rows, values, flags, strict=True)
-        ],
-    }
+    low, high = product_limits(con, coefficient, [r.run_id for r in rows])
+    points = [ChartPoint(r.run_id, r.serial, r.started_utc, v, f)
+              for r, v, f in zip(rows, values, flags, strict=True)]
+    return asdict(ControlChart(coefficient, COEFFICIENT_UNITS[coefficient], centre, sigma,
+                               centre + 3 * sigma, centre - 3 * sigma, low, high, points))
+
+
+def product_limits(con: sa.Connection, name: str, run_ids: Sequence[str]
+                   ) -> tuple[float | None, float | None]:
+    """The widest low and high limits the runs' measurement `name` was judged against."""
+    if not run_ids:
+        return None, None
+    m = measurements.c
+    low, high = con.execute(
+        sa.select(sa.func.min(m.low), sa.func.max(m.high))
+        .where(m.name == name, m.run_id.in_(run_ids))
+    ).one()
+    return (None if low is None else float(low)), (None if high is None else float(high))
 
 
 def recent_runs(con: sa.Connection, flt: Filters, limit: int = 50) -> list[dict[str, Any]]:
@@ -173,9 +223,17 @@ def recent_runs(con: sa.Connection, flt: Filters, limit: int = 50) -> list[dict[
     found = con.execute(
         sa.select(r.run_id, r.serial, r.product, r.station_id, r.lot, r.work_order, r.verdict,
                   r.attempt, r.started_utc)
-        .where(*flt.clauses()).order_by(r.started_utc.desc()).limit(limit)
+        .where(*flt.where()).order_by(r.started_utc.desc()).limit(limit)
     ).mappings()
     return [dict(x) for x in found]
+
+
+def simulated_left_out(con: sa.Connection, flt: Filters) -> int:
+    """How many simulated runs the selection leaves out (0 when they are included)."""
+    if flt.include_simulated:
+        return 0
+    return int(con.scalar(sa.select(sa.func.count()).select_from(runs)
+                          .where(runs.c.simulated != 0, *flt.clauses())) or 0)
 
 
 def choices(con: sa.Connection) -> dict[str, list[str]]:

@@ -38,6 +38,7 @@ class Capability:
     confidence: float
     too_few: bool = False  # fewer than min_n values: no Cpk is given
     min_n: int = MIN_CPK_N
+    reason: str | None = None  # why cpk is None, in words for the page
 
 
 def cpk(mean: float, sd: float, low: float | None, high: float | None) -> float | None:
@@ -67,12 +68,23 @@ def bissell_interval(cpk_hat: float, n: int, confidence: float = 0.95) -> tuple[
 def capability(n: int, mean: float, sd: float, low: float | None, high: float | None,
                confidence: float = 0.95, min_n: int = MIN_CPK_N) -> Capability:
     """Cpk and its Bissell interval from the sample size, mean and sample standard deviation;
-    none below `min_n` values (too_few)."""
-    too_few = n < max(min_n, 2)
+    none below `min_n` values (too_few), with the reason when there is none."""
+    need = max(min_n, 2)
+    too_few = n < need
     value = None if too_few else cpk(mean, sd, low, high)
     ci = bissell_interval(value, n, confidence) if value is not None else (None, None)
-    return Capability(n, mean, sd, low, high, value, ci[0], ci[1], confidence, too_few,
-                      max(min_n, 2))
+    reason = None if value is not None else no_cpk_reason(n, need, low, high)
+    return Capability(n, mean, sd, low, high, value, ci[0], ci[1], confidence, too_few, need,
+                      reason)
+
+
+def no_cpk_reason(n: int, need: int, low: float | None, high: float | None) -> str:
+    """Why a measurement has no Cpk: too few values, no limits, or no spread."""
+    if n < need:
+        return f"too few (n = {n}, need {need})"
+    if low is None and high is None:
+        return "no limits"
+    return "no spread (all values equal)"
 
 
 def western_electric(values: Sequence[float], centre: float, sigma: float) -> list[list[int]]:

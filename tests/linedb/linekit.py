@@ -25,9 +25,11 @@ class LineRun:
 
 def line_record(serial: str, station: str, started: datetime, *, lot: str = "",
                 work_order: str = "", product: str = "ADIS16130-EOL", bias_dps: float = 0.0,
-                scale: float = 1.0, verdict: str = "AUTO", seed: int = 1) -> RunRecord:
+                scale: float = 1.0, verdict: str = "AUTO", seed: int = 1,
+                simulated: bool = False) -> RunRecord:
+    """A production run (simulated=False) unless told it came from a bench simulator."""
     part = Part(serial=serial, bias_dps=bias_dps, scale=scale, started=started,
-                product=product, verdict=verdict, seed=seed)
+                product=product, verdict=verdict, seed=seed, simulated=simulated)
     rec = make_record(part)
     return rec.model_copy(update={
         "run_id": f"{started:%Y%m%dT%H%M%S}Z_{station}_{serial}",

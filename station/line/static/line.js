@@ -1,8 +1,9 @@
-// The line's dashboard: reads /api/summary, /api/chart and /api/runs; renders with the DOM
+// The line's dashboard: reads /api/stations, /api/yields, /api/capability, /api/chart and
+// /api/runs (simulated runs left out unless the switch asks for them); renders with the DOM
 // (textContent only: nothing from the database is parsed as HTML).
 "use strict";
 
-const state = { summary: null, group: "station" };
+const state = { summary: null, group: "station", asked: 0 };
 
 function el(tag, attrs = {}, text = "") {
   const e = document.createElement(tag);
@@ -100,7 +101,7 @@ function renderCapability() {
     const ci = c.cpk === null ? "–" : `${c.ci_low.toFixed(2)} – ${c.ci_high.toFixed(2)}`;
     tr.append(el("td", {}, c.name), el("td", {}, c.condition || ""), el("td", {}, String(c.n)),
       el("td", {}, num(c.mean)), el("td", {}, num(c.sd)), el("td", {}, limits),
-      el("td", { class: "cpk" }, c.too_few ? `too few (n < ${c.min_n})` : c.cpk === null ? "–" : c.cpk.toFixed(2)),
+      el("td", { class: "cpk" }, c.cpk === null ? c.reason || "–" : c.cpk.toFixed(2)),
       el("td", { class: "ci" }, ci));
     body.append(tr);
   }
@@ -128,63 +129,113 @@ function tickLabel(v, step) {
   return s.replace(/(\.\d*?)0+$/, "$1").replace(/\.$/, "");
 }
 
-function renderChart(data) {
-  const svg = document.getElementById("chart");
-  const ns = "http://www.w3.org/2000/svg";
-  svg.replaceChildren();
+// The chart's frame: pixel scales over the values, the limits and the product's limits.
+function chartFrame(data) {
+  const W = 900, H = 280, top = 16, bottom = 48, left = 78, right = 104;
   const pts = data.points;
-  const list = document.getElementById("violations");
-  list.replaceChildren();
-  if (!pts.length) return;
-  const W = 900, H = 260, pad = 30, left = 78, right = 96;
-  const lo = Math.min(data.centre - 3.5 * data.sigma, ...pts.map((p) => p.value));
-  const hi = Math.max(data.centre + 3.5 * data.sigma, ...pts.map((p) => p.value));
+  const edges = [data.centre - 3.5 * data.sigma, data.centre + 3.5 * data.sigma,
+    data.product_low, data.product_high, ...pts.map((p) => p.value)].filter((v) => v !== null && isFinite(v));
+  const lo = Math.min(...edges), hi = Math.max(...edges);
   const span = hi - lo || 1;
-  const x = (i) => left + (i * (W - left - right)) / Math.max(1, pts.length - 1);
-  const y = (v) => H - pad - ((v - lo) * (H - 2 * pad)) / span;
-  const text = (tx, ty, s, attrs = {}) => {
-    const t = document.createElementNS(ns, "text");
-    Object.entries({ x: tx, y: ty, "font-size": 11, fill: "#333", ...attrs }).forEach(([k, val]) => t.setAttribute(k, val));
-    t.textContent = s;
-    svg.append(t);
+  return {
+    W, H, top, bottom, left, right, lo, hi,
+    x: (i) => left + (i * (W - left - right)) / Math.max(1, pts.length - 1),
+    y: (v) => H - bottom - ((v - lo) * (H - top - bottom)) / span,
   };
-  const line = (v, stroke, dash, label) => {
-    const l = document.createElementNS(ns, "line");
-    Object.entries({ x1: left, x2: W - right, y1: y(v), y2: y(v), stroke, "stroke-dasharray": dash })
-      .forEach(([k, val]) => l.setAttribute(k, val));
-    svg.append(l);
-    if (label) text(W - right + 4, y(v) + 4, label, { fill: stroke, class: "chart-line-label" });
-  };
-  // the value axis: round ticks with their values, the coefficient and its units
-  const units = data.units && data.units !== "1" ? ` (${data.units})` : "";
-  const ticks = niceTicks(lo, hi, 5);
-  const step = ticks.length > 1 ? ticks[1] - ticks[0] : span;
+}
+
+function svgAdd(svg, tag, attrs, text = "") {
+  const e = document.createElementNS("http://www.w3.org/2000/svg", tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text !== "") e.textContent = text;
+  svg.append(e);
+  return e;
+}
+
+function chartText(svg, x, y, s, attrs = {}) {
+  return svgAdd(svg, "text", { x, y, "font-size": 11, fill: "#333", ...attrs }, s);
+}
+
+// A horizontal line across the plot at value v, labelled at its right end.
+function chartLevel(svg, f, v, cls, stroke, dash, label) {
+  svgAdd(svg, "line", { x1: f.left, x2: f.W - f.right, y1: f.y(v), y2: f.y(v), stroke,
+    "stroke-dasharray": dash, class: cls, "data-value": v });
+  if (label) chartText(svg, f.W - f.right + 4, f.y(v) + 4, label, { fill: stroke, class: "chart-line-label " + cls });
+}
+
+// The value axis: its line, round ticks with their values, the coefficient and its units.
+function chartValueAxis(svg, f, data) {
+  const ticks = niceTicks(f.lo, f.hi, 5);
+  const step = ticks.length > 1 ? ticks[1] - ticks[0] : f.hi - f.lo || 1;
   for (const t of ticks) {
-    line(t, "#eee", "");
-    text(left - 6, y(t) + 4, tickLabel(t, step), { "text-anchor": "end", class: "chart-tick" });
+    chartLevel(svg, f, t, "chart-grid", "#eee", "");
+    chartText(svg, f.left - 6, f.y(t) + 4, tickLabel(t, step), { "text-anchor": "end", class: "chart-tick", "data-value": t });
   }
-  text(14, H / 2, data.coefficient + units, { transform: `rotate(-90 14 ${H / 2})`, "text-anchor": "middle", class: "chart-axis" });
-  text((left + W - right) / 2, H - 6, `first tests, oldest to newest (${pts.length})`, { "text-anchor": "middle", class: "chart-axis" });
-  // centre line and control limits (centre +/- 3 sigma), each labelled with its value
-  line(data.centre, "#555", "4 3", "centre " + tickLabel(data.centre, step / 10));
-  for (const k of [1, 2]) { line(data.centre + k * data.sigma, "#bbb", "2 4"); line(data.centre - k * data.sigma, "#bbb", "2 4"); }
-  line(data.ucl, "#c62828", "6 3", "UCL " + tickLabel(data.ucl, step / 10));
-  line(data.lcl, "#c62828", "6 3", "LCL " + tickLabel(data.lcl, step / 10));
-  const path = document.createElementNS(ns, "polyline");
-  path.setAttribute("points", pts.map((p, i) => `${x(i)},${y(p.value)}`).join(" "));
-  path.setAttribute("fill", "none");
-  path.setAttribute("stroke", "#0b6bcb");
-  svg.append(path);
+  svgAdd(svg, "line", { x1: f.left, x2: f.left, y1: f.top, y2: f.H - f.bottom, stroke: "#333", class: "chart-axis-line" });
+  const units = data.units && data.units !== "1" ? data.units : "dimensionless";
+  chartText(svg, 14, (f.H - f.bottom + f.top) / 2, `${data.coefficient} (${units})`,
+    { transform: `rotate(-90 14 ${(f.H - f.bottom + f.top) / 2})`, "text-anchor": "middle", class: "chart-axis chart-units" });
+  return step;
+}
+
+// The time axis: each test's start (UTC) at about six evenly spaced points.
+function chartTimeAxis(svg, f, pts) {
+  const base = f.H - f.bottom;
+  svgAdd(svg, "line", { x1: f.left, x2: f.W - f.right, y1: base, y2: base, stroke: "#333", class: "chart-axis-line" });
+  const every = Math.max(1, Math.ceil((pts.length - 1) / 5));
+  for (let i = 0; i < pts.length; i += every) {
+    svgAdd(svg, "line", { x1: f.x(i), x2: f.x(i), y1: base, y2: base + 4, stroke: "#333" });
+    const when = pts[i].started_utc.slice(5, 16).replace("T", " ");
+    chartText(svg, f.x(i), base + 16, when, { "text-anchor": "middle", class: "chart-xtick", "data-index": i });
+  }
+  chartText(svg, (f.left + f.W - f.right) / 2, f.H - 8,
+    `first test started (UTC, MM-DD hh:mm), oldest to newest (${pts.length} tests)`, { "text-anchor": "middle", class: "chart-axis" });
+}
+
+// Centre, the control limits (centre +/- 3 sigma, and 1, 2 sigma faint) and the product's limits.
+function chartLimits(svg, f, data, step) {
+  const v = (x) => tickLabel(x, step / 10);
+  for (const k of [1, 2]) {
+    chartLevel(svg, f, data.centre + k * data.sigma, "chart-sigma", "#bbb", "2 4");
+    chartLevel(svg, f, data.centre - k * data.sigma, "chart-sigma", "#bbb", "2 4");
+  }
+  chartLevel(svg, f, data.centre, "chart-centre", "#555", "4 3", "centre " + v(data.centre));
+  chartLevel(svg, f, data.ucl, "chart-ucl", "#c62828", "6 3", "UCL " + v(data.ucl));
+  chartLevel(svg, f, data.lcl, "chart-lcl", "#c62828", "6 3", "LCL " + v(data.lcl));
+  if (data.product_high !== null) chartLevel(svg, f, data.product_high, "chart-usl", "#6a1b9a", "", "USL " + v(data.product_high));
+  if (data.product_low !== null) chartLevel(svg, f, data.product_low, "chart-lsl", "#6a1b9a", "", "LSL " + v(data.product_low));
+}
+
+function chartPoints(svg, f, pts) {
+  const list = document.getElementById("violations");
+  svgAdd(svg, "polyline", { points: pts.map((p, i) => `${f.x(i)},${f.y(p.value)}`).join(" "), fill: "none", stroke: "#0b6bcb" });
   pts.forEach((p, i) => {
-    const c = document.createElementNS(ns, "circle");
-    c.setAttribute("cx", x(i)); c.setAttribute("cy", y(p.value)); c.setAttribute("r", p.rules.length ? 4 : 2.5);
-    c.setAttribute("fill", p.rules.length ? "#c62828" : "#0b6bcb");
-    const t = document.createElementNS(ns, "title");
-    t.textContent = `${p.serial} ${num(p.value)}${p.rules.length ? " rules " + p.rules.join(",") : ""}`;
+    const c = svgAdd(svg, "circle", { cx: f.x(i), cy: f.y(p.value), r: p.rules.length ? 4 : 2.5,
+      fill: p.rules.length ? "#c62828" : "#0b6bcb", "data-value": p.value });
+    const t = document.createElementNS("http://www.w3.org/2000/svg", "title");
+    t.textContent = `${p.serial} ${p.started_utc} ${num(p.value)}${p.rules.length ? " rules " + p.rules.join(",") : ""}`;
     c.append(t);
-    svg.append(c);
     if (p.rules.length) list.append(el("li", {}, `${p.started_utc} ${p.serial}: rule ${p.rules.join(", ")}`));
   });
+}
+
+function renderChart(data) {
+  const svg = document.getElementById("chart");
+  svg.replaceChildren();
+  document.getElementById("violations").replaceChildren();
+  if (!data.points.length) return;
+  const f = chartFrame(data);
+  const step = chartValueAxis(svg, f, data);
+  chartTimeAxis(svg, f, data.points);
+  chartLimits(svg, f, data, step);
+  chartPoints(svg, f, data.points);
+}
+
+function renderSimulated(included, leftOut) {
+  const note = document.getElementById("simulated-note");
+  note.textContent = included ? "simulated runs included: these numbers are not production"
+    : leftOut ? `${leftOut} simulated runs left out` : "";
+  note.classList.toggle("warn", included);
 }
 
 function renderRuns(runs) {
@@ -206,6 +257,7 @@ async function refresh() {
   const status = document.getElementById("status");
   const q = query();
   const coef = document.getElementById("coefficient");
+  const asked = ++state.asked;
   try {
     const t0 = performance.now();
     const chartQuery = new URLSearchParams(q);
@@ -214,8 +266,10 @@ async function refresh() {
       getJson("/api/stations?" + q), getJson("/api/yields?" + q),
       getJson("/api/capability?" + q), getJson("/api/runs?" + q),
       getJson("/api/chart?" + chartQuery)]);
+    if (asked !== state.asked) return; // a newer refresh (other filters) is under way
     state.summary = { yields, ...capability };
     fillChoices(stations.choices);
+    renderSimulated(q.get("simulated") === "include", stations.simulated_left_out);
     renderStations(stations.stations);
     renderYields();
     renderCapability();
@@ -223,6 +277,7 @@ async function refresh() {
     if (!coef.options.length) for (const c of stations.coefficients) coef.append(el("option", { value: c }, c));
     renderChart(chart);
     status.textContent = `updated ${new Date().toISOString().slice(11, 19)} UTC in ${((performance.now() - t0) / 1000).toFixed(2)} s`;
+    document.body.dataset.query = q.toString();
     document.body.dataset.loaded = "1";
   } catch (err) {
     status.textContent = "could not load: " + err.message;
@@ -234,5 +289,6 @@ document.getElementById("yield-tabs").addEventListener("click", (e) => {
   if (e.target.dataset.group && state.summary) { state.group = e.target.dataset.group; renderYields(); }
 });
 document.getElementById("coefficient").addEventListener("change", refresh);
+document.querySelector('#filters input[name="simulated"]').addEventListener("change", refresh);
 refresh();
 setInterval(refresh, 30000);
