@@ -1,6 +1,8 @@
 """`station line`, `station sync`, `station export`: a line of stations and its database.
 
-    station line --db URL [--host H] [--port P] [--shift-starts 6,14,22] [--offline-after S]
+    station line --db URL --users FILE [--host H --tls-cert PEM --tls-key PEM]
+                 [--allowed-host NAME] [--port P] [--shift-starts 6,14,22] [--offline-after S]
+    station line --hash-password     (a password read from stdin -> a users-file entry)
     station sync [--db URL] [--central URL] [--wait S]
     station export --format cfx [--db URL] [--since D] [--until D] [--product P] [--out FILE]
 
@@ -54,15 +56,58 @@ def _shift_starts(text: str) -> tuple[int, ...]:
     return hours
 
 
+def _hash_line_password() -> int:
+    from station.cli_ui import _read_secret
+    from station.ui.auth import hash_password
+
+    try:
+        hashed = hash_password(_read_secret("password"), what="password")
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    print("# put this in the line users file (station line --users FILE):")
+    print("users:")
+    print("  - name: <user name>")
+    print("    role: viewer  # or quality, engineer")
+    print(f"    password_hash: '{hashed}'")
+    return 0
+
+
+def _line_access(args: argparse.Namespace) -> Any:
+    """Users, host names and HTTPS of `station line`: refused beyond loopback without TLS."""
+    from station.line.access import LineAccess
+    from station.line.users import load_line_users
+    from station.ui.guard import allowed_hosts
+    from station.ui.launch import refuse_clear_text, usable_tls
+
+    if args.users is None:
+        raise UserError("the dashboard needs its users: give --users FILE (see "
+                        "docs/line-database.md; make password hashes with "
+                        "`station line --hash-password`)")
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise UserError("give both --tls-cert and --tls-key (PEM files), or neither")
+    tls = None
+    if args.tls_cert is not None:
+        tls = usable_tls(args.tls_cert, args.tls_key, ("--tls-cert", "--tls-key"))
+    refuse_clear_text(args.host, tls, "the users' passwords and the session cookies",
+                      "give --tls-cert and --tls-key (PEM files)")
+    access = LineAccess(users=load_line_users(args.users),
+                        hosts=allowed_hosts(args.host, args.allowed_host), https=tls is not None)
+    return access, tls
+
+
 def cmd_line(args: argparse.Namespace) -> int:
     from station.line.app import LineOptions, create_line_app
     from station.ui.server import serve_forever
 
+    if args.hash_password:
+        return _hash_line_password()
+    access, tls = _line_access(args)
     db = _open(args.db, "central_db")
     options = LineOptions(offline_after_s=args.offline_after, shift_starts_h=args.shift_starts)
-    app = create_line_app(db.engine, options)
-    print(f"line dashboard over {db.path}: http://{args.host}:{args.port}/", file=sys.stderr)
-    serve_forever(app, host=args.host, port=args.port)
+    app = create_line_app(db.engine, options, access)
+    scheme = "https" if tls else "http"
+    print(f"line dashboard over {db.path}: {scheme}://{args.host}:{args.port}/", file=sys.stderr)
+    serve_forever(app, host=args.host, port=args.port, tls=tls)
     return 0
 
 
@@ -123,6 +168,15 @@ def register(subparsers: Any) -> None:
                    help="hours (UTC) at which shifts start (default 6,14,22)")
     p.add_argument("--offline-after", type=float, default=60.0, metavar="S",
                    help="a station silent this long is shown offline (default 60 s)")
+    p.add_argument("--users", type=Path, metavar="FILE",
+                   help="the line users file: name, role, password_hash (required)")
+    p.add_argument("--tls-cert", type=Path, metavar="PEM",
+                   help="HTTPS certificate (needed beyond 127.0.0.1)")
+    p.add_argument("--tls-key", type=Path, metavar="PEM", help="its private key")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="a further host name the dashboard answers to (repeatable)")
+    p.add_argument("--hash-password", action="store_true",
+                   help="read a password (stdin) and print the users-file entry")
     p.set_defaults(handler=cmd_line)
 
     p = subparsers.add_parser("sync", help="push queued runs to the line's central database")

@@ -7,6 +7,9 @@ leaves simulated runs (`runs.simulated`) out unless asked with `?simulated=inclu
 recorded, when this computer can reach it (from inside its archive once `station archive`
 packed it: station/line/archived.py).
 Errors come back as {"error": message} (422 bad input, 404 not found, 503 database down).
+Everything but the page itself needs a signed-in user of the right role (401 signed out,
+403 a role below it: station/line/access.py, station/line/users.py); the Host header is
+checked before any route (station/ui/guard.py).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.engine import Engine
@@ -29,10 +32,13 @@ from procedures.record import CERTIFICATE_FILE
 from station.db.schema import CAL_KEYS
 from station.db.yields import DEFAULT_SHIFT_STARTS_H
 from station.line import queries
+from station.line.access import LineAccess, add_line_sign_in, needs
 from station.line.archived import archived_certificate
 from station.line.queries import Filters
 from station.results_db import ResultsDBError, parse_since
 from station.run_archive import split_ref
+from station.ui.guard import Guard
+from station.ui.requests import Refused
 
 log = logging.getLogger(__name__)
 
@@ -79,9 +85,20 @@ def _include_simulated(given: str | None) -> bool:
     return _SIMULATED[choice]
 
 
-def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastAPI:
+def create_line_app(
+    engine: Engine, options: LineOptions | None = None, access: LineAccess | None = None
+) -> Guard:
+    """The dashboard inside the Guard; without `access` nobody can sign in."""
     opts = options or LineOptions()
+    rules = access or LineAccess()
     app = FastAPI(title="gyrocal line", docs_url=None, redoc_url=None, openapi_url=None)
+    add_line_sign_in(app, rules)
+
+    @app.exception_handler(Refused)
+    async def refused(_: Request, exc: Refused) -> JSONResponse:
+        return _error(exc.status, exc.message)
+
+    viewer, quality = [Depends(needs("viewer"))], [Depends(needs("quality"))]
 
     def answer(make: Callable[[Any], Any], request: Request) -> Any:
         try:
@@ -105,7 +122,7 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
 
     # One request per panel: the page asks for them at once and the server answers them in
     # parallel (each on its own connection), so the page waits for the slowest, not the sum.
-    @app.get("/api/stations")
+    @app.get("/api/stations", dependencies=viewer)
     def station_list(request: Request) -> Any:
         return answer(lambda a: {"stations": queries.station_states(
                                      a[0], opts.offline_after_s,
@@ -114,11 +131,11 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
                                  "choices": queries.choices(a[0]),
                                  "coefficients": list(CAL_KEYS)}, request)
 
-    @app.get("/api/yields")
+    @app.get("/api/yields", dependencies=viewer)
     def yields(request: Request) -> Any:
         return answer(lambda a: queries.yield_tables(a[0], a[1], opts.shift_starts_h), request)
 
-    @app.get("/api/capability")
+    @app.get("/api/capability", dependencies=quality)
     def capability(request: Request) -> Any:
         return answer(lambda a: {
             "capability": queries.capabilities(a[0], a[1], opts.confidence),
@@ -126,16 +143,16 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
             "window": queries.CPK_WINDOW,
         }, request)
 
-    @app.get("/api/chart")
+    @app.get("/api/chart", dependencies=viewer)
     def chart(request: Request, coefficient: str = "bias_dps") -> Any:
         return answer(lambda a: queries.control_chart(a[0], a[1], coefficient,
                                                       opts.chart_points), request)
 
-    @app.get("/api/runs")
+    @app.get("/api/runs", dependencies=viewer)
     def latest(request: Request) -> Any:
         return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1])}, request)
 
-    @app.get("/certificate/{run_id}", response_model=None)
+    @app.get("/certificate/{run_id}", response_model=None, dependencies=quality)
     def certificate(run_id: str) -> Response:
         if not _RUN_ID.match(run_id):
             return _error(422, "not a run id")
@@ -156,4 +173,4 @@ def create_line_app(engine: Engine, options: LineOptions | None = None) -> FastA
         return FileResponse(pdf, media_type="application/pdf",
                             filename=f"{run_id}-{CERTIFICATE_FILE}")
 
-    return app
+    return Guard(app, rules.hosts)

@@ -68,6 +68,33 @@ def is_loopback(host: str) -> bool:
     return host.strip("[]").lower() in LOOPBACK_HOSTS or host.startswith("127.")
 
 
+def usable_tls(certificate: Path, key: Path, names: tuple[str, str], where: str = "") -> Tls:
+    """The HTTPS files, checked to load as a PEM certificate and its matching private key;
+    UserError naming them (`names`: how the user gave them, `where`: in which file) when not."""
+    tls = Tls(certificate, key)
+    for what, path in zip(names, (certificate, key), strict=True):
+        if not path.is_file():
+            raise UserError(f"{where}{what} {path}: no such file")
+    try:
+        ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(certificate, key)
+    except (ssl.SSLError, OSError) as exc:
+        raise UserError(
+            f"{where}{names[0]}/{names[1]} cannot be used ({exc}); "
+            "give a PEM certificate and its matching private key"
+        ) from None
+    return tls
+
+
+def refuse_clear_text(host: str, tls: Tls | None, secrets: str, remedy: str) -> None:
+    """UserError when listening on `host`, beyond loopback, without HTTPS: `secrets` would
+    cross that network in clear; `remedy` says how to give the certificate and key."""
+    if tls is None and not is_loopback(host):
+        raise UserError(
+            f"refusing to listen on {host} without HTTPS: every machine on that network could "
+            f"read {secrets}; {remedy}, or listen on 127.0.0.1"
+        )
+
+
 def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
     """The app's admission rules and HTTPS files from station.yaml's ui section.
 
@@ -100,23 +127,18 @@ def security_of(settings: Any, host: str) -> tuple[Security, Tls | None]:
         )
     tls: Tls | None = None
     if ui.tls_certificate and ui.tls_key:
-        tls = Tls(settings.resolve(ui.tls_certificate), settings.resolve(ui.tls_key))
-        for what, path in (("ui.tls_certificate", tls.certificate), ("ui.tls_key", tls.key)):
-            if not path.is_file():
-                raise UserError(f"{settings.source.path}: {what} {path}: no such file")
-        try:
-            ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(tls.certificate, tls.key)
-        except (ssl.SSLError, OSError) as exc:
-            raise UserError(
-                f"{settings.source.path}: ui.tls_certificate/ui.tls_key cannot be used ({exc}); "
-                "give a PEM certificate and its matching private key"
-            ) from None
-    if tls is None and not is_loopback(host):
-        raise UserError(
-            f"refusing to listen on {host} without HTTPS: every machine on that network could "
-            "read the operators' PINs and the engineer password; set ui.tls_certificate and "
-            f"ui.tls_key (PEM files) in {settings.source.path}, or listen on 127.0.0.1"
+        tls = usable_tls(
+            settings.resolve(ui.tls_certificate),
+            settings.resolve(ui.tls_key),
+            ("ui.tls_certificate", "ui.tls_key"),
+            f"{settings.source.path}: ",
         )
+    refuse_clear_text(
+        host,
+        tls,
+        "the operators' PINs and the engineer password",
+        f"set ui.tls_certificate and ui.tls_key (PEM files) in {settings.source.path}",
+    )
     if ui.language and ui.language not in catalog.available():
         raise UserError(
             f"{settings.source.path}: ui.language {ui.language!r} has no message catalog; "

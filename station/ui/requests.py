@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from station.ui.auth import OperatorBook
@@ -93,10 +93,25 @@ def error(
     return JSONResponse({"error": message, **extra}, status_code=status, headers=headers)
 
 
+def cookie_name(request: Request) -> str:
+    """The app's session cookie: the station's, or another app's own (the line dashboard's,
+    so that two apps on one host, whose cookies ignore the port, keep their sessions apart)."""
+    return str(getattr(request.app.state, "session_cookie", SESSION_COOKIE))
+
+
 def current(request: Request) -> Session | None:
     """The request's session, None without a valid cookie."""
     sessions: Sessions = request.app.state.sessions
-    return sessions.get(request.cookies.get(SESSION_COOKIE))
+    return sessions.get(request.cookies.get(cookie_name(request)))
+
+
+def with_cookie(
+    response: Response, session: Session, *, secure: bool, name: str = SESSION_COOKIE
+) -> Response:
+    """`response` setting the session cookie: HttpOnly, SameSite=Strict, Secure over HTTPS."""
+    response.set_cookie(name, session.token, httponly=True, samesite="strict", secure=secure,
+                        path="/")
+    return response
 
 
 def guarded(request: Request) -> Session:

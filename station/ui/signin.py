@@ -15,7 +15,6 @@ from fastapi.responses import JSONResponse, Response
 
 from station.ui.auth import verify_password
 from station.ui.requests import (
-    SESSION_COOKIE,
     Guarded,
     LoginBody,
     Security,
@@ -25,9 +24,40 @@ from station.ui.requests import (
     error,
     role,
 )
+from station.ui.requests import with_cookie as set_cookie
 from station.ui.sessions import LoginThrottle, Session, Sessions, TooManySessions
 
 log = logging.getLogger(__name__)
+
+
+def open_new_session(
+    request: Request, sessions: Sessions, throttle: LoginThrottle
+) -> Session | JSONResponse:
+    """A new session for the request's client, or the 429 refusing it (a flood)."""
+    address = client_address(request)
+    try:
+        session = sessions.open(address)
+    except TooManySessions:
+        return error(429, f"too many new sessions from {address}; wait a minute")
+    # an address under a sign-in lockout still gets a session (a reloaded screen must be
+    # able to ABORT), but it starts locked for signing in: no fresh guesses
+    throttle.inherit(session.token, "addr:" + address)
+    return session
+
+
+def lockout(throttle: LoginThrottle, session: Session) -> JSONResponse | None:
+    """The 429 while this client must wait before its next sign-in try; None when it may."""
+    wait_s = throttle.wait_s(session.token)
+    if wait_s > 0:
+        return error(429, f"too many failed sign-ins on this screen; try again in {wait_s:.0f} s")
+    return None
+
+
+def count_failure(throttle: LoginThrottle, session: Session, message: str) -> JSONResponse:
+    """A failed sign-in counted (client and address) and its 401, saying any wait imposed."""
+    wait_s = throttle.failed_from(session.token, session.address)
+    more = f"; wait {wait_s:.0f} s before the next try" if wait_s > 0 else "; try again"
+    return error(401, message + more)
 
 
 def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
@@ -48,15 +78,7 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
         }
 
     def with_cookie(response: Response, session: Session) -> Response:
-        response.set_cookie(
-            SESSION_COOKIE,
-            session.token,
-            httponly=True,
-            samesite="strict",
-            secure=sec.https,
-            path="/",
-        )
-        return response
+        return set_cookie(response, session, secure=sec.https)
 
     @app.get("/api/session")
     def open_session(request: Request) -> Response:
@@ -64,29 +86,18 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
         session = current(request)
         if session is not None:
             return JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
-        address = client_address(request)
-        try:
-            session = sessions.open(address)
-        except TooManySessions:
-            return error(429, f"too many new sessions from {address}; wait a minute")
-        # an address under a sign-in lockout still gets a session (a reloaded screen must be
-        # able to ABORT), but it starts locked for signing in: no fresh guesses
-        throttle.inherit(session.token, "addr:" + address)
+        session_or_refusal = open_new_session(request, sessions, throttle)
+        if isinstance(session_or_refusal, JSONResponse):
+            return session_or_refusal
+        session = session_or_refusal
         response = JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
         return with_cookie(response, session)
 
     def locked(session: Session) -> JSONResponse | None:
-        wait_s = throttle.wait_s(session.token)
-        if wait_s > 0:
-            return error(
-                429, f"too many failed sign-ins on this screen; try again in {wait_s:.0f} s"
-            )
-        return None
+        return lockout(throttle, session)
 
     def failed(session: Session, message: str) -> JSONResponse:
-        wait_s = throttle.failed_from(session.token, session.address)
-        more = f"; wait {wait_s:.0f} s before the next try" if wait_s > 0 else "; try again"
-        return error(401, message + more)
+        return count_failure(throttle, session, message)
 
     @app.post("/api/signin")
     def sign_in(body: SignInBody, session: Guarded) -> Response:

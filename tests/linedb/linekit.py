@@ -6,6 +6,7 @@ import shutil
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -94,3 +95,61 @@ def direct_yields(records: list, key: object) -> dict[str, tuple[int, int, int, 
         row[2] += unit_tests[0].verdict.value == "PASS"
         row[3] += unit_tests[-1].verdict.value == "PASS"
     return {g: (a, b, c, d) for g, (a, b, c, d) in out.items()}
+
+
+# --------------------------------------------------------------------- signed-in dashboard
+
+LINE_BASE = "http://127.0.0.1"  # a name the dashboard answers to (Host is checked)
+LINE_PASSWORDS = {"viewer": "viewer-pass", "quality": "quality-pass", "engineer": "engineer-pass"}
+LINE_NAMES = {"viewer": "Vera Viewer", "quality": "Quinn Quality", "engineer": "Emil Engineer"}
+
+
+def line_users() -> Any:
+    """One user per role; cheap scrypt costs (the format is the operator screen's)."""
+    from station.line.users import LineUser, LineUsers
+    from station.ui.auth import hash_password
+
+    return LineUsers(tuple(LineUser(LINE_NAMES[role], role, hash_password(pw, n=2**8))
+                           for role, pw in LINE_PASSWORDS.items()))
+
+
+_USERS: list[Any] = []
+
+
+def line_app(engine: Any, options: Any = None) -> Any:
+    """The dashboard app with the test users (and the default, loopback-only host names)."""
+    from station.line.access import LineAccess
+    from station.line.app import create_line_app
+
+    if not _USERS:
+        _USERS.append(line_users())
+    return create_line_app(engine, options, LineAccess(users=_USERS[0]))
+
+
+def line_client(app: Any, role: str | None = "engineer") -> Any:
+    """A TestClient of its own holding the page's session and CSRF token, signed in as `role`
+    (None: a session nobody signed in on)."""
+    from fastapi.testclient import TestClient
+
+    client = TestClient(app, base_url=LINE_BASE)
+    r = client.get("/api/session")
+    assert r.status_code == 200, r.text
+    client.headers["X-CSRF-Token"] = r.json()["csrf"]
+    if role is not None:
+        r = client.post("/api/signin",
+                        json={"name": LINE_NAMES[role], "password": LINE_PASSWORDS[role]})
+        assert r.status_code == 200 and r.json()["role"] == role, r.text
+        client.headers["X-CSRF-Token"] = r.json()["csrf"]
+    return client
+
+
+def sign_in_page(page: Any, url: str, role: str = "engineer") -> None:
+    """Open the dashboard in chromium and sign in through its form as `role`."""
+    from station.ui.headless import wait_js
+
+    page.goto(url)
+    wait_js(page, "!document.getElementById('signin').hidden")
+    page.fill("#signin input[name=name]", LINE_NAMES[role])
+    page.fill("#signin input[name=password]", LINE_PASSWORDS[role])
+    page.click("#signin button[type=submit]")
+    wait_js(page, "document.body.dataset.loaded === '1'")

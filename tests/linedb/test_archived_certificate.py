@@ -12,10 +12,9 @@ from fastapi.testclient import TestClient
 
 from procedures.record import CERTIFICATE_FILE, write_record
 from station.db.connect import dispose_all
-from station.line.app import create_line_app
 from station.results_db import ResultsDB
 from station.run_archive import archive_ref, write_archive
-from tests.linedb.linekit import line_runs
+from tests.linedb.linekit import line_app, line_client, line_runs
 
 PDF = b"%PDF-1.4\n% archived test certificate\n" + bytes(range(256)) * 64 + b"\n%%EOF\n"
 
@@ -36,7 +35,7 @@ def archived(tmp_path: Path) -> Iterator[tuple[TestClient, str, Path]]:
     for f in run.folder.iterdir():
         f.unlink()
     run.folder.rmdir()
-    with TestClient(create_line_app(db.engine)) as client:
+    with line_client(line_app(db.engine)) as client:
         yield client, run.record.run_id, archive
     dispose_all()
 

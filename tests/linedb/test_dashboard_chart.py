@@ -15,10 +15,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from station.db.connect import dispose_all
-from station.line.app import create_line_app
 from station.line.spc import MIN_CPK_N, capability
 from station.results_db import ResultsDB
-from tests.linedb.linekit import line_runs
+from tests.linedb.linekit import line_app, line_client, line_runs
 
 LINE_JS = Path(__file__).resolve().parents[2] / "station" / "line" / "static" / "line.js"
 
@@ -28,7 +27,7 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
     db = ResultsDB(tmp_path / "line.sqlite")
     work = line_runs(20, ["EOL-A", "EOL-B"], root=tmp_path / "runs")
     db.add_records([(r.folder, r.record) for r in work])
-    with TestClient(create_line_app(db.engine)) as c:
+    with line_client(line_app(db.engine)) as c:
         yield c
     dispose_all()
 

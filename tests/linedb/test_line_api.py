@@ -10,9 +10,8 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from station.db.connect import dispose_all
-from station.line.app import create_line_app
 from station.results_db import ResultsDB
-from tests.linedb.linekit import line_runs
+from tests.linedb.linekit import line_app, line_client, line_runs
 
 
 @pytest.fixture
@@ -20,7 +19,7 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
     db = ResultsDB(tmp_path / "line.sqlite")
     work = line_runs(20, ["EOL-A", "EOL-B"], root=tmp_path / "runs")
     db.add_records([(r.folder, r.record) for r in work])
-    with TestClient(create_line_app(db.engine)) as c:
+    with line_client(line_app(db.engine)) as c:
         yield c
     dispose_all()
 
@@ -51,6 +50,6 @@ def test_bad_requests_say_what_is_wrong(client: TestClient, path: str, status: i
 
 def test_database_down_is_503(tmp_path: Path) -> None:
     engine = sa.create_engine(f"sqlite:///{tmp_path / 'missing' / 'x.sqlite'}")
-    with TestClient(create_line_app(engine)) as c:
+    with line_client(line_app(engine)) as c:
         r = c.get("/api/yields")
     assert r.status_code == 503 and "not reachable" in r.json()["error"]

@@ -13,12 +13,10 @@ import pytest
 
 from procedures.record import CERTIFICATE_FILE
 from station.db.connect import dispose_all
-from station.line.app import create_line_app
 from station.line.spc import capability
 from station.results_db import ResultsDB
-from station.ui.headless import wait_js
 from station.ui.server import serve_in_thread
-from tests.linedb.linekit import direct_yields, line_runs
+from tests.linedb.linekit import direct_yields, line_app, line_runs, sign_in_page
 
 STATIONS = ["EOL-A", "EOL-B", "EOL-C", "EOL-D"]
 
@@ -32,7 +30,7 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, list[A
     with_pdf = work[-1].folder
     with_pdf.mkdir(parents=True)
     (with_pdf / CERTIFICATE_FILE).write_bytes(b"%PDF-1.4\n% test certificate\n%%EOF\n")
-    server = serve_in_thread(create_line_app(db.engine))
+    server = serve_in_thread(line_app(db.engine))
     try:
         yield server.url, [r.record for r in work]
     finally:
@@ -46,8 +44,7 @@ def _pct(x: float) -> str:
 
 @pytest.fixture
 def dashboard(line: tuple[str, list[Any]], page: Any) -> Any:
-    page.goto(line[0])
-    wait_js(page, "document.body.dataset.loaded === '1'")
+    sign_in_page(page, line[0])
     return page
 
 

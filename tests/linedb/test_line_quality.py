@@ -14,10 +14,9 @@ from fastapi.testclient import TestClient
 
 from procedures.record import RunRecord
 from station.db.connect import dispose_all
-from station.line.app import create_line_app
 from station.line.spc import MIN_CPK_N, capability
 from station.results_db import ResultsDB
-from tests.linedb.linekit import START, line_record, line_runs
+from tests.linedb.linekit import START, line_app, line_client, line_record, line_runs
 from tests.reports.synth_run import LIMITS
 
 REAL_STATIONS = ["EOL-A", "EOL-B"]
@@ -44,7 +43,7 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient,
     records = real + simulated_runs()
     db = ResultsDB(folder / "line.sqlite")
     db.add_records([(folder / "runs" / r.run_id, r) for r in records])
-    with TestClient(create_line_app(db.engine)) as c:
+    with line_client(line_app(db.engine)) as c:
         yield c, records
     dispose_all()
 

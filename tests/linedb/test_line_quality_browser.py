@@ -14,12 +14,11 @@ from typing import Any
 import pytest
 
 from station.db.connect import dispose_all
-from station.line.app import create_line_app
 from station.line.spc import MIN_CPK_N
 from station.results_db import ResultsDB
 from station.ui.headless import wait_js
 from station.ui.server import serve_in_thread
-from tests.linedb.linekit import line_runs
+from tests.linedb.linekit import line_app, line_runs, sign_in_page
 from tests.linedb.test_line_quality import BENCH, N_BENCH, count_yields, simulated_runs
 
 
@@ -30,7 +29,7 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, list[A
     records = real + simulated_runs()
     db = ResultsDB(folder / "line.sqlite")
     db.add_records([(folder / "runs" / r.run_id, r) for r in records])
-    server = serve_in_thread(create_line_app(db.engine))
+    server = serve_in_thread(line_app(db.engine))
     try:
         yield server.url, records
     finally:
@@ -40,8 +39,7 @@ def line(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, list[A
 
 @pytest.fixture
 def dashboard(line: tuple[str, list[Any]], page: Any) -> Any:
-    page.goto(line[0])
-    wait_js(page, "document.body.dataset.loaded === '1'")
+    sign_in_page(page, line[0])
     return page
 
 

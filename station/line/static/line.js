@@ -1,9 +1,14 @@
 // The line's dashboard: reads /api/stations, /api/yields, /api/capability, /api/chart and
 // /api/runs (simulated runs left out unless the switch asks for them); renders with the DOM
-// (textContent only: nothing from the database is parsed as HTML).
+// (textContent only: nothing from the database is parsed as HTML). Nothing loads before a
+// sign-in (/api/session, /api/signin); panels above the user's role are hidden (the server
+// refuses them anyway): viewer < quality (capability, certificates) < engineer (simulated).
 "use strict";
 
-const state = { summary: null, group: "station", asked: 0 };
+const ROLES = ["viewer", "quality", "engineer"];
+const state = { summary: null, group: "station", asked: 0, role: "", csrf: "", timer: null };
+
+function may(needs) { return ROLES.indexOf(state.role) >= ROLES.indexOf(needs); }
 
 function el(tag, attrs = {}, text = "") {
   const e = document.createElement(tag);
@@ -29,8 +34,46 @@ function query() {
 async function getJson(path) {
   const r = await fetch(path);
   const body = await r.json();
+  if (r.status === 401) showSignIn("");
   if (!r.ok) throw new Error(body.error || r.statusText);
   return body;
+}
+
+async function post(path, data) {
+  const r = await fetch(path, {
+    method: "POST", body: JSON.stringify(data),
+    headers: { "Content-Type": "application/json", "X-CSRF-Token": state.csrf },
+  });
+  const body = await r.json();
+  if (!r.ok) throw new Error(body.error || r.statusText);
+  return body;
+}
+
+function signedIn(session) {
+  state.role = session.role;
+  state.csrf = session.csrf;
+  document.body.dataset.role = session.role;
+}
+
+function showSignIn(message) {
+  state.role = "";
+  document.body.dataset.role = "";
+  document.getElementById("top").hidden = true;
+  document.getElementById("dashboard").hidden = true;
+  document.getElementById("signin").hidden = false;
+  document.getElementById("signin-error").textContent = message;
+  if (state.timer !== null) { clearInterval(state.timer); state.timer = null; }
+}
+
+function showDashboard(user) {
+  document.getElementById("signin").hidden = true;
+  document.getElementById("top").hidden = false;
+  document.getElementById("dashboard").hidden = false;
+  document.getElementById("who-name").textContent = `${user} (${state.role})`;
+  for (const e of document.querySelectorAll("[data-needs]")) e.hidden = !may(e.dataset.needs);
+  if (!may("engineer")) document.querySelector('#filters input[name="simulated"]').checked = false;
+  refresh();
+  if (state.timer === null) state.timer = setInterval(refresh, 30000);
 }
 
 function fillChoices(choices) {
@@ -243,9 +286,10 @@ function renderRuns(runs) {
   body.replaceChildren();
   for (const r of runs) {
     const tr = el("tr", { "data-run": r.run_id });
-    const link = el("a", { href: "/certificate/" + encodeURIComponent(r.run_id), target: "_blank" }, "PDF");
     const cell = el("td");
-    cell.append(link);
+    if (may("quality")) {
+      cell.append(el("a", { href: "/certificate/" + encodeURIComponent(r.run_id), target: "_blank" }, "PDF"));
+    }
     tr.append(el("td", {}, r.started_utc), el("td", {}, r.station_id), el("td", {}, r.serial),
       el("td", {}, r.product), el("td", {}, r.lot), el("td", {}, r.attempt === 1 ? "first" : "retest " + (r.attempt - 1)),
       el("td", { class: "verdict-" + r.verdict }, r.verdict), cell);
@@ -264,7 +308,7 @@ async function refresh() {
     chartQuery.set("coefficient", coef.value || "bias_dps");
     const [stations, yields, capability, runs, chart] = await Promise.all([
       getJson("/api/stations?" + q), getJson("/api/yields?" + q),
-      getJson("/api/capability?" + q), getJson("/api/runs?" + q),
+      may("quality") ? getJson("/api/capability?" + q) : {}, getJson("/api/runs?" + q),
       getJson("/api/chart?" + chartQuery)]);
     if (asked !== state.asked) return; // a newer refresh (other filters) is under way
     state.summary = { yields, ...capability };
@@ -272,7 +316,7 @@ async function refresh() {
     renderSimulated(q.get("simulated") === "include", stations.simulated_left_out);
     renderStations(stations.stations);
     renderYields();
-    renderCapability();
+    if (may("quality")) renderCapability();
     renderRuns(runs.runs);
     if (!coef.options.length) for (const c of stations.coefficients) coef.append(el("option", { value: c }, c));
     renderChart(chart);
@@ -290,5 +334,31 @@ document.getElementById("yield-tabs").addEventListener("click", (e) => {
 });
 document.getElementById("coefficient").addEventListener("change", refresh);
 document.querySelector('#filters input[name="simulated"]').addEventListener("change", refresh);
-refresh();
-setInterval(refresh, 30000);
+document.getElementById("signin").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const form = e.target;
+  try {
+    const session = await post("/api/signin", { name: form.elements.name.value, password: form.elements.password.value });
+    form.elements.password.value = "";
+    signedIn(session);
+    showDashboard(session.user);
+  } catch (err) {
+    document.getElementById("signin-error").textContent = err.message;
+  }
+});
+document.getElementById("signout").addEventListener("click", async () => {
+  try { await post("/api/signout", {}); } finally { location.reload(); }
+});
+
+async function start() {
+  try {
+    const r = await fetch("/api/session");
+    const session = await r.json();
+    if (!r.ok) throw new Error(session.error || r.statusText);
+    signedIn(session);
+    if (session.role) showDashboard(session.user); else showSignIn("");
+  } catch (err) {
+    showSignIn("cannot reach the dashboard: " + err.message);
+  }
+}
+start();
