@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from tests.linedb.linekit import (
     LINE_BASE,
     LINE_NAMES,
     LINE_PASSWORDS,
+    REPO,
     line_app,
     line_client,
     line_runs,
@@ -173,6 +175,17 @@ def test_users_file_refuses_a_name_twice(tmp_path: Path) -> None:
              {"name": "bo", "role": "engineer", "password_hash": h}]
     with pytest.raises(UserError, match="appears twice"):
         load_line_users(_users_file(tmp_path, twice))
+
+
+def test_the_docs_users_file_loads(tmp_path: Path) -> None:
+    doc = (REPO / "docs" / "line-database.md").read_text(encoding="utf-8")
+    blocks = [b for b in re.findall(r"```yaml\n(.*?)```", doc, re.S) if "password_hash" in b]
+    assert len(blocks) == 1
+    path = tmp_path / "line-users.yaml"
+    path.write_text(blocks[0], encoding="utf-8")
+    users = load_line_users(path)
+    assert [(u.name, u.role) for u in users.users] == [("Ana Silva", "quality"),
+                                                       ("Line Lead", "viewer")]
 
 
 def test_hash_password_prints_an_entry_the_file_takes(tmp_path: Path,
