@@ -41,10 +41,15 @@ import sqlalchemy as sa  # noqa: E402
 from station.db.connect import engine_for  # noqa: E402
 from station.db.schema import CAL_KEYS, measurements, runs  # noqa: E402
 from station.db.sync import Sync, SyncThread  # noqa: E402
-from station.line.app import create_line_app  # noqa: E402
 from station.results_db import ResultsDB  # noqa: E402
 from station.ui.server import serve_in_thread  # noqa: E402
-from tests.linedb.linekit import line_record, line_runs  # noqa: E402
+from tests.linedb.linekit import (  # noqa: E402
+    line_app,
+    line_record,
+    line_runs,
+    sign_in,
+    sign_in_page,
+)
 
 TARGET_S = 1.0
 NAMES = [("bias_dps", "deg/s", -10.0, 10.0), ("scale", "1", 0.94, 1.06),
@@ -112,12 +117,13 @@ def build_big(path: Path, n_runs: int, seed: int = 1) -> None:
 
 def bench_dashboard(path: Path, browser: bool) -> dict[str, float]:
     db = ResultsDB(path)
-    server = serve_in_thread(create_line_app(db.engine))
+    server = serve_in_thread(line_app(db.engine))  # signed in as an engineer below
     paths = ["/api/stations", "/api/yields", "/api/capability", "/api/runs",
              "/api/chart?coefficient=bias_dps"]
     out: dict[str, float] = {}
     try:
         with httpx.Client(base_url=server.url, timeout=60) as client:
+            sign_in(client)
             times, cpu = [], []
             for _ in range(4):
                 t, c = time.perf_counter(), time.process_time()
@@ -143,6 +149,7 @@ def bench_dashboard(path: Path, browser: bool) -> dict[str, float]:
 
             with chromium() as b:
                 page = b.new_page()
+                sign_in_page(page, server.url)  # the session cookie stays for the loads below
                 loads = []
                 for _ in range(3):
                     t = time.perf_counter()

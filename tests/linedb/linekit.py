@@ -131,7 +131,12 @@ def line_client(app: Any, role: str | None = "engineer") -> Any:
     (None: a session nobody signed in on)."""
     from fastapi.testclient import TestClient
 
-    client = TestClient(app, base_url=LINE_BASE)
+    return sign_in(TestClient(app, base_url=LINE_BASE), role)
+
+
+def sign_in(client: Any, role: str | None = "engineer") -> Any:
+    """`client` (an httpx.Client or TestClient of the dashboard) with the page's session and
+    CSRF token, signed in as `role` (None: nobody signed in)."""
     r = client.get("/api/session")
     assert r.status_code == 200, r.text
     client.headers["X-CSRF-Token"] = r.json()["csrf"]
