@@ -173,4 +173,8 @@ def create_line_app(
         return FileResponse(pdf, media_type="application/pdf",
                             filename=f"{run_id}-{CERTIFICATE_FILE}")
 
+    @app.api_route("/api/{rest:path}", methods=["GET", "POST"], dependencies=viewer)
+    def unknown(rest: str) -> Response:  # signed out, an unknown path says no more than 401
+        return _error(404, f"no such request: /api/{rest[:100]}")
+
     return Guard(app, rules.hosts)

@@ -33,6 +33,7 @@ from tests.linedb.linekit import (
 )
 
 DATA = ["/api/stations", "/api/yields", "/api/chart", "/api/runs", "/api/capability"]
+UNKNOWN = "/api/no-such-thing"  # 401 signed out, 404 signed in
 # what each role may read; the rest it is refused (403)
 ALLOWED = {
     "viewer": {"/api/stations", "/api/yields", "/api/chart", "/api/runs"},
@@ -40,6 +41,7 @@ ALLOWED = {
     "engineer": {*DATA, "/certificate/{run}", "/api/runs?simulated=include"},
 }
 EVERY = sorted(set().union(*ALLOWED.values()))
+SIGNED_OUT = [*EVERY, UNKNOWN]
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +66,7 @@ def test_page_is_public_and_shows_the_sign_in_form(line: tuple[Any, str]) -> Non
     assert r.status_code == 200 and 'id="signin"' in r.text and 'id="dashboard" hidden' in r.text
 
 
-@pytest.mark.parametrize("path", EVERY)
+@pytest.mark.parametrize("path", SIGNED_OUT)
 @pytest.mark.parametrize("session", [False, True], ids=["no-cookie", "not-signed-in"])
 def test_signed_out_everything_is_refused(line: tuple[Any, str], path: str, session: bool) -> None:
     app, run = line
@@ -87,6 +89,7 @@ def test_each_role_reads_its_panels_and_is_refused_the_rest(line: tuple[Any, str
             assert f"{role} is signed in" in r.json()["error"]
     assert client.get(_path("/certificate/{run}", run)).status_code == (
         403 if role == "viewer" else 200)
+    assert client.get(UNKNOWN).status_code == 404
 
 
 def test_session_and_cookie_rules(line: tuple[Any, str]) -> None:
