@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 import yaml
 from fastapi.testclient import TestClient
@@ -22,6 +23,7 @@ from station.line.app import create_line_app
 from station.line.users import load_line_users
 from station.results_db import ResultsDB
 from station.ui.auth import hash_password
+from station.ui.server import serve_in_thread
 from tests.linedb.linekit import (
     LINE_BASE,
     LINE_NAMES,
@@ -233,4 +235,13 @@ def test_cli_with_a_certificate_serves_https_with_secure_cookies(tmp_path: Path)
     app = create_line_app(ResultsDB(tmp_path / "l.sqlite").engine, None, access)
     r = TestClient(app, base_url="https://line-pc").get("/api/session")
     assert r.status_code == 200 and "secure" in r.headers["set-cookie"].lower()
+    server = serve_in_thread(app, tls=tls)  # on loopback here; served as `station line` does
+    try:
+        with httpx.Client(base_url=server.url, verify=False, timeout=10) as client:
+            assert server.url.startswith("https://")
+            r = client.get("/api/session")
+            assert r.status_code == 200 and "secure" in r.headers["set-cookie"].lower()
+            assert client.get("/api/yields").status_code == 401
+    finally:
+        server.stop()
     dispose_all()
