@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import Any
 
 import sqlalchemy as sa
-from sqlalchemy.dialects import postgresql, sqlite
 
 from procedures.record import RunRecord, three_axis_block
-from station.db.links import LINK_COLUMNS, relink_units
+from station.db.bulk import insert_new
+from station.db.links import relink_units, with_links
 from station.db.schema import CAL_KEYS, calibration_elements, measurements, outbox, runs
 
 
@@ -116,9 +116,10 @@ def replace_runs(
     queue: bool,
     elements: Sequence[dict[str, Any]] = (),
 ) -> None:
-    """Upsert runs by run_id, then relink their units: a run already there is deleted with
-    its measurements and elements, and every row inserted with ON CONFLICT DO NOTHING, so a
-    copy another writer inserted meanwhile (two syncs of one station) is kept, not doubled.
+    """Upsert runs by run_id and link their units' tests: a run already there is deleted
+    with its measurements and elements, and every row inserted with ON CONFLICT DO NOTHING,
+    so a copy another writer inserted meanwhile (two syncs of one station) is kept, not
+    doubled. The runs go in with their links set; then the units' other runs are relinked.
 
     queue: also put each run in the outbox for the central database (a station's local copy).
     """
@@ -126,23 +127,12 @@ def replace_runs(
         return
     ids = [r["run_id"] for r in rows]
     _delete_runs(con, _present(con, ids))
-    insert_new(con, runs, [{k: v for k, v in r.items() if k not in LINK_COLUMNS} for r in rows])
+    insert_new(con, runs, with_links(con, rows))
     insert_new(con, measurements, meas)
     insert_new(con, calibration_elements, elements)
     relink_units(con, {(r["product"], r["serial"]) for r in rows})
     if queue:
         _queue(con, ids)
-
-
-def insert_new(con: sa.Connection, table: sa.Table, rows: Sequence[dict[str, Any]]) -> None:
-    """Insert rows, skipping any whose primary key is there already (PostgreSQL, SQLite)."""
-    if not rows:
-        return
-    dialects = {"postgresql": postgresql, "sqlite": sqlite}
-    dialect = dialects.get(con.dialect.name)
-    stmt = (dialect.insert(table).on_conflict_do_nothing() if dialect is not None
-            else table.insert())
-    con.execute(stmt, list(rows))
 
 
 def _present(con: sa.Connection, ids: list[str]) -> list[str]:
