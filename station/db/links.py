@@ -50,12 +50,12 @@ def relink_units(con: sa.Connection, units: Iterable[Unit]) -> None:
 def with_links(con: sa.Connection, rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Runs about to be inserted, with the links they will have among their units' tests
     in the database (tests ordered here by started_utc, run_id; relink_units afterwards
-    corrects any run the database orders otherwise, and the units' earlier tests)."""
+    corrects any run the database orders otherwise, and the units' earlier tests). The
+    caller holds the units' locks (lock_units)."""
     ordered = sorted({(r["product"], r["serial"]) for r in rows})
-    if not ordered:
-        return []
-    lock_units(con, ordered)
-    tests = _unit_tests(con, ordered)
+    new = {r["run_id"] for r in rows}
+    tests = {unit: [t for t in unit_tests if t["run_id"] not in new]
+             for unit, unit_tests in _unit_tests(con, ordered).items()}
     for r in rows:
         tests[(r["product"], r["serial"])].append(r)
     links: dict[str, Links] = {}
@@ -65,7 +65,7 @@ def with_links(con: sa.Connection, rows: Sequence[dict[str, Any]]) -> list[dict[
     return [{**r, **dict(zip(LINK_COLUMNS, links[r["run_id"]], strict=True))} for r in rows]
 
 
-def lock_units(con: sa.Connection, ordered: list[Unit]) -> None:
+def lock_units(con: sa.Connection, ordered: Sequence[Unit]) -> None:
     """Two stations delivering tests of one serial at once: one links after the other.
     The locks are taken in sorted order (volatile functions run after ORDER BY), so two
     batches cannot deadlock; SQLite serialises writers anyway. Taken again, a lock held by

@@ -16,7 +16,7 @@ import sqlalchemy as sa
 
 from procedures.record import RunRecord, three_axis_block
 from station.db.bulk import insert_new
-from station.db.links import relink_units, with_links
+from station.db.links import lock_units, relink_units, with_links
 from station.db.schema import CAL_KEYS, calibration_elements, measurements, outbox, runs
 
 
@@ -126,11 +126,13 @@ def replace_runs(
     if not rows:
         return
     ids = [r["run_id"] for r in rows]
+    units = sorted({(r["product"], r["serial"]) for r in rows})
+    lock_units(con, units)  # first: a second writer of these units waits for this one
     _delete_runs(con, _present(con, ids))
     insert_new(con, runs, with_links(con, rows))
     insert_new(con, measurements, meas)
     insert_new(con, calibration_elements, elements)
-    relink_units(con, {(r["product"], r["serial"]) for r in rows})
+    relink_units(con, units)
     if queue:
         _queue(con, ids)
 

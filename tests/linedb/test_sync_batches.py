@@ -2,11 +2,13 @@
 (some three-axis, with calibration elements) delivered batch by batch; a batch interrupted
 inside its central transaction, a batch delivered but not marked sent (the station died
 between the two), and a full re-send all leave exactly one copy of each run with its own
-measurements and elements, counted by plain SQL on a connection of its own."""
+measurements and elements, counted by plain SQL on a connection of its own; so do two
+syncs of one station pushing at once."""
 
 from __future__ import annotations
 
 import sqlite3
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +20,7 @@ from procedures.record import RunRecord
 from station.db import store
 from station.db.connect import dispose_all, engine_for
 from station.db.links import LINK_COLUMNS
-from station.db.sync import Sync
+from station.db.sync import Sync, SyncError
 from station.results_db import ResultsDB
 from tests.linedb.linekit import LineRun, line_runs
 from tests.linedb.pgserver import PgServer, missing_reason
@@ -166,3 +168,36 @@ def test_batches_interrupted_and_resent_leave_one_copy_of_each_run(
     retested = query("SELECT count(*) FROM runs WHERE attempt > 1")[0][0]
     assert retested > 0  # a retest in a later batch relinked its unit's earlier runs
     assert query(links) == _sqlite_counter(tmp_path / "local.sqlite")(links)
+
+
+def test_two_syncs_of_one_station_at_once_leave_one_copy_of_each_run(
+        work: list[LineRun], central: tuple[str, Any], tmp_path: Path) -> None:
+    """`station sync` by hand while the station's own sync thread pushes the same outbox:
+    both deliver the same batches at once (SQLite may refuse the second writer: the runs
+    stay queued and go with the next push)."""
+    url, query = central
+    some = work[: 3 * BATCH]
+    local = ResultsDB(tmp_path / "local.sqlite")
+    local.add_records([(r.folder, r.record) for r in some])
+    syncs = [Sync(str(local.path), url, batch=BATCH) for _ in range(2)]
+    start = threading.Barrier(len(syncs))
+    failed: list[BaseException] = []
+
+    def push(sync: Sync) -> None:
+        start.wait()
+        try:
+            sync.push_once()
+        except SyncError as exc:
+            failed.append(exc)
+
+    threads = [threading.Thread(target=push, args=(s,)) for s in syncs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert len(failed) < len(syncs), failed
+    if url.startswith("postgresql"):  # the second waits for the first's units, then replaces
+        assert not failed, failed
+    syncs[0].push_once()
+    assert syncs[0].pending() == 0
+    assert _found(query) == _once_each(some)
