@@ -13,20 +13,28 @@
 
     python3 benchmarks/bench_line_db.py [--runs 100000] [--sync-runs 2000] [--postgres]
                                         [--browser] [--keep /tmp/line-100k.sqlite]
+    python3 benchmarks/bench_line_db.py --sync [--sync-runs 10000] [--batch 1000] [--postgres]
 
 --postgres runs the sync part against a throwaway PostgreSQL server (Debian's postgresql).
+--sync measures the sync alone (no dashboard): one station's outbox of --sync-runs parts
+(about 10% more runs: retests), 6 measurements each, pushed in batches of --batch runs;
+besides the wall time, the CPU time of this process and of the PostgreSQL server's processes
+(runs per CPU second: what the machine's load does not change).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -162,14 +170,33 @@ def bench_dashboard(path: Path, browser: bool) -> dict[str, float]:
     return out
 
 
-def bench_sync(folder: Path, n_runs: int, central: str) -> dict[str, float]:
+def server_cpu_s(data: Path) -> float:
+    """CPU seconds used so far by a PostgreSQL server's processes (the postmaster's
+    children: the backends and the background writers)."""
+    postmaster = int((data / "postmaster.pid").read_text().split()[0])
+    ticks = 0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended meanwhile
+            continue
+        if int(fields[1]) == postmaster:
+            ticks += int(fields[11]) + int(fields[12])  # utime, stime
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def bench_sync(folder: Path, n_runs: int, central: str, batch: int,
+               server_cpu: Callable[[], float]) -> dict[str, float]:
     local = ResultsDB(folder / "local.sqlite")
     work = line_runs(n_runs, ["EOL-A"], seed=9, root=folder / "runs")
     local.add_records([(r.folder, r.record) for r in work])
-    sync = Sync(str(local.path), central, station_id="EOL-A", batch=500)
-    t = time.perf_counter()
+    sync = Sync(str(local.path), central, station_id="EOL-A", batch=batch)
+    engine_for(sync.central_url)  # the schema created before the clock starts
+    t, cpu, server = time.perf_counter(), time.process_time(), server_cpu()
     report = sync.push_once()
     elapsed = time.perf_counter() - t
+    cpu, server = time.process_time() - cpu, server_cpu() - server
+    n_meas = sum(len(r.record.measurements) for r in work)
     # lag: one run at a time, as a station finishes them, with the sync thread running
     thread = SyncThread(sync, interval_s=1.0).start()
     central_engine = engine_for(sync.central_url)
@@ -190,26 +217,37 @@ def bench_sync(folder: Path, n_runs: int, central: str) -> dict[str, float]:
             time.sleep(0.05)
     finally:
         thread.stop()
-    return {"sync_runs": report.sent, "sync_runs_per_s": report.sent / elapsed,
+    return {"sync_runs": report.sent, "sync_measurements": n_meas, "sync_batch": batch,
+            "sync_s": elapsed, "sync_runs_per_s": report.sent / elapsed,
+            # the work itself, whatever else the machine runs: this process and the server
+            "sync_cpu_s": cpu, "sync_server_cpu_s": server,
+            "sync_runs_per_cpu_s": report.sent / (cpu + server),
             "lag_median_s": statistics.median(lags), "lag_max_s": max(lags)}
+
+
+def dashboard(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
+    big = args.keep or tmp / "line.sqlite"
+    if not big.exists():
+        t = time.perf_counter()
+        build_big(big, args.runs)
+        print(f"built {args.runs} runs in {time.perf_counter() - t:.1f} s", file=sys.stderr)
+    return bench_dashboard(big, args.browser)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100_000)
     ap.add_argument("--sync-runs", type=int, default=2000)
+    ap.add_argument("--sync", action="store_true", help="the sync alone, no dashboard")
+    ap.add_argument("--batch", type=int, default=Sync.BATCH, help="runs per sync batch")
     ap.add_argument("--postgres", action="store_true", help="sync into a real PostgreSQL")
     ap.add_argument("--browser", action="store_true", help="also time the page in chromium")
     ap.add_argument("--keep", type=Path, help="the big database file (reused when present)")
     args = ap.parse_args()
     results: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        big = args.keep or Path(tmp) / "line.sqlite"
-        if not big.exists():
-            t = time.perf_counter()
-            build_big(big, args.runs)
-            print(f"built {args.runs} runs in {time.perf_counter() - t:.1f} s", file=sys.stderr)
-        results["dashboard"] = bench_dashboard(big, args.browser)
+        if not args.sync:
+            results["dashboard"] = dashboard(args, Path(tmp))
         server = None
         if args.postgres:
             from tests.linedb.pgserver import PgServer, missing_reason
@@ -224,13 +262,15 @@ def main() -> int:
         else:
             central = f"sqlite:///{Path(tmp) / 'central.sqlite'}"
         try:
-            results["sync"] = bench_sync(Path(tmp), args.sync_runs, central)
+            cpu = partial(server_cpu_s, server.data) if server else lambda: 0.0
+            results["sync"] = bench_sync(Path(tmp), args.sync_runs, central, args.batch, cpu)
             results["sync"]["central"] = "postgresql" if server else "sqlite"
         finally:
             if server is not None:
                 server.destroy()
-    results["runs"] = args.runs
-    results["dashboard_target_s"] = TARGET_S
+    if not args.sync:
+        results["runs"] = args.runs
+        results["dashboard_target_s"] = TARGET_S
     print(json.dumps(results, indent=2))
     return 0
 

@@ -15,6 +15,8 @@ from typing import Any
 import sqlalchemy as sa
 
 from procedures.record import RunRecord, three_axis_block
+from station.db.bulk import insert_new
+from station.db.links import lock_units, relink_units, with_links
 from station.db.schema import CAL_KEYS, calibration_elements, measurements, outbox, runs
 
 
@@ -106,9 +108,6 @@ def measurement_rows(rec: RunRecord) -> list[dict[str, Any]]:
     ]
 
 
-_LINK_COLUMNS = ("attempt", "first_run_id", "unit_verdict", "unit_tests")
-
-
 def replace_runs(
     con: sa.Connection,
     rows: Sequence[dict[str, Any]],
@@ -117,27 +116,40 @@ def replace_runs(
     queue: bool,
     elements: Sequence[dict[str, Any]] = (),
 ) -> None:
-    """Upsert runs by run_id (delete and insert, portable), then relink their units.
+    """Upsert runs by run_id and link their units' tests: a run already there is deleted
+    with its measurements and elements, and every row inserted with ON CONFLICT DO NOTHING,
+    so a copy another writer inserted meanwhile (two syncs of one station) is kept, not
+    doubled. The runs go in with their links set; then the units' other runs are relinked.
 
     queue: also put each run in the outbox for the central database (a station's local copy).
     """
     if not rows:
         return
     ids = [r["run_id"] for r in rows]
+    units = sorted({(r["product"], r["serial"]) for r in rows})
+    lock_units(con, units)  # first: a second writer of these units waits for this one
+    _delete_runs(con, _present(con, ids))
+    insert_new(con, runs, with_links(con, rows))
+    insert_new(con, measurements, meas)
+    insert_new(con, calibration_elements, elements)
+    relink_units(con, units)
+    if queue:
+        _queue(con, ids)
+
+
+def _present(con: sa.Connection, ids: list[str]) -> list[str]:
+    found: list[str] = []
+    for chunk in _chunks(ids, 500):
+        found += con.scalars(sa.select(runs.c.run_id).where(runs.c.run_id.in_(chunk)))
+    return found
+
+
+def _delete_runs(con: sa.Connection, ids: list[str]) -> None:
     for chunk in _chunks(ids, 500):
         con.execute(measurements.delete().where(measurements.c.run_id.in_(chunk)))
         con.execute(calibration_elements.delete().where(
             calibration_elements.c.run_id.in_(chunk)))
         con.execute(runs.delete().where(runs.c.run_id.in_(chunk)))
-    clean = [{k: v for k, v in r.items() if k not in _LINK_COLUMNS} for r in rows]
-    con.execute(runs.insert(), clean)
-    if meas:
-        con.execute(measurements.insert(), list(meas))
-    if elements:
-        con.execute(calibration_elements.insert(), list(elements))
-    relink_units(con, {(r["product"], r["serial"]) for r in rows})
-    if queue:
-        _queue(con, ids)
 
 
 def _queue(con: sa.Connection, ids: list[str]) -> None:
@@ -156,41 +168,6 @@ def _queue(con: sa.Connection, ids: list[str]) -> None:
            for i in ids if i not in known]
     if new:
         con.execute(outbox.insert(), new)
-
-
-def relink_units(con: sa.Connection, units: Iterable[tuple[str, str]]) -> None:
-    """Each run of these (product, serial) units: its attempt number (1 = first test), the
-    run_id of the unit's first test, the unit's final verdict (its latest test's) and its
-    number of tests."""
-    ordered = sorted(set(units))
-    if con.dialect.name == "postgresql":
-        # two stations delivering tests of one serial at once: one relinks after the other
-        # (sorted, so two batches cannot deadlock); SQLite serialises writers anyway
-        for product, serial in ordered:
-            con.execute(sa.text("SELECT pg_advisory_xact_lock(hashtext(:k))"),
-                        {"k": f"{product}\x1f{serial}"})
-    updates: list[dict[str, Any]] = []
-    for product, serial in ordered:
-        tests = con.execute(
-            sa.select(runs.c.run_id, runs.c.verdict)
-            .where(runs.c.product == product, runs.c.serial == serial)
-            .order_by(runs.c.started_utc, runs.c.run_id)
-        ).all()
-        if not tests:
-            continue
-        first, final = tests[0].run_id, tests[-1].verdict
-        updates += [
-            {"rid": t.run_id, "a": i + 1, "f": first, "v": final, "n": len(tests)}
-            for i, t in enumerate(tests)
-        ]
-    if updates:
-        con.execute(
-            runs.update()
-            .where(runs.c.run_id == sa.bindparam("rid"))
-            .values(attempt=sa.bindparam("a"), first_run_id=sa.bindparam("f"),
-                    unit_verdict=sa.bindparam("v"), unit_tests=sa.bindparam("n")),
-            updates,
-        )
 
 
 def _chunks(items: list[str], size: int) -> Iterable[list[str]]:

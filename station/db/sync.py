@@ -1,8 +1,11 @@
 """Store-and-forward: a station's runs, written to its local database first, pushed to the
 line's central database by a sync thread (and by `station sync` once).
 
-Each run is upserted by run_id, so a run delivered twice (the station died between the
-central commit and marking it sent) is still there once. A run re-indexed locally (crash
+Runs go in batches (Sync.BATCH runs with their measurements and calibration elements per
+central transaction; what is queued goes at once, one run or many). Each run is upserted by
+run_id (rows inserted with ON CONFLICT DO NOTHING after any older copy is deleted), so a run
+delivered twice (the station died between the central commit and marking it sent, or a
+batch was interrupted and retried) is still there once. A run re-indexed locally (crash
 recovery marking it ERROR) is queued again with a higher version and delivered again. While
 the central database is unreachable the sync retries with exponential backoff; the station
 keeps testing, since it only ever writes locally.
@@ -27,6 +30,8 @@ from station.db.store import replace_runs, utc_now
 
 log = logging.getLogger(__name__)
 
+Rows = list[dict[str, Any]]
+
 
 class SyncError(DatabaseError):
     """The central database could not be reached or written; the runs stay queued locally."""
@@ -39,10 +44,14 @@ class SyncReport:
 
 
 class Sync:
-    """Pushes one local database's queued runs to one central database."""
+    """Pushes one local database's queued runs to one central database, `batch` runs (with
+    their measurements and calibration elements) per central transaction. Whatever is
+    queued goes at once: a single run just ended is sent alone, never held for a batch."""
+
+    BATCH = 1000
 
     def __init__(self, local: str, central: str, station_id: str = "",
-                 software_version: str = "", batch: int = 500) -> None:
+                 software_version: str = "", batch: int = BATCH) -> None:
         self.local_url = database_url(local)
         self.central_url = database_url(central)
         if self.local_url == self.central_url:
@@ -77,45 +86,48 @@ class Sync:
         return SyncReport(sent=sent, pending=pending)
 
     def _push_batch(self) -> int:
+        """One batch: read up to `batch` queued runs locally, write them centrally in one
+        transaction, then mark them sent locally. Interrupted anywhere, it is safe to run
+        again: the central transaction is all or nothing, and a batch delivered but not
+        marked is delivered again as a replacement of itself (one copy of each run)."""
         local = engine_for(self.local_url)
         with local.connect() as con:
-            queued = {
-                r.run_id: r.version
-                for r in con.execute(
-                    sa.select(outbox.c.run_id, outbox.c.version)
-                    .where(outbox.c.sent_version < outbox.c.version)
-                    .order_by(outbox.c.queued_utc, outbox.c.run_id)
-                    .limit(self.batch)
-                )
-            }
+            queued = self._queued(con)
             if not queued:
                 return 0
-            ids = list(queued)
-            rows = [dict(r) for r in con.execute(
-                sa.select(runs).where(runs.c.run_id.in_(ids))).mappings()]
-            meas = [dict(m) for m in con.execute(
-                sa.select(measurements).where(measurements.c.run_id.in_(ids))).mappings()]
-            elements = [dict(e) for e in con.execute(
-                sa.select(calibration_elements).where(
-                    calibration_elements.c.run_id.in_(ids))).mappings()]
+            rows, meas, elements = _read_runs(con, list(queued))
         try:
-            central = engine_for(self.central_url)
-            with central.begin() as con:
+            with engine_for(self.central_url).begin() as con:
                 replace_runs(con, rows, meas, queue=False, elements=elements)
         except (SQLAlchemyError, DatabaseError) as exc:
             raise SyncError(
                 f"central database {shown(self.central_url)} not reachable "
                 f"({str(exc).splitlines()[0]}); {len(queued)}+ runs stay queued locally"
             ) from None
+        self._mark_sent(queued)
+        return len(queued)
+
+    def _queued(self, con: sa.Connection) -> dict[str, int]:
+        """run_id -> version of the oldest `batch` runs not yet delivered at their version."""
+        return {
+            r.run_id: r.version
+            for r in con.execute(
+                sa.select(outbox.c.run_id, outbox.c.version)
+                .where(outbox.c.sent_version < outbox.c.version)
+                .order_by(outbox.c.queued_utc, outbox.c.run_id)
+                .limit(self.batch)
+            )
+        }
+
+    def _mark_sent(self, queued: dict[str, int]) -> None:
         now = utc_now()  # a queued run since deleted locally counts as delivered too
-        with local.begin() as con:
+        with engine_for(self.local_url).begin() as con:
             con.execute(
                 outbox.update()
                 .where(outbox.c.run_id == sa.bindparam("rid"))
                 .values(sent_version=sa.bindparam("v"), sent_utc=now),
                 [{"rid": rid, "v": v} for rid, v in queued.items()],
             )
-        return len(queued)
 
     def _heartbeat(self, pending: int) -> None:
         if not self.station_id:
@@ -131,6 +143,17 @@ class Sync:
         except (SQLAlchemyError, DatabaseError) as exc:
             raise SyncError(f"central database {shown(self.central_url)}: heartbeat not "
                             f"written ({str(exc).splitlines()[0]})") from None
+
+
+def _read_runs(con: sa.Connection, ids: list[str]) -> tuple[Rows, Rows, Rows]:
+    """The runs, measurements and calibration elements of these runs, as rows."""
+    return (_rows_of(con, runs, ids), _rows_of(con, measurements, ids),
+            _rows_of(con, calibration_elements, ids))
+
+
+def _rows_of(con: sa.Connection, table: sa.Table, ids: list[str]) -> Rows:
+    query = sa.select(table).where(table.c.run_id.in_(ids))
+    return [dict(r) for r in con.execute(query).mappings()]
 
 
 class SyncThread:
