@@ -41,6 +41,20 @@ from procedures.safe_state import SafeStatePolicy
 log = logging.getLogger(__name__)
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGQUIT)
+# `nohup station run ...` starts the station with SIGHUP ignored: it asked that a closed
+# terminal not stop the run, so an inherited ignore of SIGHUP is kept. (SIGINT and SIGQUIT
+# are obeyed even when inherited ignored: a shell script's background job gets them ignored
+# without anybody asking, and kill -INT must still stop the run safely.)
+KEEP_IGNORED = (signal.SIGHUP,)
+
+
+def _obeyed() -> list[signal.Signals]:
+    """The signals the exit path handles: all of SIGNALS but those of KEEP_IGNORED that the
+    process inherited as ignored."""
+    return [s for s in SIGNALS
+            if not (s in KEEP_IGNORED and signal.getsignal(s) is signal.SIG_IGN)]
+
+
 # why the run stopped, as its record says it (the engine adds "in step ...")
 REASONS: dict[signal.Signals, str] = {
     signal.SIGTERM: "station asked to stop (SIGTERM)",
@@ -117,7 +131,7 @@ class ExitPath:
         self._worker = threading.Thread(target=self._work, name="exit-path", daemon=True)
         self._worker.start()
         if threading.current_thread() is threading.main_thread():
-            self._previous = {sig: signal.signal(sig, self._on_signal) for sig in SIGNALS}
+            self._previous = {sig: signal.signal(sig, self._on_signal) for sig in _obeyed()}
         self._previous_hook = threading.excepthook
         threading.excepthook = self._on_thread_exception
         return self

@@ -173,8 +173,14 @@ def _start(command: str, state: Path, station_yaml: Path, log_env: dict[str, str
         args += ["ui", "--sim", "--port", str(port), "--station", str(station_yaml)]
     return subprocess.Popen(
         args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-        text=True, cwd=ROOT, env=log_env,
+        text=True, cwd=ROOT, env=log_env, preexec_fn=_hangups_not_ignored,
     )
+
+
+def _hangups_not_ignored() -> None:
+    """A cell's station starts as from a terminal, whatever started the tests: under nohup
+    it would inherit SIGHUP ignored, and the station keeps an inherited ignore of SIGHUP."""
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 def _start_ui_run(url: str, proc: subprocess.Popen[str], lines: _Lines) -> None:

@@ -32,6 +32,15 @@ def exits() -> Iterator[list[int]]:
     yield []
 
 
+@pytest.fixture(autouse=True)
+def hangups_as_from_a_terminal() -> Iterator[None]:
+    """Each test starts with SIGHUP's default action, whatever started pytest (nohup starts
+    it ignored, which the exit path keeps), and leaves it as it found it."""
+    found = signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    yield
+    signal.signal(signal.SIGHUP, found)
+
+
 def _wait(cond: object, timeout_s: float = 5.0) -> None:
     deadline = time.monotonic() + timeout_s
     while not cond() and time.monotonic() < deadline:  # type: ignore[operator]
@@ -65,6 +74,22 @@ def test_each_signal_stops_the_run_once_and_a_second_is_said_not_obeyed(
     # the process's own handlers are back
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
     assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL
+
+
+def test_a_hangup_ignored_at_start_stays_ignored(exits: list[int]) -> None:
+    """`nohup station run ...` asked that a closed terminal not stop the run: SIGHUP stays
+    ignored, and SIGTERM still stops the run the usual way."""
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    stops = Stops()
+    with ExitPath("run", bound_s=60, exit_now=exits.append) as path:
+        path.attach(stops)
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGHUP)
+        assert not stops.called.wait(0.3) and not path.signals
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stops.called.wait(5)
+    assert "SIGTERM" in stops.calls[0][0] and exits == []
+    assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
 
 
 def test_before_a_run_is_attached_a_signal_unwinds_as_ctrl_c() -> None:
