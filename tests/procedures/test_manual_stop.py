@@ -46,7 +46,7 @@ def test_manual_stop_is_a_registered_step_type() -> None:
 
 def test_hand_turned_bench_passes_with_the_scale_within_its_uncertainty(tmp_path: Path) -> None:
     """`station run --sim` with the shipped station-manual.yaml: PASS, the prompts on the
-    terminal, the stop-method scale within its k = 2 uncertainty of the part's true scale."""
+    terminal, the stop-method scale within its k = 3 uncertainty of the part's true scale."""
     out = tmp_path / "runs"
     proc = subprocess.run(
         [sys.executable, "-m", "station", "run", "--sim", "--station", str(STATION),
@@ -63,7 +63,10 @@ def test_hand_turned_bench_passes_with_the_scale_within_its_uncertainty(tmp_path
     assert record["verdict"] == "PASS"
     stop = record["analysis"]["stop_method"]["T25_V5"]
     assert stop["reference"] == "inclinometer" and len(stop["moves"]) == 2
-    assert abs(stop["scale"] - SCALE) <= 2 * stop["u_scale"], stop
+    # one run is one draw: within k = 2 only 95 % of the time (the hand's timing against the
+    # station clock varies with machine load). k = 3 here (99.7 %); the coverage itself over
+    # many parts is benchmarks/bench_manual_stop.py's figure.
+    assert abs(stop["scale"] - SCALE) <= 3 * stop["u_scale"], stop
     assert stop["u_scale"] < 2e-3
     names = {m["name"] for m in record["measurements"]}
     assert {"raw_scale_error", "manual_stop_reference_angle_deg"} <= names
