@@ -158,3 +158,17 @@ def sign_in_page(page: Any, url: str, role: str = "engineer") -> None:
     page.fill("#signin input[name=password]", LINE_PASSWORDS[role])
     page.click("#signin button[type=submit]")
     wait_js(page, "document.body.dataset.loaded === '1'")
+
+
+def as_three_axis(record: RunRecord, shift: float, quantities: tuple[str, ...]) -> RunRecord:
+    """The record as a three-axis part's: each quantity of `quantities` a 3-vector (a 3x3
+    matrix for the matrix and the g-sensitivity) of values offset by `shift`, k = 2 of 1e-4."""
+    block: dict[str, object] = {"axes": 3, "temp_supply_fitted": True, "readback_ok": True}
+    for k, q in enumerate(quantities):
+        shape = (3, 3) if q in ("matrix", "g_sensitivity_dps_per_mps2") else (3,)
+        value = np.arange(np.prod(shape)).reshape(shape) * 0.001 + k + shift
+        block[q] = {"value": value.tolist(), "uncertainty_k2": (0 * value + 1e-4).tolist()}
+    data = record.model_dump(mode="json")
+    data["calibration_three_axis"] = block
+    data["calibration"] = None
+    return RunRecord.model_validate(data)

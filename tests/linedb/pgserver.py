@@ -9,8 +9,12 @@ import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
+from station.db.connect import dispose_all
 from station.ui.server import free_port
 
 USER = "gyrocal"
@@ -84,3 +88,19 @@ class PgServer:
         with contextlib.suppress(RuntimeError):  # already stopped
             self.stop()
         shutil.rmtree(self.root, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def started_server() -> Iterator[PgServer]:
+    """A fresh server for the block, destroyed after it (with every engine on it); the test
+    is skipped, with the reason, where PostgreSQL is not installed."""
+    reason = missing_reason()
+    if reason:
+        pytest.skip(reason)
+    server = PgServer()
+    server.start()
+    try:
+        yield server
+    finally:
+        dispose_all()
+        server.destroy()

@@ -18,12 +18,12 @@ import pytest
 import sqlalchemy as sa
 
 from station.db import sync as sync_mod
-from station.db.connect import dispose_all, engine_for
+from station.db.connect import engine_for
 from station.db.schema import measurements, runs, stations
 from station.results_db import ResultsDB
 from station.settings import load_settings
 from tests.linedb.linekit import line_runs, station_yaml
-from tests.linedb.pgserver import PgServer, missing_reason
+from tests.linedb.pgserver import PgServer, started_server
 
 STATIONS = ("EOL-A", "EOL-B")
 # the line's view of a serial (its tests on every station)
@@ -32,17 +32,11 @@ LINK_COLUMNS = {"attempt", "first_run_id", "unit_verdict", "unit_tests"}
 
 @pytest.fixture
 def pg() -> Iterator[PgServer]:
-    reason = missing_reason()
-    if reason:
-        pytest.skip(reason)
-    server = PgServer()
-    server.start()
-    try:
-        yield server
-    finally:
-        sync_mod.stop_all()
-        dispose_all()
-        server.destroy()
+    with started_server() as server:
+        try:
+            yield server
+        finally:
+            sync_mod.stop_all()
 
 
 def _rows(url: str, table: sa.Table, order: list[str]) -> list[dict[str, Any]]:

@@ -13,7 +13,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 
 from procedures.record import RunRecord
@@ -22,8 +21,8 @@ from station.db.connect import dispose_all, engine_for
 from station.db.links import LINK_COLUMNS
 from station.db.sync import Sync, SyncError
 from station.results_db import ResultsDB
-from tests.linedb.linekit import LineRun, line_runs
-from tests.linedb.pgserver import PgServer, missing_reason
+from tests.linedb.linekit import LineRun, as_three_axis, line_runs
+from tests.linedb.pgserver import started_server
 
 UNITS = 2500  # about 2,800 runs (retests), 6 measurements each
 BATCH = 500
@@ -32,15 +31,7 @@ Counts = dict[str, tuple[int, ...]]
 
 def _three_axis(record: RunRecord, shift: float) -> RunRecord:
     """The record as a three-axis part: 33 calibration elements."""
-    block: dict[str, object] = {"axes": 3, "temp_supply_fitted": True, "readback_ok": True}
-    for k, q in enumerate(store.ELEMENT_QUANTITIES):
-        shape = (3, 3) if q in ("matrix", "g_sensitivity_dps_per_mps2") else (3,)
-        value = np.arange(np.prod(shape)).reshape(shape) * 0.001 + k + shift
-        block[q] = {"value": value.tolist(), "uncertainty_k2": (0 * value + 1e-4).tolist()}
-    data = record.model_dump(mode="json")
-    data["calibration_three_axis"] = block
-    data["calibration"] = None
-    return RunRecord.model_validate(data)
+    return as_three_axis(record, shift, store.ELEMENT_QUANTITIES)
 
 
 @pytest.fixture(scope="module")
@@ -85,16 +76,8 @@ def central(request: pytest.FixtureRequest, tmp_path: Path
         path = tmp_path / "central.sqlite"
         yield f"sqlite:///{path}", _sqlite_counter(path)
         return
-    reason = missing_reason()
-    if reason:
-        pytest.skip(reason)
-    server = PgServer()
-    server.start()
-    try:
+    with started_server() as server:
         yield server.url, _pg_counter(server.url)
-    finally:
-        dispose_all()
-        server.destroy()
 
 
 def _expected(runs: list[LineRun]) -> Counts:

@@ -8,7 +8,6 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-import numpy as np
 import pytest
 import sqlalchemy as sa
 
@@ -17,6 +16,7 @@ from reports.lot_report import build_lot
 from reports.lot_three_axis import element_lines
 from station.db.connect import HEAD_REVISION, MIGRATIONS, dispose_all
 from station.results_db import ResultsDB
+from tests.linedb.linekit import as_three_axis
 from tests.reports.synth_run import Part, make_record
 
 QUANTITIES = ("bias_dps", "matrix", "g_sensitivity_dps_per_mps2", "bias_temp_coeff_dps_per_c",
@@ -32,15 +32,7 @@ def _dispose() -> None:
 
 def _three_axis(serial: str, shift: float) -> RunRecord:
     record = make_record(Part(serial=serial, product="IMU-3 three-axis gyroscope"))
-    block: dict[str, object] = {"axes": 3, "temp_supply_fitted": True, "readback_ok": True}
-    for k, q in enumerate(QUANTITIES):
-        shape = (3, 3) if q in ("matrix", "g_sensitivity_dps_per_mps2") else (3,)
-        value = np.arange(np.prod(shape)).reshape(shape) * 0.001 + k + shift
-        block[q] = {"value": value.tolist(), "uncertainty_k2": (0 * value + 1e-4).tolist()}
-    data = record.model_dump(mode="json")
-    data["calibration_three_axis"] = block
-    data["calibration"] = None
-    return RunRecord.model_validate(data)
+    return as_three_axis(record, shift, QUANTITIES)
 
 
 def _schema3_file(path: Path) -> None:
