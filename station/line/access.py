@@ -28,7 +28,7 @@ from station.line.users import LineUsers, may
 from station.ui.guard import allowed_hosts
 from station.ui.requests import Guarded, Refused, current, with_cookie
 from station.ui.sessions import LoginThrottle, Session, Sessions
-from station.ui.signin import count_failure, lockout, open_new_session
+from station.ui.signin import count_failure, lockout, session_reply
 
 log = logging.getLogger(__name__)
 
@@ -82,17 +82,15 @@ def add_line_sign_in(app: FastAPI, access: LineAccess) -> None:
     def view(session: Session) -> dict[str, Any]:
         return {"role": role_of(session), "user": session.operator, "csrf": session.csrf}
 
-    def answer(session: Session) -> Response:
-        response = JSONResponse(view(session), headers={"Cache-Control": "no-store"})
+    def cookie(response: Response, session: Session) -> Response:
         return with_cookie(response, session, secure=access.https, name=LINE_COOKIE)
+
+    def answer(session: Session) -> Response:
+        return cookie(JSONResponse(view(session), headers={"Cache-Control": "no-store"}), session)
 
     @app.get("/api/session")
     def open_session(request: Request) -> Response:
-        session = current(request)
-        if session is not None:
-            return JSONResponse(view(session), headers={"Cache-Control": "no-store"})
-        opened = open_new_session(request, sessions, throttle)
-        return opened if isinstance(opened, JSONResponse) else answer(opened)
+        return session_reply(request, sessions, throttle, view, cookie)
 
     @app.post("/api/signin")
     def sign_in(body: SignInBody, session: Guarded) -> Response:

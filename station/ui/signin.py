@@ -8,6 +8,7 @@ station, with no operators listed, by name only). Failures are throttled per cli
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -43,6 +44,24 @@ def open_new_session(
     # able to ABORT), but it starts locked for signing in: no fresh guesses
     throttle.inherit(session.token, "addr:" + address)
     return session
+
+
+def session_reply(
+    request: Request,
+    sessions: Sessions,
+    throttle: LoginThrottle,
+    view: Callable[[Session], dict[str, Any]],
+    cookie: Callable[[Response, Session], Response],
+) -> Response:
+    """`GET /api/session` of a screen (the operator's, the line's): the request's session as
+    `view` shows it, opened here with its `cookie` when the request has none."""
+    session = current(request)
+    if session is not None:
+        return JSONResponse(view(session), headers={"Cache-Control": "no-store"})
+    opened = open_new_session(request, sessions, throttle)
+    if isinstance(opened, JSONResponse):
+        return opened
+    return cookie(JSONResponse(view(opened), headers={"Cache-Control": "no-store"}), opened)
 
 
 def lockout(throttle: LoginThrottle, session: Session) -> JSONResponse | None:
@@ -83,15 +102,7 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
     @app.get("/api/session")
     def open_session(request: Request) -> Response:
         """The page's session (opened here when it has none) and its CSRF token."""
-        session = current(request)
-        if session is not None:
-            return JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
-        session_or_refusal = open_new_session(request, sessions, throttle)
-        if isinstance(session_or_refusal, JSONResponse):
-            return session_or_refusal
-        session = session_or_refusal
-        response = JSONResponse(session_view(session), headers={"Cache-Control": "no-store"})
-        return with_cookie(response, session)
+        return session_reply(request, sessions, throttle, session_view, with_cookie)
 
     def locked(session: Session) -> JSONResponse | None:
         return lockout(throttle, session)
