@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -230,8 +231,66 @@ def analyze_stop_method(
     monotonic_time(t)
     ref = positive(reference_angle_deg, "reference_angle_deg")
     u_ref = non_negative(u_reference_angle_deg, "u_reference_angle_deg")
-    clip = _clip_mask(y, status, cfg.full_scale_dps)
+    rec = _locate_moves(t, y, _clip_mask(y, status, cfg.full_scale_dps), cfg)
+    t, y, clip = rec.t, rec.y, rec.clip
+    fs = (t.size - 1) / (t[-1] - t[0])
+    bias = estimate_bias(y[: rec.first], fs, noise)
+    bias_window = (float(t[0]), float(t[rec.first]))  # first samples, one period each
 
+    warnings: list[str] = []
+    if rec.trimmed_s:
+        warnings.append(
+            f"the record began in motion: its first {rec.trimmed_s:.3g} s (up to the end of "
+            "that motion) were left out"
+        )
+    meter = _MoveMeter(t, y, clip, bias, ref, u_ref, warnings)
+    moves, usable, cov = meter.measure(rec.ranges, bias_window, cfg.min_move_fraction)
+    mean_corr, u_mean = _mean_correction(usable, ref, u_ref, cov)
+    if mean_corr is None:
+        warnings.append("no usable move: no scale correction")
+    chi2, dof, birge, consistent = _move_consistency(usable, ref, cov, cfg.move_tolerance)
+    if consistent is False and u_mean is not None and birge is not None:
+        warnings.append(_disagreement(usable, ref, cfg.move_tolerance, chi2, dof, birge))
+        u_mean *= birge
+    return StopMethodResult(
+        bias=bias,
+        moves=tuple(moves),
+        static_segments_s=_static_segments(t, [(m.start_s, m.end_s) for m in moves]),
+        scale_correction=mean_corr,
+        u_scale_correction=u_mean,
+        reference_angle_deg=ref,
+        u_reference_angle_deg=u_ref,
+        noise_sigma_dps=rec.sigma,
+        n_over_range=int(clip.sum()),
+        warnings=tuple(warnings),
+        over_range_intervals_s=tuple((float(t[a]), float(t[b])) for a, b in _runs(clip)),
+        moves_chi2=chi2,
+        moves_dof=dof,
+        birge_ratio=birge,
+        moves_consistent=consistent,
+    )
+
+
+class _Located(NamedTuple):
+    """The record the moves were found in (cut after a leading motion), and the moves."""
+
+    t: NDArray[np.float64]
+    y: NDArray[np.float64]
+    clip: NDArray[np.bool_]
+    ranges: list[tuple[int, int]]
+    sigma: float
+    first: int  # index of the first move's start: the rest before it gives the bias
+    trimmed_s: float  # how much of a leading motion was cut off (0: none)
+
+
+def _locate_moves(
+    t: NDArray[np.float64],
+    y: NDArray[np.float64],
+    clip: NDArray[np.bool_],
+    cfg: StopMethodSettings,
+) -> _Located:
+    """The moves, after a rest at the first stop long enough for the bias; a leading motion
+    cut off first when the settings allow it."""
     ranges, _, sigma = detect_moves(t, y, cfg)
     if not ranges:
         raise AnalysisError(
@@ -249,110 +308,116 @@ def analyze_stop_method(
             if not ranges:
                 raise AnalysisError("no move found after the motion the record began with")
             first = ranges[0][0]
-    fs = (t.size - 1) / (t[-1] - t[0])
     if first == 0 or t[first] - t[0] < cfg.min_bias_window_s:
         raise AnalysisError(
             f"the record must start with at least {cfg.min_bias_window_s:g} s at rest at the "
             f"first stop (found {t[first] - t[0]:.3g} s before the first move): "
             "start sampling, wait 5 s, then rotate"
         )
-    bias = estimate_bias(y[:first], fs, noise)
-    bias_window = (float(t[0]), float(t[first]))  # first samples, one period each
+    return _Located(t, y, clip, ranges, sigma, first, trimmed_s)
 
-    warnings: list[str] = []
-    if trimmed_s:
-        warnings.append(
-            f"the record began in motion: its first {trimmed_s:.3g} s (up to the end of that "
-            "motion) were left out"
+
+class _MoveMeter:
+    """Each move's bias-corrected angle, its uncertainty and scale correction; what it
+    refuses or ignores goes to `warnings`."""
+
+    def __init__(
+        self,
+        t: NDArray[np.float64],
+        y: NDArray[np.float64],
+        clip: NDArray[np.bool_],
+        bias: BiasEstimate,
+        ref: float,
+        u_ref: float,
+        warnings: list[str],
+    ) -> None:
+        self.t, self.y, self.clip = t, y, clip
+        self.bias, self.ref, self.u_ref = bias, ref, u_ref
+        self.warnings = warnings
+
+    def measure(
+        self,
+        ranges: list[tuple[int, int]],
+        bias_window: tuple[float, float],
+        min_move_fraction: float,
+    ) -> tuple[list[StopMove], list[tuple[int, float]], NDArray[np.float64]]:
+        """The moves, the usable ones as (index into the covariance, angle), and the angle
+        errors' covariance of the moves kept (disturbances too small to be moves left out)."""
+        t, ref = self.t, self.ref
+        angles = [
+            (i0, i1, float(np.trapezoid(self.y[i0 : i1 + 1] - self.bias.bias_dps,
+                                        t[i0 : i1 + 1])))
+            for i0, i1 in ranges
+        ]
+        kept = [m for m in angles if abs(m[2]) >= min_move_fraction * ref]
+        cov = angle_error_covariance(
+            self.bias.noise, bias_window, [(float(t[i0]), float(t[i1])) for i0, i1, _ in kept]
         )
-    raw_moves: list[tuple[int, int, float, float]] = []
-    for i0, i1 in ranges:
-        e = y[i0 : i1 + 1] - bias.bias_dps
-        angle = float(np.trapezoid(e, t[i0 : i1 + 1]))
-        duration = float(t[i1] - t[i0])
-        raw_moves.append((i0, i1, angle, duration))
+        moves: list[StopMove] = []
+        usable: list[tuple[int, float]] = []
+        for i0, i1, angle in angles:
+            if abs(angle) < min_move_fraction * ref:
+                self.warnings.append(
+                    f"ignored a disturbance of {angle:.3g} deg at {t[i0]:.3g}-{t[i1]:.3g} s "
+                    "(too small to be a move between the stops)"
+                )
+                continue
+            j = len(moves)
+            moves.append(self._move(i0, i1, angle, math.sqrt(float(cov[j, j]))))
+            if moves[-1].usable:
+                usable.append((j, angle))
+        return moves, usable, cov
 
-    kept = [m for m in raw_moves if abs(m[2]) >= cfg.min_move_fraction * ref]
-    cov = angle_error_covariance(
-        bias.noise, bias_window, [(float(t[i0]), float(t[i1])) for i0, i1, _, _ in kept]
-    )
-    moves: list[StopMove] = []
-    usable: list[tuple[int, float]] = []  # (index into kept, angle)
-    for i0, i1, angle, _ in raw_moves:
-        if abs(angle) < cfg.min_move_fraction * ref:
-            warnings.append(
-                f"ignored a disturbance of {angle:.3g} deg at {t[i0]:.3g}-{t[i1]:.3g} s "
-                "(too small to be a move between the stops)"
-            )
-            continue
-        j = len(moves)
-        u_angle = math.sqrt(float(cov[j, j]))
-        n_clip = int(clip[i0 : i1 + 1].sum())
+    def _move(self, i0: int, i1: int, angle: float, u_angle: float) -> StopMove:
+        t, ref = self.t, self.ref
+        n_clip = int(self.clip[i0 : i1 + 1].sum())
         complete = i0 > 0 and i1 < t.size - 1
         corr: float | None = None
         u_corr: float | None = None
         if n_clip:
-            warnings.append(
+            self.warnings.append(
                 f"move at {t[i0]:.3g}-{t[i1]:.3g} s has {n_clip} over-range sample(s): its scale "
                 "is refused; rotate more slowly so the rate stays inside the range"
             )
         elif not complete:
-            warnings.append(
+            self.warnings.append(
                 f"the record {'starts' if i0 == 0 else 'ends'} inside the move at "
                 f"{t[i0]:.3g}-{t[i1]:.3g} s: keep sampling at rest before and after each move"
             )
         else:
             corr = math.copysign(ref, angle) / angle
-            rel = math.hypot(u_ref / ref, u_angle / angle)
-            u_corr = abs(corr) * rel
-            usable.append((j, angle))
-        moves.append(
-            StopMove(
-                start_s=float(t[i0]),
-                end_s=float(t[i1]),
-                measured_angle_deg=angle,
-                u_measured_angle_deg=u_angle,
-                direction=1 if angle > 0 else -1,
-                peak_rate_dps=float(np.max(np.abs(y[i0 : i1 + 1] - bias.bias_dps))),
-                n_over_range=n_clip,
-                complete=complete,
-                scale_correction=corr,
-                u_scale_correction=u_corr,
-            )
+            u_corr = abs(corr) * math.hypot(self.u_ref / ref, u_angle / angle)
+        return StopMove(
+            start_s=float(t[i0]),
+            end_s=float(t[i1]),
+            measured_angle_deg=angle,
+            u_measured_angle_deg=u_angle,
+            direction=1 if angle > 0 else -1,
+            peak_rate_dps=float(np.max(np.abs(self.y[i0 : i1 + 1] - self.bias.bias_dps))),
+            n_over_range=n_clip,
+            complete=complete,
+            scale_correction=corr,
+            u_scale_correction=u_corr,
         )
 
-    mean_corr, u_mean = _mean_correction(usable, ref, u_ref, cov)
-    if mean_corr is None:
-        warnings.append("no usable move: no scale correction")
-    chi2, dof, birge, consistent = _move_consistency(usable, ref, cov, cfg.move_tolerance)
-    if consistent is False and u_mean is not None and birge is not None:
-        corrs = ", ".join(f"{ref / abs(a):.4f}" for _, a in usable)
-        warnings.append(
-            f"MOVES DISAGREE: the per-move scale corrections ({corrs}) differ by far more than "
-            f"their uncertainties and a {cfg.move_tolerance:.2%} allowance per move (chi-square "
-            f"{chi2:.3g} on {dof} degree(s) of freedom); the mean's uncertainty is widened by "
-            f"the Birge ratio {birge:.3g}. Check that "
-            "every move went from stop to stop, and look for a bounce, a slipped stop, or a "
-            "scale that differs between directions"
-        )
-        u_mean *= birge
-    statics = _static_segments(t, [(m.start_s, m.end_s) for m in moves])
-    return StopMethodResult(
-        bias=bias,
-        moves=tuple(moves),
-        static_segments_s=statics,
-        scale_correction=mean_corr,
-        u_scale_correction=u_mean,
-        reference_angle_deg=ref,
-        u_reference_angle_deg=u_ref,
-        noise_sigma_dps=sigma,
-        n_over_range=int(clip.sum()),
-        warnings=tuple(warnings),
-        over_range_intervals_s=tuple((float(t[a]), float(t[b])) for a, b in _runs(clip)),
-        moves_chi2=chi2,
-        moves_dof=dof,
-        birge_ratio=birge,
-        moves_consistent=consistent,
+
+def _disagreement(
+    usable: list[tuple[int, float]],
+    ref: float,
+    tolerance: float,
+    chi2: float | None,
+    dof: int,
+    birge: float,
+) -> str:
+    """The warning for moves whose corrections disagree beyond their uncertainties."""
+    corrs = ", ".join(f"{ref / abs(a):.4f}" for _, a in usable)
+    return (
+        f"MOVES DISAGREE: the per-move scale corrections ({corrs}) differ by far more than "
+        f"their uncertainties and a {tolerance:.2%} allowance per move (chi-square "
+        f"{chi2:.3g} on {dof} degree(s) of freedom); the mean's uncertainty is widened by "
+        f"the Birge ratio {birge:.3g}. Check that "
+        "every move went from stop to stop, and look for a bounce, a slipped stop, or a "
+        "scale that differs between directions"
     )
 
 
