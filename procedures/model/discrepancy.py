@@ -207,11 +207,7 @@ def test_candidates(
     tests = []
     for (e, fit, dchi2, q, f_stat, p), p_adj in zip(raw, adjusted, strict=True):
         params = dict(fit.model.effects[e])
-        unc = {
-            k.split(".", 1)[1]: v
-            for k, v in fit.model.uncertainties.items()
-            if k.startswith(e + ".")
-        }
+        unc = _uncertainties_of(fit.model, e)
         tests.append(
             CandidateTest(
                 effect=e,
@@ -355,79 +351,143 @@ def _run(
     blocks = make_blocks(traj, max_block_s=max_block_s)
     noise, nuisance = measure_record_noise(traj, blocks, model, alpha, use_library)
     fitter = Fitter(traj, blocks, noise)
-    current = fitter.fit(model)
-    initial = current
-    iterations: list[Iteration] = []
-    not_separable: list[dict[str, Any]] = []
-    not_identifiable: list[str] = []
-    tests: list[CandidateTest] = []
+    initial = fitter.fit(model)
+    found = _search(fitter, initial, blocks, alpha, max_iterations, use_library)
+    return _result(traj, model, fitter, initial, found, alpha, nuisance)
+
+
+@dataclass
+class _Search:
+    """Where the naming loop got to: the model so far, the effects named, those it could not
+    tell apart or identify, and the last iteration's candidates."""
+
+    current: FitResult
+    iterations: list[Iteration] = field(default_factory=list)
+    not_separable: list[dict[str, Any]] = field(default_factory=list)
+    not_identifiable: list[str] = field(default_factory=list)
+    tests: list[CandidateTest] = field(default_factory=list)
+
+
+def _search(
+    fitter: Fitter,
+    initial: FitResult,
+    blocks: Blocks,
+    alpha: float,
+    max_iterations: int,
+    use_library: bool,
+) -> _Search:
+    """Name effects one at a time until none may be named (or `max_iterations`)."""
+    found = _Search(initial)
     if max_iterations == 0:
-        tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
+        found.tests, found.not_identifiable = test_candidates(fitter, initial, alpha, use_library)
     set_aside: set[str] = set()  # reported not separable: neither is named, nor a look-alike
     for _ in range(max_iterations):
-        tests, not_identifiable = test_candidates(fitter, current, alpha, use_library)
-        tests = _judge(tests, current, blocks, fitter.noise)
+        current = found.current
+        tests, found.not_identifiable = test_candidates(fitter, current, alpha, use_library)
+        tests = found.tests = _judge(tests, current, blocks, fitter.noise)
         chosen = _choose(fitter, current, tests, blocks, set_aside)
         if isinstance(chosen, dict):
             # the look-alikes are set aside; the part's other effects are still named in turn
-            not_separable.append(chosen)
+            found.not_separable.append(chosen)
             set_aside.update(chosen["effects"])
             continue
         if chosen is None:
             break
         best, new = chosen
-        assert best.fit is not None
-        significant = [c for c in tests if c.named_candidate]
-        sigma_now = fitter.noise.floor_per_block_dps(blocks)
-        summary_before = summarize(blocks, _centred(current, blocks), sigma_now)
-        summary_after = summarize(blocks, _centred(new, blocks), sigma_now)
-        zb, za = worst_z(summary_before), worst_z(summary_after)
-        pattern = max(zb, key=lambda k: zb[k] - za[k])
-        later = significant[significant.index(best) + 1:]  # those passed over are not rivals
-        runner = later[0] if later else None
-        evidence = {
-            "delta_chi2": round(best.delta_chi2, 3),
-            "f_statistic": round(best.f_statistic, 3),
-            "p_value": best.p_value,
-            "p_holm": best.p_holm,
-            "alpha_familywise": alpha,
-            "n_candidates": len(tests),
-            "delta_bic": round(best.delta_bic, 3),
-            "runner_up": (
-                {"effect": runner.effect, "delta_bic_vs_best": round(runner.bic - best.bic, 3)}
-                if runner
-                else None
-            ),
-            "uncertainties": best.uncertainties,
-            "pattern": {
-                "variable": pattern,
-                "worst_z_before": round(zb[pattern], 2),
-                "worst_z_after": round(za[pattern], 2),
-                "expected": fx.check_effect_id(best.effect).pattern,
-            },
-        }
-        iterations.append(
-            Iteration(
-                effect=best.effect,
-                gap_before_dps=record_gap_dps(current.residual_dps, blocks.duration_s),
-                gap_after_dps=record_gap_dps(new.residual_dps, blocks.duration_s),
-                parameters=dict(new.model.effects[best.effect]),
-                uncertainties={
-                    k.split(".", 1)[1]: v
-                    for k, v in new.model.uncertainties.items()
-                    if k.startswith(best.effect + ".")
-                },
-                evidence=evidence,
-                candidates=tuple(tests),
-                residual_before_dps=_centred(current, blocks),
-                residual_after_dps=_centred(new, blocks),
-                regressors=fx.check_effect_id(best.effect).regressors,
-                formula=fx.formula_of(best.effect, new.model.effects[best.effect]),
-            )
-        )
-        log.info("named %s: gap %.4g -> %.4g", best.effect, iterations[-1].gap_before_dps,
-                 iterations[-1].gap_after_dps)
-        current = new
+        named = _iteration(fitter, blocks, current, new, best, tests, alpha)
+        found.iterations.append(named)
+        log.info("named %s: gap %.4g -> %.4g", best.effect, named.gap_before_dps,
+                 named.gap_after_dps)
+        found.current = new
+    return found
+
+
+def _uncertainties_of(model: GyroModel, effect: str) -> dict[str, float]:
+    """The uncertainties of one effect's parameters, by parameter name."""
+    return {
+        k.split(".", 1)[1]: v
+        for k, v in model.uncertainties.items()
+        if k.startswith(effect + ".")
+    }
+
+
+def _iteration(
+    fitter: Fitter,
+    blocks: Blocks,
+    current: FitResult,
+    new: FitResult,
+    best: CandidateTest,
+    tests: list[CandidateTest],
+    alpha: float,
+) -> Iteration:
+    """The record of naming `best`: the model before (`current`) and with it (`new`)."""
+    return Iteration(
+        effect=best.effect,
+        gap_before_dps=record_gap_dps(current.residual_dps, blocks.duration_s),
+        gap_after_dps=record_gap_dps(new.residual_dps, blocks.duration_s),
+        parameters=dict(new.model.effects[best.effect]),
+        uncertainties=_uncertainties_of(new.model, best.effect),
+        evidence=_evidence(fitter, blocks, current, new, best, tests, alpha),
+        candidates=tuple(tests),
+        residual_before_dps=_centred(current, blocks),
+        residual_after_dps=_centred(new, blocks),
+        regressors=fx.check_effect_id(best.effect).regressors,
+        formula=fx.formula_of(best.effect, new.model.effects[best.effect]),
+    )
+
+
+def _evidence(
+    fitter: Fitter,
+    blocks: Blocks,
+    current: FitResult,
+    new: FitResult,
+    best: CandidateTest,
+    tests: list[CandidateTest],
+    alpha: float,
+) -> dict[str, Any]:
+    """Why `best` was named: its tests, the runner-up, and the residual pattern it removed."""
+    significant = [c for c in tests if c.named_candidate]
+    sigma_now = fitter.noise.floor_per_block_dps(blocks)
+    summary_before = summarize(blocks, _centred(current, blocks), sigma_now)
+    summary_after = summarize(blocks, _centred(new, blocks), sigma_now)
+    zb, za = worst_z(summary_before), worst_z(summary_after)
+    pattern = max(zb, key=lambda k: zb[k] - za[k])
+    later = significant[significant.index(best) + 1:]  # those passed over are not rivals
+    runner = later[0] if later else None
+    return {
+        "delta_chi2": round(best.delta_chi2, 3),
+        "f_statistic": round(best.f_statistic, 3),
+        "p_value": best.p_value,
+        "p_holm": best.p_holm,
+        "alpha_familywise": alpha,
+        "n_candidates": len(tests),
+        "delta_bic": round(best.delta_bic, 3),
+        "runner_up": (
+            {"effect": runner.effect, "delta_bic_vs_best": round(runner.bic - best.bic, 3)}
+            if runner
+            else None
+        ),
+        "uncertainties": best.uncertainties,
+        "pattern": {
+            "variable": pattern,
+            "worst_z_before": round(zb[pattern], 2),
+            "worst_z_after": round(za[pattern], 2),
+            "expected": fx.check_effect_id(best.effect).pattern,
+        },
+    }
+
+
+def _result(
+    traj: Trajectory,
+    model: GyroModel,
+    fitter: Fitter,
+    initial: FitResult,
+    found: _Search,
+    alpha: float,
+    nuisance: list[str],
+) -> DiscrepancyResult:
+    blocks = fitter.blocks
+    current = found.current
     noise = fitter.noise
     sigma = noise.floor_per_block_dps(blocks)
     floor = floor_dps(sigma, blocks.duration_s)
@@ -436,7 +496,7 @@ def _run(
     if gap_final > UNEXPLAINED_GAP_RATIO * floor:
         unexplained = tuple(structure.unexplained_structure(fitter, current))
     final_model = GyroModel(
-        name=_model_name(model.name, [it.effect for it in iterations]),
+        name=_model_name(model.name, [it.effect for it in found.iterations]),
         bias_dps=current.model.bias_dps,
         scale=current.model.scale,
         effects=current.model.effects,
@@ -450,15 +510,15 @@ def _run(
         sigma_block_dps=sigma,
         gap_initial_dps=record_gap_dps(initial.residual_dps, blocks.duration_s),
         noise_floor_dps=floor,
-        iterations=tuple(iterations),
+        iterations=tuple(found.iterations),
         gap_final_dps=gap_final,
         residual_initial_dps=_centred(initial, blocks),
         residual_final_dps=_centred(current, blocks),
         summary_initial=summarize(blocks, _centred(initial, blocks), sigma),
         summary_final=summarize(blocks, _centred(current, blocks), sigma),
-        not_separable=tuple(not_separable),
-        not_identifiable=tuple(not_identifiable),
-        last_candidates=tuple(tests),
+        not_separable=tuple(found.not_separable),
+        not_identifiable=tuple(found.not_identifiable),
+        last_candidates=tuple(found.tests),
         alpha=alpha,
         notes=traj.notes,
         noise_nuisance_terms=tuple(nuisance),
