@@ -210,6 +210,91 @@ def _csv_error(path: Path, line: int, exc: csv.Error) -> ValueError:
 
 
 def _read_csv(path: Path, fh: TextIO) -> Trajectory:
+    head = _read_header(path, fh)
+    values: dict[str, list[float]] = {c: [] for c in CSV_COLUMNS}
+    kinds: list[str] | None = [] if head.kind_col is not None else None
+    lines: list[int] = []
+    reader = csv.reader(fh, delimiter=head.delimiter)
+    for row in _rows(reader, path, head.line):
+        lineno = head.line + reader.line_num
+        if not any(f.strip() for f in row):
+            continue  # blank line, or a spreadsheet's empty row
+        for c, value in head.values(path, lineno, row).items():
+            values[c].append(value)
+        lines.append(lineno)
+        if kinds is not None:
+            kinds.append(head.kind(path, lineno, row))
+    if len(values["time_s"]) < 10:
+        raise ValueError(f"{path}: only {len(values['time_s'])} rows; a whole run is needed")
+    _check_own_times(path, np.asarray(values["time_s"]), lines)
+    return trajectory_from_columns(values, kinds=kinds, source=str(path))
+
+
+class _Header:
+    """A discrepancy CSV's header: its fields, delimiter and line, and how it reads a row."""
+
+    def __init__(self, fields: list[str], delimiter: str, line: int) -> None:
+        self.fields, self.delimiter, self.line = fields, delimiter, line
+        self.index = {c: fields.index(c) for c in CSV_COLUMNS}
+        self.kind_col = fields.index("segment_kind") if "segment_kind" in fields else None
+        self.decimal_comma = delimiter != ","
+
+    def values(self, path: Path, lineno: int, row: list[str]) -> dict[str, float]:
+        """The pinned columns of a row, each checked to be a plausible finite number."""
+        short_of_pinned = any(i >= len(row) for i in self.index.values())  # named below
+        if len(row) != len(self.fields) and not short_of_pinned:
+            raise ValueError(
+                f"{path}:{lineno}: {len(row):,} columns, but the header has "
+                f"{len(self.fields)}; every row needs one value per header column"
+            )
+        out: dict[str, float] = {}
+        for c, i in self.index.items():
+            text = row[i] if i < len(row) else None
+            out[c] = self._value(path, lineno, c, text, len(row))
+        return out
+
+    def _value(self, path: Path, lineno: int, c: str, text: str | None, n_row: int) -> float:
+        try:
+            value = _number(text, self.decimal_comma)
+        except ValueError:
+            if text is None:
+                raise ValueError(
+                    f"{path}: line {lineno}: column {c} is missing (the row has "
+                    f"{n_row} fields, the header {len(self.fields)}); complete or remove "
+                    "the row"
+                ) from None
+            raise ValueError(
+                f"{path}: line {lineno}: column {c} is {shown(text)}, not a number"
+            ) from None
+        if not math.isfinite(value):
+            raise ValueError(
+                f"{path}: line {lineno}: column {c} is {shown(str(text))}, not a finite "
+                "number; remove the row or give the measured value"
+            )
+        if abs(value) > MAX_ABS_VALUE:
+            raise ValueError(
+                f"{path}: line {lineno}: column {c} is {value:g}, beyond +/-"
+                f"{MAX_ABS_VALUE:g}; not a plausible measurement"
+            )
+        return value
+
+    def kind(self, path: Path, lineno: int, row: list[str]) -> str:
+        """The row's segment_kind ('' when the column is short), checked to be a kind."""
+        col = self.kind_col
+        kind = row[col].strip() if col is not None and col < len(row) else ""
+        if kind not in {"", *SEGMENT_KINDS}:
+            close = difflib.get_close_matches(kind, SEGMENT_KINDS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ValueError(
+                f"{path}: line {lineno}: column segment_kind is {shown(kind)}, not a window "
+                f"kind{hint}; allowed: {', '.join(SEGMENT_KINDS)}, or empty for a "
+                "transition"
+            )
+        return kind
+
+
+def _read_header(path: Path, fh: TextIO) -> _Header:
+    """The header line (after an Excel `sep=` hint), checked to hold each pinned column once."""
     first = fh.readline(MAX_HEADER_CHARS)
     if len(first) >= MAX_HEADER_CHARS and not first.endswith("\n"):
         raise ValueError(
@@ -240,64 +325,11 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
         raise ValueError(
             f"{path}: line {header_line}: columns {twice} appear more than once; keep one each"
         )
-    index = {c: fields.index(c) for c in CSV_COLUMNS}
-    kind_col = fields.index("segment_kind") if "segment_kind" in fields else None
-    decimal_comma = delimiter != ","
-    allowed_kinds = {"", *SEGMENT_KINDS}
-    values: dict[str, list[float]] = {c: [] for c in CSV_COLUMNS}
-    kinds: list[str] | None = [] if kind_col is not None else None
-    lines: list[int] = []
-    reader = csv.reader(fh, delimiter=delimiter)
-    for row in _rows(reader, path, header_line):
-        lineno = header_line + reader.line_num
-        if not any(f.strip() for f in row):
-            continue  # blank line, or a spreadsheet's empty row
-        short_of_pinned = any(i >= len(row) for i in index.values())  # named below
-        if len(row) != len(fields) and not short_of_pinned:
-            raise ValueError(
-                f"{path}:{lineno}: {len(row):,} columns, but the header has {len(fields)}; "
-                "every row needs one value per header column"
-            )
-        for c, i in index.items():
-            text = row[i] if i < len(row) else None
-            try:
-                value = _number(text, decimal_comma)
-            except ValueError:
-                if text is None:
-                    raise ValueError(
-                        f"{path}: line {lineno}: column {c} is missing (the row has "
-                        f"{len(row)} fields, the header {len(fields)}); complete or remove "
-                        "the row"
-                    ) from None
-                raise ValueError(
-                    f"{path}: line {lineno}: column {c} is {shown(text)}, not a number"
-                ) from None
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"{path}: line {lineno}: column {c} is {shown(str(text))}, not a finite "
-                    "number; remove the row or give the measured value"
-                )
-            if abs(value) > MAX_ABS_VALUE:
-                raise ValueError(
-                    f"{path}: line {lineno}: column {c} is {value:g}, beyond +/-"
-                    f"{MAX_ABS_VALUE:g}; not a plausible measurement"
-                )
-            values[c].append(value)
-        lines.append(lineno)
-        if kinds is not None and kind_col is not None:
-            kind = row[kind_col].strip() if kind_col < len(row) else ""
-            if kind not in allowed_kinds:
-                close = difflib.get_close_matches(kind, SEGMENT_KINDS, n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                raise ValueError(
-                    f"{path}: line {lineno}: column segment_kind is {shown(kind)}, not a window "
-                    f"kind{hint}; allowed: {', '.join(SEGMENT_KINDS)}, or empty for a "
-                    "transition"
-                )
-            kinds.append(kind)
-    if len(values["time_s"]) < 10:
-        raise ValueError(f"{path}: only {len(values['time_s'])} rows; a whole run is needed")
-    t = np.asarray(values["time_s"])
+    return _Header(fields, delimiter, header_line)
+
+
+def _check_own_times(path: Path, t: FloatArray, lines: list[int]) -> None:
+    """ValueError naming both lines when two rows have the same time."""
     order = np.argsort(t, kind="stable")
     same = np.flatnonzero(np.diff(t[order]) == 0)
     if same.size:
@@ -306,7 +338,6 @@ def _read_csv(path: Path, fh: TextIO) -> Trajectory:
             f"{path}: line {b}: column time_s is {t[order[same[0]]]:g}, the same as on line "
             f"{a}; every row needs its own time (remove the repeated row)"
         )
-    return trajectory_from_columns(values, kinds=kinds, source=str(path))
 
 
 def _rows(reader: Any, path: Path, header_line: int) -> Iterator[list[str]]:
