@@ -169,12 +169,7 @@ class Stabilise(StepType[ThermalSettings]):
         if not chamber.is_running():
             chamber.run()
         ctx.instruments.set_supply_voltage(self.target.supply_v)
-        for part in ctx.parts.alive():
-            part.conditions[self.condition] = ConditionResult(
-                name=self.condition,
-                temperature_c=self.target.temperature_c,
-                supply_v=self.target.supply_v,
-            )
+        self._mark_condition(ctx)
 
     def _setup_fastest(self, ctx: RunContext) -> None:
         """The supply first (its self-heating step is part of the plan), then the plan."""
@@ -249,14 +244,33 @@ class Stabilise(StepType[ThermalSettings]):
                 leave_at_target(control)
 
     def _main(self, ctx: RunContext) -> None:
-        st, cfg = self.settings, ctx.procedure.chamber
         start = ctx.wait.clock.now_s()
         # 1. the air first: a die that has not started to move is not stable
+        self._wait_for_air(ctx, start)
+        air_at = ctx.wait.clock.now_s()
+        window_start = max(start, air_at - 0.0)
+        # 2. every part on its own sensor
+        stable_at, verdicts, volts, amps = self._wait_for_dies(ctx, start, window_start)
+        if self._control is not None:
+            self._control.finish()  # measure at the target, never at an overshoot
+            self._remember_dies(ctx)
+        end = ctx.wait.clock.now_s()
+        amps_each = amps / max(len(ctx.parts.alive()), 1)
+        for part in ctx.parts.alive():
+            self._record_stable(
+                ctx, part, verdicts[part.socket], (start, stable_at[part.socket], end),
+                volts, amps_each,
+            )
+        ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")
+
+    def _wait_for_air(self, ctx: RunContext, start: float) -> None:
+        """Until the chamber air arrives (ChamberSetpointNotReached past its timeout)."""
+        st, cfg = self.settings, ctx.procedure.chamber
         while True:
             air, _, _ = ctx.instruments.log_environment()
             self._tick(ctx, air)
             if self._air_arrived(air, cfg.setpoint_band_c):
-                break
+                return
             if ctx.wait.clock.now_s() - start > cfg.setpoint_timeout_s:
                 raise ChamberSetpointNotReached(
                     f"chamber air at {air:.1f} C did not reach {self.target.temperature_c:g} C "
@@ -264,9 +278,14 @@ class Stabilise(StepType[ThermalSettings]):
                     instrument="chamber",
                 )
             ctx.wait.sleep(st.check_interval_s)
-        air_at = ctx.wait.clock.now_s()
-        window_start = max(start, air_at - 0.0)
-        # 2. every part on its own sensor
+
+    def _wait_for_dies(
+        self, ctx: RunContext, start: float, window_start: float
+    ) -> tuple[dict[int, float], dict[int, StabilityVerdict], float, float]:
+        """Until every remaining part is stable (those that are not by the stability timeout
+        dropped): when each became stable (station s), each part's last verdict, and the
+        supply's last volts and amps."""
+        st = self.settings
         stable_at: dict[int, float] = {}
         verdicts: dict[int, StabilityVerdict] = {}
         while True:
@@ -276,85 +295,98 @@ class Stabilise(StepType[ThermalSettings]):
             for part in ctx.parts.alive():
                 if part.socket in stable_at:
                     continue
-                assert part.stream is not None
-                f0 = part.stream.fixture_time(window_start)
-                # only the last window is judged: read no more (the run's raw file holds it)
-                recent = part.stream.fixture_time(ctx.clock.now_s()) - 2.0 * st.window_s
-                data = part.stream.window(max(f0, recent), np.inf)
-                v = judge_stability(
-                    data["time_s"],
-                    data["temp_c"],
-                    st.window_s,
-                    st.slope_c_per_min,
-                    st.band_c,
-                    self.target.temperature_c,
-                    st.target_tolerance_c,
-                )
-                verdicts[part.socket] = v
+                v = verdicts[part.socket] = self._judge(ctx, part, window_start)
                 if v.stable:
                     stable_at[part.socket] = ctx.wait.clock.now_s()
             alive = ctx.parts.alive()
             if all(p.socket in stable_at for p in alive):
-                break
+                return stable_at, verdicts, volts, amps
             if ctx.wait.clock.now_s() - start > st.stability_timeout_s:
                 for part in alive:
                     if part.socket not in stable_at:
-                        last = verdicts.get(part.socket)
-                        slope = last.slope_c_per_min if last else float("nan")
-                        band = last.band_c if last else float("nan")
-                        ctx.parts.drop(
-                            part,
-                            Verdict.ERROR,
-                            (
-                                "die temperature not stable within "
-                                f"{st.stability_timeout_s:g} s at "
-                                f"{self.condition} (slope {slope:.3f} C/min, band {band:.3f} C): "
-                                "check the part's seating and the chamber; or relax stability "
-                                "in the procedure"
-                            ),
-                        )
+                        self._drop_unstable(ctx, part, verdicts.get(part.socket))
                 ctx.parts.require()
-                break
+                return stable_at, verdicts, volts, amps
+
+    def _judge(self, ctx: RunContext, part: Any, window_start: float) -> StabilityVerdict:
+        st = self.settings
+        assert part.stream is not None
+        f0 = part.stream.fixture_time(window_start)
+        # only the last window is judged: read no more (the run's raw file holds it)
+        recent = part.stream.fixture_time(ctx.clock.now_s()) - 2.0 * st.window_s
+        data = part.stream.window(max(f0, recent), np.inf)
+        return judge_stability(
+            data["time_s"],
+            data["temp_c"],
+            st.window_s,
+            st.slope_c_per_min,
+            st.band_c,
+            self.target.temperature_c,
+            st.target_tolerance_c,
+        )
+
+    def _drop_unstable(self, ctx: RunContext, part: Any, last: StabilityVerdict | None) -> None:
+        st = self.settings
+        slope = last.slope_c_per_min if last else float("nan")
+        band = last.band_c if last else float("nan")
+        ctx.parts.drop(
+            part,
+            Verdict.ERROR,
+            (
+                "die temperature not stable within "
+                f"{st.stability_timeout_s:g} s at "
+                f"{self.condition} (slope {slope:.3f} C/min, band {band:.3f} C): "
+                "check the part's seating and the chamber; or relax stability "
+                "in the procedure"
+            ),
+        )
+
+    def _record_stable(
+        self,
+        ctx: RunContext,
+        part: Any,
+        v: StabilityVerdict,
+        times: tuple[float, float, float],
+        volts: float,
+        amps_each: float,
+    ) -> None:
+        """A stable part's condition result, stabilise segment and stability analysis;
+        `times`: the condition set, the part stable, measurement start (station s)."""
+        st = self.settings
+        start, stable_s, end = times
+        res = part.conditions[self.condition]
+        res.stable = True
+        res.time_to_stability_s = stable_s - start
+        res.die_temperature_c = v.mean_c  # until the measurements give their own mean
+        res.supply_measured_v = volts
+        res.supply_current_a = amps_each
+        assert part.stream is not None
+        ctx.records.segment(
+            part,
+            "stabilise",
+            0,
+            part.stream.fixture_time(start),
+            part.stream.fixture_time(stable_s),
+            temp_setpoint_c=self.target.temperature_c,
+            supply_v=self.target.supply_v,
+        )
+        part.record.analysis.setdefault("stability", {})[self.condition] = {
+            "window_s": st.window_s,
+            "max_rate_c_per_min": st.slope_c_per_min,
+            "band_c": st.band_c,
+            "tolerance_c": st.target_tolerance_c,
+            "time_to_stability_s": res.time_to_stability_s,
+            "stable": True,
+            "slope_c_per_min": v.slope_c_per_min,
+            "measured_band_c": v.band_c,
+            "die_temperature_c": v.mean_c,
+            "stable_at_station_s": stable_s,
+            "stable_at_fixture_s": part.stream.fixture_time(stable_s),
+            "condition_set_station_s": start,
+            "measurement_start_station_s": end,
+        }
         if self._control is not None:
-            self._control.finish()  # measure at the target, never at an overshoot
-            self._remember_dies(ctx)
-        end = ctx.wait.clock.now_s()
-        for part in ctx.parts.alive():
-            v = verdicts[part.socket]
-            res = part.conditions[self.condition]
-            res.stable = True
-            res.time_to_stability_s = stable_at[part.socket] - start
-            res.die_temperature_c = v.mean_c  # until the measurements give their own mean
-            res.supply_measured_v = volts
-            res.supply_current_a = amps / max(len(ctx.parts.alive()), 1)
-            assert part.stream is not None
-            ctx.records.segment(
-                part,
-                "stabilise",
-                0,
-                part.stream.fixture_time(start),
-                part.stream.fixture_time(stable_at[part.socket]),
-                temp_setpoint_c=self.target.temperature_c,
-                supply_v=self.target.supply_v,
+            part.record.analysis["stability"][self.condition].update(
+                self._control.summary(part.socket),
+                self_heating_c_per_w=part.thermal.c_per_w,
             )
-            part.record.analysis.setdefault("stability", {})[self.condition] = {
-                "window_s": st.window_s,
-                "max_rate_c_per_min": st.slope_c_per_min,
-                "band_c": st.band_c,
-                "tolerance_c": st.target_tolerance_c,
-                "time_to_stability_s": res.time_to_stability_s,
-                "stable": True,
-                "slope_c_per_min": v.slope_c_per_min,
-                "measured_band_c": v.band_c,
-                "die_temperature_c": v.mean_c,
-                "stable_at_station_s": stable_at[part.socket],
-                "stable_at_fixture_s": part.stream.fixture_time(stable_at[part.socket]),
-                "condition_set_station_s": start,
-                "measurement_start_station_s": end,
-            }
-            if self._control is not None:
-                part.record.analysis["stability"][self.condition].update(
-                    self._control.summary(part.socket),
-                    self_heating_c_per_w=part.thermal.c_per_w,
-                )
-        ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")
