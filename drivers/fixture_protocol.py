@@ -409,6 +409,25 @@ def _u24(column: NDArray[np.uint8]) -> NDArray[np.int64]:
     return (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
 
 
+def _frame_end(buf: bytearray, start: int, n: int) -> int:
+    """Where the frame whose header is at `start` ends (beyond `n`: not all here yet), or 0
+    when the header announces no valid frame (a false sync word, or a damaged header)."""
+    ftype = buf[start + 2]
+    plen = buf[start + 3]
+    end = start + HEADER_SIZE + plen + CRC_SIZE
+    valid_header = (
+        (ftype == _TYPE_SAMPLE and plen in _SAMPLE_PAYLOAD_SIZES)
+        or (ftype == _TYPE_SAMPLE3 and plen == SAMPLE3_PAYLOAD_SIZE)
+    ) or (
+        ftype == _TYPE_REPLY
+        and plen <= MAX_REPLY_PAYLOAD
+        # replies are printable ASCII: a false sync inside sample data announcing a
+        # long reply is rejected at its first non-text byte, not after 250 bytes
+        and _NOT_TEXT.search(buf, start + HEADER_SIZE, min(n, end - CRC_SIZE)) is None
+    )
+    return end if valid_header else 0
+
+
 class FrameParser:
     """Incremental decoder: feed it bytes in any chunking, get samples and replies out.
 
@@ -448,6 +467,34 @@ class FrameParser:
     def feed(self, data: bytes | bytearray | memoryview) -> ParseResult:
         buf = self._buf
         buf += data
+        runs, replies, corrupted, discarded, pos = self._scan(buf)
+        del buf[:pos]
+        self._bad_until = max(0, self._bad_until - pos)
+        self.frames_corrupted += corrupted
+        self.bytes_discarded += discarded
+        self.frames_ok += len(replies)
+        if not runs:
+            return ParseResult(
+                seq=_EMPTY_I,
+                time_s=_EMPTY_F,
+                rate_code=_EMPTY_I,
+                temp_code=_EMPTY_I,
+                status=_EMPTY_I,
+                encoder=_EMPTY_I,
+                replies=replies,
+                frames_lost=0,
+                frames_corrupted=corrupted,
+                bytes_discarded=discarded,
+            )
+        if any(_is_three_axis(run) for run in runs):
+            return self._three_axis_result(runs, replies, corrupted, discarded)
+        return self._single_axis_result(runs, replies, corrupted, discarded)
+
+    def _scan(
+        self, buf: bytearray
+    ) -> tuple[list[NDArray[np.void]], list[str], int, int, int]:
+        """The frames in `buf`: runs of sample frames, replies, frames corrupted, bytes
+        discarded, and how many bytes were consumed (the rest waits for more)."""
         runs: list[NDArray[np.void]] = []
         replies: list[str] = []
         corrupted = discarded = 0
@@ -473,20 +520,8 @@ class FrameParser:
                 runs.append(frames)
                 pos = start + frames.shape[0] * size
                 continue
-            ftype = buf[start + 2]
-            plen = buf[start + 3]
-            end = start + HEADER_SIZE + plen + CRC_SIZE
-            valid_header = (
-                (ftype == _TYPE_SAMPLE and plen in _SAMPLE_PAYLOAD_SIZES)
-                or (ftype == _TYPE_SAMPLE3 and plen == SAMPLE3_PAYLOAD_SIZE)
-            ) or (
-                ftype == _TYPE_REPLY
-                and plen <= MAX_REPLY_PAYLOAD
-                # replies are printable ASCII: a false sync inside sample data announcing a
-                # long reply is rejected at its first non-text byte, not after 250 bytes
-                and _NOT_TEXT.search(buf, start + HEADER_SIZE, min(n, end - CRC_SIZE)) is None
-            )
-            if not valid_header:
+            end = _frame_end(buf, start, n)
+            if not end:
                 discarded += 1
                 pos = start + 1
                 continue
@@ -505,36 +540,18 @@ class FrameParser:
             # a valid sample frame is always taken by _sample_run, so this is a reply
             replies.append(body[2:].decode("ascii", "replace"))
             pos = end
-        del buf[:pos]
-        self._bad_until = max(0, bad_until - pos)
-        self.frames_corrupted += corrupted
-        self.bytes_discarded += discarded
-        self.frames_ok += len(replies)
-        if not runs:
-            return ParseResult(
-                seq=_EMPTY_I,
-                time_s=_EMPTY_F,
-                rate_code=_EMPTY_I,
-                temp_code=_EMPTY_I,
-                status=_EMPTY_I,
-                encoder=_EMPTY_I,
-                replies=replies,
-                frames_lost=0,
-                frames_corrupted=corrupted,
-                bytes_discarded=discarded,
-            )
-        if any(_is_three_axis(run) for run in runs):
-            return self._three_axis_result(runs, replies, corrupted, discarded)
+        self._bad_until = bad_until
+        return runs, replies, corrupted, discarded, pos
+
+    def _single_axis_result(
+        self, runs: list[NDArray[np.void]], replies: list[str], corrupted: int, discarded: int
+    ) -> ParseResult:
         frames = runs[0] if len(runs) == 1 else np.concatenate(runs)
         seq = frames["seq"].astype(np.int64)
-        t_us = frames["t_us"].astype(np.int64)
-        lost = self._count_lost(seq)
-        time_us = self._unwrap_time(t_us)
-        self.frames_ok += seq.size
-        self.frames_lost += lost
+        time_s, lost = self._timeline(seq, frames["t_us"].astype(np.int64))
         return ParseResult(
             seq=seq,
-            time_s=time_us.astype(np.float64) * 1e-6,
+            time_s=time_s,
             rate_code=_u24(frames["rate"]),
             temp_code=_u24(frames["temp"]),
             status=frames["status"].astype(np.int64),
@@ -544,6 +561,17 @@ class FrameParser:
             frames_corrupted=corrupted,
             bytes_discarded=discarded,
         )
+
+    def _timeline(self, seq: NDArray[np.int64], t_us: NDArray[np.int64]) -> tuple[
+        NDArray[np.float64], int
+    ]:
+        """The frames' unwrapped times (s) and the frames lost before and between them,
+        counted into the parser's totals."""
+        lost = self._count_lost(seq)
+        time_us = self._unwrap_time(t_us)
+        self.frames_ok += seq.size
+        self.frames_lost += lost
+        return time_us.astype(np.float64) * 1e-6, lost
 
     def _three_axis_result(
         self, runs: list[NDArray[np.void]], replies: list[str], corrupted: int, discarded: int
@@ -564,13 +592,10 @@ class FrameParser:
         seq = np.concatenate([p["seq"] for p in parts]).astype(np.int64)
         t_us = np.concatenate([p["t_us"] for p in parts]).astype(np.int64)
         rate_xyz = np.concatenate(rates)
-        lost = self._count_lost(seq)
-        time_us = self._unwrap_time(t_us)
-        self.frames_ok += seq.size
-        self.frames_lost += lost
+        time_s, lost = self._timeline(seq, t_us)
         return ParseResult(
             seq=seq,
-            time_s=time_us.astype(np.float64) * 1e-6,
+            time_s=time_s,
             rate_code=rate_xyz[:, 0].copy(),
             temp_code=np.concatenate([_u24(p["temp"]) for p in parts]),
             status=np.concatenate([p["status"] for p in parts]).astype(np.int64),
