@@ -21,7 +21,7 @@ from drivers.bounded import MAX_RATE_DPS
 from drivers.csv_rows import shown
 from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
-from procedures.analysis.allan import check_static
+from procedures.analysis.allan import AllanAnalysis, check_static
 from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
 from station.cli_multi_position import add_multi_position
 from station.csv_input import read_csv_rows
@@ -259,21 +259,7 @@ def stop_method_table(r: StopMethodResult) -> str:
 
 def run_allan(args: argparse.Namespace) -> int:
     data = read_rate_csv(args.csv)
-    t = data["time_s"]
-    steps = np.diff(t)
-    dt = float(np.median(steps))
-    irregular = np.abs(steps - dt) > 0.25 * dt
-    if irregular.any():
-        i = int(np.argmax(irregular))
-        n_irr = int(irregular.sum())
-        raise UserError(
-            f"{args.csv}: samples are not evenly spaced: a step of {float(steps[i]):.6g} s from "
-            f"t = {float(t[i]):.6g} s to t = {float(t[i + 1]):.6g} s (data rows {i + 1}-{i + 2}), "
-            f"where the median step is {dt:.6g} s"
-            + (f" ({n_irr} irregular steps in all)" if n_irr > 1 else "")
-            + "; the Allan deviation needs an unbroken record: re-record or analyse the "
-            "section without gaps"
-        )
+    dt = _even_step_s(args.csv, data["time_s"])
     try:
         result = analyze_allan(data["rate_dps"], 1.0 / dt)
     except AnalysisError as exc:
@@ -282,38 +268,68 @@ def run_allan(args: argparse.Namespace) -> int:
     warnings = [] if static.static else [static.message()]
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(allan_json(result, dt, static.static, warnings), indent=2))
+    else:
+        print(allan_table(result, warnings))
+    return 0
+
+
+def _even_step_s(csv: str, t: NDArray[np.float64]) -> float:
+    """The record's sample step (s); UserError naming the first gap when it is uneven."""
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    irregular = np.abs(steps - dt) > 0.25 * dt
+    if irregular.any():
+        i = int(np.argmax(irregular))
+        n_irr = int(irregular.sum())
+        raise UserError(
+            f"{csv}: samples are not evenly spaced: a step of {float(steps[i]):.6g} s from "
+            f"t = {float(t[i]):.6g} s to t = {float(t[i + 1]):.6g} s (data rows {i + 1}-{i + 2}), "
+            f"where the median step is {dt:.6g} s"
+            + (f" ({n_irr} irregular steps in all)" if n_irr > 1 else "")
+            + "; the Allan deviation needs an unbroken record: re-record or analyse the "
+            "section without gaps"
+        )
+    return dt
+
+
+def allan_json(
+    result: AllanAnalysis, dt: float, record_static: bool, warnings: list[str]
+) -> dict[str, Any]:
     noise = result.noise
     bi_resolved = noise.flat_region_s is not None
     rrw_resolved = noise.rrw_region_s is not None
-    if args.json:
-        out = {
-            "tau_s": result.adev.tau_s.tolist(),
-            "adev_dps": result.adev.adev_dps.tolist(),
-            "arw_deg_per_sqrt_h": noise.arw_deg_per_sqrt_h,
-            # null when the flat part is not seen: read the upper bound instead
-            "bias_instability_deg_per_h": noise.bias_instability_deg_per_h if bi_resolved else None,
-            "bias_instability_resolved": bi_resolved,
-            "u_arw_deg_per_sqrt_h": noise.u_arw_deg_per_sqrt_h,
-            "u_bias_instability_deg_per_h": (
-                noise.u_bias_instability_deg_per_h if bi_resolved else None
-            ),
-            "bias_instability_upper_bound_deg_per_h": result.bias_instability_upper_bound_deg_per_h,
-            "rrw_deg_per_h_per_sqrt_h": (
-                noise.model.rrw_deg_per_h_per_sqrt_h if rrw_resolved else None
-            ),
-            "rrw_resolved": rrw_resolved,
-            "rrw_upper_bound_deg_per_h_per_sqrt_h": result.rrw_upper_bound_deg_per_h_per_sqrt_h,
-            "arw_region_s": noise.arw_region_s,
-            "flat_region_s": noise.flat_region_s,
-            "rrw_region_s": noise.rrw_region_s,
-            "sample_rate_hz": 1.0 / dt,
-            "n_samples": result.adev.n_samples,
-            "uncertainty_coverage": "k=1 (standard)",
-            "record_static": static.static,
-            "warnings": warnings,
-        }
-        print(json.dumps(out, indent=2))
-        return 0
+    return {
+        "tau_s": result.adev.tau_s.tolist(),
+        "adev_dps": result.adev.adev_dps.tolist(),
+        "arw_deg_per_sqrt_h": noise.arw_deg_per_sqrt_h,
+        # null when the flat part is not seen: read the upper bound instead
+        "bias_instability_deg_per_h": noise.bias_instability_deg_per_h if bi_resolved else None,
+        "bias_instability_resolved": bi_resolved,
+        "u_arw_deg_per_sqrt_h": noise.u_arw_deg_per_sqrt_h,
+        "u_bias_instability_deg_per_h": (
+            noise.u_bias_instability_deg_per_h if bi_resolved else None
+        ),
+        "bias_instability_upper_bound_deg_per_h": result.bias_instability_upper_bound_deg_per_h,
+        "rrw_deg_per_h_per_sqrt_h": (
+            noise.model.rrw_deg_per_h_per_sqrt_h if rrw_resolved else None
+        ),
+        "rrw_resolved": rrw_resolved,
+        "rrw_upper_bound_deg_per_h_per_sqrt_h": result.rrw_upper_bound_deg_per_h_per_sqrt_h,
+        "arw_region_s": noise.arw_region_s,
+        "flat_region_s": noise.flat_region_s,
+        "rrw_region_s": noise.rrw_region_s,
+        "sample_rate_hz": 1.0 / dt,
+        "n_samples": result.adev.n_samples,
+        "uncertainty_coverage": "k=1 (standard)",
+        "record_static": record_static,
+        "warnings": warnings,
+    }
+
+
+def allan_table(result: AllanAnalysis, warnings: list[str]) -> str:
+    noise = result.noise
     lines = [f"{'tau_s':>12}  {'adev_dps':>12}  {'model_dps':>12}"]
     model = noise.model.adev_dps(result.adev.tau_s)
     for tau, ad, md in zip(result.adev.tau_s, result.adev.adev_dps, model, strict=True):
@@ -326,14 +342,14 @@ def run_allan(args: argparse.Namespace) -> int:
             f"bias instability    {noise.bias_instability_deg_per_h:.4g} deg/h"
             f"   u(k=2) {2 * noise.u_bias_instability_deg_per_h:.2g}   "
             f"{_region(noise.flat_region_s)}"
-            if bi_resolved
+            if noise.flat_region_s is not None
             else "bias instability    not resolved in this record: at most "
             f"{result.bias_instability_upper_bound_deg_per_h:.3g} deg/h (lowest ADEV / 0.664)"
         ),
         (
             f"rate random walk    {noise.model.rrw_deg_per_h_per_sqrt_h:.4g} deg/h/sqrt(h)"
             f"   {_region(noise.rrw_region_s)}"
-            if rrw_resolved
+            if noise.rrw_region_s is not None
             else "rate random walk    not resolved in this record: at most "
             f"{result.rrw_upper_bound_deg_per_h_per_sqrt_h:.3g} deg/h/sqrt(h)"
             " (min of ADEV x sqrt(3 / tau))"
@@ -341,8 +357,7 @@ def run_allan(args: argparse.Namespace) -> int:
     ]
     if warnings:
         lines += ["", *(f"!!! WARNING: {w}" for w in warnings)]
-    print("\n".join(lines))
-    return 0
+    return "\n".join(lines)
 
 
 def _region(region: tuple[float, float] | None) -> str:

@@ -43,6 +43,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "See docs/discrepancy.md."
         ),
     )
+    _add_input_args(p)
+    _add_output_args(p)
+    p.add_argument(
+        "--alpha",
+        type=float,
+        default=None,
+        help="family-wise false-alarm rate per iteration (default 0.01)",
+    )
+    _add_simulation_args(p)
+    p.set_defaults(handler=handler)
+
+
+def _add_input_args(p: argparse.ArgumentParser) -> None:
+    """The data and the starting model."""
     p.add_argument(
         "data",
         type=Path,
@@ -59,6 +73,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="serial of the part: picks its run folder in a folder of run folders (the newest "
         "by folder name if there are several) or checks the run folder given",
     )
+
+
+def _add_output_args(p: argparse.ArgumentParser) -> None:
+    """Where the JSON, the report, the model and an exported CSV go."""
     p.add_argument(
         "--json",
         type=Path,
@@ -81,12 +99,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="also write the loaded data as a discrepancy CSV (time_s, gyro_dps, "
         "ref_rate_dps, ref_angle_deg, temp_c, supply_v, segment_kind), then analyse",
     )
-    p.add_argument(
-        "--alpha",
-        type=float,
-        default=None,
-        help="family-wise false-alarm rate per iteration (default 0.01)",
-    )
+
+
+def _add_simulation_args(p: argparse.ArgumentParser) -> None:
+    """--simulate and how it runs."""
     p.add_argument(
         "--simulate",
         action="store_true",
@@ -110,7 +126,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "per wall second (default: in lockstep with the station's clock, which the "
         "machine's load cannot disturb)",
     )
-    p.set_defaults(handler=handler)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -264,51 +264,9 @@ def run_cycle(
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
     from station.uut import Endpoints, UutRunner
 
-    operator = getattr(args, "operator", "") or ""
-    if len(operator) > 200 or not operator.isprintable():
-        raise UserError("--operator must be at most 200 printable characters (a name or badge)")
-    for flag in ("work_order", "lot"):
-        value = getattr(args, flag, "") or ""
-        if len(value) > 100 or not value.isprintable():
-            raise UserError(f"--{flag.replace('_', '-')} must be at most 100 printable characters")
-    try:
-        settings = load_settings(Path(args.station) if args.station else None)
-        runner_kwargs = dict(
-            procedure_path=Path(args.procedure) if args.procedure else None,
-            product_path=Path(args.product) if getattr(args, "product", None) else None,
-            operator=getattr(args, "operator", "") or "",
-            work_order=getattr(args, "work_order", "") or "",
-            lot=getattr(args, "lot", "") or "",
-            out=Path(args.out) if args.out else None,
-        )
-        probe = UutRunner(settings, **runner_kwargs)  # type: ignore[arg-type]
-        _check_out(args.out)
-        for folder in probe.recover():  # a folder it cannot write is logged and left as it is
-            print(
-                f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr
-            )
-        # bad serials, an output folder that cannot be written or is short of space: refused
-        # before a bench or a run folder exists
-        probe.validate(duts)
-    except ConfigError as exc:
-        raise UserError(str(exc)) from None
-    if speed is not None:
-        from drivers.sim.config import speed_problem
-
-        if problem := speed_problem(speed):
-            raise UserError(problem)
-    bench_cm: Any = contextlib.nullcontext(None)
-    if sim_bench is not None:
-        bench_cm = _attached_bench(sim_bench)
-    elif sim:
-        from drivers.sim.launcher import launch_bench
-
-        bench_cm = launch_bench(
-            config=sim_config,
-            speed=speed,
-            sockets=max(duts) if isinstance(sim_config, dict) else None,
-            lockstep=speed is None,  # pinned: lockstep unless a speed is given
-        )
+    _check_labels(args)
+    settings, runner_kwargs, probe = _checked_runner(args, duts)
+    bench_cm = _bench(duts, sim=sim, sim_config=sim_config, speed=speed, sim_bench=sim_bench)
     wall0 = time.monotonic()
     # every signal and any thread's uncaught exception end the run one way (station/exit_path.py)
     bound_s = exit_bound_s(probe.safe_state_policy)
@@ -319,12 +277,85 @@ def run_cycle(
             endpoints = Endpoints.of_bench(bench.endpoints)
             pace = "in lockstep" if endpoints.lockstep else f"at {endpoints.speed:g}x"
             print(f"simulated bench running {pace} (pid {bench.endpoints.pid})", flush=True)
-        runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)  # type: ignore[arg-type]
+        runner = UutRunner(settings, endpoints=endpoints, **runner_kwargs)
         display = ProgressDisplay()
         runner.progress.subscribe(display)
         exit_path.attach(lambda reason, error: runner.abort(reason, error=error))
         result = runner.run(duts)
-    wall = time.monotonic() - wall0
+    _print_outcome(result, duts, time.monotonic() - wall0)
+    return result.exit_code
+
+
+def _check_labels(args: argparse.Namespace) -> None:
+    """The operator, work order and lot: short printable text, or UserError."""
+    operator = getattr(args, "operator", "") or ""
+    if len(operator) > 200 or not operator.isprintable():
+        raise UserError("--operator must be at most 200 printable characters (a name or badge)")
+    for flag in ("work_order", "lot"):
+        value = getattr(args, flag, "") or ""
+        if len(value) > 100 or not value.isprintable():
+            raise UserError(f"--{flag.replace('_', '-')} must be at most 100 printable characters")
+
+
+def _checked_runner(args: argparse.Namespace, duts: dict[int, str]) -> tuple[Any, Any, Any]:
+    """The settings, the runner's arguments and a runner that has checked them (serials, the
+    output folder and its space) and recovered the runs a stopped station left RUNNING:
+    refused before a bench or a run folder exists."""
+    from station.uut import UutRunner
+
+    try:
+        settings = load_settings(Path(args.station) if args.station else None)
+        runner_kwargs: Any = dict(
+            procedure_path=Path(args.procedure) if args.procedure else None,
+            product_path=Path(args.product) if getattr(args, "product", None) else None,
+            operator=getattr(args, "operator", "") or "",
+            work_order=getattr(args, "work_order", "") or "",
+            lot=getattr(args, "lot", "") or "",
+            out=Path(args.out) if args.out else None,
+        )
+        probe = UutRunner(settings, **runner_kwargs)
+        _check_out(args.out)
+        for folder in probe.recover():  # a folder it cannot write is logged and left as it is
+            print(
+                f"marked as ERROR (the station stopped during that run): {folder}", file=sys.stderr
+            )
+        # bad serials, an output folder that cannot be written or is short of space: refused
+        # before a bench or a run folder exists
+        probe.validate(duts)
+    except ConfigError as exc:
+        raise UserError(str(exc)) from None
+    return settings, runner_kwargs, probe
+
+
+def _bench(
+    duts: dict[int, str],
+    *,
+    sim: bool,
+    sim_config: Any,
+    speed: float | None,
+    sim_bench: Path | None,
+) -> Any:
+    """The bench's context manager (not entered yet): one attached to, one started, or none."""
+    if speed is not None:
+        from drivers.sim.config import speed_problem
+
+        if problem := speed_problem(speed):
+            raise UserError(problem)
+    if sim_bench is not None:
+        return _attached_bench(sim_bench)
+    if sim:
+        from drivers.sim.launcher import launch_bench
+
+        return launch_bench(
+            config=sim_config,
+            speed=speed,
+            sockets=max(duts) if isinstance(sim_config, dict) else None,
+            lockstep=speed is None,  # pinned: lockstep unless a speed is given
+        )
+    return contextlib.nullcontext(None)
+
+
+def _print_outcome(result: Any, duts: dict[int, str], wall: float) -> None:
     for sock in sorted(result.verdicts):
         print(
             f"socket {sock} {duts[sock]}: {result.verdicts[sock]}"
@@ -339,7 +370,6 @@ def run_cycle(
         else:
             print(f"  record: {record}")
     print(f"station time {result.station_time_s / 60:.1f} min, wall time {wall:.1f} s")
-    return result.exit_code
 
 
 def _run(args: argparse.Namespace) -> int:
