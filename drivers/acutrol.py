@@ -27,10 +27,10 @@ import logging
 import math
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field
 
 from drivers.acutrol_codes import Err, StatusBit, fault_text
-from drivers.address import split_host_port
+from drivers.address import TcpInstrumentSettings
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     InstrumentError,
@@ -56,32 +56,22 @@ class AcutrolRefused(ProtocolError):  # noqa: N818 - named like drivers.errors
         self.code = code
 
 
-class Settings(BaseModel):
+class Settings(TcpInstrumentSettings):
     """`instruments.rate_table` in station.yaml for driver `acutrol`."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
     address: str = Field(description="host:port of the ACUTROL's TCP command interface")
-    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per reply")
     axis: int = Field(1, ge=1, le=8, description="the table's axis number on the controller")
     counts_per_rev: int = Field(
         1 << 20, ge=360, le=1 << 40,
         description="counts per revolution of the table's encoder as the fixture sees it "
         "(encoder counts are derived from the ACUTROL's position)",
     )
-    poll_s: float = Field(0.05, gt=0, le=5, description="station s between polls in waits")
-
-    @field_validator("address")
-    @classmethod
-    def _address(cls, v: str) -> str:
-        split_host_port(v)
-        return v
 
 
 def factory(settings: dict[str, Any]) -> AcutrolTable:
     """The `rate_table.acutrol` driver: validate, connect, return it."""
     s = Settings.model_validate(settings)
-    host, port = split_host_port(s.address)
+    host, port = s.host_port()
     link = LineLink(host, port, timeout_s=s.timeout_s, instrument=NAME)
     link.connect()
     return AcutrolTable(

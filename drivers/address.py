@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import re
 
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
 _HOST_PORT = re.compile(r"^(?P<host>[A-Za-z0-9_.\-]+|\[[0-9A-Fa-f:]+\]):(?P<port>\d{1,5})$")
 
 
@@ -36,3 +38,25 @@ def check_host_port(address: str) -> str:
     """A pydantic validator body: the address unchanged (stripped) if it is host:port."""
     split_host_port(address)
     return address.strip()
+
+
+class TcpInstrumentSettings(BaseModel):
+    """The settings every TCP instrument's driver shares: its `host:port` (checked here), the
+    wall seconds it may take per reply, the station seconds between polls in waits. A
+    driver's Settings subclasses it, adding its own fields (and its own address
+    description)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    address: str = Field(description="host:port of the instrument's TCP interface")
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per reply")
+    poll_s: float = Field(0.05, gt=0, le=5, description="station s between polls in waits")
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, v: str) -> str:
+        split_host_port(v)
+        return v
+
+    def host_port(self) -> tuple[str, int]:
+        return split_host_port(self.address)

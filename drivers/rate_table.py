@@ -16,9 +16,9 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
-from drivers.address import split_host_port
+from drivers.address import TcpInstrumentSettings
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ControllerHung,
@@ -51,26 +51,16 @@ HEARTBEAT_STALL_S = 1.0
 HEARTBEAT_WINDOW_S = 300.0
 
 
-class Settings(BaseModel):
+class Settings(TcpInstrumentSettings):
     """`instruments.rate_table` in station.yaml for driver `modbus-servo`."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
     address: str = Field(description="host:port of the drive's Modbus TCP server")
-    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds per reply")
     device_id: int = Field(1, ge=0, le=255, description="Modbus unit/device id")
     profile: str = Field(
         DEFAULT_PROFILE,
         description="register map: a built-in profile's name (servo-default, "
         "servo-lowword-example) or the path of a profile YAML file",
     )
-    poll_s: float = Field(0.05, gt=0, le=5, description="station s between polls in waits")
-
-    @field_validator("address")
-    @classmethod
-    def _address(cls, v: str) -> str:
-        split_host_port(v)
-        return v
 
     @field_validator("profile")
     @classmethod
@@ -85,7 +75,7 @@ class Settings(BaseModel):
 def factory(settings: dict[str, Any]) -> ModbusRateTable:
     """The `rate_table.modbus-servo` driver: validate, connect, return it."""
     s = Settings.model_validate(settings)
-    host, port = split_host_port(s.address)
+    host, port = s.host_port()
     return ModbusRateTable.connect(
         host, port, ScaledClock(1.0), timeout_s=s.timeout_s, poll_s=s.poll_s,
         profile=load_profile(s.profile), device_id=s.device_id,
