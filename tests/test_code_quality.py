@@ -70,3 +70,42 @@ def test_dependencies_run_one_way() -> None:
         if rank[dep.split(".")[0]] > rank[module.split(".")[0]]
     )
     assert not upward, "imports against the layers:\n" + "\n".join(upward)
+
+
+LONG_FUNCTION_LINES = 80  # a function this long or longer does more than one thing
+# Functions still that long (issue 27), being split by other changes. The list may only
+# shrink: a new long function fails this test, and so does one shortened but still listed.
+KNOWN_LONG = {
+    "station/line/app.py:create_line_app",
+    "procedures/steps/verify.py:_analyse",
+    "procedures/steps/stop.py:_analyse",
+    "procedures/steps/bias.py:_analyse",
+    "procedures/steps/fit.py:_fit",
+}
+
+
+def _long_functions() -> dict[str, int]:
+    """file:function -> its length in lines (def to last line, decorators excluded) for every
+    function of LONG_FUNCTION_LINES or more in the packages and the benchmarks."""
+    import ast
+
+    found: dict[str, int] = {}
+    for package in (*PACKAGES, "benchmarks"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+            for node in ast.walk(tree):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    length = (node.end_lineno or node.lineno) - node.lineno + 1
+                    if length >= LONG_FUNCTION_LINES:
+                        found[f"{path.relative_to(ROOT).as_posix()}:{node.name}"] = length
+    return found
+
+
+def test_no_function_of_80_lines_or_more() -> None:
+    found = _long_functions()
+    new = sorted(f"{name}:{length}" for name, length in found.items() if name not in KNOWN_LONG)
+    assert not new, f"functions of {LONG_FUNCTION_LINES} lines or more: split them:\n" + "\n".join(
+        new
+    )
+    fixed = sorted(KNOWN_LONG - found.keys())
+    assert not fixed, f"shortened below {LONG_FUNCTION_LINES} lines: take {fixed} out of KNOWN_LONG"
