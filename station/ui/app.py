@@ -67,15 +67,26 @@ def create_app(
         security = Security(engineer_password_hash=engineer_password_hash)
     sec = security
     app = FastAPI(title="Gyro calibration station", docs_url=None, redoc_url=None, openapi_url=None)
-    sessions = Sessions()
-    throttle = LoginThrottle()
-    app.state.sessions, app.state.throttle = sessions, throttle
+    app.state.sessions, app.state.throttle = Sessions(), LoginThrottle()
     add_sign_in_routes(app, sec)
     add_approval_routes(app, controller, history, sec)
+    _add_error_handlers(app)
+    _add_pages(app)
+    _add_messages(app, sec)
+    _add_live_state(app, controller)
+    _add_operator_commands(app, controller, sec)
+    _add_engineer_routes(app, controller)
+    _add_review_routes(app, controller, history)
+    return Guard(app, sec.hosts)
 
-    def is_engineer(request: Request) -> bool:
-        session = current(request)
-        return session is not None and session.engineer
+
+def _is_engineer(request: Request) -> bool:
+    session = current(request)
+    return session is not None and session.engineer
+
+
+def _add_error_handlers(app: FastAPI) -> None:
+    """Every error as {"error": message} with the status saying whose move it is."""
 
     @app.exception_handler(Refused)
     async def refused(_: Request, exc: Refused) -> JSONResponse:
@@ -109,7 +120,9 @@ def create_app(
         log.error("internal error in the UI: %s", exc, exc_info=exc)
         return error(500, "internal error in the station UI; see the station's log")
 
-    # ------------------------------------------------------------------ pages
+
+def _add_pages(app: FastAPI) -> None:
+    """The operator and review pages and their static files."""
 
     @app.get("/", include_in_schema=False)
     async def operator_page() -> FileResponse:
@@ -121,8 +134,8 @@ def create_app(
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
-    # ------------------------------------------------------------------ words
 
+def _add_messages(app: FastAPI, sec: Security) -> None:
     @app.get("/api/messages")
     def messages(request: Request, lang: str = "") -> dict[str, Any]:
         """The page's message catalog: station.yaml's language, else the browser's."""
@@ -132,11 +145,13 @@ def create_app(
         language = catalog.choose(sec.language, requested)
         return {"language": language, "messages": catalog.load(language)}
 
-    # ------------------------------------------------------------------ live state
+
+def _add_live_state(app: FastAPI, controller: Controller) -> None:
+    """The state once (GET /api/state) and as server-sent events (/api/events)."""
 
     @app.get("/api/state")
     def state(request: Request) -> dict[str, Any]:
-        return {**controller.snapshot(), "role": role(is_engineer(request))}
+        return {**controller.snapshot(), "role": role(_is_engineer(request))}
 
     @app.get("/api/events")
     async def events() -> StreamingResponse:
@@ -146,7 +161,9 @@ def create_app(
             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
         )
 
-    # ------------------------------------------------------------------ operator commands
+
+def _add_operator_commands(app: FastAPI, controller: Controller, sec: Security) -> None:
+    """Validate a serial, start a run, abort it."""
 
     # Sync handlers run in the thread pool: the event loop stays free to push events.
     @app.post("/api/validate")
@@ -174,11 +191,13 @@ def create_app(
         controller.abort()
         return {"aborting": True}
 
-    # ------------------------------------------------------------------ engineer
+
+def _add_engineer_routes(app: FastAPI, controller: Controller) -> None:
+    """The procedure and product choices and the selection (engineer role only)."""
 
     @app.get("/api/choices")
     def choices(request: Request) -> Response:
-        if not is_engineer(request):
+        if not _is_engineer(request):
             return error(403, "procedure selection needs the engineer role; log in as engineer")
         return JSONResponse(
             {
@@ -195,7 +214,9 @@ def create_app(
         controller.select(body.procedure, body.product)
         return JSONResponse({"selection": controller.snapshot()["selection"]})
 
-    # ------------------------------------------------------------------ review
+
+def _add_review_routes(app: FastAPI, controller: Controller, history: History) -> None:
+    """The run history query and the certificates."""
 
     @app.get("/api/runs")
     def runs(
@@ -226,5 +247,3 @@ def create_app(
             media_type="application/pdf",
             headers={"Content-Disposition": f'inline; filename="{key}.pdf"'},
         )
-
-    return Guard(app, sec.hosts)

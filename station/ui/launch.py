@@ -189,13 +189,7 @@ def ui_station(
     """The whole UI station; with `sim` the simulated bench runs for the block's duration."""
     if not engine_available():
         raise UserError("the end-of-line engine (station/uut.py) is not in this build")
-    from drivers.yaml_input import ConfigError
-    from station.settings import load_settings
-
-    try:
-        settings = load_settings(station_file)
-    except ConfigError as exc:
-        raise UserError(str(exc)) from None
+    settings = _load_settings(station_file)
     security, tls = security_of(settings, host)
     if sim_config is None and sim and settings.settings.sim_config:
         sim_config = settings.resolve(settings.settings.sim_config)
@@ -204,48 +198,11 @@ def ui_station(
     parts, config_sockets, config_speed = _sim_parts(sim_config)
     bench_cm: Any = contextlib.nullcontext(None)
     if sim:
-        from drivers.sim.launcher import launch_bench
-
-        # the station's fixture (station.yaml instruments.fixture.sockets), grown to hold
-        # every part the sim config places
-        n = sockets or max(settings.settings.instruments.fixture.sockets, config_sockets)
-        if not 1 <= n <= 32:  # one 1280 x 800 screen shows up to 32 sockets (8 x 4)
-            raise UserError(f"--sockets must be 1..32, got {n}")
-        # lockstep, as `station run --sim`: station time is physics time, whatever the load
-        # on the machine; a --speed asks for a scaled clock (and is said, never assumed)
-        bench_cm = launch_bench(
-            config=sim_config, speed=speed, sockets=n, lockstep=speed is None
-        )
+        bench_cm = _sim_bench(settings, sim_config, speed, sockets, config_sockets)
     with bench_cm as bench:
-        endpoints = None
-        control = None
-        if bench is not None:
-            from station.uut import Endpoints
-
-            endpoints = Endpoints.of_bench(bench.endpoints)
-            control = bench.control
-        runner = EngineRunner(
-            settings, out=out, endpoints=endpoints, control=control, sim_parts=parts
-        )
-        runner.warm_up()
+        runner = _engine_runner(settings, bench, out, parts)
         controller = Controller(runner, Hub())
-        # The engine indexes each run in the results database (station.yaml results_db, or
-        # results.sqlite next to the runs when --out moves them): the review reads it there.
-        db_path = (
-            settings.results_db
-            if runner.out.resolve() == settings.output_folder.resolve()
-            else runner.out / "results.sqlite"
-        )
-        history = History(runner.out, db_path, seal=recovered_run_sealer(settings))
-        # A station that died mid-run left that run RUNNING: ERROR now, before the screens open.
-        recovered = history.recover()
-        for folder in recovered:
-            log.warning("marked as ERROR (the station stopped during that run): %s", folder)
-        if settings.central_db:  # runs queued before a restart go to the line's db now
-            from station.db.connect import database_url
-            from station.db.sync import wake_station_sync
-
-            wake_station_sync(settings, database_url(db_path), force=True)
+        history, recovered = _history(settings, runner)
         app = create_app(controller, history, security=security)
         stop_watch = threading.Event()
         controller.watch_instruments(INSTRUMENT_POLL_S, stop_watch)
@@ -258,3 +215,72 @@ def ui_station(
             stop_watch.set()
             controller.hub.close()
             runner.close()
+
+
+def _load_settings(station_file: Path | None) -> Any:
+    from drivers.yaml_input import ConfigError
+    from station.settings import load_settings
+
+    try:
+        return load_settings(station_file)
+    except ConfigError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _sim_bench(
+    settings: Any,
+    sim_config: Path | None,
+    speed: float | None,
+    sockets: int | None,
+    config_sockets: int,
+) -> Any:
+    """The simulated bench's context manager (not started yet)."""
+    from drivers.sim.launcher import launch_bench
+
+    # the station's fixture (station.yaml instruments.fixture.sockets), grown to hold
+    # every part the sim config places
+    n = sockets or max(settings.settings.instruments.fixture.sockets, config_sockets)
+    if not 1 <= n <= 32:  # one 1280 x 800 screen shows up to 32 sockets (8 x 4)
+        raise UserError(f"--sockets must be 1..32, got {n}")
+    # lockstep, as `station run --sim`: station time is physics time, whatever the load
+    # on the machine; a --speed asks for a scaled clock (and is said, never assumed)
+    return launch_bench(config=sim_config, speed=speed, sockets=n, lockstep=speed is None)
+
+
+def _engine_runner(
+    settings: Any, bench: Any, out: Path | None, parts: dict[str, dict[str, Any]]
+) -> EngineRunner:
+    """The engine runner on the bench's endpoints (a real station's when `bench` is None),
+    its default procedure loaded already."""
+    endpoints = None
+    control = None
+    if bench is not None:
+        from station.uut import Endpoints
+
+        endpoints = Endpoints.of_bench(bench.endpoints)
+        control = bench.control
+    runner = EngineRunner(settings, out=out, endpoints=endpoints, control=control, sim_parts=parts)
+    runner.warm_up()
+    return runner
+
+
+def _history(settings: Any, runner: EngineRunner) -> tuple[History, list[Path]]:
+    """The run history the review reads, and the runs it recovered (marked ERROR)."""
+    # The engine indexes each run in the results database (station.yaml results_db, or
+    # results.sqlite next to the runs when --out moves them): the review reads it there.
+    db_path = (
+        settings.results_db
+        if runner.out.resolve() == settings.output_folder.resolve()
+        else runner.out / "results.sqlite"
+    )
+    history = History(runner.out, db_path, seal=recovered_run_sealer(settings))
+    # A station that died mid-run left that run RUNNING: ERROR now, before the screens open.
+    recovered = history.recover()
+    for folder in recovered:
+        log.warning("marked as ERROR (the station stopped during that run): %s", folder)
+    if settings.central_db:  # runs queued before a restart go to the line's db now
+        from station.db.connect import database_url
+        from station.db.sync import wake_station_sync
+
+        wake_station_sync(settings, database_url(db_path), force=True)
+    return history, recovered

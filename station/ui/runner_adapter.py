@@ -160,6 +160,79 @@ class WallPace:
         return remaining_s * wall / station
 
 
+class ProgressRelay:
+    """The engine's progress events as the UI's: the step list (a step the plan did not
+    name is inserted where it happens), progress with the wall time left, prompts, logs."""
+
+    def __init__(self, plan: Any, pace: WallPace, sink: EventSink) -> None:
+        self.labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in plan]
+        self.items = [{"step": CONNECT_STEP, "condition": ""}] + [
+            {"step": s.name, "condition": s.condition} for s in plan
+        ]
+        self.index = 0
+        self.pace = pace
+        self.sink = sink
+
+    def _steps(self) -> None:
+        self.sink({"type": "steps", "steps": list(self.labels), "items": list(self.items)})
+
+    def announce(self, serials: dict[int, str]) -> None:
+        """The steps, and the connecting phase at once: connecting the instruments takes the
+        engine a moment before its first step event, and the operator sees that phase instead
+        of a silent screen."""
+        self._steps()
+        self.sink(
+            {
+                "type": "progress",
+                "step": CONNECT_STEP,
+                "step_type": CONNECT_STEP,
+                "step_index": 0,
+                "step_count": len(self.labels),
+                "condition": "",
+                "fraction": 0.0,
+                "remaining_s": None,
+                "sockets": {str(k): "RUNNING" for k in serials},
+            }
+        )
+
+    def on_event(self, ev: Any) -> None:
+        if ev.kind == "step":
+            self._enter_step(ev)
+        elif ev.kind == "prompt":
+            self.sink({"type": "prompt", "message": ev.message, "sockets": sorted(ev.sockets)})
+            return
+        elif ev.kind == "prompt_done":
+            self.sink({"type": "prompt_done"})
+            return
+        elif ev.kind not in ("progress", "part"):
+            if ev.kind == "log" and ev.message:
+                self.sink({"type": "log", "level": "INFO", "message": ev.message})
+            return
+        self.sink(
+            {
+                "type": "progress",
+                "step": _label(ev.step, ev.condition) or "starting",
+                "step_type": ev.step,
+                "step_index": self.index,
+                "step_count": len(self.labels),
+                "condition": ev.condition,
+                "fraction": float(ev.fraction),
+                "remaining_s": self.pace.wall_s(ev.remaining_s, ev.station_time_s),
+                "sockets": {str(k): v for k, v in ev.sockets.items()},
+            }
+        )
+
+    def _enter_step(self, ev: Any) -> None:
+        label = _label(ev.step, ev.condition)
+        try:
+            self.index = self.labels.index(label, max(self.index, 0))
+        except ValueError:
+            self.labels.insert(self.index + 1, label)
+            self.items.insert(self.index + 1, {"step": ev.step, "condition": ev.condition})
+            self.index += 1
+            self._steps()
+
+
 class EngineRunner:
     """`Runner` over station/uut.py: one UutRunner per run, its progress bus translated.
 
@@ -412,83 +485,16 @@ class EngineRunner:
     def _run(self, uut: Any, serials: dict[int, str], sink: EventSink) -> None:
         from procedures.steps.plan import build_plan
 
-        pace = WallPace(self.endpoints)
-        plan = build_plan(uut.procedure)
-        labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in plan]
-        items = [{"step": CONNECT_STEP, "condition": ""}] + [
-            {"step": s.name, "condition": s.condition} for s in plan
-        ]
-        state = {"index": 0}
-        sink({"type": "steps", "steps": list(labels), "items": list(items)})
-        # Connecting the instruments takes the engine a moment before its first step event:
-        # the operator sees that phase at once instead of a silent screen.
-        sink(
-            {
-                "type": "progress",
-                "step": CONNECT_STEP,
-                "step_type": CONNECT_STEP,
-                "step_index": 0,
-                "step_count": len(labels),
-                "condition": "",
-                "fraction": 0.0,
-                "remaining_s": None,
-                "sockets": {str(k): "RUNNING" for k in serials},
-            }
-        )
-
-        def on_progress(ev: Any) -> None:
-            if ev.kind == "step":
-                label = _label(ev.step, ev.condition)
-                try:
-                    state["index"] = labels.index(label, max(state["index"], 0))
-                except ValueError:
-                    labels.insert(state["index"] + 1, label)
-                    items.insert(state["index"] + 1, {"step": ev.step, "condition": ev.condition})
-                    state["index"] += 1
-                    sink({"type": "steps", "steps": list(labels), "items": list(items)})
-            elif ev.kind == "prompt":
-                sink({"type": "prompt", "message": ev.message, "sockets": sorted(ev.sockets)})
-                return
-            elif ev.kind == "prompt_done":
-                sink({"type": "prompt_done"})
-                return
-            elif ev.kind not in ("progress", "part"):
-                if ev.kind == "log" and ev.message:
-                    sink({"type": "log", "level": "INFO", "message": ev.message})
-                return
-            sink(
-                {
-                    "type": "progress",
-                    "step": _label(ev.step, ev.condition) or "starting",
-                    "step_type": ev.step,
-                    "step_index": state["index"],
-                    "step_count": len(labels),
-                    "condition": ev.condition,
-                    "fraction": float(ev.fraction),
-                    "remaining_s": pace.wall_s(ev.remaining_s, ev.station_time_s),
-                    "sockets": {str(k): v for k, v in ev.sockets.items()},
-                }
-            )
-
-        unsubscribe = uut.progress.subscribe(on_progress)
+        relay = ProgressRelay(build_plan(uut.procedure), WallPace(self.endpoints), sink)
+        relay.announce(serials)
+        unsubscribe = uut.progress.subscribe(relay.on_event)
         stop_samples = threading.Event()
         sampler = threading.Thread(
             target=self._sample_loop, args=(uut, sink, stop_samples), name="ui-samples", daemon=True
         )
         sampler.start()
-        results: list[dict[str, Any]] = []
-        message = ""
         try:
-            self._load_sim_parts(serials)
-            result = uut.run(serials)
-            results = [
-                self._result(sock, serials[sock], result.folders.get(sock))
-                for sock in sorted(serials)
-            ]
-        except Exception as exc:  # the UI must always get its "finished"
-            log.exception("the run failed")
-            message = f"the run stopped with an error: {exc}"
-            results = [self._result(sock, serials[sock], None, message) for sock in sorted(serials)]
+            results, message = self._run_parts(uut, serials)
         finally:
             stop_samples.set()
             sampler.join(2)
@@ -501,6 +507,24 @@ class EngineRunner:
                 "message": message,
             }
         )
+
+    def _run_parts(
+        self, uut: Any, serials: dict[int, str]
+    ) -> tuple[list[dict[str, Any]], str]:
+        """Each socket's result and the run's error message ('' when it ran to its end)."""
+        try:
+            self._load_sim_parts(serials)
+            result = uut.run(serials)
+            return [
+                self._result(sock, serials[sock], result.folders.get(sock))
+                for sock in sorted(serials)
+            ], ""
+        except Exception as exc:  # the UI must always get its "finished"
+            log.exception("the run failed")
+            message = f"the run stopped with an error: {exc}"
+            return [
+                self._result(sock, serials[sock], None, message) for sock in sorted(serials)
+            ], message
 
     def _result(
         self, sock: int, serial: str, folder: Path | None, error: str = ""

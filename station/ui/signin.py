@@ -79,13 +79,17 @@ def count_failure(throttle: LoginThrottle, session: Session, message: str) -> JS
     return error(401, message + more)
 
 
-def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
-    sessions: Sessions = app.state.sessions
-    throttle: LoginThrottle = app.state.throttle
+class _SignInDesk:
+    """What the sign-in routes share: the station's security settings, its sessions and the
+    sign-in throttle."""
 
-    # ------------------------------------------------------------------ session, sign-in
+    def __init__(self, app: FastAPI, sec: Security) -> None:
+        self.sec = sec
+        self.sessions: Sessions = app.state.sessions
+        self.throttle: LoginThrottle = app.state.throttle
 
-    def session_view(session: Session) -> dict[str, Any]:
+    def view(self, session: Session) -> dict[str, Any]:
+        sec = self.sec
         return {
             "role": role(session.engineer),
             "operator": session.operator,
@@ -96,55 +100,49 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
             "engineer_login": bool(sec.engineer_password_hash),
         }
 
-    def with_cookie(response: Response, session: Session) -> Response:
-        return set_cookie(response, session, secure=sec.https)
+    def with_cookie(self, response: Response, session: Session) -> Response:
+        return set_cookie(response, session, secure=self.sec.https)
 
-    @app.get("/api/session")
-    def open_session(request: Request) -> Response:
-        """The page's session (opened here when it has none) and its CSRF token."""
-        return session_reply(request, sessions, throttle, session_view, with_cookie)
+    def renewed(self, session: Session) -> Response:
+        """The session under new tokens (who is signed in changed) and its view."""
+        fresh = self.sessions.renew(session)
+        return self.with_cookie(JSONResponse(self.view(fresh)), fresh)
 
-    def locked(session: Session) -> JSONResponse | None:
-        return lockout(throttle, session)
-
-    def failed(session: Session, message: str) -> JSONResponse:
-        return count_failure(throttle, session, message)
-
-    @app.post("/api/signin")
-    def sign_in(body: SignInBody, session: Guarded) -> Response:
-        refusal = locked(session)
-        if refusal is not None:
-            return refusal
-        book = sec.operators
+    def operator(self, body: SignInBody, session: Session) -> tuple[str, bool] | JSONResponse:
+        """(name, quality role) of the operator the body signs in, or the refusal."""
+        book = self.sec.operators
         if body.badge is not None:
             if book.open:
                 return error(422, "this station has no badges configured; sign in by name")
             found = book.by_badge(body.badge)
             if found is None:
-                return failed(session, "badge not known at this station")
-            name, quality = found.name, found.role == "quality"
-        elif body.name is not None and book.open:
-            name, quality = body.name.strip(), False
+                return count_failure(self.throttle, session, "badge not known at this station")
+            return found.name, found.role == "quality"
+        if body.name is not None and book.open:
+            name = body.name.strip()
             if not name or not name.isprintable():
                 return error(422, "operator name must be printable text; type your name")
-        elif body.name is not None and body.pin is not None:
+            return name, False
+        if body.name is not None and body.pin is not None:
             found = book.by_pin(body.name, body.pin)
             if found is None:
-                return failed(session, "unknown operator or wrong PIN")
-            name, quality = found.name, found.role == "quality"
-        else:
-            return error(422, "sign in with a badge scan, or your name and PIN")
-        throttle.reset(session.token)
-        session.operator, session.quality = name, quality
-        fresh = sessions.renew(session)
-        log.info("operator %s signed in", name)
-        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+                return count_failure(self.throttle, session, "unknown operator or wrong PIN")
+            return found.name, found.role == "quality"
+        return error(422, "sign in with a badge scan, or your name and PIN")
 
-    @app.post("/api/signout")
-    def sign_out(session: Guarded) -> Response:
-        session.operator, session.engineer, session.quality = "", False, False
-        fresh = sessions.renew(session)
-        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+
+def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
+    desk = _SignInDesk(app, sec)
+    _add_session_routes(app, desk)
+    _add_operator_routes(app, desk)
+    _add_engineer_routes(app, desk)
+
+
+def _add_session_routes(app: FastAPI, desk: _SignInDesk) -> None:
+    @app.get("/api/session")
+    def open_session(request: Request) -> Response:
+        """The page's session (opened here when it has none) and its CSRF token."""
+        return session_reply(request, desk.sessions, desk.throttle, desk.view, desk.with_cookie)
 
     @app.get("/api/whoami")
     async def whoami(request: Request) -> dict[str, Any]:
@@ -154,26 +152,47 @@ def add_sign_in_routes(app: FastAPI, sec: Security) -> None:
             "operator": session.operator if session else "",
         }
 
+
+def _add_operator_routes(app: FastAPI, desk: _SignInDesk) -> None:
+    @app.post("/api/signin")
+    def sign_in(body: SignInBody, session: Guarded) -> Response:
+        refusal = lockout(desk.throttle, session)
+        if refusal is not None:
+            return refusal
+        who = desk.operator(body, session)
+        if isinstance(who, JSONResponse):
+            return who
+        desk.throttle.reset(session.token)
+        session.operator, session.quality = who
+        log.info("operator %s signed in", who[0])
+        return desk.renewed(session)
+
+    @app.post("/api/signout")
+    def sign_out(session: Guarded) -> Response:
+        session.operator, session.engineer, session.quality = "", False, False
+        return desk.renewed(session)
+
+
+def _add_engineer_routes(app: FastAPI, desk: _SignInDesk) -> None:
     @app.post("/api/login")
     def login(body: LoginBody, session: Guarded) -> Response:
-        if not sec.engineer_password_hash:
+        password_hash = desk.sec.engineer_password_hash
+        if not password_hash:
             return error(
                 403,
                 "no engineer password is set for this station; run `station ui --hash-password`"
                 " and put its output under ui.engineer_password_hash in station.yaml",
             )
-        refusal = locked(session)
+        refusal = lockout(desk.throttle, session)
         if refusal is not None:
             return refusal
-        if not verify_password(body.password, sec.engineer_password_hash):
-            return failed(session, "wrong engineer password")
-        throttle.reset(session.token)
+        if not verify_password(body.password, password_hash):
+            return count_failure(desk.throttle, session, "wrong engineer password")
+        desk.throttle.reset(session.token)
         session.engineer = True
-        fresh = sessions.renew(session)
-        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+        return desk.renewed(session)
 
     @app.post("/api/logout")
     def logout(session: Guarded) -> Response:
         session.engineer = False
-        fresh = sessions.renew(session)
-        return with_cookie(JSONResponse(session_view(fresh)), fresh)
+        return desk.renewed(session)
