@@ -1,7 +1,7 @@
-"""A scripted SCPI instrument on a real loopback socket or pseudo-terminal (pymeasure's
-expected-protocol idea, one level down): every message the driver sends through pyvisa is
-checked byte for byte against the script, and the scripted reply bytes go back, so the tests see
-exactly what is on the wire, terminators included.
+"""The expected-protocol pairs (tests/drivers/expected_protocol.py) as a SCPI instrument on a
+real loopback socket or pseudo-terminal, one level below pyvisa: every message the driver
+sends is checked byte for byte against the next pair, and its reply bytes go back, so the
+tests see exactly what is on the wire, terminators included.
 """
 
 from __future__ import annotations
@@ -11,30 +11,20 @@ import os
 import select
 import socket
 import threading
-import time
 import tty
-from dataclasses import dataclass
 
-
-@dataclass
-class Say:
-    request: bytes  # the exact message expected, LF included
-    reply: bytes = b""  # bytes sent back (may lack the LF, or be several lines)
-    delay_s: float = 0.0  # wall seconds before the reply
-    close: bool = False  # close the connection (TCP) / the master (pty) instead of answering
-
+from tests.drivers.expected_protocol import ExpectedProtocol, Pair
 
 NO_ERROR = b'+0,"No error"\n'
 
 
-class ScriptedScpi:
-    """Serves `script` on `kind` ("tcp": a SOCKET resource, "pty": an ASRL resource)."""
+class ScriptedScpi(ExpectedProtocol):
+    """Serves the pairs on `kind` ("tcp": a SOCKET resource, "pty": an ASRL resource); a
+    reply may lack the LF, or be several lines."""
 
-    def __init__(self, script: list[Say], kind: str = "tcp") -> None:
-        self.script = list(script)
+    def __init__(self, script: list[Pair], kind: str = "tcp") -> None:
+        super().__init__(script)
         self.kind = kind
-        self.errors: list[str] = []
-        self.received: list[bytes] = []
         self._stop = threading.Event()
         self._conn: socket.socket | None = None
         if kind == "tcp":
@@ -48,14 +38,6 @@ class ScriptedScpi:
             self.resource = f"ASRL{self.path}::INSTR"
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
-
-    @property
-    def done(self) -> bool:
-        return not self.script
-
-    def assert_done(self) -> None:
-        assert self.errors == [], self.errors
-        assert self.done, f"script not used up: {self.script}"
 
     # ------------------------------------------------------------ serving
 
@@ -95,15 +77,9 @@ class ScriptedScpi:
 
     def _answer(self, message: bytes, send: object) -> bool:
         """True when the connection is to be closed."""
-        self.received.append(message)
-        if not self.script:
-            self.errors.append(f"unexpected {message!r} after the script ended")
+        step = self.answer(message)
+        if step is None:
             return False
-        step = self.script.pop(0)
-        if message != step.request:
-            self.errors.append(f"expected {step.request!r}, got {message!r}")
-        if step.delay_s:
-            time.sleep(step.delay_s)
         if step.close:
             self._close_link()
             return True

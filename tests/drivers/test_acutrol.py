@@ -22,33 +22,26 @@ from drivers.errors import (
 from drivers.protocols import RateTable
 from drivers.tcp_lines import LineLink
 from tests.drivers._fakes import ManualClock
-from tests.drivers._line_fake import ExpectedLines, Line
+from tests.drivers.expected_protocol import Pair, TcpPeer, finish
 
 STATUS_Q = b":read:pos? 1;rate? 1;:status? 1;:fault? 1;:system:time?\r\n"
 OK = b"OK\r\n"
 READY_CLOSED = StatusBit.READY | StatusBit.CLOSED
-LIMITS = Line(b":limit:absolute? 1\r\n", b"1000.000,2000.000,0.000,-1e6,1e6,1100.000\r\n")
+LIMITS = Pair(b":limit:absolute? 1\r\n", b"1000.000,2000.000,0.000,-1e6,1e6,1100.000\r\n")
 
 
-def status(pos=0.0, rate=0.0, word=READY_CLOSED, fault=0, t_s=1.0) -> Line:
-    return Line(STATUS_Q, f"{pos};{rate};{int(word)};{fault};{t_s}\r\n".encode())
+def status(pos=0.0, rate=0.0, word=READY_CLOSED, fault=0, t_s=1.0) -> Pair:
+    return Pair(STATUS_Q, f"{pos};{rate};{int(word)};{fault};{t_s}\r\n".encode())
 
 
 def make(script, timeout_s=0.5, clock=None, cpr=1 << 20):
-    server = ExpectedLines(script)
+    server = TcpPeer(script)
     link = LineLink("127.0.0.1", server.port, timeout_s=timeout_s, instrument="rate table")
     return server, AcutrolTable(link, clock or ManualClock(), counts_per_rev=cpr, poll_s=0.125)
 
 
-def finish(server, table):
-    table.close()
-    server.close()
-    assert server.errors == []
-    assert server.done, f"unused script: {server.script}"
-
-
 def test_identify_parses_idn():
-    server, table = make([Line(b"*IDN?\r\n", b"Acutronic,ACUTROL3000,AC-4711,3.2.1\r\n")])
+    server, table = make([Pair(b"*IDN?\r\n", b"Acutronic,ACUTROL3000,AC-4711,3.2.1\r\n")])
     ident = table.identify()
     assert (ident.manufacturer, ident.model, ident.serial, ident.firmware) == (
         "Acutronic", "ACUTROL3000", "AC-4711", "3.2.1"
@@ -74,7 +67,7 @@ def test_status_is_one_request_and_counts_are_derived_from_position():
 def test_set_rate_sends_limit_mode_and_demand_on_one_line():
     server, table = make([
         LIMITS,
-        Line(b":limit:acc rate,1,50.000000;:mode:rate 1;:demand:rate 1,-150.500000\r\n", OK),
+        Pair(b":limit:acc rate,1,50.000000;:mode:rate 1;:demand:rate 1,-150.500000\r\n", OK),
         status(),
     ])
     table.set_rate(-150.5, accel_dps2=50.0)
@@ -83,7 +76,7 @@ def test_set_rate_sends_limit_mode_and_demand_on_one_line():
 
 def test_set_rate_without_accel_keeps_the_controllers_limit():
     server, table = make([
-        LIMITS, Line(b":mode:rate 1;:demand:rate 1,30.000000\r\n", OK), status(),
+        LIMITS, Pair(b":mode:rate 1;:demand:rate 1,30.000000\r\n", OK), status(),
     ])
     table.set_rate(30.0)
     finish(server, table)
@@ -100,7 +93,7 @@ def test_move_to_with_move_time_sets_a_triangular_move_of_that_length():
     # 10 deg -> 100 deg in 3 s: acceleration 4*90/9 = 40 deg/s^2, peak rate 2*90/3 = 60 deg/s
     server, table = make([
         status(pos=10.0),
-        Line(b":limit:acc pos,1,40.000000;:limit:rate pos,1,60.000000;:mode:position 1;"
+        Pair(b":limit:acc pos,1,40.000000;:limit:rate pos,1,60.000000;:mode:position 1;"
              b":demand:position 1,100.000000\r\n", OK),
         status(pos=10.0),
     ])
@@ -110,7 +103,7 @@ def test_move_to_with_move_time_sets_a_triangular_move_of_that_length():
 
 def test_move_to_with_accel_sends_the_position_modes_limit():
     server, table = make([
-        Line(b":limit:acc pos,1,30.000000;:mode:position 1;:demand:position 1,-90.000000\r\n",
+        Pair(b":limit:acc pos,1,30.000000;:mode:position 1;:demand:position 1,-90.000000\r\n",
              OK),
         status(),
     ])
@@ -122,7 +115,7 @@ def test_zero_encoder_is_the_drivers_zero_for_positions_demands_and_counts():
     server, table = make([
         status(pos=200.0),
         status(pos=290.0),
-        Line(b":mode:position 1;:demand:position 1,380.000000\r\n", OK),
+        Pair(b":mode:position 1;:demand:position 1,380.000000\r\n", OK),
         status(pos=290.0),
     ])
     table.zero_encoder()
@@ -136,7 +129,7 @@ def test_zero_encoder_is_the_drivers_zero_for_positions_demands_and_counts():
 def test_enable_closes_the_axis_interlock_and_waits_for_it():
     server, table = make([
         status(word=StatusBit.READY),
-        Line(b":interlock:close 1\r\n", OK),
+        Pair(b":interlock:close 1\r\n", OK),
         status(word=StatusBit.READY),
         status(word=READY_CLOSED),
     ])
@@ -154,7 +147,7 @@ def test_enable_with_safety_interlock_open_raises_before_sending():
 def test_error_reply_safety_open_raises_interlock_open():
     server, table = make([
         status(word=StatusBit.READY),
-        Line(b":interlock:close 1\r\n", b'ERR 201,"Safety interlock open: close the door"\r\n'),
+        Pair(b":interlock:close 1\r\n", b'ERR 201,"Safety interlock open: close the door"\r\n'),
         status(word=StatusBit.SAFETY_OPEN),
     ])
     with pytest.raises(InterlockOpen):
@@ -165,7 +158,7 @@ def test_error_reply_safety_open_raises_interlock_open():
 def test_error_reply_fault_latched_raises_table_fault_with_its_code():
     server, table = make([
         status(word=StatusBit.READY),
-        Line(b":interlock:close 1\r\n", b'ERR 202,"Fault latched: reset the interlock"\r\n'),
+        Pair(b":interlock:close 1\r\n", b'ERR 202,"Fault latched: reset the interlock"\r\n'),
         status(word=StatusBit.FAULT, fault=2),
     ])
     with pytest.raises(TableFault, match="position error trip") as info:
@@ -176,7 +169,7 @@ def test_error_reply_fault_latched_raises_table_fault_with_its_code():
 
 def test_error_reply_out_of_range_raises_setpoint_out_of_range():
     server, table = make([
-        Line(b":limit:acc pos,1,9000.000000;:mode:position 1;:demand:position 1,1.000000\r\n",
+        Pair(b":limit:acc pos,1,9000.000000;:mode:position 1;:demand:position 1,1.000000\r\n",
              b'ERR -222,"Data out of range: acceleration limit 9000 not in (0, 2000]"\r\n'),
     ])
     with pytest.raises(SetpointOutOfRange, match="9000"):
@@ -186,14 +179,14 @@ def test_error_reply_out_of_range_raises_setpoint_out_of_range():
 
 def test_other_error_reply_raises_acutrol_refused_with_the_code():
     server, table = make([
-        Line(b":interlock:reset 1\r\n", b'ERR 203,"Emergency stop pressed"\r\n'),
+        Pair(b":interlock:reset 1\r\n", b'ERR 203,"Emergency stop pressed"\r\n'),
         status(word=StatusBit.FAULT | StatusBit.ESTOP, fault=4),
     ])
     with pytest.raises(TableFault, match="emergency stop") as info:
         table.reset_fault()
     assert info.value.fault_code == 4
     finish(server, table)
-    server, table = make([Line(b":interlock:open 1\r\n", b'ERR -113,"Undefined header"\r\n')])
+    server, table = make([Pair(b":interlock:open 1\r\n", b'ERR -113,"Undefined header"\r\n')])
     with pytest.raises(AcutrolRefused, match="-113") as refused:
         table.disable()
     assert refused.value.code == -113 and isinstance(refused.value, ProtocolError)
@@ -202,7 +195,7 @@ def test_other_error_reply_raises_acutrol_refused_with_the_code():
 
 @pytest.mark.parametrize("reply", [b"1.0;2.0\r\n", b"1.0;x;3;0;1.0\r\n", b"ERRxyz\r\n"])
 def test_malformed_replies_raise_protocol_error(reply):
-    server, table = make([Line(STATUS_Q, reply)])
+    server, table = make([Pair(STATUS_Q, reply)])
     with pytest.raises(ProtocolError):
         table.read_status()
     finish(server, table)
@@ -211,7 +204,7 @@ def test_malformed_replies_raise_protocol_error(reply):
 def test_fault_during_wait_raises_table_fault_with_code_and_text():
     server, table = make([
         LIMITS,
-        Line(b":mode:rate 1;:demand:rate 1,100.000000\r\n", OK),
+        Pair(b":mode:rate 1;:demand:rate 1,100.000000\r\n", OK),
         status(word=READY_CLOSED | StatusBit.MOVING),
         status(word=READY_CLOSED | StatusBit.MOVING, rate=50.0),
         status(word=StatusBit.FAULT, fault=3),
@@ -227,7 +220,7 @@ def test_wait_at_rate_ignores_a_stale_at_rate_and_times_out_in_station_time():
     clock = ManualClock()
     stale = status(word=READY_CLOSED | StatusBit.AT_RATE, rate=10.0)
     server, table = make(
-        [LIMITS, Line(b":mode:rate 1;:demand:rate 1,100.000000\r\n", OK), status()]
+        [LIMITS, Pair(b":mode:rate 1;:demand:rate 1,100.000000\r\n", OK), status()]
         + [stale] * 9,
         clock=clock,
     )
@@ -241,12 +234,12 @@ def test_wait_at_rate_ignores_a_stale_at_rate_and_times_out_in_station_time():
 def test_safe_state_stops_then_opens_the_interlock_and_is_quiet_when_already_safe():
     server, table = make([
         status(word=READY_CLOSED | StatusBit.MOVING, rate=100.0),
-        Line(b":mode:rate 1;:demand:rate 1,0.000000\r\n", OK),
+        Pair(b":mode:rate 1;:demand:rate 1,0.000000\r\n", OK),
         status(word=READY_CLOSED | StatusBit.MOVING, rate=40.0),
         status(word=READY_CLOSED),
-        Line(b":interlock:open 1\r\n", OK),
+        Pair(b":interlock:open 1\r\n", OK),
         status(word=StatusBit.READY),
-        Line(b":interlock:open 1\r\n", OK),
+        Pair(b":interlock:open 1\r\n", OK),
     ])
     table.safe_state()
     table.safe_state()
@@ -254,7 +247,7 @@ def test_safe_state_stops_then_opens_the_interlock_and_is_quiet_when_already_saf
 
 
 def test_dropped_connection_raises_connection_lost_and_the_next_request_reconnects():
-    server, table = make([Line(STATUS_Q, None, close=True), status(rate=2.5)])
+    server, table = make([Pair(STATUS_Q, None, close=True), status(rate=2.5)])
     with pytest.raises(ConnectionLost, match="dropped"):
         table.read_status()
     assert table.read_status().rate_dps == 2.5
@@ -262,7 +255,7 @@ def test_dropped_connection_raises_connection_lost_and_the_next_request_reconnec
 
 
 def test_reply_later_than_timeout_raises_instrument_timeout_then_recovers():
-    late = Line(STATUS_Q, b"0;0;3;0;1.0\r\n", delay_s=0.6)
+    late = Pair(STATUS_Q, b"0;0;3;0;1.0\r\n", delay_s=0.6)
     server, table = make([late, status(rate=1.0)], timeout_s=0.3)
     t0 = time.monotonic()
     with pytest.raises(InstrumentTimeout, match="did not answer"):
@@ -274,7 +267,7 @@ def test_reply_later_than_timeout_raises_instrument_timeout_then_recovers():
 
 
 def test_connect_to_nothing_raises_connection_lost_with_advice():
-    server = ExpectedLines([])
+    server = TcpPeer([])
     port = server.port
     server.close()
     with pytest.raises(ConnectionLost, match="powered"):

@@ -15,8 +15,6 @@ from drivers.errors import (
 )
 from drivers.modbus_link import ModbusLink
 from tests.drivers._fakes import (
-    Exchange,
-    ExpectedModbus,
     ManualClock,
     exception_reply,
     read_pdu,
@@ -24,26 +22,20 @@ from tests.drivers._fakes import (
     str_regs,
     write_pdu,
 )
+from tests.drivers.expected_protocol import MODBUS, Pair, TcpPeer, finish
 
-LIMITS = Exchange(read_pdu(602, 2), read_reply([-400 & 0xFFFF, 1500]))  # -40.0 .. 150.0 C
+LIMITS = Pair(read_pdu(602, 2), read_reply([-400 & 0xFFFF, 1500]))  # -40.0 .. 150.0 C
 
 
 def make(script, clock=None, poll_s=1.0):
-    server = ExpectedModbus(script)
+    server = TcpPeer(script, MODBUS)
     link = ModbusLink("127.0.0.1", server.port, timeout_s=0.5, instrument="thermal chamber")
     return server, ModbusChamber(link, clock or ManualClock(), poll_s=poll_s)
 
 
-def finish(server, chamber):
-    chamber.close()
-    server.close()
-    assert server.errors == []
-    assert server.done, f"unused script: {server.script}"
-
-
 def test_identify():
     regs = str_regs("Watlow F4T", 8) + str_regs("CH-77", 8) + str_regs("4.2", 4)
-    server, chamber = make([Exchange(read_pdu(40, 20), read_reply(regs))])
+    server, chamber = make([Pair(read_pdu(40, 20), read_reply(regs))])
     ident = chamber.identify()
     assert (ident.manufacturer, ident.model, ident.serial, ident.firmware) == (
         "Watlow", "Watlow F4T", "CH-77", "4.2")
@@ -53,8 +45,8 @@ def test_identify():
 def test_negative_setpoint_is_written_as_signed_tenths_and_limits_read_once():
     server, chamber = make([
         LIMITS,
-        Exchange(write_pdu(300, -125), write_pdu(300, -125)),
-        Exchange(write_pdu(300, 851), write_pdu(300, 851)),
+        Pair(write_pdu(300, -125), write_pdu(300, -125)),
+        Pair(write_pdu(300, 851), write_pdu(300, 851)),
     ])
     chamber.set_setpoint(-12.5)
     chamber.set_setpoint(85.1)
@@ -70,7 +62,7 @@ def test_setpoint_outside_limits_is_refused_before_sending():
 
 
 def test_controller_refusal_maps_to_setpoint_out_of_range():
-    server, chamber = make([LIMITS, Exchange(write_pdu(300, 700), exception_reply(6, 3))])
+    server, chamber = make([LIMITS, Pair(write_pdu(300, 700), exception_reply(6, 3))])
     with pytest.raises(SetpointOutOfRange, match="refused"):
         chamber.set_setpoint(70.0)
     finish(server, chamber)
@@ -78,10 +70,10 @@ def test_controller_refusal_maps_to_setpoint_out_of_range():
 
 def test_reads_decode_signed_tenths_and_state():
     server, chamber = make([
-        Exchange(read_pdu(100, 1), read_reply([-53 & 0xFFFF])),
-        Exchange(read_pdu(300, 1), read_reply([250])),
-        Exchange(read_pdu(200, 1), read_reply([int(State.RAMPING)])),
-        Exchange(read_pdu(1000, 1), read_reply([1])),
+        Pair(read_pdu(100, 1), read_reply([-53 & 0xFFFF])),
+        Pair(read_pdu(300, 1), read_reply([250])),
+        Pair(read_pdu(200, 1), read_reply([int(State.RAMPING)])),
+        Pair(read_pdu(1000, 1), read_reply([1])),
     ])
     assert chamber.read_temperature() == -5.3
     assert chamber.read_setpoint() == 25.0
@@ -92,9 +84,9 @@ def test_reads_decode_signed_tenths_and_state():
 
 def test_ramp_run_stop_bytes():
     server, chamber = make([
-        Exchange(write_pdu(1001, 25), write_pdu(1001, 25)),
-        Exchange(write_pdu(1000, 1), write_pdu(1000, 1)),
-        Exchange(write_pdu(1000, 0), write_pdu(1000, 0)),
+        Pair(write_pdu(1001, 25), write_pdu(1001, 25)),
+        Pair(write_pdu(1000, 1), write_pdu(1000, 1)),
+        Pair(write_pdu(1000, 0), write_pdu(1000, 0)),
     ])
     chamber.set_ramp_rate(2.5)
     chamber.run()
@@ -105,18 +97,18 @@ def test_ramp_run_stop_bytes():
 
 
 def _pv(tenths):
-    return Exchange(read_pdu(100, 1), read_reply([tenths & 0xFFFF]))
+    return Pair(read_pdu(100, 1), read_reply([tenths & 0xFFFF]))
 
 
 def _state(state):
-    return Exchange(read_pdu(200, 1), read_reply([int(state)]))
+    return Pair(read_pdu(200, 1), read_reply([int(state)]))
 
 
 def test_wait_setpoint_returns_once_within_band():
     clock = ManualClock()
     server, chamber = make([
-        Exchange(read_pdu(300, 1), read_reply([850])),
-        Exchange(read_pdu(1000, 1), read_reply([1])),
+        Pair(read_pdu(300, 1), read_reply([850])),
+        Pair(read_pdu(1000, 1), read_reply([1])),
         _pv(600), _state(State.RAMPING),
         _pv(800), _state(State.RAMPING),
         _pv(846),
@@ -130,8 +122,8 @@ def test_stuck_chamber_times_out_in_station_time_with_the_temperatures():
     clock = ManualClock()
     polls = [e for _ in range(5) for e in (_pv(400), _state(State.RAMPING))]
     server, chamber = make(
-        [Exchange(read_pdu(300, 1), read_reply([850])),
-         Exchange(read_pdu(1000, 1), read_reply([1])),
+        [Pair(read_pdu(300, 1), read_reply([850])),
+         Pair(read_pdu(1000, 1), read_reply([1])),
          *polls], clock=clock, poll_s=0.5)
     with pytest.raises(ChamberSetpointNotReached, match=r"85 \+/- 0.5 C within 2 s \(now 40 C\)"):
         chamber.wait_setpoint(0.5, 2.0)
@@ -142,8 +134,8 @@ def test_stuck_chamber_times_out_in_station_time_with_the_temperatures():
 def test_chamber_fault_state_ends_the_wait_at_once():
     clock = ManualClock()
     server, chamber = make([
-        Exchange(read_pdu(300, 1), read_reply([850])),
-        Exchange(read_pdu(1000, 1), read_reply([1])),
+        Pair(read_pdu(300, 1), read_reply([850])),
+        Pair(read_pdu(1000, 1), read_reply([1])),
         _pv(400), _state(State.FAULT),
     ], clock=clock)
     with pytest.raises(ChamberSetpointNotReached, match="fault"):
@@ -154,8 +146,8 @@ def test_chamber_fault_state_ends_the_wait_at_once():
 
 def test_wait_on_a_stopped_chamber_says_to_run_it():
     server, chamber = make([
-        Exchange(read_pdu(300, 1), read_reply([850])),
-        Exchange(read_pdu(1000, 1), read_reply([0])),
+        Pair(read_pdu(300, 1), read_reply([850])),
+        Pair(read_pdu(1000, 1), read_reply([0])),
     ])
     with pytest.raises(InstrumentError, match="run"):
         chamber.wait_setpoint(0.5, 10.0)
@@ -163,7 +155,7 @@ def test_wait_on_a_stopped_chamber_says_to_run_it():
 
 
 def test_dropped_link_is_connection_lost():
-    server, chamber = make([Exchange(read_pdu(100, 1), None, close=True)])
+    server, chamber = make([Pair(read_pdu(100, 1), None, close=True)])
     with pytest.raises(ConnectionLost):
         chamber.read_temperature()
     finish(server, chamber)

@@ -16,7 +16,8 @@ from drivers.errors import (
     SetpointOutOfRange,
 )
 from drivers.espec_p300 import EspecP300, link_over
-from tests.drivers._fakes import ExpectedSerial, ManualClock
+from tests.drivers._fakes import ManualClock
+from tests.drivers.expected_protocol import SerialPeer, finish
 
 TEMP = (b"TEMP?\r\n", b"24.8,25.0,150.0,-70.0\r\n")  # pv, sp, upper, lower
 
@@ -26,14 +27,8 @@ def ok(command: bytes) -> tuple[bytes, bytes]:
 
 
 def make(script, clock=None, **kw):
-    port = ExpectedSerial(script)
+    port = SerialPeer(script)
     return port, EspecP300(link_over(port, timeout_s=0.05), clock or ManualClock(), **kw)
-
-
-def finish(port, chamber):
-    chamber.close()
-    assert port.errors == []
-    assert port.done, f"unused script: {port.script}"
 
 
 def test_identify_uses_rom_and_type():

@@ -13,14 +13,14 @@ from drivers.sim.launcher import launch_bench
 from drivers.tcp_lines import LineLink
 from procedures.progress import ProgressEvent
 from station.prompt_relay import PromptRelay
-from tests.drivers._line_fake import ExpectedLines, Line
+from tests.drivers.expected_protocol import Pair, TcpPeer
 from tests.sim.conftest import wait_until
 
 R = b"R\r\n"
 
 
-def _make(script: list[Line], readings: int = 1) -> tuple[ExpectedLines, AsciiInclinometer]:
-    server = ExpectedLines(script)
+def _make(script: list[Pair], readings: int = 1) -> tuple[TcpPeer, AsciiInclinometer]:
+    server = TcpPeer(script)
     link = LineLink("127.0.0.1", server.port, timeout_s=0.3, instrument="inclinometer 1",
                     send_end=b"\r\n")
     return server, AsciiInclinometer({1: link}, axis="x", readings=readings, u_deg=0.004)
@@ -28,7 +28,7 @@ def _make(script: list[Line], readings: int = 1) -> tuple[ExpectedLines, AsciiIn
 
 def test_read_angle_sends_r_and_averages_the_x_axis() -> None:
     server, inc = _make(
-        [Line(R, b"X=+90.012\r\nY=-00.084\r\n"), Line(R, b"X=+90.016\r\nY=-00.080\r\n")],
+        [Pair(R, b"X=+90.012\r\nY=-00.084\r\n"), Pair(R, b"X=+90.016\r\nY=-00.080\r\n")],
         readings=2,
     )
     try:
@@ -42,7 +42,7 @@ def test_read_angle_sends_r_and_averages_the_x_axis() -> None:
 
 
 def test_identify_reads_type_and_serial() -> None:
-    server, inc = _make([Line(b"V\r\n", b"AGS360-2-S1\r\nSN:1234-567\r\n")])
+    server, inc = _make([Pair(b"V\r\n", b"AGS360-2-S1\r\nSN:1234-567\r\n")])
     try:
         ident = inc.identify()
         assert (ident.model, ident.serial) == ("AGS360-2-S1", "1234-567")
@@ -55,7 +55,7 @@ def test_identify_reads_type_and_serial() -> None:
     "reply", [b"E\r\n\r\n", b"X=90.0\r\nY=+00.000\r\n", b"X=+90.000\r\nX=+90.000\r\n"]
 )
 def test_a_reply_of_another_form_is_a_protocol_error(reply: bytes) -> None:
-    server, inc = _make([Line(R, reply)])
+    server, inc = _make([Pair(R, reply)])
     try:
         with pytest.raises(ProtocolError, match="inclinometer 1"):
             inc.read_angle(1)
@@ -65,7 +65,7 @@ def test_a_reply_of_another_form_is_a_protocol_error(reply: bytes) -> None:
 
 
 def test_half_a_reply_is_a_timeout_and_an_unknown_socket_says_how_to_add_it() -> None:
-    server, inc = _make([Line(R, b"X=+90.000\r\n")])
+    server, inc = _make([Pair(R, b"X=+90.000\r\n")])
     try:
         with pytest.raises(InstrumentTimeout, match="part of its reply"):
             inc.read_angle(1)

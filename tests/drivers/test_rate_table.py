@@ -18,8 +18,6 @@ from drivers.modbus_link import ModbusLink
 from drivers.rate_table import ModbusRateTable
 from drivers.rate_table_map import Control, Fault, Status
 from tests.drivers._fakes import (
-    Exchange,
-    ExpectedModbus,
     ManualClock,
     exception_reply,
     pair,
@@ -30,6 +28,7 @@ from tests.drivers._fakes import (
     write_many_reply,
     write_pdu,
 )
+from tests.drivers.expected_protocol import MODBUS, Pair, TcpPeer, finish
 
 READY_ENABLED = Status.READY | Status.ENABLED
 
@@ -38,8 +37,8 @@ def status_regs(bits=READY_ENABLED, fault=0, counts=0, pos_mdeg=0, rate_mdps=0, 
     return [int(bits), fault, *pair(counts), *pair(pos_mdeg), *pair(rate_mdps), *pair(t_us)]
 
 
-def status_read(**kw) -> Exchange:
-    return Exchange(read_pdu(20, 10), read_reply(status_regs(**kw)))
+def status_read(**kw) -> Pair:
+    return Pair(read_pdu(20, 10), read_reply(status_regs(**kw)))
 
 
 def cmd_regs(mode=0, pos=0, rate=0, accel=100_000, move_ms=0):
@@ -47,21 +46,14 @@ def cmd_regs(mode=0, pos=0, rate=0, accel=100_000, move_ms=0):
 
 
 def make(script, timeout_s=0.5, clock=None, poll_s=0.125):
-    server = ExpectedModbus(script)
+    server = TcpPeer(script, MODBUS)
     link = ModbusLink("127.0.0.1", server.port, timeout_s=timeout_s, instrument="rate table")
     return server, ModbusRateTable(link, clock or ManualClock(), poll_s=poll_s)
 
 
-def finish(server, table):
-    table.close()
-    server.close()
-    assert server.errors == []
-    assert server.done, f"unused script: {server.script}"
-
-
 def test_identify_reads_the_three_strings_in_one_request():
     regs = str_regs("Acutronic AC1120", 8) + str_regs("RT-0042", 8) + str_regs("2.1.7", 4)
-    server, table = make([Exchange(bytes.fromhex("03 0028 0014"), read_reply(regs))])
+    server, table = make([Pair(bytes.fromhex("03 0028 0014"), read_reply(regs))])
     ident = table.identify()
     assert (ident.manufacturer, ident.model, ident.serial, ident.firmware) == (
         "Acutronic", "Acutronic AC1120", "RT-0042", "2.1.7"
@@ -93,8 +85,8 @@ def test_set_rate_writes_mode_and_rate_in_one_request_keeping_other_commands():
     before = cmd_regs(mode=1, pos=90_000, rate=0, accel=200_000, move_ms=3500)
     after = cmd_regs(mode=2, pos=90_000, rate=-150_500, accel=50_000, move_ms=3500)
     server, table = make([
-        Exchange(read_pdu(1, 9), read_reply(before)),
-        Exchange(write_many_pdu(1, after), write_many_reply(1, 9)),
+        Pair(read_pdu(1, 9), read_reply(before)),
+        Pair(write_many_pdu(1, after), write_many_reply(1, 9)),
         status_read(),
     ])
     table.set_rate(-150.5, accel_dps2=50.0)
@@ -105,8 +97,8 @@ def test_move_to_with_move_time_writes_move_time_ms():
     before = cmd_regs(mode=2, rate=10_000, accel=200_000)
     after = cmd_regs(mode=1, pos=-90_000, rate=10_000, accel=200_000, move_ms=3500)
     server, table = make([
-        Exchange(read_pdu(1, 9), read_reply(before)),
-        Exchange(write_many_pdu(1, after), write_many_reply(1, 9)),
+        Pair(read_pdu(1, 9), read_reply(before)),
+        Pair(write_many_pdu(1, after), write_many_reply(1, 9)),
         status_read(),
     ])
     table.move_to(-90.0, move_time_s=3.5)
@@ -117,8 +109,8 @@ def test_move_to_with_accel_writes_accel_limit_and_zero_move_time():
     before = cmd_regs(mode=1, pos=5_000, accel=200_000, move_ms=3500)
     after = cmd_regs(mode=1, pos=90_000, accel=30_000, move_ms=0)
     server, table = make([
-        Exchange(read_pdu(1, 9), read_reply(before)),
-        Exchange(write_many_pdu(1, after), write_many_reply(1, 9)),
+        Pair(read_pdu(1, 9), read_reply(before)),
+        Pair(write_many_pdu(1, after), write_many_reply(1, 9)),
         status_read(),
     ])
     table.move_to(90.0, accel_dps2=30.0)
@@ -135,8 +127,8 @@ def test_move_to_rejects_both_accel_and_move_time_without_touching_the_table():
 def test_enable_sets_enable_bit_keeping_none_of_the_edge_bits():
     server, table = make([
         status_read(bits=Status.READY),
-        Exchange(read_pdu(0, 1), read_reply([int(Control.HALT | Control.FAULT_RESET)])),
-        Exchange(write_pdu(0, int(Control.ENABLE)), write_pdu(0, int(Control.ENABLE))),
+        Pair(read_pdu(0, 1), read_reply([int(Control.HALT | Control.FAULT_RESET)])),
+        Pair(write_pdu(0, int(Control.ENABLE)), write_pdu(0, int(Control.ENABLE))),
         status_read(bits=READY_ENABLED),
     ])
     table.enable()
@@ -159,8 +151,8 @@ def test_fault_during_wait_raises_table_fault_with_code_and_advice(fault, text):
     before = cmd_regs()
     after = cmd_regs(mode=2, rate=100_000)
     server, table = make([
-        Exchange(read_pdu(1, 9), read_reply(before)),
-        Exchange(write_many_pdu(1, after), write_many_reply(1, 9)),
+        Pair(read_pdu(1, 9), read_reply(before)),
+        Pair(write_many_pdu(1, after), write_many_reply(1, 9)),
         status_read(bits=READY_ENABLED | Status.MOVING),
         status_read(bits=READY_ENABLED | Status.MOVING, rate_mdps=50_000),
         status_read(bits=Status.FAULT, fault=int(fault)),
@@ -175,8 +167,8 @@ def test_fault_during_wait_raises_table_fault_with_code_and_advice(fault, text):
 
 def test_wait_at_rate_ignores_a_stale_at_rate_bit_from_the_previous_rate():
     server, table = make([
-        Exchange(read_pdu(1, 9), read_reply(cmd_regs())),
-        Exchange(write_many_pdu(1, cmd_regs(mode=2, rate=100_000)), write_many_reply(1, 9)),
+        Pair(read_pdu(1, 9), read_reply(cmd_regs())),
+        Pair(write_many_pdu(1, cmd_regs(mode=2, rate=100_000)), write_many_reply(1, 9)),
         status_read(bits=READY_ENABLED | Status.AT_RATE, rate_mdps=10_000),
         status_read(bits=READY_ENABLED | Status.AT_RATE, rate_mdps=10_000),
         status_read(bits=READY_ENABLED | Status.AT_RATE, rate_mdps=100_004),
@@ -212,8 +204,8 @@ def test_a_wait_ends_at_once_when_the_clock_is_interrupted():
 
 def test_refused_command_raises_instrument_error_naming_the_values():
     server, table = make([
-        Exchange(read_pdu(1, 9), read_reply(cmd_regs())),
-        Exchange(write_many_pdu(1, cmd_regs(mode=1, pos=10_000, accel=9_000_000)),
+        Pair(read_pdu(1, 9), read_reply(cmd_regs())),
+        Pair(write_many_pdu(1, cmd_regs(mode=1, pos=10_000, accel=9_000_000)),
                  exception_reply(16, 3)),
     ])
     with pytest.raises(InstrumentError, match="refused.*9000"):
@@ -222,7 +214,7 @@ def test_refused_command_raises_instrument_error_naming_the_values():
 
 
 def test_dropped_connection_raises_connection_lost():
-    server, table = make([Exchange(read_pdu(20, 10), None, close=True)])
+    server, table = make([Pair(read_pdu(20, 10), None, close=True)])
     t0 = time.monotonic()
     with pytest.raises(ConnectionLost, match="dropped"):
         table.read_status()
@@ -231,7 +223,7 @@ def test_dropped_connection_raises_connection_lost():
 
 
 def test_reply_later_than_timeout_raises_instrument_timeout_then_recovers():
-    late = Exchange(read_pdu(20, 10), read_reply(status_regs()), delay_s=0.6)
+    late = Pair(read_pdu(20, 10), read_reply(status_regs()), delay_s=0.6)
     server, table = make([late, status_read(rate_mdps=1_000)], timeout_s=0.3)
     t0 = time.monotonic()
     with pytest.raises(InstrumentTimeout, match="did not answer"):
@@ -243,7 +235,7 @@ def test_reply_later_than_timeout_raises_instrument_timeout_then_recovers():
 
 
 def test_connect_to_nothing_raises_connection_lost_with_advice():
-    server = ExpectedModbus([])
+    server = TcpPeer([], MODBUS)
     port = server.port
     server.close()
     link = ModbusLink("127.0.0.1", port, timeout_s=0.3, instrument="rate table")
@@ -253,7 +245,7 @@ def test_connect_to_nothing_raises_connection_lost_with_advice():
 
 def test_next_request_after_a_drop_reconnects():
     server, table = make([
-        Exchange(read_pdu(20, 10), None, close=True),
+        Pair(read_pdu(20, 10), None, close=True),
         status_read(rate_mdps=2_500),
     ])
     with pytest.raises(ConnectionLost):

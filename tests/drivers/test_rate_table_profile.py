@@ -10,8 +10,6 @@ from drivers.modbus_link import ModbusLink
 from drivers.rate_table import ModbusRateTable
 from drivers.servo_profile import load_profile
 from tests.drivers._fakes import (
-    Exchange,
-    ExpectedModbus,
     ManualClock,
     exception_reply,
     read_pdu,
@@ -21,6 +19,7 @@ from tests.drivers._fakes import (
     write_many_reply,
     write_pdu,
 )
+from tests.drivers.expected_protocol import MODBUS, Pair, TcpPeer, finish
 
 PROFILE = load_profile("servo-lowword-example")
 READY, ENABLED, FAULT, IN_POS, AT_RATE, MOVING, INTERLOCK = (
@@ -39,8 +38,8 @@ def status_regs(bits=READY | ENABLED, fault=0, t_ms=0, pos_e4=0, rate_e2=0, coun
             *lo_first(counts)]
 
 
-def status_read(**kw) -> Exchange:
-    return Exchange(read_pdu(1200, 10), read_reply(status_regs(**kw)))
+def status_read(**kw) -> Pair:
+    return Pair(read_pdu(1200, 10), read_reply(status_regs(**kw)))
 
 
 def cmd_regs(mode=0, gap=0x5A5A, rate_e2=0, pos_e4=0, accel_e1=1000, move_e2=0):
@@ -48,17 +47,10 @@ def cmd_regs(mode=0, gap=0x5A5A, rate_e2=0, pos_e4=0, accel_e1=1000, move_e2=0):
 
 
 def make(script, clock=None):
-    server = ExpectedModbus(script)
+    server = TcpPeer(script, MODBUS)
     link = ModbusLink("127.0.0.1", server.port, timeout_s=0.5, instrument="rate table")
     table = ModbusRateTable(link, clock or ManualClock(), poll_s=0.125, profile=PROFILE)
     return server, table
-
-
-def finish(server, table):
-    table.close()
-    server.close()
-    assert server.errors == []
-    assert server.done, f"unused script: {server.script}"
 
 
 def test_counts_per_rev_and_limits_come_from_the_profile():
@@ -72,7 +64,7 @@ def test_counts_per_rev_and_limits_come_from_the_profile():
 
 def test_identify_reads_the_profiles_string_block():
     regs = str_regs("Kollmorgen AKD2G", 10) + str_regs("AKD-17", 6) + str_regs("02-04", 4)
-    server, table = make([Exchange(read_pdu(1300, 20), read_reply(regs))])
+    server, table = make([Pair(read_pdu(1300, 20), read_reply(regs))])
     ident = table.identify()
     assert (ident.manufacturer, ident.model, ident.serial, ident.firmware) == (
         "Kollmorgen", "Kollmorgen AKD2G", "AKD-17", "02-04"
@@ -102,8 +94,8 @@ def test_set_rate_writes_the_command_span_in_one_request_keeping_the_gap_registe
     before = cmd_regs(mode=8, pos_e4=900_000, accel_e1=2000, move_e2=350)
     after = cmd_regs(mode=3, pos_e4=900_000, rate_e2=-15_050, accel_e1=500, move_e2=350)
     server, table = make([
-        Exchange(read_pdu(1100, 9), read_reply(before)),
-        Exchange(write_many_pdu(1100, after), write_many_reply(1100, 9)),
+        Pair(read_pdu(1100, 9), read_reply(before)),
+        Pair(write_many_pdu(1100, after), write_many_reply(1100, 9)),
         status_read(),
     ])
     table.set_rate(-150.5, accel_dps2=50.0)
@@ -114,8 +106,8 @@ def test_move_to_with_move_time_in_the_profiles_units():
     before = cmd_regs(mode=3, rate_e2=1000)
     after = cmd_regs(mode=8, rate_e2=1000, pos_e4=-900_000, move_e2=350)
     server, table = make([
-        Exchange(read_pdu(1100, 9), read_reply(before)),
-        Exchange(write_many_pdu(1100, after), write_many_reply(1100, 9)),
+        Pair(read_pdu(1100, 9), read_reply(before)),
+        Pair(write_many_pdu(1100, after), write_many_reply(1100, 9)),
         status_read(),
     ])
     table.move_to(-90.0, move_time_s=3.5)
@@ -125,8 +117,8 @@ def test_move_to_with_move_time_in_the_profiles_units():
 def test_enable_sets_the_profiles_enable_bit_dropping_edge_bits_and_halt():
     server, table = make([
         status_read(bits=READY),
-        Exchange(read_pdu(1000, 1), read_reply([HALT | FAULT_RESET | ZERO | 0x0003])),
-        Exchange(write_pdu(1000, ENABLE), write_pdu(1000, ENABLE)),
+        Pair(read_pdu(1000, 1), read_reply([HALT | FAULT_RESET | ZERO | 0x0003])),
+        Pair(write_pdu(1000, ENABLE), write_pdu(1000, ENABLE)),
         status_read(bits=READY | ENABLED),
     ])
     table.enable()
@@ -150,8 +142,8 @@ def test_fault_code_text_comes_from_the_profile():
 
 def test_refused_command_raises_instrument_error():
     server, table = make([
-        Exchange(read_pdu(1100, 9), read_reply(cmd_regs())),
-        Exchange(write_many_pdu(1100, cmd_regs(mode=8, pos_e4=100_000, accel_e1=90_000)),
+        Pair(read_pdu(1100, 9), read_reply(cmd_regs())),
+        Pair(write_many_pdu(1100, cmd_regs(mode=8, pos_e4=100_000, accel_e1=90_000)),
                  exception_reply(16, 3)),
     ])
     with pytest.raises(InstrumentError, match="refused.*9000"):

@@ -20,7 +20,8 @@ from drivers.errors import InstrumentError, InstrumentTimeout
 from drivers.modbus_link import ModbusLink
 from drivers.rate_table import ModbusRateTable
 from drivers.supply import ScpiSupply
-from tests.drivers._fakes import Exchange, ExpectedModbus, ManualClock
+from tests.drivers._fakes import ManualClock
+from tests.drivers.expected_protocol import MODBUS, Pair, TcpPeer
 
 TIMEOUT_S = 0.25
 SETTINGS = settings(
@@ -53,7 +54,7 @@ CHAMBER_CALLS: dict[str, Callable[[ModbusChamber], Any]] = {
 
 def _modbus_call(make: Callable[[ModbusLink], Any], call: Callable[[Any], Any],
                  reply: bytes) -> Any:
-    server = ExpectedModbus([Exchange(b"", reply)])  # any request gets this reply
+    server = TcpPeer([Pair(b"", reply)], MODBUS)  # any request gets this reply
     link = ModbusLink("127.0.0.1", server.port, timeout_s=TIMEOUT_S, instrument="instrument")
     t0 = time.monotonic()
     try:

@@ -20,7 +20,8 @@ from drivers.errors import (
 )
 from drivers.scpi import parse_error_reply
 from drivers.supply import ScpiSupply
-from tests.drivers._scpi_fakes import Say, ScriptedScpi
+from tests.drivers._scpi_fakes import ScriptedScpi
+from tests.drivers.expected_protocol import Pair, finish
 
 NO_ERR = (b"SYST:ERR?\n", b'+0,"No error"\n')
 
@@ -29,7 +30,7 @@ class _Rig:
     """A scripted instrument on a pty and the driver on it through pyvisa's ASRL resource."""
 
     def __init__(self, script, timeout_s):
-        self.fake = ScriptedScpi([Say(*step) for step in script], "pty")
+        self.fake = ScriptedScpi([Pair(*step) for step in script], "pty")
         self.supply = ScpiSupply.open(self.fake.path, timeout_s=timeout_s)
 
 
@@ -49,10 +50,6 @@ def make(script, timeout_s=0.3):
     rig = _Rig(script, timeout_s)
     _rigs.append(rig)
     return rig.fake, rig.supply
-
-
-def finish(port):
-    port.assert_done()
 
 
 def test_identify():
@@ -214,7 +211,7 @@ def test_error_reply_parser_either_parses_or_says_protocol_error(text):
 @settings(max_examples=25, deadline=None)
 @given(st.binary(max_size=600))
 def test_query_on_noise_returns_the_first_line_or_a_typed_error_in_time(noise):
-    fake = ScriptedScpi([Say(b"MEAS:VOLT?\n", noise)], "pty")
+    fake = ScriptedScpi([Pair(b"MEAS:VOLT?\n", noise)], "pty")
     supply = ScpiSupply.open(fake.path, timeout_s=0.05)
     t0 = time.monotonic()
     try:

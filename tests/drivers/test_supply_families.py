@@ -12,7 +12,8 @@ from drivers.keysight_e36300 import KeysightE36300Dialect
 from drivers.protocols import Supply
 from drivers.rigol_dp800 import RigolDp800Dialect
 from drivers.supply import ScpiDialect, ScpiSupply
-from tests.drivers._scpi_fakes import NO_ERROR, Say, ScriptedScpi
+from tests.drivers._scpi_fakes import NO_ERROR, ScriptedScpi
+from tests.drivers.expected_protocol import Pair
 
 GENERIC_ERR = b"SYST:ERR?\n"
 RIGOL_ERR = b":SYST:ERR?\n"
@@ -62,16 +63,16 @@ def family(request: pytest.FixtureRequest) -> str:
 def test_settings_queries_and_the_error_queue_exact_bytes(family: str, kind: str) -> None:
     dialect, err, cmd = FAMILIES[family]
     r = REPLIES[family]
-    ok = Say(err, r["err"])
+    ok = Pair(err, r["err"])
     fake = ScriptedScpi([
-        Say(b"*IDN?\n", b"Maker,Model-9,SN123,1.0\r\n"),
-        Say(cmd["volt"]), ok, Say(cmd["curr"]), ok, Say(cmd["on"]), ok,
-        Say(cmd["on?"], r["on"]), Say(cmd["mv"], r["v"]), Say(cmd["mc"], r["i"]),
-        Say(cmd["off"]), ok, Say(cmd["on?"], r["off"]),
-        Say(b"*RST\n"), ok,
-        Say(cmd["v?"], r["vset"]), Say(cmd["c?"], r["iset"]),
-        Say(cmd["mv"], r["v"]), Say(cmd["mc"], r["i"]),
-        Say(cmd["off"]), ok,
+        Pair(b"*IDN?\n", b"Maker,Model-9,SN123,1.0\r\n"),
+        Pair(cmd["volt"]), ok, Pair(cmd["curr"]), ok, Pair(cmd["on"]), ok,
+        Pair(cmd["on?"], r["on"]), Pair(cmd["mv"], r["v"]), Pair(cmd["mc"], r["i"]),
+        Pair(cmd["off"]), ok, Pair(cmd["on?"], r["off"]),
+        Pair(b"*RST\n"), ok,
+        Pair(cmd["v?"], r["vset"]), Pair(cmd["c?"], r["iset"]),
+        Pair(cmd["mv"], r["v"]), Pair(cmd["mc"], r["i"]),
+        Pair(cmd["off"]), ok,
     ], kind)
     psu = _open(fake, dialect)
     try:
@@ -96,10 +97,10 @@ def test_settings_queries_and_the_error_queue_exact_bytes(family: str, kind: str
 def test_refused_setting_is_scpi_error_with_the_code_and_the_queue_drained(family: str) -> None:
     dialect, err, cmd = FAMILIES[family]
     fake = ScriptedScpi([
-        Say(cmd["volt"]),
-        Say(err, b'-222,"Data out of range"\n'),
-        Say(err, b'-221,"Settings conflict"\n'),
-        Say(err, REPLIES[family]["err"]),
+        Pair(cmd["volt"]),
+        Pair(err, b'-222,"Data out of range"\n'),
+        Pair(err, b'-221,"Settings conflict"\n'),
+        Pair(err, REPLIES[family]["err"]),
     ])
     psu = _open(fake, dialect)
     try:
@@ -114,11 +115,11 @@ def test_refused_setting_is_scpi_error_with_the_code_and_the_queue_drained(famil
 
 def test_shorted_part_is_supply_current_limit(family: str) -> None:
     dialect, err, cmd = FAMILIES[family]
-    ok = Say(err, REPLIES[family]["err"])
+    ok = Pair(err, REPLIES[family]["err"])
     volts = b"+3.10000000E-01\n" if family == "keysight-e36300" else b"0.3100\n"
     fake = ScriptedScpi([
-        Say(cmd["volt"]), ok, Say(cmd["curr"]), ok,
-        Say(cmd["mv"], volts), Say(cmd["mc"], b"0.099990\n"),
+        Pair(cmd["volt"]), ok, Pair(cmd["curr"]), ok,
+        Pair(cmd["mv"], volts), Pair(cmd["mc"], b"0.099990\n"),
     ])
     psu = _open(fake, dialect)
     try:
@@ -134,7 +135,7 @@ def test_shorted_part_is_supply_current_limit(family: str) -> None:
 
 def test_output_reply_that_is_neither_on_nor_off_is_a_protocol_error(family: str) -> None:
     dialect, _, cmd = FAMILIES[family]
-    fake = ScriptedScpi([Say(cmd["on?"], b"MAYBE\n"), Say(cmd["mv"], b"\xff\xfe\n")])
+    fake = ScriptedScpi([Pair(cmd["on?"], b"MAYBE\n"), Pair(cmd["mv"], b"\xff\xfe\n")])
     psu = _open(fake, dialect)
     try:
         with pytest.raises(ProtocolError, match="not 1/ON or 0/OFF"):
@@ -156,7 +157,7 @@ def test_factory_validates_connects_and_checks_the_expected_model(family: str) -
     module = MODULES[family]
     err = FAMILIES[family][1]
     extra = {} if family == "scpi" else {"channel": 2}
-    fake = ScriptedScpi([Say(b"*IDN?\n", b"Keysight Technologies,E36312A,MY1,2.1\n")])
+    fake = ScriptedScpi([Pair(b"*IDN?\n", b"Keysight Technologies,E36312A,MY1,2.1\n")])
     psu = module.factory({"address": fake.resource, "expected_model": "E363", **extra})
     try:
         assert isinstance(psu, Supply)
@@ -166,7 +167,7 @@ def test_factory_validates_connects_and_checks_the_expected_model(family: str) -
         psu.close()
         fake.close()
     fake.assert_done()
-    wrong = ScriptedScpi([Say(b"*IDN?\n", b"RIGOL TECHNOLOGIES,DP832,DP8C1,00.01.16\n")])
+    wrong = ScriptedScpi([Pair(b"*IDN?\n", b"RIGOL TECHNOLOGIES,DP832,DP8C1,00.01.16\n")])
     try:
         with pytest.raises(ProtocolError, match="not the expected 'E363'"):
             module.factory({"address": wrong.resource, "expected_model": "E363"})

@@ -11,7 +11,8 @@ import pytest
 
 from drivers.errors import ConnectionLost, InstrumentError, InstrumentTimeout
 from drivers.visa import VisaTransport, resource_name
-from tests.drivers._scpi_fakes import Say, ScriptedScpi
+from tests.drivers._scpi_fakes import ScriptedScpi
+from tests.drivers.expected_protocol import Pair
 
 KINDS = ["tcp", "pty"]
 
@@ -44,7 +45,7 @@ def _open(fake: ScriptedScpi, timeout_s: float = 0.3) -> VisaTransport:
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_no_reply_and_a_partial_reply_are_timeouts(kind: str) -> None:
-    fake = ScriptedScpi([Say(b"MEAS:VOLT?\n"), Say(b"MEAS:CURR?\n", b"0.02")], kind)
+    fake = ScriptedScpi([Pair(b"MEAS:VOLT?\n"), Pair(b"MEAS:CURR?\n", b"0.02")], kind)
     link = _open(fake, timeout_s=0.2)
     try:
         for command in ("MEAS:VOLT?", "MEAS:CURR?"):
@@ -62,7 +63,7 @@ def test_no_reply_and_a_partial_reply_are_timeouts(kind: str) -> None:
 @pytest.mark.parametrize("kind", KINDS)
 def test_late_reply_to_a_timed_out_query_does_not_answer_the_next(kind: str) -> None:
     fake = ScriptedScpi(
-        [Say(b"MEAS:VOLT?\n", b"4.0000\n", delay_s=0.3), Say(b"MEAS:CURR?\n", b"0.020000\n")],
+        [Pair(b"MEAS:VOLT?\n", b"4.0000\n", delay_s=0.3), Pair(b"MEAS:CURR?\n", b"0.020000\n")],
         kind,
     )
     link = _open(fake, timeout_s=0.15)
@@ -79,7 +80,7 @@ def test_late_reply_to_a_timed_out_query_does_not_answer_the_next(kind: str) -> 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_link_dying_during_a_query_is_connection_lost(kind: str) -> None:
-    fake = ScriptedScpi([Say(b"*IDN?\n", b"A,B,C,D\n"), Say(b"MEAS:VOLT?\n", close=True)], kind)
+    fake = ScriptedScpi([Pair(b"*IDN?\n", b"A,B,C,D\n"), Pair(b"MEAS:VOLT?\n", close=True)], kind)
     link = _open(fake, timeout_s=0.5)
     try:
         assert link.query("*IDN?") == "A,B,C,D"
@@ -96,7 +97,7 @@ def test_link_dying_during_a_query_is_connection_lost(kind: str) -> None:
 
 
 def test_socket_closed_while_idle_is_connection_lost_before_anything_is_sent() -> None:
-    fake = ScriptedScpi([Say(b"*IDN?\n", b"A,B,C,D\n"), Say(b"*CLS\n", close=True)])
+    fake = ScriptedScpi([Pair(b"*IDN?\n", b"A,B,C,D\n"), Pair(b"*CLS\n", close=True)])
     link = _open(fake, timeout_s=2.0)
     try:
         link.query("*IDN?")

@@ -19,8 +19,6 @@ from drivers.errors import (
 from drivers.modbus_link import ModbusLink
 from drivers.watlow_f4t import WatlowF4T
 from tests.drivers._fakes import (
-    Exchange,
-    ExpectedModbus,
     ManualClock,
     exception_reply,
     read_pdu,
@@ -29,6 +27,7 @@ from tests.drivers._fakes import (
     write_many_reply,
     write_pdu,
 )
+from tests.drivers.expected_protocol import MODBUS, Pair, TcpPeer, finish
 
 
 def f32(bits: int) -> list[int]:
@@ -37,31 +36,24 @@ def f32(bits: int) -> list[int]:
 
 
 C25, C25_5, C26, C35, F77 = 0x41C80000, 0x41CC0000, 0x41D00000, 0x420C0000, 0x429A0000
-LIMITS = Exchange(read_pdu(2774, 4), read_reply(f32(0xC2200000) + f32(0x42FA0000)))  # -40..125
-UNITS_C = Exchange(read_pdu(6730, 1), read_reply([15]))
+LIMITS = Pair(read_pdu(2774, 4), read_reply(f32(0xC2200000) + f32(0x42FA0000)))  # -40..125
+UNITS_C = Pair(read_pdu(6730, 1), read_reply([15]))
 AUTO, OFF = 10, 62
 
 
-def set_sp(bits: int, address: int = 2782) -> Exchange:
-    return Exchange(write_many_pdu(address, f32(bits)), write_many_reply(address, 2))
+def set_sp(bits: int, address: int = 2782) -> Pair:
+    return Pair(write_many_pdu(address, f32(bits)), write_many_reply(address, 2))
 
 
 def make(script, clock=None, **kw):
-    server = ExpectedModbus(script)
+    server = TcpPeer(script, MODBUS)
     link = ModbusLink("127.0.0.1", server.port, timeout_s=0.5, instrument=watlow_f4t.NAME)
     return server, WatlowF4T(link, clock or ManualClock(), **kw)
 
 
-def finish(server, chamber):
-    chamber.close()
-    server.close()
-    assert server.errors == []
-    assert server.done, f"unused script: {server.script}"
-
-
 def test_identify_reads_the_part_number_one_character_per_register():
     part = [ord(c) for c in "F4T1R2AA2AAAAAA"]
-    server, chamber = make([Exchange(read_pdu(16, 15), read_reply(part))], serial="CH-9")
+    server, chamber = make([Pair(read_pdu(16, 15), read_reply(part))], serial="CH-9")
     ident = chamber.identify()
     assert (ident.manufacturer, ident.model, ident.serial) == ("Watlow", "F4T1R2AA2AAAAAA", "CH-9")
     finish(server, chamber)
@@ -83,7 +75,7 @@ def test_setpoint_outside_the_range_is_refused_before_writing():
 
 
 def test_controller_refusal_maps_to_setpoint_out_of_range_and_rereads_limits():
-    refused = Exchange(write_many_pdu(2782, f32(C35)), exception_reply(16, 3))
+    refused = Pair(write_many_pdu(2782, f32(C35)), exception_reply(16, 3))
     server, chamber = make([LIMITS, UNITS_C, refused, LIMITS])
     with pytest.raises(SetpointOutOfRange, match="refused"):
         chamber.set_setpoint(35.0)
@@ -92,7 +84,7 @@ def test_controller_refusal_maps_to_setpoint_out_of_range_and_rereads_limits():
 
 
 def test_other_modbus_exceptions_stay_protocol_errors():
-    refused = Exchange(write_many_pdu(2782, f32(C35)), exception_reply(16, 4))
+    refused = Pair(write_many_pdu(2782, f32(C35)), exception_reply(16, 4))
     server, chamber = make([LIMITS, UNITS_C, refused])
     with pytest.raises(ProtocolError, match="exception 4"):
         chamber.set_setpoint(35.0)
@@ -100,12 +92,12 @@ def test_other_modbus_exceptions_stay_protocol_errors():
 
 
 def test_fahrenheit_controller_is_spoken_to_in_f():
-    limits_f = Exchange(read_pdu(2774, 4), read_reply(f32(0xC2200000) + f32(0x43808000)))
+    limits_f = Pair(read_pdu(2774, 4), read_reply(f32(0xC2200000) + f32(0x43808000)))
     server, chamber = make([
         limits_f,
-        Exchange(read_pdu(6730, 1), read_reply([30])),
+        Pair(read_pdu(6730, 1), read_reply([30])),
         set_sp(F77),
-        Exchange(read_pdu(2820, 2), read_reply(f32(F77))),
+        Pair(read_pdu(2820, 2), read_reply(f32(F77))),
     ])
     assert chamber.setpoint_limits() == (-40.0, 125.0)  # -40 F .. 257 F
     chamber.set_setpoint(25.0)
@@ -114,7 +106,7 @@ def test_fahrenheit_controller_is_spoken_to_in_f():
 
 
 def test_unknown_units_code_is_a_protocol_error():
-    server, chamber = make([LIMITS, Exchange(read_pdu(6730, 1), read_reply([99]))])
+    server, chamber = make([LIMITS, Pair(read_pdu(6730, 1), read_reply([99]))])
     with pytest.raises(ProtocolError, match="units code 99"):
         chamber.setpoint_limits()
     finish(server, chamber)
@@ -122,11 +114,11 @@ def test_unknown_units_code_is_a_protocol_error():
 
 def test_loop_2_registers_are_160_further_on():
     server, chamber = make([
-        Exchange(read_pdu(2934, 4), read_reply(f32(0xC2200000) + f32(0x42FA0000))),
+        Pair(read_pdu(2934, 4), read_reply(f32(0xC2200000) + f32(0x42FA0000))),
         UNITS_C,
         set_sp(C26, 2942),
-        Exchange(read_pdu(2980, 2), read_reply(f32(C25))),
-        Exchange(read_pdu(2974, 1), read_reply([AUTO])),
+        Pair(read_pdu(2980, 2), read_reply(f32(C25))),
+        Pair(read_pdu(2974, 1), read_reply([AUTO])),
     ], loop=2)
     chamber.set_setpoint(26.0)
     assert chamber.read_temperature() == 25.0
@@ -136,13 +128,13 @@ def test_loop_2_registers_are_160_further_on():
 
 def test_run_terminates_a_running_profile_then_sets_auto():
     server, chamber = make([
-        Exchange(read_pdu(16568, 1), read_reply([149])),
-        Exchange(write_pdu(16566, 148), write_pdu(16566, 148)),
-        Exchange(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
-        Exchange(read_pdu(16568, 1), read_reply([61])),
-        Exchange(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
-        Exchange(write_pdu(2730, OFF), write_pdu(2730, OFF)),
-        Exchange(read_pdu(2814, 1), read_reply([OFF])),
+        Pair(read_pdu(16568, 1), read_reply([149])),
+        Pair(write_pdu(16566, 148), write_pdu(16566, 148)),
+        Pair(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
+        Pair(read_pdu(16568, 1), read_reply([61])),
+        Pair(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
+        Pair(write_pdu(2730, OFF), write_pdu(2730, OFF)),
+        Pair(read_pdu(2814, 1), read_reply([OFF])),
     ])
     chamber.run()
     chamber.run()
@@ -153,15 +145,15 @@ def test_run_terminates_a_running_profile_then_sets_auto():
 
 def test_driver_ramp_writes_the_ramped_setpoint_on_the_station_clock():
     clock = ManualClock()
-    pv = Exchange(read_pdu(2820, 2), read_reply(f32(C25)))
+    pv = Pair(read_pdu(2820, 2), read_reply(f32(C25)))
     server, chamber = make([
         LIMITS, UNITS_C,
-        Exchange(read_pdu(2814, 1), read_reply([AUTO])),  # running: the ramp starts now
+        Pair(read_pdu(2814, 1), read_reply([AUTO])),  # running: the ramp starts now
         pv, set_sp(C25),  # from the air temperature
         set_sp(C25_5), pv,  # 5 s at 6 C/min: 0.5 C further
         pv,  # 0.5 s later: 0.05 C is below the step, nothing written
         set_sp(C26), pv,  # past the target: the target, and the ramp ends
-        Exchange(read_pdu(2782, 2), read_reply(f32(C26))),
+        Pair(read_pdu(2782, 2), read_reply(f32(C26))),
     ], clock)
     chamber.set_ramp_rate(6.0)
     chamber.set_setpoint(26.0)
@@ -179,11 +171,11 @@ def test_ramp_waits_for_run_when_stopped():
     clock = ManualClock()
     server, chamber = make([
         LIMITS, UNITS_C,
-        Exchange(read_pdu(2814, 1), read_reply([OFF])),  # stopped: nothing written yet
-        Exchange(read_pdu(2820, 2), read_reply(f32(C25))),  # run(): from the air
+        Pair(read_pdu(2814, 1), read_reply([OFF])),  # stopped: nothing written yet
+        Pair(read_pdu(2820, 2), read_reply(f32(C25))),  # run(): from the air
         set_sp(C25),
-        Exchange(read_pdu(16568, 1), read_reply([61])),
-        Exchange(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
+        Pair(read_pdu(16568, 1), read_reply([61])),
+        Pair(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
     ], clock)
     chamber.set_ramp_rate(6.0)
     chamber.set_setpoint(35.0)
@@ -195,12 +187,12 @@ def test_ramp_waits_for_run_when_stopped():
 
 def test_wait_setpoint_raises_chamber_alarm_on_an_active_alarm():
     server, chamber = make([
-        Exchange(read_pdu(2782, 2), read_reply(f32(C35))),
+        Pair(read_pdu(2782, 2), read_reply(f32(C35))),
         UNITS_C,
-        Exchange(read_pdu(2814, 1), read_reply([AUTO])),
-        Exchange(read_pdu(2820, 2), read_reply(f32(C25))),
-        Exchange(read_pdu(1356, 1), read_reply([61])),
-        Exchange(read_pdu(1456, 1), read_reply([53])),  # alarm 2 low
+        Pair(read_pdu(2814, 1), read_reply([AUTO])),
+        Pair(read_pdu(2820, 2), read_reply(f32(C25))),
+        Pair(read_pdu(1356, 1), read_reply([61])),
+        Pair(read_pdu(1456, 1), read_reply([53])),  # alarm 2 low
     ], alarm_count=2)
     with pytest.raises(ChamberAlarm, match="low alarm on alarm 2"):
         chamber.wait_setpoint(0.5, 600.0)
@@ -210,13 +202,13 @@ def test_wait_setpoint_raises_chamber_alarm_on_an_active_alarm():
 def test_wait_setpoint_times_out_in_station_time():
     clock = ManualClock()
     poll = [
-        Exchange(read_pdu(2820, 2), read_reply(f32(C25))),
-        Exchange(read_pdu(1356, 1), read_reply([61])),
+        Pair(read_pdu(2820, 2), read_reply(f32(C25))),
+        Pair(read_pdu(1356, 1), read_reply([61])),
     ]
     server, chamber = make([
-        Exchange(read_pdu(2782, 2), read_reply(f32(C35))),
+        Pair(read_pdu(2782, 2), read_reply(f32(C35))),
         UNITS_C,
-        Exchange(read_pdu(2814, 1), read_reply([AUTO])),
+        Pair(read_pdu(2814, 1), read_reply([AUTO])),
         *poll * 4,  # at 0, 10, 20 and 30 s
     ], clock, poll_s=10.0, alarm_count=1)
     with pytest.raises(ChamberSetpointNotReached, match="within 25 s") as err:
@@ -227,11 +219,11 @@ def test_wait_setpoint_times_out_in_station_time():
 
 
 def test_safe_state_clamps_and_runs():
-    limits = Exchange(read_pdu(2774, 4), read_reply(f32(C26) + f32(0x42FA0000)))  # 26..125
+    limits = Pair(read_pdu(2774, 4), read_reply(f32(C26) + f32(0x42FA0000)))  # 26..125
     server, chamber = make([
         limits, UNITS_C, set_sp(C26),
-        Exchange(read_pdu(16568, 1), read_reply([61])),
-        Exchange(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
+        Pair(read_pdu(16568, 1), read_reply([61])),
+        Pair(write_pdu(2730, AUTO), write_pdu(2730, AUTO)),
     ])
     chamber.safe_state(25.0)
     finish(server, chamber)
@@ -239,8 +231,8 @@ def test_safe_state_clamps_and_runs():
 
 def test_lost_connection_and_late_reply_are_typed():
     server, chamber = make([
-        Exchange(read_pdu(2814, 1), None, close=True),
-        Exchange(read_pdu(2814, 1), read_reply([AUTO]), delay_s=0.8),
+        Pair(read_pdu(2814, 1), None, close=True),
+        Pair(read_pdu(2814, 1), read_reply([AUTO]), delay_s=0.8),
     ])
     with pytest.raises(ConnectionLost):
         chamber.is_running()
@@ -263,7 +255,7 @@ def test_settings_are_validated_at_the_edge():
 
 
 def test_factory_connects_or_raises_connection_lost():
-    server = ExpectedModbus([])
+    server = TcpPeer([], MODBUS)
     chamber = watlow_f4t.factory({"address": f"127.0.0.1:{server.port}", "timeout_s": 0.5})
     chamber.close()
     server.close()
@@ -273,10 +265,10 @@ def test_factory_connects_or_raises_connection_lost():
 
 def test_probe_reads_each_alarm_state():
     server, chamber = make([
-        Exchange(read_pdu(1356, 1), read_reply([88])),
-        Exchange(read_pdu(1456, 1), read_reply([12])),
-        Exchange(read_pdu(1356, 1), read_reply([37])),
-        Exchange(read_pdu(1456, 1), read_reply([61])),
+        Pair(read_pdu(1356, 1), read_reply([88])),
+        Pair(read_pdu(1456, 1), read_reply([12])),
+        Pair(read_pdu(1356, 1), read_reply([37])),
+        Pair(read_pdu(1456, 1), read_reply([61])),
     ], alarm_count=2)
     assert chamber.probe() == ""  # startup and blocked are not alarms
     assert chamber.probe() == "a high alarm on alarm 1"
