@@ -394,7 +394,7 @@ def _search(
         if chosen is None:
             break
         best, new = chosen
-        named = _iteration(fitter, blocks, current, new, best, tests, alpha)
+        named = _iteration(fitter, _Naming(current, new, best, tests), alpha)
         found.iterations.append(named)
         log.info("named %s: gap %.4g -> %.4g", best.effect, named.gap_before_dps,
                  named.gap_after_dps)
@@ -411,23 +411,28 @@ def _uncertainties_of(model: GyroModel, effect: str) -> dict[str, float]:
     }
 
 
-def _iteration(
-    fitter: Fitter,
-    blocks: Blocks,
-    current: FitResult,
-    new: FitResult,
-    best: CandidateTest,
-    tests: list[CandidateTest],
-    alpha: float,
-) -> Iteration:
-    """The record of naming `best`: the model before (`current`) and with it (`new`)."""
+@dataclass(frozen=True)
+class _Naming:
+    """An effect named: the model before (`current`) and with it (`new`), the candidate named
+    (`best`), and all the candidates of that iteration."""
+
+    current: FitResult
+    new: FitResult
+    best: CandidateTest
+    tests: list[CandidateTest]
+
+
+def _iteration(fitter: Fitter, naming: _Naming, alpha: float) -> Iteration:
+    """The record of an effect named."""
+    blocks = fitter.blocks
+    current, new, best, tests = naming.current, naming.new, naming.best, naming.tests
     return Iteration(
         effect=best.effect,
         gap_before_dps=record_gap_dps(current.residual_dps, blocks.duration_s),
         gap_after_dps=record_gap_dps(new.residual_dps, blocks.duration_s),
         parameters=dict(new.model.effects[best.effect]),
         uncertainties=_uncertainties_of(new.model, best.effect),
-        evidence=_evidence(fitter, blocks, current, new, best, tests, alpha),
+        evidence=_evidence(fitter, naming, alpha),
         candidates=tuple(tests),
         residual_before_dps=_centred(current, blocks),
         residual_after_dps=_centred(new, blocks),
@@ -436,16 +441,10 @@ def _iteration(
     )
 
 
-def _evidence(
-    fitter: Fitter,
-    blocks: Blocks,
-    current: FitResult,
-    new: FitResult,
-    best: CandidateTest,
-    tests: list[CandidateTest],
-    alpha: float,
-) -> dict[str, Any]:
-    """Why `best` was named: its tests, the runner-up, and the residual pattern it removed."""
+def _evidence(fitter: Fitter, naming: _Naming, alpha: float) -> dict[str, Any]:
+    """Why it was named: its tests, the runner-up, and the residual pattern it removed."""
+    blocks = fitter.blocks
+    current, new, best, tests = naming.current, naming.new, naming.best, naming.tests
     significant = [c for c in tests if c.named_candidate]
     sigma_now = fitter.noise.floor_per_block_dps(blocks)
     summary_before = summarize(blocks, _centred(current, blocks), sigma_now)

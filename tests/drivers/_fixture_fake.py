@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import select
 import threading
 import time
 import tty
@@ -18,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from drivers import fixture_protocol as fp
+from tests.drivers.expected_protocol import lines_from, write_all
 
 
 class FakeFixture:
@@ -53,28 +53,16 @@ class FakeFixture:
 
     def _write(self, data: bytes) -> None:
         with self._wlock:
-            view = memoryview(data)
-            while view:
-                n = os.write(self.master, view)
-                view = view[n:]
+            write_all(self.master, data)
 
     def reply(self, text: str) -> None:
         self._write(fp.encode_reply(text))
 
     def _commands(self) -> None:
-        buf = b""
-        while not self._stop.is_set():
-            try:
-                if not select.select([self.master], [], [], 0.05)[0]:
-                    continue
-                buf += os.read(self.master, 1024)
-            except (OSError, ValueError):
-                return
-            while b"\n" in buf:
-                line, buf = buf.split(b"\n", 1)
-                self.commands.append(line)
-                if not self.deaf:
-                    self._handle(line.decode())
+        for line in lines_from(self.master, self._stop):
+            self.commands.append(line)
+            if not self.deaf:
+                self._handle(line.decode())
 
     def _handle(self, line: str) -> None:
         word, _, arg = line.partition(" ")

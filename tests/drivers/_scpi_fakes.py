@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-import select
 import socket
 import threading
 import tty
 
-from tests.drivers.expected_protocol import ExpectedProtocol, Pair
+from tests.drivers.expected_protocol import ExpectedProtocol, Pair, lines_from
 
 NO_ERROR = b'+0,"No error"\n'
 
@@ -58,22 +57,9 @@ class ScriptedScpi(ExpectedProtocol):
             self._serve(master, lambda data: os.write(master, data))
 
     def _serve(self, fd: int, send: object) -> None:
-        buf = b""
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select([fd], [], [], 0.05)
-                if not ready:
-                    continue
-                chunk = os.read(fd, 4096)
-            except OSError:
+        for message in lines_from(fd, self._stop):
+            if self._answer(message + b"\n", send):
                 return
-            if not chunk:
-                return
-            buf += chunk
-            while b"\n" in buf:
-                message, buf = buf.split(b"\n", 1)
-                if self._answer(message + b"\n", send):
-                    return
 
     def _answer(self, message: bytes, send: object) -> bool:
         """True when the connection is to be closed."""

@@ -12,6 +12,9 @@ driver looks for its instrument:
 - `SerialPeer`: an object with pyserial's API, in the test's own thread;
 - tests/drivers/_scpi_fakes.py: a SOCKET or ASRL VISA resource (a pty) for pyvisa.
 
+`lines_from` and `write_all` are the pty side of every fake serial instrument (the SCPI
+supply, the part fixtures).
+
 `finish(peer, *drivers)` closes the drivers and the peer and asserts the pairs were used up,
 no other message seen; `expected_protocol(peer, *drivers)` does that at the end of a block.
 """
@@ -19,6 +22,8 @@ no other message seen; `expected_protocol(peer, *drivers)` does that at the end 
 from __future__ import annotations
 
 import contextlib
+import os
+import select
 import socket
 import struct
 import threading
@@ -268,3 +273,29 @@ class SerialPeer(ExpectedProtocol):
 
     def close(self) -> None:
         self.is_open = False
+
+
+def lines_from(fd: int, stop: threading.Event, poll_s: float = 0.05) -> Iterator[bytes]:
+    """Each line written to `fd` (a pty's master), its LF taken off, until `stop` is set or
+    the fd closes."""
+    buf = b""
+    while not stop.is_set():
+        try:
+            if not select.select([fd], [], [], poll_s)[0]:
+                continue
+            chunk = os.read(fd, 4096)
+        except (OSError, ValueError):
+            return
+        if not chunk:
+            return
+        buf += chunk
+        while b"\n" in buf:
+            line, buf = buf.split(b"\n", 1)
+            yield line
+
+
+def write_all(fd: int, data: bytes) -> None:
+    """All of `data` to `fd` (a pty takes it in pieces when the reader is slow)."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]

@@ -5,7 +5,6 @@ sample frames decoded into SampleBlock's xyz columns."""
 from __future__ import annotations
 
 import os
-import select
 import threading
 import time
 import tty
@@ -19,6 +18,7 @@ from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError, ProtocolError
 from drivers.part_link import FixtureRefused, SerialPartLink
 from drivers.protocols import CalibrationRegisters3
+from tests.drivers.expected_protocol import lines_from, write_all
 
 
 class ScriptedFixture:
@@ -36,23 +36,12 @@ class ScriptedFixture:
         self._thread.start()
 
     def send(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            view = view[os.write(self.master, view):]
+        write_all(self.master, data)
 
     def _serve(self) -> None:
-        buf = b""
-        while not self._stop.is_set():
-            try:
-                if not select.select([self.master], [], [], 0.05)[0]:
-                    continue
-                buf += os.read(self.master, 1024)
-            except (OSError, ValueError):
-                return
-            while b"\n" in buf:
-                line, buf = buf.split(b"\n", 1)
-                self.commands.append(line)
-                self.send(fp.encode_reply(self.answer(line.decode())))
+        for line in lines_from(self.master, self._stop):
+            self.commands.append(line)
+            self.send(fp.encode_reply(self.answer(line.decode())))
 
     def close(self) -> None:
         self._stop.set()
