@@ -33,7 +33,6 @@ from drivers.acutrol_codes import Err, StatusBit, fault_text
 from drivers.address import TcpInstrumentSettings
 from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
-    InstrumentError,
     ProtocolError,
     SetpointOutOfRange,
     TableFault,
@@ -245,15 +244,7 @@ class AcutrolTable(TableWaits):
         self._pos_cmd_deg = None
 
     def set_rate(self, rate_dps: float, accel_dps2: float | None = None) -> None:
-        max_rate = self.max_rate_dps()
-        if not abs(rate_dps) <= max_rate:
-            raise ValueError(
-                f"rate {rate_dps} deg/s is beyond the table's limit of {max_rate} deg/s"
-            )
-        if accel_dps2 is not None and not accel_dps2 > 0:
-            raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
-        self._rate_cmd_dps = float(rate_dps)
-        self._pos_cmd_deg = None
+        self._rate_command(rate_dps, accel_dps2, self.max_rate_dps())
         a = self._axis
         parts = [] if accel_dps2 is None else [f":limit:acc rate,{a},{_num(accel_dps2)}"]
         parts += [f":mode:rate {a}", f":demand:rate {a},{_num(rate_dps)}"]
@@ -263,12 +254,7 @@ class AcutrolTable(TableWaits):
     def move_to(
         self, angle_deg: float, *, accel_dps2: float | None = None, move_time_s: float | None = None
     ) -> None:
-        if accel_dps2 is not None and move_time_s is not None:
-            raise ValueError("give move_to either accel_dps2 or move_time_s, not both")
-        if accel_dps2 is not None and not accel_dps2 > 0:
-            raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
-        if move_time_s is not None and not move_time_s > 0:
-            raise ValueError(f"move time must be positive, got {move_time_s} s")
+        self._check_move(accel_dps2, move_time_s)
         a = self._axis
         parts = []
         if accel_dps2 is not None:
@@ -278,8 +264,7 @@ class AcutrolTable(TableWaits):
             if distance > 1e-6:
                 parts.append(f":limit:acc pos,{a},{_num(4.0 * distance / move_time_s**2)}")
                 parts.append(f":limit:rate pos,{a},{_num(2.0 * distance / move_time_s)}")
-        self._pos_cmd_deg = float(angle_deg)
-        self._rate_cmd_dps = None
+        self._move_command(angle_deg)
         parts += [f":mode:position {a}", f":demand:position {a},{_num(angle_deg + self._zero_deg)}"]
         self._command(";".join(parts))
         self.check()
@@ -288,16 +273,10 @@ class AcutrolTable(TableWaits):
 
     # ------------------------------------------------------------ shutdown
 
-    def safe_state(self, timeout_s: float = 30.0) -> None:
-        """Demand rate 0, wait for rest, open the axis interlock (drive off)."""
-        status = self.read_status()
-        if status.enabled and not status.fault and status.moving:
-            self._command(f":mode:rate {self._axis};:demand:rate {self._axis},{_num(0.0)}")
-            try:
-                self._wait(lambda s: not s.moving, timeout_s, "stop")
-            except InstrumentError as exc:  # a fault stops the table anyway
-                log.warning("while stopping the rate table: %s", exc)
-        self.disable()
+    def _demand_stop(self) -> None:
+        """Demand rate 0 (safe_state then waits for rest and opens the axis interlock: drive
+        off)."""
+        self._command(f":mode:rate {self._axis};:demand:rate {self._axis},{_num(0.0)}")
 
     def close(self) -> None:
         self._link.close()

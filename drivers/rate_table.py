@@ -271,28 +271,14 @@ class ModbusRateTable(TableWaits):
         self.check()
 
     def set_rate(self, rate_dps: float, accel_dps2: float | None = None) -> None:
-        max_rate = self.profile.limits.max_rate_dps
-        if not abs(rate_dps) <= max_rate:
-            raise ValueError(
-                f"rate {rate_dps} deg/s is beyond the table's limit of {max_rate} deg/s"
-            )
-        if accel_dps2 is not None and not accel_dps2 > 0:
-            raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
-        self._rate_cmd_dps = float(rate_dps)
-        self._pos_cmd_deg = None
+        self._rate_command(rate_dps, accel_dps2, self.profile.limits.max_rate_dps)
         self._command("rate", rate_dps=rate_dps, accel_dps2=accel_dps2)
 
     def move_to(
         self, angle_deg: float, *, accel_dps2: float | None = None, move_time_s: float | None = None
     ) -> None:
-        if accel_dps2 is not None and move_time_s is not None:
-            raise ValueError("give move_to either accel_dps2 or move_time_s, not both")
-        if accel_dps2 is not None and not accel_dps2 > 0:
-            raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
-        if move_time_s is not None and not move_time_s > 0:
-            raise ValueError(f"move time must be positive, got {move_time_s} s")
-        self._pos_cmd_deg = float(angle_deg)
-        self._rate_cmd_dps = None
+        self._check_move(accel_dps2, move_time_s)
+        self._move_command(angle_deg)
         self._command(
             "position", pos_deg=angle_deg, accel_dps2=accel_dps2,
             move_time_s=move_time_s if move_time_s is not None else 0.0,
@@ -302,17 +288,9 @@ class ModbusRateTable(TableWaits):
 
     # ------------------------------------------------------------ shutdown
 
-    def safe_state(self, timeout_s: float = 30.0) -> None:
-        status = self.read_status()
-        if status.enabled and not status.fault and status.moving:
-            self._link.write(
-                self.profile.registers.control.address, self._bits("enable", "halt")
-            )
-            try:
-                self._wait(lambda s: not s.moving, timeout_s, "stop")
-            except InstrumentError as exc:  # a fault stops the table anyway
-                log.warning("while stopping the rate table: %s", exc)
-        self.disable()
+    def _demand_stop(self) -> None:
+        """The drive's halt bit, still enabled (safe_state then waits for rest, disables)."""
+        self._link.write(self.profile.registers.control.address, self._bits("enable", "halt"))
 
     def close(self) -> None:
         self._link.close()

@@ -8,11 +8,14 @@ AT_RATE or IN_POSITION bit left from the previous motion never ends a new wait.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 from drivers.clock import Clock
-from drivers.errors import InstrumentTimeout, InterlockOpen, TableFault
+from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
 from drivers.protocols import TableStatus
+
+log = logging.getLogger(__name__)
 
 RATE_MATCH_DPS = 0.5  # feedback within this + RATE_MATCH_REL x |command| counts as at rate
 RATE_MATCH_REL = 0.005
@@ -20,10 +23,12 @@ POSITION_MATCH_DEG = 0.05
 
 
 class TableWaits:
-    """Mixin of the table drivers: `check`, `wait_at_rate` and `wait_in_position`.
+    """Mixin of the table drivers: `check`, `wait_at_rate`, `wait_in_position`, `safe_state`,
+    and the checks of a rate or move command's arguments.
 
-    The driver provides `read_status()`, `fault_text(code)`, `_clock`, `_poll_s` and the last
-    commands `_rate_cmd_dps` / `_pos_cmd_deg` (None: no command to match)."""
+    The driver provides `read_status()`, `fault_text(code)`, `disable()`, `_demand_stop()`,
+    `_clock`, `_poll_s` and the last commands `_rate_cmd_dps` / `_pos_cmd_deg` (None: no
+    command to match)."""
 
     _clock: Clock
     _poll_s: float
@@ -36,6 +41,52 @@ class TableWaits:
     def fault_text(self, code: int) -> str:
         """What the controller's fault `code` means, in words an operator can act on."""
         raise NotImplementedError
+
+    def disable(self) -> None:
+        raise NotImplementedError
+
+    def _demand_stop(self) -> None:
+        """Command the moving table to come to rest (rate 0, or the drive's halt)."""
+        raise NotImplementedError
+
+    def safe_state(self, timeout_s: float = 30.0) -> None:
+        """Bring a moving table to rest, wait for it, then disable the drive."""
+        status = self.read_status()
+        if status.enabled and not status.fault and status.moving:
+            self._demand_stop()
+            try:
+                self._wait(lambda s: not s.moving, timeout_s, "stop")
+            except InstrumentError as exc:  # a fault stops the table anyway
+                log.warning("while stopping the rate table: %s", exc)
+        self.disable()
+
+    def _rate_command(
+        self, rate_dps: float, accel_dps2: float | None, max_rate_dps: float
+    ) -> None:
+        """Check a rate command's arguments (ValueError) and take it as the command to match."""
+        if not abs(rate_dps) <= max_rate_dps:
+            raise ValueError(
+                f"rate {rate_dps} deg/s is beyond the table's limit of {max_rate_dps} deg/s"
+            )
+        if accel_dps2 is not None and not accel_dps2 > 0:
+            raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
+        self._rate_cmd_dps = float(rate_dps)
+        self._pos_cmd_deg = None
+
+    @staticmethod
+    def _check_move(accel_dps2: float | None, move_time_s: float | None) -> None:
+        """ValueError unless a move gives at most one of a positive acceleration or time."""
+        if accel_dps2 is not None and move_time_s is not None:
+            raise ValueError("give move_to either accel_dps2 or move_time_s, not both")
+        if accel_dps2 is not None and not accel_dps2 > 0:
+            raise ValueError(f"acceleration must be positive, got {accel_dps2} deg/s^2")
+        if move_time_s is not None and not move_time_s > 0:
+            raise ValueError(f"move time must be positive, got {move_time_s} s")
+
+    def _move_command(self, angle_deg: float) -> None:
+        """Take a move to `angle_deg` as the command to match."""
+        self._pos_cmd_deg = float(angle_deg)
+        self._rate_cmd_dps = None
 
     def check(self, status: TableStatus | None = None) -> TableStatus:
         """Raise InterlockOpen or TableFault if the table reports either; else the status."""
