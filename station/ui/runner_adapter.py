@@ -14,7 +14,7 @@ import logging
 import re
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -309,26 +309,34 @@ class EngineRunner:
         folder = self.settings.folder / sub
         return sorted(folder.glob("*.yaml")) if folder.is_dir() else []
 
-    def procedures(self) -> list[Choice]:
+    def _loaded(
+        self, paths: set[Path], loader: Callable[[Path], tuple[Any, Any]], what: str
+    ) -> Iterator[tuple[Path, Any]]:
+        """Each file of `paths` that loads, in order, with what it holds; the others are
+        logged and skipped (the `what` list skips them)."""
         from drivers.yaml_input import ConfigError
+
+        for path in sorted(paths):
+            try:
+                loaded = self._cached(path, loader)
+            except (ConfigError, OSError) as exc:
+                log.warning("%s list skips %s: %s", what, path, exc)
+                continue
+            yield path, loaded
+
+    def procedures(self) -> list[Choice]:
         from procedures.config import load_procedure
 
         paths = {
             self.settings.procedure.resolve(),
             *(p.resolve() for p in self._yaml_files("procedures")),
         }
-        choices = []
-        for path in sorted(paths):
-            try:
-                proc = self._cached(path, load_procedure)
-            except (ConfigError, OSError) as exc:
-                log.warning("procedure list skips %s: %s", path, exc)
-                continue
-            choices.append(Choice(proc.name, str(path), proc.description))
-        return choices
+        return [
+            Choice(proc.name, str(path), proc.description)
+            for path, proc in self._loaded(paths, load_procedure, "procedure")
+        ]
 
     def products(self) -> list[ProductChoice]:
-        from drivers.yaml_input import ConfigError
         from procedures.config import load_product
 
         choices = []
@@ -336,12 +344,7 @@ class EngineRunner:
         default_product = self._default_product()
         if default_product is not None:
             paths.add(default_product)
-        for path in sorted(paths):
-            try:
-                prod = self._cached(path, load_product)
-            except (ConfigError, OSError) as exc:
-                log.warning("product list skips %s: %s", path, exc)
-                continue
+        for path, prod in self._loaded(paths, load_product, "product"):
             choices.append(
                 ProductChoice(
                     prod.product,
