@@ -224,11 +224,7 @@ def analyze_stop_method(
     fitted to the leading rest alone, which sees white noise only (see the module notes).
     """
     cfg = settings or StopMethodSettings()
-    t = finite_1d(time_s, "time_s", 16)
-    y = finite_1d(rate_dps, "rate_dps", 16)
-    if t.size != y.size:
-        raise AnalysisError(f"time_s has {t.size} samples but rate_dps has {y.size}")
-    monotonic_time(t)
+    t, y = _record(time_s, rate_dps)
     ref = positive(reference_angle_deg, "reference_angle_deg")
     u_ref = non_negative(u_reference_angle_deg, "u_reference_angle_deg")
     rec = _locate_moves(t, y, _clip_mask(y, status, cfg.full_scale_dps), cfg)
@@ -269,6 +265,18 @@ def analyze_stop_method(
         birge_ratio=birge,
         moves_consistent=consistent,
     )
+
+
+def _record(
+    time_s: ArrayLike, rate_dps: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The time and rate columns, checked: finite, as long as each other, time increasing."""
+    t = finite_1d(time_s, "time_s", 16)
+    y = finite_1d(rate_dps, "rate_dps", 16)
+    if t.size != y.size:
+        raise AnalysisError(f"time_s has {t.size} samples but rate_dps has {y.size}")
+    monotonic_time(t)
+    return t, y
 
 
 class _Located(NamedTuple):
