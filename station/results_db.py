@@ -18,9 +18,10 @@ when the database is opened (station/db/migrations). Times are ISO-8601 UTC text
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from datetime import UTC, date, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import sqlalchemy as sa
 from sqlalchemy.exc import SQLAlchemyError
@@ -38,6 +39,7 @@ from station.db.store import (
 )
 
 SCHEMA_VERSION = 5
+T = TypeVar("T")
 __all__ = ["CalibrationElement", "MeasurementRow", "ResultsDB", "ResultsDBError", "RunRow",
            "normalise_utc",
            "parse_since"]
@@ -112,6 +114,14 @@ class ResultsDB:
 
     def _begin(self) -> Any:
         return self.engine.begin()
+
+    def _read(self, read: Callable[[sa.Connection], T]) -> T:
+        """`read(connection)`, a database error as ResultsDBError."""
+        try:
+            with self.engine.connect() as con:
+                return read(con)
+        except SQLAlchemyError as exc:
+            raise self._fail(exc) from None
 
     def _fail(self, exc: Exception) -> ResultsDBError:
         return ResultsDBError(
@@ -200,20 +210,14 @@ class ResultsDB:
             .where(*run_filters(since, until, product, verdict, serial, lot, work_order))
             .order_by(runs.c.started_utc, runs.c.run_id)
         )
-        try:
-            with self.engine.connect() as con:
-                found = con.execute(query).mappings().all()
-        except SQLAlchemyError as exc:
-            raise self._fail(exc) from None
+        found = self._read(lambda con: con.execute(query).mappings().all())
         return [_run_row(r) for r in found]
 
     def folder_of(self, run_id: str) -> str | None:
         """Where the run's files are (its row's `folder`), or None when it is not indexed."""
-        try:
-            with self.engine.connect() as con:
-                found = con.scalar(sa.select(runs.c.folder).where(runs.c.run_id == run_id))
-        except SQLAlchemyError as exc:
-            raise self._fail(exc) from None
+        found = self._read(
+            lambda con: con.scalar(sa.select(runs.c.folder).where(runs.c.run_id == run_id))
+        )
         return None if found is None else str(found)
 
     def measurement_values(
@@ -239,11 +243,7 @@ class ResultsDB:
             .where(*clauses)
             .order_by(r.started_utc, m.run_id, m.seq)
         )
-        try:
-            with self.engine.connect() as con:
-                return [MeasurementRow(*row) for row in con.execute(query)]
-        except SQLAlchemyError as exc:
-            raise self._fail(exc) from None
+        return self._read(lambda con: [MeasurementRow(*row) for row in con.execute(query)])
 
     def calibration_elements(self, **filters: Any) -> list[CalibrationElement]:
         """The three-axis calibration elements of the runs matching the filters (as
@@ -256,11 +256,7 @@ class ResultsDB:
             .where(*run_filters(**filters))
             .order_by(r.started_utc, e.run_id, e.seq)
         )
-        try:
-            with self.engine.connect() as con:
-                return [CalibrationElement(*row) for row in con.execute(query)]
-        except SQLAlchemyError as exc:
-            raise self._fail(exc) from None
+        return self._read(lambda con: [CalibrationElement(*row) for row in con.execute(query)])
 
     def measurement_names(self, **filters: Any) -> list[str]:
         """Distinct measurement names, in the order they first appear in the oldest run."""
