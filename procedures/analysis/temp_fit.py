@@ -28,7 +28,9 @@ from procedures.analysis.temp_supply_fit import (
     REFERENCE_TEMPERATURE_C,
     ConditionMeasurement,
     TempSupplyFit,
+    condition_table,
     fit_temp_supply,
+    weighted_lsq,
 )
 
 FIT_ORDERS = (1, 2, 3)
@@ -167,17 +169,11 @@ def _from_first_order(
 def _wls(
     design: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.float64], order: int
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-    w = 1.0 / u**2
-    a = design.T @ (design * w[:, None])
-    if np.linalg.cond(a) > 1e14:
-        raise AnalysisError(
-            f"the conditions cannot separate an order-{order} temperature fit from the supply "
-            f"terms: measure at {order + 1} or more temperatures and two supply levels"
-        )
-    cov = np.asarray(np.linalg.inv(a), dtype=np.float64)
-    p = cov @ (design.T @ (w * y))
-    r = y - design @ p
-    return p, cov, float(np.sum(r**2 * w))
+    return weighted_lsq(
+        design, y, u, 1e14,
+        f"the conditions cannot separate an order-{order} temperature fit from the supply "
+        f"terms: measure at {order + 1} or more temperatures and two supply levels",
+    )
 
 
 def distinct_temperatures(temps_c: Sequence[float]) -> int:
@@ -208,14 +204,7 @@ def fit_temperature(
             f"apart) and {order + 2} conditions; got {n_temps} temperature(s) in "
             f"{len(conditions)} condition(s): add temperatures to the procedure or lower fit.order"
         )
-    arr = np.array(
-        [[c.temp_c, c.supply_v, c.bias_dps, c.u_bias_dps, c.scale, c.u_scale] for c in conditions],
-        dtype=np.float64,
-    )
-    if not np.all(np.isfinite(arr)):
-        raise AnalysisError("a condition holds NaN or infinite values: repeat that condition")
-    if np.any(arr[:, 3] <= 0) or np.any(arr[:, 5] <= 0):
-        raise AnalysisError("each condition needs positive u_bias_dps and u_scale")
+    arr = condition_table(conditions)
     dt = arr[:, 0] - reference_temperature_c
     dv = arr[:, 1] - reference_supply_v
     design = np.column_stack([np.ones_like(dt), *(dt**k for k in range(1, order + 1)), dv])

@@ -148,20 +148,49 @@ class TempSupplyFit:
         return out
 
 
-def _wls(
-    design: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.float64]
+def weighted_lsq(
+    design: NDArray[np.float64],
+    y: NDArray[np.float64],
+    u: NDArray[np.float64],
+    max_condition: float,
+    refusal: str,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """Weighted least squares of `y` (standard uncertainties `u`) on the design's columns:
+    the parameters, their covariance and chi-square; AnalysisError(`refusal`) when the
+    normal matrix's condition number exceeds `max_condition` (the conditions cannot tell
+    the columns apart)."""
     w = 1.0 / u**2
     a = design.T @ (design * w[:, None])
-    if np.linalg.cond(a) > 1e12:
-        raise AnalysisError(
-            "the conditions do not separate temperature from supply: measure at two "
-            "temperatures and two supply levels (a 2 x 2 design)"
-        )
+    if np.linalg.cond(a) > max_condition:
+        raise AnalysisError(refusal)
     cov = np.asarray(np.linalg.inv(a), dtype=np.float64)
     p = cov @ (design.T @ (w * y))
     r = y - design @ p
     return p, cov, float(np.sum(r**2 * w))
+
+
+def _wls(
+    design: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    return weighted_lsq(
+        design, y, u, 1e12,
+        "the conditions do not separate temperature from supply: measure at two "
+        "temperatures and two supply levels (a 2 x 2 design)",
+    )
+
+
+def condition_table(conditions: Sequence[ConditionMeasurement]) -> NDArray[np.float64]:
+    """The conditions as rows of temp_c, supply_v, bias_dps, u_bias_dps, scale, u_scale;
+    AnalysisError when a value is not finite or an uncertainty not positive."""
+    arr = np.array(
+        [[c.temp_c, c.supply_v, c.bias_dps, c.u_bias_dps, c.scale, c.u_scale] for c in conditions],
+        dtype=np.float64,
+    )
+    if not np.all(np.isfinite(arr)):
+        raise AnalysisError("a condition holds NaN or infinite values: repeat that condition")
+    if np.any(arr[:, 3] <= 0) or np.any(arr[:, 5] <= 0):
+        raise AnalysisError("each condition needs positive u_bias_dps and u_scale")
+    return arr
 
 
 def fit_temp_supply(
@@ -175,14 +204,7 @@ def fit_temp_supply(
             f"{len(conditions)} condition(s) given; the first-order fit needs at least three "
             "(normally two temperatures x two supply levels)"
         )
-    arr = np.array(
-        [[c.temp_c, c.supply_v, c.bias_dps, c.u_bias_dps, c.scale, c.u_scale] for c in conditions],
-        dtype=np.float64,
-    )
-    if not np.all(np.isfinite(arr)):
-        raise AnalysisError("a condition holds NaN or infinite values: repeat that condition")
-    if np.any(arr[:, 3] <= 0) or np.any(arr[:, 5] <= 0):
-        raise AnalysisError("each condition needs positive u_bias_dps and u_scale")
+    arr = condition_table(conditions)
     dt = arr[:, 0] - reference_temperature_c
     dv = arr[:, 1] - reference_supply_v
     design = np.column_stack([np.ones_like(dt), dt, dv])
