@@ -100,16 +100,16 @@ class Framing:
     """How messages travel: `read` takes one from the connection (None: it closed) with what
     its reply needs (the Modbus transaction id and unit), `wrap` frames a reply."""
 
-    read: Callable[[_Stream, TcpPeer], tuple[bytes, Any] | None]
+    read: Callable[[Stream, TcpPeer], tuple[bytes, Any] | None]
     wrap: Callable[[bytes, Any], bytes]
 
 
-def _read_line(stream: _Stream, protocol: TcpPeer) -> tuple[bytes, Any] | None:
+def _read_line(stream: Stream, protocol: TcpPeer) -> tuple[bytes, Any] | None:
     line = stream.read_until(b"\n")
     return None if line is None else (line, None)
 
 
-def _read_mbap(stream: _Stream, protocol: TcpPeer) -> tuple[bytes, Any] | None:
+def _read_mbap(stream: Stream, protocol: TcpPeer) -> tuple[bytes, Any] | None:
     header = stream.read_exact(7)
     if header is None:
         return None
@@ -129,7 +129,7 @@ MODBUS = Framing(
 )
 
 
-class _Stream:
+class Stream:
     """Buffered reads from a connection that give up when the peer is stopping."""
 
     def __init__(self, conn: socket.socket, stop: threading.Event) -> None:
@@ -193,9 +193,9 @@ class TcpPeer(ExpectedProtocol):
                 continue
             with conn:
                 conn.settimeout(0.1)
-                self._converse(_Stream(conn, self._stop))
+                self._converse(Stream(conn, self._stop))
 
-    def _converse(self, stream: _Stream) -> None:
+    def _converse(self, stream: Stream) -> None:
         while not self._stop.is_set():
             got = self.framing.read(stream, self)
             if got is None:

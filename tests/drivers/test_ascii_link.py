@@ -15,6 +15,7 @@ import pytest
 from drivers.address import parse_host_port
 from drivers.ascii_link import LineLink, open_port
 from drivers.errors import ConnectionLost, InstrumentTimeout
+from tests.drivers.expected_protocol import Stream
 
 
 class ScriptedPeer:
@@ -36,20 +37,11 @@ class ScriptedPeer:
             threading.Thread(target=self._talk, args=(conn,), daemon=True).start()
 
     def _talk(self, conn: socket.socket) -> None:
-        buf = b""
+        stream = Stream(conn, threading.Event())
         with conn:
-            while True:
-                try:
-                    data = conn.recv(1024)
-                except OSError:
-                    return
-                if not data:
-                    return
-                buf += data
-                while b"\r\n" in buf:
-                    line, buf = buf.split(b"\r\n", 1)
-                    self.lines.append(line)
-                    self._handler(conn, line)
+            while (line := stream.read_until(b"\r\n")) is not None:
+                self.lines.append(line[:-2])
+                self._handler(conn, line[:-2])
 
     def close(self) -> None:
         self._sock.close()
