@@ -1,7 +1,8 @@
 """The line's dashboard web app: read-only, over the line's central database.
 
 Pages: `/` the dashboard. JSON under `/api`: `stations` (with the filter choices), `yields`,
-`capability`, `chart` (a coefficient's control chart), `runs` (latest runs). Every panel
+`capability`, `chart` (a coefficient's control chart), `runs` (latest runs, a page of 50;
+`?before=` the last one's started_utc for the next page). Every panel
 leaves simulated runs (`runs.simulated`) out unless asked with `?simulated=include`.
 `/certificate/{run_id}` serves the run's certificate from the run folder the station
 recorded, when this computer can reach it (from inside its archive once `station archive`
@@ -128,7 +129,7 @@ def create_line_app(
                                      a[0], opts.offline_after_s,
                                      include_simulated=a[1].include_simulated),
                                  "simulated_left_out": queries.simulated_left_out(a[0], a[1]),
-                                 "choices": queries.choices(a[0]),
+                                 "choices": queries.choices(a[0], a[1]),
                                  "coefficients": list(CAL_KEYS)}, request)
 
     @app.get("/api/yields", dependencies=viewer)
@@ -149,8 +150,9 @@ def create_line_app(
                                                       opts.chart_points), request)
 
     @app.get("/api/runs", dependencies=viewer)
-    def latest(request: Request) -> Any:
-        return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1])}, request)
+    def latest(request: Request, before: str | None = None) -> Any:
+        return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1], before=before)},
+                      request)
 
     @app.get("/certificate/{run_id}", response_model=None, dependencies=quality)
     def certificate(run_id: str) -> Response:
