@@ -100,12 +100,12 @@ def test_lot_report_has_lines_per_axis_for_three_axis_parts_only(tmp_path: Path)
     assert set(lines) >= {"b_x", "b_y", "b_z", "M_xx", "M_zy", "G_yz", "sT_z", "bV_x"}
     n, mean, sigma = lines["b_y"]
     assert (n, mean, sigma) == (3, pytest.approx(0.001 + 0.01), pytest.approx(0.01))
-    story, _summary, _furniture = build_lot(db)
+    story, _summary, _furniture = build_lot(db, include_simulated=True)  # simulated parts
     texts = [getattr(f, "text", "") for f in story]
     assert "Three-axis calibration written, per axis" in texts
     single_db = ResultsDB(tmp_path / "single.sqlite")
     one = make_record(Part(serial="SGL-0002"))
     single_db.add_run(tmp_path / one.run_id, one)
-    story, _s, _f = build_lot(single_db)
+    story, _s, _f = build_lot(single_db, include_simulated=True)
     assert "Three-axis calibration written, per axis" not in [getattr(f, "text", "")
                                                              for f in story]
