@@ -55,34 +55,65 @@ _UNIT_SUMS = ("units", "unit_tests", "first_pass", "final_pass")
 def yield_tables(con: sa.Connection, where: Sequence[sa.ColumnElement[bool]],
                  shift_starts_h: Sequence[int]) -> dict[str, list[YieldRow]]:
     """Yield rows for all units and per station, product, lot, work order and shift, largest
-    group first (at most YIELD_ROWS per table); one GROUP BY over the rollups per table."""
-    r = rollup_runs.c
-    sums = [sa.func.sum(r[k]) for k in _UNIT_SUMS]
-    selected = [*where, r.units > 0]
-    out: dict[str, list[YieldRow]] = {}
-    total = con.execute(sa.select(*sums).where(*selected)).one()
-    out["all"] = [YieldRow("all", *(int(v) for v in total))] if total[0] else []
-    columns = {"station": r.station_id, "product": r.product, "lot": r.lot,
-               "work_order": r.work_order}
-    for group, col in columns.items():
-        rows = con.execute(sa.select(col, *sums).where(*selected).group_by(col)
-                           .order_by(sums[0].desc(), col).limit(YIELD_ROWS))
-        out[group] = [YieldRow(str(k), *(int(v) for v in vals)) for k, *vals in rows]
-    out["shift"] = _shifts(con, selected, sums, shift_starts_h)
+    group first (at most YIELD_ROWS per table). PostgreSQL: one pass over the rollups
+    (GROUPING SETS); elsewhere one GROUP BY per table."""
+    selected = [*where, rollup_runs.c.units > 0]
+    if con.dialect.name == "postgresql":
+        sums = _grouped_once(con, selected)
+    else:
+        sums = _grouped_each(con, selected)
+    shift_at = shift_by_hour(shift_starts_h)
+    shifts: dict[str, list[int]] = {}
+    for hour, vals in sums.pop("hour").items():
+        acc = shifts.setdefault(shift_at.get(hour, ""), [0, 0, 0, 0])
+        for i, v in enumerate(vals):
+            acc[i] += v
+    sums["shift"] = shifts
+    out = {g: sorted((YieldRow(k, *v) for k, v in groups.items()),
+                     key=lambda y: (-y.units, y.group))[:YIELD_ROWS]
+           for g, groups in sums.items()}
     assert set(out) == {"all", *GROUPS}
     return out
 
 
-def _shifts(con: sa.Connection, where: Sequence[sa.ColumnElement[bool]],
-            sums: Sequence[Any], shift_starts_h: Sequence[int]) -> list[YieldRow]:
-    hour = sa.func.substr(rollup_runs.c.hour_utc, 12, 2)
-    shift_at = shift_by_hour(shift_starts_h)
-    acc: dict[str, list[int]] = {}
-    for h, *vals in con.execute(sa.select(hour, *sums).where(*where).group_by(hour)):
-        a = acc.setdefault(shift_at.get(h, ""), [0, 0, 0, 0])
-        for i, v in enumerate(vals):
-            a[i] += int(v or 0)
-    return sorted((YieldRow(k, *v) for k, v in acc.items()), key=lambda y: (-y.units, y.group))
+Sums = dict[str, dict[str, list[int]]]  # table -> group -> units, tests, first, final
+
+
+def _dimensions() -> dict[str, sa.ColumnElement[Any]]:
+    r = rollup_runs.c
+    return {"station": r.station_id, "product": r.product, "lot": r.lot,
+            "work_order": r.work_order, "hour": sa.func.substr(r.hour_utc, 12, 2)}
+
+
+def _unit_sums() -> list[Any]:
+    return [sa.func.sum(rollup_runs.c[k]) for k in _UNIT_SUMS]
+
+
+def _grouped_each(con: sa.Connection, where: Sequence[sa.ColumnElement[bool]]) -> Sums:
+    total = con.execute(sa.select(*_unit_sums()).where(*where)).one()
+    out: Sums = {"all": {"all": [int(v) for v in total]} if total[0] else {}}
+    for name, col in _dimensions().items():
+        rows = con.execute(sa.select(col, *_unit_sums()).where(*where).group_by(col))
+        out[name] = {str(k): [int(v) for v in vals] for k, *vals in rows}
+    return out
+
+
+def _grouped_once(con: sa.Connection, where: Sequence[sa.ColumnElement[bool]]) -> Sums:
+    dims = _dimensions()
+    cols = list(dims.values())
+    sets = sa.func.grouping_sets(*[sa.tuple_(c) for c in cols], sa.text("()"))
+    query = (sa.select(*cols, sa.func.grouping(*cols).label("g"), *_unit_sums())
+             .where(*where).group_by(sets))
+    out: Sums = {"all": {}, **{name: {} for name in dims}}
+    bits = len(cols)
+    for row in con.execute(query):
+        keys, g, vals = row[:bits], row[bits], [int(v or 0) for v in row[bits + 1:]]
+        if g == (1 << bits) - 1:  # the empty set: every unit (none when nothing matched)
+            out["all"].update({"all": vals} if vals[0] else {})
+            continue
+        i = next(i for i in range(bits) if not g & (1 << (bits - 1 - i)))
+        out[list(dims)[i]][str(keys[i])] = vals
+    return out
 
 
 def latest_days(con: sa.Connection, table: sa.Table, where: Sequence[sa.ColumnElement[bool]],

@@ -14,6 +14,7 @@ import sqlalchemy as sa
 from station.db.connect import dispose_all, engine_for
 from station.db.schema import outbox
 from station.db.sync import Sync
+from station.db.yields import GROUPS, yields_by
 from station.line import queries
 from station.line.queries import Filters
 from station.results_db import ResultsDB
@@ -132,3 +133,29 @@ def test_latest_runs_come_a_page_at_a_time(tmp_path: Path) -> None:
         second = queries.recent_runs(con, Filters(), limit=30, before=first[-1]["started_utc"])
     newest = sorted(work, key=lambda r: r.record.started_utc, reverse=True)
     assert [r["run_id"] for r in first + second] == [r.record.run_id for r in newest[:60]]
+
+
+def test_yields_from_the_rollups_equal_a_count_over_the_runs(central: str,
+                                                             tmp_path: Path) -> None:
+    """Every yield table the dashboard reads (simulated runs left out, then included)
+    equals station.db.yields' GROUP BY over the runs themselves."""
+    work = line_runs(200, ["EOL-A", "EOL-B", "EOL-C"], seed=17, root=Path("/runs"))
+    sims = [line_record(f"SIM-{i}", "EOL-B", START + timedelta(hours=i), lot="LOT-000",
+                        bias_dps=25.0, simulated=True) for i in range(12)]
+    local = ResultsDB(tmp_path / "local.sqlite")
+    local.add_records([(r.folder, r.record) for r in work]
+                      + [(Path("/runs") / r.run_id, r) for r in sims])
+    Sync(str(local.path), central, batch=BATCH).push_once()
+    with engine_for(central).connect() as con:
+        for include in (False, True):
+            got = queries.yield_tables(con, Filters(include_simulated=include))
+            for group in ("all", *GROUPS):
+                direct = yields_by(con, None if group == "all" else group,
+                                   include_simulated=include)
+                assert [(r["group"], r["units"], r["tests"], r["first_pass"],
+                         r["final_pass"]) for r in got[group]] == [
+                    (y.group, y.units, y.tests, y.first_pass, y.final_pass) for y in direct]
+            assert got["lot"][0]["units"] > 0 and got["shift"]
+        left_out = queries.yield_tables(con, Filters())["all"][0]["units"]
+        both = queries.yield_tables(con, Filters(include_simulated=True))["all"][0]["units"]
+    assert both - left_out == len(sims)
