@@ -53,6 +53,9 @@ def upgrade() -> None:
         _counted("below"), _counted("above"),
         *[sa.Column(c, sa.Double) for c in ("vmin", "vmax", "low", "high")],
     )
+    # a lot's hours (the rollups' key starts with the hour: the other filters read a range)
+    op.create_index("rollup_runs_lot", "rollup_runs", ["lot", "hour_utc"])
+    op.create_index("rollup_measurements_lot", "rollup_measurements", ["lot", "hour_utc"])
     # the drill-down's latest runs of a lot, as the station and product indexes do for theirs
     op.create_index("runs_lot", "runs", ["lot", "started_utc"])
     # the sync's queue: only what is not yet sent, in the order it is sent
@@ -67,5 +70,7 @@ def upgrade() -> None:
 def downgrade() -> None:
     op.drop_index("outbox_queue", "outbox")
     op.drop_index("runs_lot", "runs")
+    op.drop_index("rollup_measurements_lot", "rollup_measurements")
+    op.drop_index("rollup_runs_lot", "rollup_runs")
     op.drop_table("rollup_measurements")
     op.drop_table("rollup_runs")
