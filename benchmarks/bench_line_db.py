@@ -14,6 +14,14 @@
     python3 benchmarks/bench_line_db.py [--runs 100000] [--sync-runs 2000] [--postgres]
                                         [--browser] [--keep /tmp/line-100k.sqlite]
     python3 benchmarks/bench_line_db.py --sync [--sync-runs 10000] [--batch 1000] [--postgres]
+    python3 benchmarks/bench_line_db.py --postgres --copy --runs 1000000 [--keep-measurements N]
+
+--copy (with --postgres): the factory-scale dashboard. A throwaway PostgreSQL loaded with COPY
+(benchmarks/line_copy.py: --runs runs, the measurements of the newest --keep-measurements,
+default all up to 10^6, older ones only in the rollups); prints the load's time and
+pg_database_size, then each dashboard request (signed in, through the real app served by
+uvicorn) --repeat times: its p50 and p95 on loopback (target 300 ms), and the page drawn in
+chromium (target 1 s).
 
 --postgres runs the sync part against a throwaway PostgreSQL server (Debian's postgresql).
 --sync measures the sync alone (no dashboard): one station's outbox of --sync-runs parts
@@ -234,6 +242,97 @@ def dashboard(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
     return bench_dashboard(big, args.browser)
 
 
+REQUEST_TARGET_S = 0.3
+DASHBOARD_PATHS = ("/api/stations", "/api/yields", "/api/capability", "/api/runs",
+                   "/api/chart?coefficient=bias_dps", "/api/yields?since=2025-01-20",
+                   "/api/capability?lot=LOT-000100", "/api/runs?lot=LOT-000100",
+                   "/api/chart?coefficient=scale&station=EOL-03")
+
+
+def bench_copy(url: str, n_runs: int, keep: int, repeat: int) -> dict[str, Any]:
+    """Load --runs runs by COPY, then time every dashboard request and the page."""
+    from benchmarks.line_copy import load
+
+    engine = engine_for(url)  # migrated to head: the tables and indexes the app expects
+    t = time.perf_counter()
+    out: dict[str, Any] = {"runs": n_runs, "runs_with_measurements": keep}
+    out.update(load(url, n_runs, keep))
+    out["load_s"] = time.perf_counter() - t
+    with engine.connect() as con:
+        out["database_bytes"] = int(con.scalar(sa.text(
+            "SELECT pg_database_size(current_database())")) or 0)
+        out["rollup_rows"] = int(con.scalar(sa.text("SELECT count(*) FROM rollup_runs")) or 0)
+    print(f"loaded {n_runs} runs in {out['load_s']:.0f} s, "
+          f"{out['database_bytes'] / 1e9:.2f} GB", file=sys.stderr)
+    out["requests"] = _request_times(engine, repeat)
+    out["browser_page_s"] = _page_times(engine)
+    return out
+
+
+def _request_times(engine: Any, repeat: int) -> dict[str, dict[str, float]]:
+    server = serve_in_thread(line_app(engine))
+    out = {}
+    try:
+        with httpx.Client(base_url=server.url, timeout=60) as client:
+            sign_in(client)
+            for p in DASHBOARD_PATHS:
+                client.get(p).raise_for_status()  # the first (cold) answer is not counted
+                times = []
+                for _ in range(repeat):
+                    t = time.perf_counter()
+                    client.get(p).raise_for_status()
+                    times.append(time.perf_counter() - t)
+                q = statistics.quantiles(times, n=20, method="inclusive")
+                out[p] = {"p50_s": statistics.median(times), "p95_s": q[18],
+                          "max_s": max(times)}
+                print(f"{p}: p95 {q[18] * 1000:.0f} ms", file=sys.stderr)
+    finally:
+        server.stop()
+    return out
+
+
+def _page_times(engine: Any) -> float:
+    from station.ui.headless import chromium, wait_js
+
+    server = serve_in_thread(line_app(engine))
+    try:
+        with chromium() as b:
+            page = b.new_page()
+            sign_in_page(page, server.url)
+            loads = []
+            for _ in range(5):
+                t = time.perf_counter()
+                page.goto(server.url)
+                wait_js(page, "document.body.dataset.loaded === '1'", timeout_s=60)
+                loads.append(time.perf_counter() - t)
+    finally:
+        server.stop()
+    return statistics.median(loads)
+
+
+def copy_main(args: argparse.Namespace) -> int:
+    from tests.linedb.pgserver import PgServer, missing_reason
+
+    reason = missing_reason()
+    if reason:
+        print(f"--postgres: {reason}", file=sys.stderr)
+        return 2
+    server = PgServer()
+    server.start()
+    try:
+        keep = min(args.runs, args.keep_measurements)
+        results = bench_copy(server.url, args.runs, keep, args.repeat)
+    finally:
+        from station.db.connect import dispose_all
+
+        dispose_all()
+        server.destroy()
+    results["request_target_s"] = REQUEST_TARGET_S
+    results["page_target_s"] = TARGET_S
+    print(json.dumps(results, indent=2))
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100_000)
@@ -243,7 +342,16 @@ def main() -> int:
     ap.add_argument("--postgres", action="store_true", help="sync into a real PostgreSQL")
     ap.add_argument("--browser", action="store_true", help="also time the page in chromium")
     ap.add_argument("--keep", type=Path, help="the big database file (reused when present)")
+    ap.add_argument("--copy", action="store_true",
+                    help="with --postgres: load --runs by COPY and time the dashboard")
+    ap.add_argument("--keep-measurements", type=int, default=1_000_000,
+                    help="with --copy: the newest runs that keep their measurements")
+    ap.add_argument("--repeat", type=int, default=40, help="with --copy: times per request")
     args = ap.parse_args()
+    if args.copy:
+        if not args.postgres:
+            ap.error("--copy loads PostgreSQL: give --postgres too")
+        return copy_main(args)
     results: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as tmp:
         if not args.sync:

@@ -223,12 +223,17 @@ def _coverage_text(db: LotRows, runs: list[RunRow], filters: dict[str, object]) 
             f"{runs[-1].started_utc}{newest}. {where}")
 
 
-def build_lot(db: LotRows, issued: datetime | None = None, **filters: object
-              ) -> tuple[list[Flowable], LotSummary, PageFurniture]:
-    """The lot report's story; `issued` (default now) is the date printed and stamped."""
+def build_lot(db: LotRows, issued: datetime | None = None, include_simulated: bool = False,
+              **filters: object) -> tuple[list[Flowable], LotSummary, PageFurniture]:
+    """The lot report's story; `issued` (default now) is the date printed and stamped.
+    Simulated runs (a bench simulator, no part) are left out unless include_simulated, as
+    on the line's dashboard; the report says how many were."""
     issued = (issued or datetime.now(UTC)).astimezone(UTC).replace(microsecond=0)
-    runs = db.runs(**filters)
-    rows: list[MeasurementRow] = db.measurement_values(**filters)
+    every = db.runs(**filters)
+    runs = lot_stats.production_runs(every, include_simulated)
+    kept = {r.run_id for r in runs}
+    rows: list[MeasurementRow] = [m for m in db.measurement_values(**filters)
+                                  if m.run_id in kept]
     y = lot_stats.yield_summary(runs)
     pareto = lot_stats.failure_pareto(rows)
     caps = [lot_stats.capability(n, rows, c) for n, c in lot_stats.measurement_keys(rows)]
@@ -243,7 +248,12 @@ def build_lot(db: LotRows, issued: datetime | None = None, **filters: object
     ]
     sims = sum(r.simulated for r in runs)
     if sims:
-        story.append(Paragraph(f"{sims} of {len(runs)} runs used the SIMULATED bench.", BODY))
+        story.append(Paragraph(f"{sims} of {len(runs)} runs used the SIMULATED bench "
+                               "(included on request: these numbers are not production).",
+                               BODY))
+    if left_out := len(every) - len(runs):
+        story.append(Paragraph(f"{left_out} simulated run(s) left out (a bench simulator, no "
+                               "part; include them with --include-simulated).", BODY))
     story.append(Paragraph("Failure pareto (runs failing each measurement)", H2))
     if pareto:
         total = max(y.failed, 1)
@@ -260,8 +270,8 @@ def build_lot(db: LotRows, issued: datetime | None = None, **filters: object
         f"{lot_stats.MIN_CPK_N} values (too few to tell). Red: Cpk < 1.0, amber: Cpk < 1.33. "
         "* limits changed within the lot; the newest run's limits are used.", NOTE)]
     story += _distributions(caps)
-    story += lot_three_axis.three_axis_section(
-        db.calibration_elements(**filters), runs)  # none for single-axis parts
+    elements = [e for e in db.calibration_elements(**filters) if e.run_id in kept]
+    story += lot_three_axis.three_axis_section(elements, runs)  # none for single-axis parts
     trend = _trend(runs)
     story += [KeepTogether([Paragraph("Trend of the calibration written", H2), trend[0]])]
     story += trend[1:]
@@ -279,13 +289,14 @@ def build_lot(db: LotRows, issued: datetime | None = None, **filters: object
 
 
 def render_lot_report(db: LotRows, out: Path, issued: datetime | None = None,
-                      **filters: object) -> LotSummary:
-    """Write the lot report PDF for the runs matching the filters (see ResultsDB.runs).
+                      include_simulated: bool = False, **filters: object) -> LotSummary:
+    """Write the lot report PDF for the runs matching the filters (see ResultsDB.runs),
+    simulated runs left out unless include_simulated.
 
     `issued` is the issue time printed on every page (default now); pass the same value to
     get the same bytes again.
     """
-    story, summary, furniture = build_lot(db, issued, **filters)
+    story, summary, furniture = build_lot(db, issued, include_simulated, **filters)
     data = build_pdf(story, furniture)
     write_atomic(Path(out), data)
     return LotSummary(Path(out), summary.yields, summary.pareto, summary.capabilities,

@@ -37,6 +37,12 @@ class YieldSummary:
         return self.passed / done if done else None
 
 
+def production_runs(runs: list[RunRow], include_simulated: bool = False) -> list[RunRow]:
+    """The runs a lot's numbers count: simulated runs (a bench simulator, no part) left out
+    unless included, as the line's dashboard does."""
+    return list(runs) if include_simulated else [r for r in runs if not r.simulated]
+
+
 def yield_summary(runs: list[RunRow]) -> YieldSummary:
     counts = Counter(r.verdict for r in runs)
     return YieldSummary(

@@ -57,11 +57,11 @@ def _shift_starts(text: str) -> tuple[int, ...]:
 
 
 def _hash_line_password() -> int:
-    from station.cli_ui import _read_secret
+    from station.secret_input import read_secret
     from station.ui.auth import hash_password
 
     try:
-        hashed = hash_password(_read_secret("password"), what="password")
+        hashed = hash_password(read_secret("password"), what="password")
     except ValueError as exc:
         raise UserError(str(exc)) from None
     print("# put this in the line users file (station line --users FILE):")

@@ -3,7 +3,8 @@
     station report RUN_FOLDER [--index] [--db PATH] [--unverified] [--station FILE]
     station history [--since DATE] [--until DATE] [--product P] [--verdict V] [--serial S]
                     [--lot LOT] [--work-order WO] [--db PATH] [--json] [--reindex RUNS_DIR]
-    station lot-report [same filters] --out FILE.pdf [--issued TIME] [--db PATH]
+    station lot-report [same filters] --out FILE.pdf [--issued TIME] [--include-simulated]
+                       [--db PATH]
 
 The database defaults to the one named in config/station.yaml (`results_db`), or
 runs/results.sqlite when no station file can be loaded.
@@ -234,7 +235,8 @@ def cmd_lot_report(args: argparse.Namespace) -> int:
             raise UserError(f"--issued {args.issued!r}: give an ISO time, e.g. "
                             "2026-11-21T14:00:00Z (UTC when no offset is given)")
     try:
-        summary = render_lot_report(db, out, issued=issued, **_filters(args))
+        summary = render_lot_report(db, out, issued=issued,
+                                    include_simulated=args.include_simulated, **_filters(args))
     except ResultsDBError as exc:
         raise UserError(str(exc)) from exc
     y = summary.yields
@@ -267,4 +269,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--issued", metavar="TIME",
                    help="issue time printed on the report (ISO, UTC; default now); give the "
                         "original one to reproduce a report byte for byte")
+    p.add_argument("--include-simulated", action="store_true",
+                   help="count simulated runs too (left out by default, as on the line "
+                        "dashboard; the report says how many)")
     p.set_defaults(handler=cmd_lot_report)

@@ -3,22 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import getpass
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from station.errors import UserError
-
-
-def _read_secret(what: str) -> str:
-    if sys.stdin.isatty():
-        secret = getpass.getpass(f"{what}: ")
-        if getpass.getpass("again: ") != secret:
-            raise UserError(f"the two {what}s differ; run the command again")
-        return secret
-    return sys.stdin.readline(1024).rstrip("\r\n")
+from station.secret_input import read_secret
 
 
 def _hash_secret(kind: str) -> int:
@@ -31,7 +21,7 @@ def _hash_secret(kind: str) -> int:
     }
     what, make, key = makers[kind]
     try:
-        hashed = make(_read_secret(what))
+        hashed = make(read_secret(what))
     except ValueError as exc:
         raise UserError(str(exc)) from None
     print("# put this in station.yaml:")

@@ -119,3 +119,43 @@ stations = sa.Table(
 
 RUN_COLUMNS = tuple(c.name for c in runs.columns)
 MEASUREMENT_COLUMNS = tuple(c.name for c in measurements.columns)
+
+# Schema 6 (migration 0006): rollups kept up to date as runs are written (station.db.rollups).
+# One row per hour (UTC, `YYYY-MM-DDTHH`), station, product, lot, work order and simulated
+# flag; the day and the shift are read from the hour. Yields count a unit in the row of its
+# first test (attempt 1, finished).
+ROLLUP_KEY = ("hour_utc", "station_id", "product", "lot", "work_order", "simulated")
+RUN_COUNTS = ("runs", "passed", "failed", "errored", "aborted", "running",
+              "units", "unit_tests", "first_pass", "final_pass")
+
+rollup_runs = sa.Table(
+    "rollup_runs",
+    metadata,
+    *[sa.Column(k, sa.Integer if k == "simulated" else sa.Text, primary_key=True)
+      for k in ROLLUP_KEY],
+    *[sa.Column(c, sa.Integer, nullable=False, server_default="0") for c in RUN_COUNTS],
+)
+
+# Each measurement (name, condition "" when none) of the first tests in a rollup_runs key:
+# count, sum and sum of squares (mean and sd), extremes, the widest limits judged against and
+# how many values fell below / above them (Cpk and its fallout).
+MEASUREMENT_SUMS = ("n", "total", "total_sq", "below", "above")
+MEASUREMENT_BOUNDS = ("vmin", "vmax", "low", "high")
+rollup_measurements = sa.Table(
+    "rollup_measurements",
+    metadata,
+    *[sa.Column(k, sa.Integer if k == "simulated" else sa.Text, primary_key=True)
+      for k in ROLLUP_KEY],
+    sa.Column("name", sa.Text, primary_key=True),
+    sa.Column("condition", sa.Text, primary_key=True),
+    sa.Column("units", sa.Text, nullable=False, server_default=""),
+    sa.Column("n", sa.Integer, nullable=False, server_default="0"),
+    sa.Column("total", sa.Double, nullable=False, server_default="0"),
+    sa.Column("total_sq", sa.Double, nullable=False, server_default="0"),
+    sa.Column("below", sa.Integer, nullable=False, server_default="0"),
+    sa.Column("above", sa.Integer, nullable=False, server_default="0"),
+    sa.Column("vmin", sa.Double),
+    sa.Column("vmax", sa.Double),
+    sa.Column("low", sa.Double),
+    sa.Column("high", sa.Double),
+)

@@ -15,6 +15,7 @@ from typing import Any
 import sqlalchemy as sa
 
 from procedures.record import RunRecord, three_axis_block
+from station.db import rollups
 from station.db.bulk import insert_new
 from station.db.links import lock_units, relink_units, with_links
 from station.db.schema import CAL_KEYS, calibration_elements, measurements, outbox, runs
@@ -128,20 +129,29 @@ def replace_runs(
     ids = [r["run_id"] for r in rows]
     units = sorted({(r["product"], r["serial"]) for r in rows})
     lock_units(con, units)  # first: a second writer of these units waits for this one
-    _delete_runs(con, _present(con, ids))
+    present, old_serials = _present(con, ids)
+    serials = {r["serial"] for r in rows} | old_serials
+    rollups.subtract(con, serials)  # the units as they were; counted again once written
+    _delete_runs(con, present)
     insert_new(con, runs, with_links(con, rows))
     insert_new(con, measurements, meas)
     insert_new(con, calibration_elements, elements)
     relink_units(con, units)
+    rollups.add(con, serials)
     if queue:
         _queue(con, ids)
 
 
-def _present(con: sa.Connection, ids: list[str]) -> list[str]:
+def _present(con: sa.Connection, ids: list[str]) -> tuple[list[str], set[str]]:
+    """The runs already there, and their serials (as they were written)."""
     found: list[str] = []
+    serials: set[str] = set()
     for chunk in _chunks(ids, 500):
-        found += con.scalars(sa.select(runs.c.run_id).where(runs.c.run_id.in_(chunk)))
-    return found
+        for run_id, serial in con.execute(
+                sa.select(runs.c.run_id, runs.c.serial).where(runs.c.run_id.in_(chunk))):
+            found.append(run_id)
+            serials.add(serial)
+    return found, serials
 
 
 def _delete_runs(con: sa.Connection, ids: list[str]) -> None:

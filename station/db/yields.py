@@ -49,7 +49,7 @@ def shift_names(starts_h: Sequence[int]) -> list[str]:
     ]
 
 
-def _shift_by_hour(starts_h: Sequence[int]) -> dict[str, str]:
+def shift_by_hour(starts_h: Sequence[int]) -> dict[str, str]:
     """'00'..'23' -> the name of the shift that hour falls in."""
     hours = sorted(starts_h)
     if not hours or any(not 0 <= h < 24 for h in hours) or len(set(hours)) != len(hours):
@@ -83,7 +83,7 @@ def yield_tables(
         for g in ("all", "station", "product", "lot", "work_order"):
             _add(sums[g], "all" if g == "all" else str(row[g]), row)
     hour = sa.func.substr(runs.c.started_utc, 12, 2)
-    shift_at = _shift_by_hour(shift_starts_h)
+    shift_at = shift_by_hour(shift_starts_h)
     for row in con.execute(sa.select(hour.label("hour"), *_COUNTS).where(*first)
                            .group_by(hour)).mappings():
         _add(sums["shift"], shift_at.get(row["hour"], ""), row)

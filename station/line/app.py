@@ -1,7 +1,8 @@
 """The line's dashboard web app: read-only, over the line's central database.
 
 Pages: `/` the dashboard. JSON under `/api`: `stations` (with the filter choices), `yields`,
-`capability`, `chart` (a coefficient's control chart), `runs` (latest runs). Every panel
+`capability`, `chart` (a coefficient's control chart), `runs` (latest runs, a page of 50;
+`?before=` the last one's started_utc for the next page). Every panel
 leaves simulated runs (`runs.simulated`) out unless asked with `?simulated=include`.
 `/certificate/{run_id}` serves the run's certificate from the run folder the station
 recorded, when this computer can reach it (from inside its archive once `station archive`
@@ -85,6 +86,10 @@ def _include_simulated(given: str | None) -> bool:
     return _SIMULATED[choice]
 
 
+Answer = Callable[[Callable[[Any], Any], Request], Any]
+_VIEWER, _QUALITY = [Depends(needs("viewer"))], [Depends(needs("quality"))]
+
+
 def create_line_app(
     engine: Engine, options: LineOptions | None = None, access: LineAccess | None = None
 ) -> Guard:
@@ -98,8 +103,24 @@ def create_line_app(
     async def refused(_: Request, exc: Refused) -> JSONResponse:
         return _error(exc.status, exc.message)
 
-    viewer, quality = [Depends(needs("viewer"))], [Depends(needs("quality"))]
+    @app.get("/", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(STATIC_DIR / "line.html", headers=PAGE_HEADERS)
 
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    _add_panels(app, _answerer(engine), opts)
+    _add_certificate(app, engine)
+
+    @app.api_route("/api/{rest:path}", methods=["GET", "POST"], dependencies=_VIEWER)
+    def unknown(rest: str) -> Response:  # signed out, an unknown path says no more than 401
+        return _error(404, f"no such request: /api/{rest[:100]}")
+
+    return Guard(app, rules.hosts)
+
+
+def _answerer(engine: Engine) -> Answer:
+    """A panel's answer: its filters read, its queries run on a connection of its own, bad
+    input 422 and the database down 503, both as {"error": message}."""
     def answer(make: Callable[[Any], Any], request: Request) -> Any:
         try:
             flt = _filters(request)
@@ -113,29 +134,26 @@ def create_line_app(
         except SQLAlchemyError as exc:
             return _error(503, f"the line database is not reachable ({exc.__class__.__name__}); "
                                "check the database server")
+    return answer
 
-    @app.get("/", include_in_schema=False)
-    async def page() -> FileResponse:
-        return FileResponse(STATIC_DIR / "line.html", headers=PAGE_HEADERS)
 
-    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
-
-    # One request per panel: the page asks for them at once and the server answers them in
-    # parallel (each on its own connection), so the page waits for the slowest, not the sum.
-    @app.get("/api/stations", dependencies=viewer)
+def _add_panels(app: FastAPI, answer: Answer, opts: LineOptions) -> None:
+    """One request per panel: the page asks for them at once and the server answers them in
+    parallel (each on its own connection), so the page waits for the slowest, not the sum."""
+    @app.get("/api/stations", dependencies=_VIEWER)
     def station_list(request: Request) -> Any:
         return answer(lambda a: {"stations": queries.station_states(
                                      a[0], opts.offline_after_s,
                                      include_simulated=a[1].include_simulated),
                                  "simulated_left_out": queries.simulated_left_out(a[0], a[1]),
-                                 "choices": queries.choices(a[0]),
+                                 "choices": queries.choices(a[0], a[1]),
                                  "coefficients": list(CAL_KEYS)}, request)
 
-    @app.get("/api/yields", dependencies=viewer)
+    @app.get("/api/yields", dependencies=_VIEWER)
     def yields(request: Request) -> Any:
         return answer(lambda a: queries.yield_tables(a[0], a[1], opts.shift_starts_h), request)
 
-    @app.get("/api/capability", dependencies=quality)
+    @app.get("/api/capability", dependencies=_QUALITY)
     def capability(request: Request) -> Any:
         return answer(lambda a: {
             "capability": queries.capabilities(a[0], a[1], opts.confidence),
@@ -143,16 +161,20 @@ def create_line_app(
             "window": queries.CPK_WINDOW,
         }, request)
 
-    @app.get("/api/chart", dependencies=viewer)
+    @app.get("/api/chart", dependencies=_VIEWER)
     def chart(request: Request, coefficient: str = "bias_dps") -> Any:
         return answer(lambda a: queries.control_chart(a[0], a[1], coefficient,
                                                       opts.chart_points), request)
 
-    @app.get("/api/runs", dependencies=viewer)
-    def latest(request: Request) -> Any:
-        return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1])}, request)
+    @app.get("/api/runs", dependencies=_VIEWER)
+    def latest(request: Request, before: str | None = None) -> Any:
+        return answer(lambda a: {"runs": queries.recent_runs(a[0], a[1], before=before)},
+                      request)
 
-    @app.get("/certificate/{run_id}", response_model=None, dependencies=quality)
+
+def _add_certificate(app: FastAPI, engine: Engine) -> None:
+    """/certificate/{run_id}: the PDF from the run folder (or its archive), quality and up."""
+    @app.get("/certificate/{run_id}", response_model=None, dependencies=_QUALITY)
     def certificate(run_id: str) -> Response:
         if not _RUN_ID.match(run_id):
             return _error(422, "not a run id")
@@ -172,9 +194,3 @@ def create_line_app(
                                "at the same path)")
         return FileResponse(pdf, media_type="application/pdf",
                             filename=f"{run_id}-{CERTIFICATE_FILE}")
-
-    @app.api_route("/api/{rest:path}", methods=["GET", "POST"], dependencies=viewer)
-    def unknown(rest: str) -> Response:  # signed out, an unknown path says no more than 401
-        return _error(404, f"no such request: /api/{rest[:100]}")
-
-    return Guard(app, rules.hosts)

@@ -1,30 +1,33 @@
-"""What the line's dashboard shows, aggregated in SQL over the central database.
+"""What the line's dashboard shows, over the central database.
 
 Everything is filtered by time (the first test's start), product, station and lot, and
-leaves simulated runs out unless they are asked for; the counts come from the database
-(GROUP BY over indexed columns), not from loading runs.
+leaves simulated runs out unless they are asked for. Yields, Cpk, the stations and the
+filter choices are read from the rollups (station/line/rolled.py: rows per hour, not per
+run); the latest runs and the control chart read a bounded number of runs along an index.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from typing import Any
 
 import sqlalchemy as sa
 
-from station.db.schema import CAL_KEYS, measurements, runs, stations
+from station.db.schema import CAL_KEYS, measurements, rollup_measurements, rollup_runs, runs
+from station.db.schema import stations as station_table
 from station.db.yields import DEFAULT_SHIFT_STARTS_H, simulated_clauses
-from station.db.yields import yield_tables as _yield_tables
-from station.line.spc import capability, mean_sd, western_electric
+from station.line import rolled
+from station.line.spc import western_electric
 from station.results_db import parse_since
 
 RECENT_RESULTS = 8
 COEFFICIENT_UNITS = {"bias_dps": "deg/s", "bias_temp_coeff_dps_per_c": "deg/s/C",
                      "bias_supply_coeff_dps_per_v": "deg/s/V", "scale": "1",
                      "scale_temp_coeff_per_c": "1/C", "scale_supply_coeff_per_v": "1/V"}
-CPK_WINDOW = 2000  # Cpk over the latest first tests: the process as it runs now
+CPK_WINDOW = f"first tests of the selected days (without a start: the latest {rolled.CPK_DAYS})"
+RUN_PAGE = 50  # the latest runs, a page at a time
 
 
 @dataclass(frozen=True)
@@ -55,6 +58,19 @@ class Filters:
             c.append(runs.c.lot == self.lot)
         return c
 
+    def rollup_clauses(self, table: sa.Table = rollup_runs) -> list[sa.ColumnElement[bool]]:
+        """The selection on a rollup table (whole hours), simulated runs left out unless
+        included."""
+        return rolled.clauses(table, self.since, self.until, self.product, self.station,
+                              self.lot, self.include_simulated)
+
+    def rollup_days(self, con: sa.Connection, table: sa.Table = rollup_runs,
+                    days: int = rolled.YIELD_DAYS) -> list[sa.ColumnElement[bool]]:
+        """The selection, limited to the latest `days` days with runs when no start is
+        given."""
+        where = self.rollup_clauses(table)
+        return where + rolled.latest_days(con, table, where, self.since, days)
+
 
 def station_states(con: sa.Connection, offline_after_s: float, now: datetime | None = None,
                    include_simulated: bool = False) -> list[dict[str, Any]]:
@@ -63,8 +79,9 @@ def station_states(con: sa.Connection, offline_after_s: float, now: datetime | N
     not shown)."""
     now = now or datetime.now(UTC)
     real = simulated_clauses(include_simulated)
-    beats = {r.station_id: r for r in con.execute(sa.select(stations))}
-    ids = set(beats) | set(con.scalars(sa.select(runs.c.station_id).group_by(runs.c.station_id)))
+    beats = {r.station_id: r for r in con.execute(sa.select(station_table))}
+    seen = Filters(include_simulated=True).rollup_days(con)
+    ids = set(beats) | rolled.stations_seen(con, seen)
     out = []
     for sid in sorted(ids):
         recent = con.execute(
@@ -100,7 +117,7 @@ def _state(beat: Any, recent: Sequence[Any], now: datetime, offline_after_s: flo
 
 def yield_tables(con: sa.Connection, flt: Filters,
                  shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H) -> dict[str, Any]:
-    tables = _yield_tables(con, flt.clauses(), shift_starts_h, flt.include_simulated)
+    tables = rolled.yield_tables(con, flt.rollup_days(con), shift_starts_h)
     return {group: _yield_json(rows) for group, rows in tables.items()}
 
 
@@ -111,50 +128,14 @@ def _yield_json(rows: Sequence[Any]) -> list[dict[str, Any]]:
     ]
 
 
-def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95,
-                 window: int = CPK_WINDOW) -> list[dict[str, Any]]:
-    """Cpk of every limited measurement (per name and condition) over the latest `window`
-    first tests matching the filters, with Bissell's interval. The window's values are
-    fetched (an indexed range) and reduced here: mean, then the sample sd about it."""
-    m, r = measurements.c, runs.c
-    latest = (
-        sa.select(r.run_id)
-        .where(r.attempt == 1, r.verdict != "RUNNING", *flt.where())
-        .order_by(r.started_utc.desc()).limit(window)
-        .subquery()
-    )
-    rows = con.execute(
-        sa.select(m.name, m.condition, m.value, m.low, m.high, m.units)
-        .select_from(latest.join(measurements, m.run_id == latest.c.run_id))
-        .where(m.value.is_not(None))
-    )
-    groups: dict[tuple[str, str], _Values] = {}
-    for name, condition, value, low, high, units in rows:
-        g = groups.setdefault((name, condition or ""), _Values(units=units))
-        g.add(float(value), low, high)
-    out = []
-    for (name, condition), g in sorted(groups.items()):
-        if g.low is None and g.high is None:
-            continue  # informational: no limits, no capability
-        mean, sd = mean_sd(g.values)
-        cap = capability(len(g.values), mean, sd, g.low, g.high, confidence)
-        out.append({"name": name, "condition": condition, "units": g.units, **asdict(cap)})
-    return out
-
-
-@dataclass
-class _Values:
-    units: str
-    values: list[float] = field(default_factory=list)
-    low: float | None = None
-    high: float | None = None
-
-    def add(self, value: float, low: float | None, high: float | None) -> None:
-        self.values.append(value)
-        if low is not None:
-            self.low = low if self.low is None else min(self.low, low)
-        if high is not None:
-            self.high = high if self.high is None else max(self.high, high)
+def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95
+                 ) -> list[dict[str, Any]]:
+    """Cpk of every limited measurement (per name and condition) over the first tests of the
+    selected days (the latest CPK_DAYS without a start), with Bissell's interval, from the
+    rollups' sums."""
+    where = flt.rollup_days(con, rollup_measurements, rolled.CPK_DAYS)
+    return [{"name": name, "condition": condition, "units": units, **asdict(cap)}
+            for name, condition, units, cap in rolled.capabilities(con, where, confidence)]
 
 
 @dataclass(frozen=True)
@@ -218,12 +199,16 @@ def product_limits(con: sa.Connection, name: str, run_ids: Sequence[str]
     return (None if low is None else float(low)), (None if high is None else float(high))
 
 
-def recent_runs(con: sa.Connection, flt: Filters, limit: int = 50) -> list[dict[str, Any]]:
+def recent_runs(con: sa.Connection, flt: Filters, limit: int = RUN_PAGE,
+                before: str | None = None) -> list[dict[str, Any]]:
+    """The latest runs of the selection, newest first; `before` (a run's started_utc, the
+    last of a page) gives the next page. One index range, whatever the runs."""
     r = runs.c
+    page = [r.started_utc < parse_since(before)] if before else []
     found = con.execute(
         sa.select(r.run_id, r.serial, r.product, r.station_id, r.lot, r.work_order, r.verdict,
                   r.attempt, r.started_utc)
-        .where(*flt.where()).order_by(r.started_utc.desc()).limit(limit)
+        .where(*flt.where(), *page).order_by(r.started_utc.desc()).limit(limit)
     ).mappings()
     return [dict(x) for x in found]
 
@@ -232,17 +217,15 @@ def simulated_left_out(con: sa.Connection, flt: Filters) -> int:
     """How many simulated runs the selection leaves out (0 when they are included)."""
     if flt.include_simulated:
         return 0
-    return int(con.scalar(sa.select(sa.func.count()).select_from(runs)
-                          .where(runs.c.simulated != 0, *flt.clauses())) or 0)
+    every = Filters(**{**asdict(flt), "include_simulated": True})
+    return rolled.simulated_runs(con, every.rollup_days(con))
 
 
-def choices(con: sa.Connection) -> dict[str, list[str]]:
-    """Products, stations and lots to filter by (distinct values, index scans)."""
-    return {
-        name: [v for v in con.scalars(sa.select(col).group_by(col).order_by(col)) if v]
-        for name, col in (("product", runs.c.product), ("station", runs.c.station_id),
-                          ("lot", runs.c.lot))
-    }
+def choices(con: sa.Connection, flt: Filters) -> dict[str, list[str]]:
+    """Products, stations and lots to filter by: those of the selected days (from the
+    rollups)."""
+    days = Filters(since=flt.since, until=flt.until, include_simulated=True)
+    return rolled.choices(con, days.rollup_days(con))
 
 
 def run_folder(con: sa.Connection, run_id: str) -> str | None:

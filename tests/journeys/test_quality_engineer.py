@@ -139,7 +139,8 @@ def test_history_by_lot_and_work_order(bench: Bench, flag: str, value: str,
 def test_lot_report_by_lot_and_work_order(bench: Bench, flag: str, value: str,
                                           runs: int) -> None:
     pdf = bench.root / f"{value}.pdf"
-    out = bench.station("lot-report", flag, value, "--db", bench.db, "--out", str(pdf))
+    out = bench.station("lot-report", flag, value, "--db", bench.db, "--out", str(pdf),
+                        "--include-simulated")  # the bench simulates its parts
     assert out.returncode == 0, out.stderr
     assert pdf.read_bytes().startswith(b"%PDF")
     assert f"{runs} run{'s' if runs > 1 else ''}, yield" in out.stdout

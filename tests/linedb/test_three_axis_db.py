@@ -51,7 +51,7 @@ def _schema3_file(path: Path) -> None:
 def test_schema3_database_upgrades_with_its_runs_kept(tmp_path: Path) -> None:
     path = tmp_path / "results.sqlite"
     _schema3_file(path)
-    assert HEAD_REVISION == "0005"
+    assert HEAD_REVISION == "0006"
     con = sqlite3.connect(path)
     assert "calibration_elements" not in {
         r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
@@ -100,12 +100,12 @@ def test_lot_report_has_lines_per_axis_for_three_axis_parts_only(tmp_path: Path)
     assert set(lines) >= {"b_x", "b_y", "b_z", "M_xx", "M_zy", "G_yz", "sT_z", "bV_x"}
     n, mean, sigma = lines["b_y"]
     assert (n, mean, sigma) == (3, pytest.approx(0.001 + 0.01), pytest.approx(0.01))
-    story, _summary, _furniture = build_lot(db)
+    story, _summary, _furniture = build_lot(db, include_simulated=True)  # simulated parts
     texts = [getattr(f, "text", "") for f in story]
     assert "Three-axis calibration written, per axis" in texts
     single_db = ResultsDB(tmp_path / "single.sqlite")
     one = make_record(Part(serial="SGL-0002"))
     single_db.add_run(tmp_path / one.run_id, one)
-    story, _s, _f = build_lot(single_db)
+    story, _s, _f = build_lot(single_db, include_simulated=True)
     assert "Three-axis calibration written, per axis" not in [getattr(f, "text", "")
                                                              for f in story]

@@ -1,4 +1,5 @@
-"""A lot of simulated parts indexed in a results database (records only, no raw files)."""
+"""A lot of parts indexed in a results database (records only, no raw files): production
+runs unless asked to come from the bench simulator."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from tests.reports.synth_run import Part, make_record
 
 
 def make_lot(db_path: Path, n: int, seed: int = 7, product: str = "ADIS16130-EOL",
-             start_index: int = 0) -> list[RunRecord]:
+             start_index: int = 0, simulated: bool = False) -> list[RunRecord]:
     """n parts drawn from the population (bias sigma 4 deg/s, scale sigma 2 %), 35 min apart."""
     rng = np.random.default_rng(seed)
     db = ResultsDB(db_path)
@@ -29,6 +30,7 @@ def make_lot(db_path: Path, n: int, seed: int = 7, product: str = "ADIS16130-EOL
             arw_deg_per_sqrt_h=float(rng.uniform(0.3, 2.6)),
             started=base + timedelta(minutes=35 * i),
             product=product,
+            simulated=simulated,
         )
         record = make_record(part)
         db.add_run(db_path.parent / record.run_id, record)

@@ -1,4 +1,5 @@
-"""Lot report over 50 simulated parts: yield and Cpk from the database match a direct count."""
+"""Lot report over 50 parts: yield and Cpk from the database match a direct count; simulated
+runs are left out unless asked for."""
 
 from __future__ import annotations
 
@@ -186,9 +187,26 @@ def test_trend_falls_back_to_run_number_when_all_runs_share_a_start(tmp_path: Pa
     # end to end: a batch started together (one fixture, several sockets)
     db = ResultsDB(tmp_path / "batch.sqlite")
     for i, bias in enumerate((1.0, 2.0, -1.5)):
-        rec = make_record(Part(serial=f"BATCH-{i}", bias_dps=bias, started=t0))
+        rec = make_record(Part(serial=f"BATCH-{i}", bias_dps=bias, started=t0, simulated=False))
         db.add_run(tmp_path / rec.run_id, rec)
     out = tmp_path / "batch.pdf"
     render_lot_report(db, out, issued=ISSUED)
     text = re.sub(r"\s+", " ", pdf_text(out, layout=False))
     assert "run number (all runs started 2026-11-21 09:30:00 UTC)" in text
+
+
+def test_simulated_runs_are_left_out_unless_asked_for(tmp_path: Path) -> None:
+    path = tmp_path / "results.sqlite"
+    real = make_lot(path, 30, seed=3)
+    sims = make_lot(path, 10, seed=4, start_index=30, simulated=True)
+    db = ResultsDB(path)
+    out = tmp_path / "lot.pdf"
+    summary = render_lot_report(db, out, issued=ISSUED)
+    assert summary.yields.runs == len(real)
+    assert {c.n for c in summary.capabilities if c.name == "bias_dps"} == {len(real)}
+    text = " ".join(pdf_text(out).split())
+    assert f"{len(sims)} simulated run(s) left out" in text and "--include-simulated" in text
+    both = render_lot_report(db, tmp_path / "all.pdf", issued=ISSUED, include_simulated=True)
+    assert both.yields.runs == len(real) + len(sims)
+    assert f"{len(sims)} of {len(real) + len(sims)} runs used the SIMULATED bench" in " ".join(
+        pdf_text(tmp_path / "all.pdf").split())

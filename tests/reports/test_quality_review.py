@@ -47,7 +47,8 @@ def test_history_selects_a_lot_and_a_work_order(lot_db: Path) -> None:
 def test_lot_report_by_lot_and_by_work_order(lot_db: Path, tmp_path: Path) -> None:
     for flag, value, n in (("--lot", "LOT-7", "2 runs"), ("--work-order", "WO-2", "1 run,")):
         pdf = tmp_path / f"{value}.pdf"
-        out = station("lot-report", flag, value, "--db", str(lot_db), "--out", str(pdf))
+        out = station("lot-report", flag, value, "--db", str(lot_db), "--out", str(pdf),
+                      "--include-simulated")  # a simulated bench's runs
         assert out[0] == 0, out[2]
         assert n in out[1]
         text = pdf_text(pdf)

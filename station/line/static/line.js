@@ -135,7 +135,7 @@ function renderYields() {
 
 function renderCapability() {
   document.getElementById("cpk-note").textContent =
-    `Cpk = min(USL − mean, mean − LSL) / 3 sd over the latest ${state.summary.window} first tests; interval: ${state.summary.cpk_interval}.`;
+    `Cpk = min(USL − mean, mean − LSL) / 3 sd over the ${state.summary.window}; interval: ${state.summary.cpk_interval}.`;
   const body = document.querySelector("#capability tbody");
   body.replaceChildren();
   for (const c of state.summary.capability) {

@@ -1,0 +1,143 @@
+"""Rollups: the runs counted per hour, station, product, lot, work order and simulated flag
+(tables rollup_runs and rollup_measurements), kept up to date in the transaction that writes
+the runs, so the dashboard reads them instead of the runs.
+
+A batch of runs changes the rollups of its units only (a unit's first test, final verdict and
+number of tests change when a retest arrives, or a run is delivered again). So the writer
+subtracts what the runs of the batch's serials contributed before it writes (`subtract`), and
+adds what they contribute afterwards (`add`): a run delivered twice is counted once, a retest
+moves its unit from failed to passed. Each is one INSERT ... SELECT ... GROUP BY ... ON
+CONFLICT DO UPDATE per chunk of serials, on PostgreSQL and SQLite alike.
+
+Per key, rollup_runs counts runs by verdict, and the yields' units: finished first tests
+(attempt 1), their tests, first passes and final passes (unit_verdict PASS).
+rollup_measurements sums each measurement of those first tests: n, sum, sum of squares,
+below/above its limits, and its extremes and widest limits. The extremes and the limits only
+ever widen: a run leaving the rollup (a retest found to be earlier) does not narrow them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy.dialects import postgresql, sqlite
+
+from station.db.schema import (
+    MEASUREMENT_SUMS,
+    ROLLUP_KEY,
+    RUN_COUNTS,
+    measurements,
+    rollup_measurements,
+    rollup_runs,
+    runs,
+)
+
+_CHUNK = 500
+HOUR = sa.func.substr(runs.c.started_utc, 1, 13)  # YYYY-MM-DDTHH: text order is time order
+
+
+def subtract(con: sa.Connection, serials: Iterable[str]) -> None:
+    """Take the runs of these serials out of the rollups (before they are rewritten)."""
+    _apply(con, sorted(set(serials)), -1)
+
+
+def add(con: sa.Connection, serials: Iterable[str]) -> None:
+    """Count the runs of these serials into the rollups (after they are written)."""
+    _apply(con, sorted(set(serials)), 1)
+
+
+def add_all(con: sa.Connection) -> None:
+    """Count every run into empty rollups (the migration's backfill)."""
+    con.execute(_upsert(con, rollup_runs, _run_counts(1, ())))
+    add_measurements(con, measurements)
+
+
+def add_measurements(con: sa.Connection, values: sa.Table) -> None:
+    """Sum the first tests' values in a table shaped like measurements (the measurements
+    themselves, or a staging table of values no longer kept) into the rollups."""
+    con.execute(_upsert(con, rollup_measurements, _measurement_sums(1, (), values)))
+
+
+def _apply(con: sa.Connection, serials: Sequence[str], sign: int) -> None:
+    for i in range(0, len(serials), _CHUNK):
+        where = [runs.c.serial.in_(serials[i : i + _CHUNK])]
+        con.execute(_upsert(con, rollup_runs, _run_counts(sign, where)))
+        con.execute(_upsert(con, rollup_measurements, _measurement_sums(sign, where)))
+
+
+def _keys() -> list[sa.ColumnElement[Any]]:
+    return [HOUR.label("hour_utc"), *[runs.c[k] for k in ROLLUP_KEY[1:]]]
+
+
+def _first_test() -> sa.ColumnElement[bool]:
+    return sa.and_(runs.c.attempt == 1, runs.c.verdict != "RUNNING")
+
+
+def _count(sign: int, cond: sa.ColumnElement[bool], value: Any = 1) -> Any:
+    return sign * sa.func.sum(sa.case((cond, value), else_=0))
+
+
+def _run_counts(sign: int, where: Sequence[sa.ColumnElement[bool]]) -> sa.Select[Any]:
+    v, first = runs.c.verdict, _first_test()
+    counts = [
+        sign * sa.func.count(),
+        *[_count(sign, v == name) for name in ("PASS", "FAIL", "ERROR", "ABORTED", "RUNNING")],
+        _count(sign, first), _count(sign, first, runs.c.unit_tests),
+        _count(sign, sa.and_(first, v == "PASS")),
+        _count(sign, sa.and_(first, runs.c.unit_verdict == "PASS")),
+    ]
+    keys = _keys()
+    return (sa.select(*keys, *[c.label(n) for c, n in zip(counts, RUN_COUNTS, strict=True)])
+            .where(*where).group_by(*keys).order_by(*keys))
+
+
+def _measurement_sums(sign: int, where: Sequence[sa.ColumnElement[bool]],
+                      values: sa.Table = measurements) -> sa.Select[Any]:
+    m = values.c
+    keys = [*_keys(), m.name, sa.func.coalesce(m.condition, "").label("condition")]
+    return (
+        sa.select(
+            *keys, sa.func.max(m.units).label("units"),
+            (sign * sa.func.count()).label("n"), (sign * sa.func.sum(m.value)).label("total"),
+            (sign * sa.func.sum(m.value * m.value)).label("total_sq"),
+            _count(sign, m.value < m.low).label("below"),
+            _count(sign, m.value > m.high).label("above"),
+            sa.func.min(m.value).label("vmin"), sa.func.max(m.value).label("vmax"),
+            sa.func.min(m.low).label("low"), sa.func.max(m.high).label("high"),
+        )
+        .select_from(runs.join(values, m.run_id == runs.c.run_id))
+        .where(_first_test(), m.value.is_not(None), *where)
+        .group_by(*keys).order_by(*keys)  # rows locked in one order by every writer
+    )
+
+
+def _upsert(con: sa.Connection, table: sa.Table, select: sa.Select[Any]) -> sa.Insert:
+    """INSERT the select's rows; a key already there gets them added (counts and sums) or
+    widened (extremes and limits)."""
+    dialect: Any = postgresql if con.dialect.name == "postgresql" else sqlite
+    names = [c.name for c in select.selected_columns]
+    stmt = dialect.insert(table).from_select(names, select)
+    new = stmt.excluded
+    sets: dict[str, Any] = {}
+    for name in names:
+        col = table.c[name]
+        if col.primary_key:
+            continue
+        if name in RUN_COUNTS or name in MEASUREMENT_SUMS:
+            sets[name] = col + new[name]
+        elif name in ("vmin", "low"):
+            sets[name] = _widest(col, new[name], lower=True)
+        elif name in ("vmax", "high"):
+            sets[name] = _widest(col, new[name], lower=False)
+        else:
+            sets[name] = new[name]
+    return stmt.on_conflict_do_update(index_elements=list(table.primary_key.columns),
+                                      set_=sets)
+
+
+def _widest(old: Any, new: Any, *, lower: bool) -> Any:
+    """The lower (or higher) of two bounds, either possibly NULL (no bound yet)."""
+    better = new < old if lower else new > old
+    return sa.case((old.is_(None), new), (new.is_(None), old), (better, new), else_=old)
