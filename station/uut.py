@@ -54,6 +54,7 @@ from procedures.config import (
     product_for_procedure,
 )
 from procedures.engine import Engine
+from procedures.plan import build_plan
 from procedures.progress import ProgressBus, ProgressEvent
 from procedures.rawdata import RawDataWriter, file_sha256
 from procedures.record import (
@@ -71,7 +72,6 @@ from procedures.record import (
 from procedures.run_context import RunContext
 from procedures.run_parts import Bench, PartRun
 from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
-from procedures.steps.plan import build_plan
 from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
 from station import __version__, preflight

@@ -39,13 +39,13 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from procedures.config import Volts
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, condition_record
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import Declared, StepSettings, StepType
 from procedures.steps.stop import stop_noise_model
+from procedures.units import Volts
 
 CLIP_BITS = int(SampleStatus.OVER_RANGE | SampleStatus.SATURATED)
 POLL_S = 0.25  # station seconds between looks at the part's data while waiting for a move

@@ -410,7 +410,7 @@ class EngineRunner:
                 self.control.load(sock, part)
 
     def _run(self, uut: Any, serials: dict[int, str], sink: EventSink) -> None:
-        from procedures.steps.plan import build_plan
+        from procedures.plan import build_plan
 
         pace = WallPace(self.endpoints)
         plan = build_plan(uut.procedure)
