@@ -24,7 +24,7 @@ EXPORT_FORMATS = ("cfx",)  # IPC-CFX UnitsTested, one JSON message per line
 
 def _settings() -> Any:
     try:
-        from station.settings import load_settings
+        from station.station_file import load_settings
 
         return load_settings()
     except Exception as exc:  # no station.yaml here

@@ -38,7 +38,7 @@ def plural(n: int, noun: str) -> str:
 def default_db_path() -> Path | str:
     """The station file's results database, or runs/results.sqlite without one."""
     try:
-        from station.settings import load_settings
+        from station.station_file import load_settings
 
         return load_settings().results_db
     except Exception as exc:  # no station.yaml, or settings not part of this build
@@ -118,7 +118,7 @@ def _render_checked(folder: Path, args: argparse.Namespace) -> Path:
     from reports.pdfdoc import write_atomic
     from station.certify import issue_certificate, trusted_fingerprints
     from station.manifest import MANIFEST_FILE, verify_folder
-    from station.settings import load_settings
+    from station.station_file import load_settings
 
     try:
         settings = load_settings(Path(args.station) if args.station else None)
@@ -161,7 +161,8 @@ def _recover(runs_dir: Path | None, db_path: Path | str | None) -> None:
     are indexed before anything is listed (station/run_folder.py)."""
     from station.certify import recovered_run_sealer
     from station.run_folder import recover_results
-    from station.settings import LoadedSettings, load_settings
+    from station.settings import LoadedSettings
+    from station.station_file import load_settings
 
     settings: LoadedSettings | None = None
     try:

@@ -29,7 +29,8 @@ from procedures.progress import ProgressEvent
 from procedures.step_list import procedure_json_schema
 from station.errors import UserError
 from station.exit_path import ExitPath, exit_bound_s
-from station.settings import CONFIG_DIR, StationSettings, load_settings
+from station.settings import CONFIG_DIR, StationSettings
+from station.station_file import load_settings
 
 DEMO_SERIAL = "SIM-0001"
 DEMO_SPEED = 120.0

@@ -38,7 +38,7 @@ def sealed_text(result: Verification) -> str:
 
 
 def station_settings(path: str | None) -> object | None:
-    from station.settings import load_settings
+    from station.station_file import load_settings
 
     try:
         return load_settings(Path(path) if path else None)

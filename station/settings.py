@@ -2,7 +2,8 @@
 
 Validated with pydantic at the edge; errors name the file, line and field (see
 `drivers.yaml_input.load_yaml_model`). Relative paths inside the file are relative to the
-folder that holds it, so the file can travel with its configuration folder.
+folder that holds it, so the file can travel with its configuration folder. The model only:
+`station.station_file.load_settings` reads the file and has each driver check its settings.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any, Literal
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.bounded import Name, PathText, ShortName
-from drivers.yaml_input import ConfigError, LoadedYaml, load_yaml_model
+from drivers.yaml_input import LoadedYaml
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"
@@ -414,16 +415,3 @@ class LoadedSettings:
     @property
     def procedure(self) -> Path:
         return self.resolve(self.settings.procedure)
-
-
-def load_settings(path: Path | None = None) -> LoadedSettings:
-    """Load station.yaml (default: config/station.yaml of this installation)."""
-    model, loaded = load_yaml_model(Path(path or DEFAULT_STATION_FILE), StationSettings)
-    settings = LoadedSettings(settings=model, source=loaded)
-    # each instrument's settings belong to its driver: checked by the driver's own model
-    from station.instruments import settings_problems
-
-    problems = settings_problems(settings)
-    if problems:
-        raise ConfigError("\n".join(problems))
-    return settings

@@ -922,7 +922,7 @@ def run_simulated(
     entries); returns the result and the bench's truth at the end (for benchmarks and tests).
     Without `speed` the bench runs in lockstep (station time is physics time)."""
     from drivers.sim.launcher import launch_bench
-    from station.settings import load_settings
+    from station.station_file import load_settings
 
     sockets = max(int(p["socket"]) for p in parts)
     settings = settings or load_settings()

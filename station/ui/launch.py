@@ -190,7 +190,7 @@ def ui_station(
     if not engine_available():
         raise UserError("the end-of-line engine (station/uut.py) is not in this build")
     from drivers.yaml_input import ConfigError
-    from station.settings import load_settings
+    from station.station_file import load_settings
 
     try:
         settings = load_settings(station_file)
