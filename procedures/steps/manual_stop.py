@@ -148,7 +148,7 @@ class ManualStop(StepType[ManualStopSettings]):
     # ------------------------------------------------------------ the moves
 
     def setup(self, ctx: RunContext) -> None:
-        self._inclinometer = getattr(ctx.instruments.bench, "inclinometer", None)
+        self._inclinometer = ctx.instruments.bench.inclinometer
         if self.settings.reference == "inclinometer" and self._inclinometer is None:
             for part in ctx.parts.alive():
                 ctx.parts.drop(
