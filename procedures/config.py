@@ -38,6 +38,7 @@ from drivers.yaml_input import (
     load_yaml_model,
     read_yaml,
 )
+from procedures.analysis.consistency import per_condition_limit
 from procedures.conditions import Condition, plan_conditions
 from procedures.limits import LIMIT_NAMES, Limit, Limits
 from procedures.step_list import Node, StepEntry, entries, expand, measurement_problems, parse_steps
@@ -100,8 +101,6 @@ class ConsistencyRule(StrictModel):
 
     def limit(self, judgements: int) -> Limit:
         """The per-condition |E_n| limit for a part judged at `judgements` conditions."""
-        from procedures.analysis.consistency import per_condition_limit
-
         k = per_condition_limit(self.false_reject_rate, judgements)
         marginal = None
         if self.marginal_rate is not None:

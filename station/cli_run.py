@@ -23,14 +23,15 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from drivers.yaml_input import ConfigError
-from procedures.config import ProcedureConfig, ProductConfig
+from drivers.yaml_input import ConfigError, read_yaml
+from procedures.config import ProcedureConfig, ProductConfig, load_procedure, load_product
 from procedures.progress import ProgressEvent
 from procedures.step_list import procedure_json_schema
 from station.errors import UserError
 from station.exit_path import ExitPath, exit_bound_s
 from station.settings import CONFIG_DIR, StationSettings
 from station.station_file import load_settings
+from station.uut import Endpoints, UutRunner
 
 DEMO_SERIAL = "SIM-0001"
 DEMO_SPEED = 120.0
@@ -119,7 +120,6 @@ class ProgressDisplay:
             self._last_step = step
             print(line, file=self.stream, flush=True)
 
-
     def _prompt(self, ev: ProgressEvent) -> None:
         """An instruction to the operator on its own line (never overwritten by progress):
         `>>> OPERATOR (socket 1): Turn ...`; `prompt_done` says it was seen done."""
@@ -163,8 +163,6 @@ def _scanned_parts(duts: dict[int, str], axes: int) -> list[dict[str, Any]]:
 def _product_axes(args: argparse.Namespace) -> int:
     """The rate axes of the product the run will test (1 when the files do not say; the
     runner refuses a bad procedure or product itself, in its own words)."""
-    from procedures.config import load_procedure, load_product
-
     try:
         settings = load_settings(Path(args.station) if args.station else None)
         procedure_path = Path(args.procedure) if args.procedure else settings.procedure
@@ -184,8 +182,8 @@ def _sim_config(
         p = Path(path)
         if not p.is_file():
             raise UserError(f"--sim-config {path}: no such file")
+        # the simulated bench: loaded only when asked for
         from drivers.sim.config import SimConfigError, load_sim_config
-        from drivers.yaml_input import read_yaml
 
         try:
             load_sim_config(p)  # refused here, before a bench or a run folder exists
@@ -209,6 +207,7 @@ def _check_out(out: str | None) -> None:
 @contextlib.contextmanager
 def _bench_errors() -> Iterator[None]:
     """A simulated bench that will not start is an error (exit 2), said in one line."""
+    # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchStartError
 
     try:
@@ -231,6 +230,7 @@ class AttachedBench:
 @contextlib.contextmanager
 def _attached_bench(state: Path) -> Iterator[AttachedBench]:
     """The bench whose state file `state` is, checked alive before anything else happens."""
+    # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchEndpoints
 
     try:
@@ -263,8 +263,6 @@ def run_cycle(
     sim_bench: Path | None = None,
 ) -> int:
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
-    from station.uut import Endpoints, UutRunner
-
     operator = getattr(args, "operator", "") or ""
     if len(operator) > 200 or not operator.isprintable():
         raise UserError("--operator must be at most 200 printable characters (a name or badge)")
@@ -294,6 +292,7 @@ def run_cycle(
     except ConfigError as exc:
         raise UserError(str(exc)) from None
     if speed is not None:
+        # the simulated bench: loaded only when asked for
         from drivers.sim.config import speed_problem
 
         if problem := speed_problem(speed):
@@ -302,6 +301,7 @@ def run_cycle(
     if sim_bench is not None:
         bench_cm = _attached_bench(sim_bench)
     elif sim:
+        # the simulated bench: loaded only when asked for
         from drivers.sim.launcher import launch_bench
 
         bench_cm = launch_bench(

@@ -399,6 +399,7 @@ class LoadedSettings:
     @property
     def results_db(self) -> Path | str:
         """The results database: a Path for a SQLite file, else its URL."""
+        # sqlalchemy: loaded only when a database is used
         from station.db.connect import database_url, sqlite_path
 
         url = database_url(self.settings.results_db, self.folder)
@@ -407,6 +408,7 @@ class LoadedSettings:
     @property
     def central_db(self) -> str | None:
         """The line's central database URL (relative SQLite paths resolved), or None."""
+        # sqlalchemy: loaded only when a database is used
         from station.db.connect import database_url
 
         text = self.settings.central_db

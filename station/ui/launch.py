@@ -15,8 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.yaml_input import ConfigError, read_yaml
 from station.certify import recovered_run_sealer
 from station.errors import UserError
+from station.station_file import load_settings
 from station.ui import catalog
 from station.ui.app import Security, create_app
 from station.ui.auth import Operator, OperatorBook, check_hash_format
@@ -161,8 +163,8 @@ def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int,
     states (None when it states none)."""
     if sim_config is None:
         return {}, 0, None
+    # the simulated bench: loaded only when asked for
     from drivers.sim.config import SimConfigError, load_sim_config
-    from drivers.yaml_input import read_yaml
 
     try:
         config = load_sim_config(sim_config)  # bounded reader and schema: refused in one line
@@ -189,8 +191,6 @@ def ui_station(
     """The whole UI station; with `sim` the simulated bench runs for the block's duration."""
     if not engine_available():
         raise UserError("the end-of-line engine (station/uut.py) is not in this build")
-    from drivers.yaml_input import ConfigError
-    from station.station_file import load_settings
 
     try:
         settings = load_settings(station_file)
@@ -204,6 +204,7 @@ def ui_station(
     parts, config_sockets, config_speed = _sim_parts(sim_config)
     bench_cm: Any = contextlib.nullcontext(None)
     if sim:
+        # the simulated bench: loaded only when asked for
         from drivers.sim.launcher import launch_bench
 
         # the station's fixture (station.yaml instruments.fixture.sockets), grown to hold
@@ -220,6 +221,7 @@ def ui_station(
         endpoints = None
         control = None
         if bench is not None:
+            # the run engine (h5py, scipy): loaded only when a run starts
             from station.uut import Endpoints
 
             endpoints = Endpoints.of_bench(bench.endpoints)
@@ -242,6 +244,7 @@ def ui_station(
         for folder in recovered:
             log.warning("marked as ERROR (the station stopped during that run): %s", folder)
         if settings.central_db:  # runs queued before a restart go to the line's db now
+            # sqlalchemy: loaded only when a database is used
             from station.db.connect import database_url
             from station.db.sync import wake_station_sync
 

@@ -19,7 +19,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure, load_product
+from procedures.plan import build_plan
+from procedures.record import read_record
+from station import instruments as roles
 from station.errors import UserError
+from station.exit_path import exit_bound_s
+from station.ui.history import result_from_record
 from station.ui.instruments import InstrumentAddress, InstrumentLight, probe
 
 log = logging.getLogger(__name__)
@@ -217,6 +224,7 @@ class EngineRunner:
 
     def _uut_for(self, procedure: Path, product: Path | None) -> Any:
         """The engine's UutRunner for this selection, reused while its files are unchanged."""
+        # the run engine (h5py, scipy): loaded only when a run starts
         from station.uut import UutRunner
 
         files = [procedure] + ([product] if product else [])
@@ -237,9 +245,6 @@ class EngineRunner:
         return sorted(folder.glob("*.yaml")) if folder.is_dir() else []
 
     def procedures(self) -> list[Choice]:
-        from drivers.yaml_input import ConfigError
-        from procedures.config import load_procedure
-
         paths = {
             self.settings.procedure.resolve(),
             *(p.resolve() for p in self._yaml_files("procedures")),
@@ -255,9 +260,6 @@ class EngineRunner:
         return choices
 
     def products(self) -> list[ProductChoice]:
-        from drivers.yaml_input import ConfigError
-        from procedures.config import load_product
-
         choices = []
         paths = {p.resolve() for p in self._yaml_files("products")}
         default_product = self._default_product()
@@ -281,9 +283,6 @@ class EngineRunner:
         return choices
 
     def _default_product(self) -> Path | None:
-        from drivers.yaml_input import ConfigError
-        from procedures.config import load_procedure
-
         try:
             proc = self._cached(self.settings.procedure.resolve(), load_procedure)
         except (ConfigError, OSError):
@@ -307,8 +306,6 @@ class EngineRunner:
     # ------------------------------------------------------------ instruments
 
     def instruments(self) -> list[InstrumentLight]:
-        from station import instruments as roles
-
         if self.busy():
             return []
         cfg = self.settings.settings.instruments
@@ -351,8 +348,6 @@ class EngineRunner:
         return self._thread is not None and self._thread.is_alive()
 
     def start(self, request: StartRequest, sink: EventSink) -> str:
-        from drivers.yaml_input import ConfigError
-
         if self._thread is not None:
             self._thread.join(2.0)  # "finished" is its last act; let it end
         if self.busy():
@@ -390,7 +385,7 @@ class EngineRunner:
     def close(self) -> None:
         """Abort a run in progress and wait, bounded, for its end (the safe state, the
         record sealed): as long as the station's exit path gives a stop."""
-        from station.exit_path import exit_bound_s
+        # the run engine (h5py, scipy): loaded only when a run starts
         from station.uut import safe_state_policy_of
 
         self.abort()
@@ -410,8 +405,6 @@ class EngineRunner:
                 self.control.load(sock, part)
 
     def _run(self, uut: Any, serials: dict[int, str], sink: EventSink) -> None:
-        from procedures.plan import build_plan
-
         pace = WallPace(self.endpoints)
         plan = build_plan(uut.procedure)
         labels = [CONNECT_STEP] + [_label(s.name, s.condition) for s in plan]
@@ -505,9 +498,6 @@ class EngineRunner:
     def _result(
         self, sock: int, serial: str, folder: Path | None, error: str = ""
     ) -> dict[str, Any]:
-        from procedures.record import read_record
-        from station.ui.history import result_from_record
-
         if folder is not None:
             try:
                 return result_from_record(read_record(folder), folder)
