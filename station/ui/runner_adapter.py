@@ -224,7 +224,7 @@ class EngineRunner:
 
     def _uut_for(self, procedure: Path, product: Path | None) -> Any:
         """The engine's UutRunner for this selection, reused while its files are unchanged."""
-        # the run engine (h5py, scipy): loaded only when a run starts
+        # the engine: loaded when a run starts (a UI-only build has none: engine_available)
         from station.uut import UutRunner
 
         files = [procedure] + ([product] if product else [])
@@ -385,7 +385,7 @@ class EngineRunner:
     def close(self) -> None:
         """Abort a run in progress and wait, bounded, for its end (the safe state, the
         record sealed): as long as the station's exit path gives a stop."""
-        # the run engine (h5py, scipy): loaded only when a run starts
+        # the engine: loaded when a run starts (a UI-only build has none: engine_available)
         from station.uut import safe_state_policy_of
 
         self.abort()
