@@ -59,6 +59,23 @@ def test_import_cycles_only_shrink() -> None:
     assert not gone, f"cycles fixed: take {gone} out of KNOWN_CYCLES"
 
 
+def test_import_graph_counts_imports_in_function_bodies(tmp_path: Path) -> None:
+    """An import inside a function is an edge of the graph (it can close a cycle at run
+    time); one under `if TYPE_CHECKING:` is not (never run)."""
+    from tests.import_graph import cycles, graph
+
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("import pkg.b\n")
+    (pkg / "b.py").write_text("def f():\n    from pkg import a\n    return a\n")
+    (pkg / "c.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pkg import a\n")
+    g = graph(tmp_path, ["pkg"])
+    assert "pkg.a" in g["pkg.b"] and "pkg.a" not in g["pkg.c"]
+    assert cycles(g) == [frozenset({"pkg.a", "pkg.b"})]
+
+
 LAYERS = ("drivers", "procedures", "reports", "station")  # each may import only those before
 
 
