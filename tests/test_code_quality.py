@@ -37,7 +37,8 @@ def test_mypy_finds_nothing() -> None:
 
 def test_lint_imports_keeps_every_contract() -> None:
     """The layering as a contract (pyproject.toml [tool.importlinter]): station -> reports ->
-    procedures -> drivers, no drivers.sim below the station, the rules inside procedures."""
+    procedures -> drivers, no drivers.sim below the station, the rules inside procedures, no
+    cycle between the siblings of any package."""
     done = subprocess.run([*_tool("lint-imports"), "--no-cache"], cwd=ROOT,
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
