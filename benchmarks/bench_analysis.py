@@ -21,16 +21,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from procedures.analysis import (  # noqa: E402
+from procedures.analysis.allan import analyze_allan  # noqa: E402
+from procedures.analysis.bias import estimate_bias  # noqa: E402
+from procedures.analysis.rate_table import fit_rate_table  # noqa: E402
+from procedures.analysis.stop_method import StopMethodSettings, analyze_stop_method  # noqa: E402
+from procedures.analysis.temp_supply_fit import (  # noqa: E402
+    COEFFICIENT_NAMES,  # noqa: E402
     ConditionMeasurement,
-    StopMethodSettings,
-    analyze_allan,
-    analyze_stop_method,
-    estimate_bias,
-    fit_rate_table,
     fit_temp_supply,
 )
-from procedures.analysis.temp_supply_fit import COEFFICIENT_NAMES  # noqa: E402
 
 
 def _flicker(rng: np.random.Generator, n: int, b_dps: float) -> np.ndarray:

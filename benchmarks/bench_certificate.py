@@ -25,7 +25,7 @@ from reports.certificate import certificate_bytes  # noqa: E402
 from station.certify import signed_certificate, station_identity  # noqa: E402
 from station.manifest import seal, verify_folder  # noqa: E402
 from station.pdf_signing import sign_pdf_bytes  # noqa: E402
-from station.settings import load_settings  # noqa: E402
+from station.station_file import load_settings  # noqa: E402
 from tests.reports.synth_run import Part, make_run  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

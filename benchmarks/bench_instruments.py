@@ -126,7 +126,7 @@ def print_round_trips(rows: list[dict[str, Any]]) -> None:
 
 def procedure_times(procedure: Path, speed: float) -> list[dict[str, Any]]:
     """The full procedure on one part with each family set: station time from the record."""
-    from station.settings import load_settings
+    from station.station_file import load_settings
     from station.uut import Endpoints, UutRunner
 
     out = Path(tempfile.mkdtemp(prefix="bench-instruments-"))

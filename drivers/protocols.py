@@ -255,6 +255,19 @@ class Supply(Identifiable, VoltageSource, SupplyMeasurable, Closable, Protocol):
     def safe_state(self) -> None: ...
 
 
+# ---------------------------------------------------------------- inclinometer
+
+
+@runtime_checkable
+class Inclinometer(Protocol):
+    """The optional inclinometer role: one sensor on each fixture socket, read at each stop of
+    a hand-turned fixture (the manual_stop step's reference angle)."""
+
+    def read_angle(self, socket: int) -> tuple[float, float]:
+        """(angle, its standard uncertainty), deg, of the sensor on `socket`'s fixture."""
+        ...
+
+
 # ---------------------------------------------------------------- part link (fixture)
 
 

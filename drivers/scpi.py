@@ -13,6 +13,7 @@ import re
 from typing import Any, Protocol
 
 from drivers.errors import ConnectionLost, ProtocolError, ScpiError
+from drivers.fd_wait import use_poll
 
 log = logging.getLogger(__name__)
 
@@ -37,8 +38,6 @@ class SerialLike(Protocol):
 def open_serial(path: str, *, baudrate: int = 115200, read_timeout_s: float = 0.02) -> Any:
     """Open a serial port (or pty) without touching DTR/RTS beyond what pyserial tolerates."""
     import serial  # local: byte-level tests do not need pyserial
-
-    from drivers.fd_wait import use_poll
 
     use_poll()  # pyserial waits with select(): any descriptor number (drivers/fd_wait.py)
     try:

@@ -26,6 +26,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from drivers.errors import ConnectionLost, InstrumentTimeout
+from drivers.fd_wait import use_poll
 
 log = logging.getLogger(__name__)
 
@@ -58,13 +59,13 @@ def resource_name(address: str) -> str:
 
 
 def _visa_errors() -> tuple[type[BaseException], ...]:
-    import pyvisa
+    import pyvisa  # pyvisa (slow to import): only when a VISA instrument is opened
 
     return (pyvisa.errors.Error,)
 
 
 def _is_timeout(exc: BaseException) -> bool:
-    import pyvisa
+    import pyvisa  # pyvisa (slow to import): only when a VISA instrument is opened
 
     return (
         isinstance(exc, pyvisa.errors.VisaIOError)
@@ -97,9 +98,7 @@ class VisaTransport:
         cls, address: str, *, baud: int = 115200, timeout_s: float = 1.0, instrument: str
     ) -> VisaTransport:
         """Open `address` with pyvisa-py; ConnectionLost says why it cannot be opened."""
-        import pyvisa
-
-        from drivers.fd_wait import use_poll
+        import pyvisa  # pyvisa (slow to import): only when a VISA instrument is opened
 
         use_poll()  # pyvisa-py and pyserial wait with select(): any descriptor number
         name = resource_name(address)
@@ -235,7 +234,7 @@ class VisaTransport:
     def _discard_stale_input(self) -> None:
         """Drop a late reply to an earlier (timed-out) query, so it cannot answer this one;
         a socket the instrument has closed is ConnectionLost here, before anything is sent."""
-        import pyvisa
+        import pyvisa  # pyvisa (slow to import): only when a VISA instrument is opened
 
         sock = self._socket()
         if sock is not None:

@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     PrivateAttr,
     ValidationError,
@@ -26,11 +24,7 @@ from pydantic import (
 from drivers.bounded import (
     MAX_LIST,
     MAX_RATE_DPS,
-    MAX_SUPPLY_V,
-    ONE_DAY_S,
     ONE_HOUR_S,
-    TEMP_HIGH_C,
-    TEMP_LOW_C,
     Name,
     PathText,
     ShortName,
@@ -44,9 +38,12 @@ from drivers.yaml_input import (
     load_yaml_model,
     read_yaml,
 )
+from procedures.analysis.consistency import per_condition_limit
 from procedures.conditions import Condition, plan_conditions
+from procedures.limits import LIMIT_NAMES, Limit, Limits
 from procedures.step_list import Node, StepEntry, entries, expand, measurement_problems, parse_steps
 from procedures.steps.registry import StepType
+from procedures.units import ChamberTemp, Seconds, StrictModel, Volts
 
 # ---------------------------------------------------------------- YAML with line numbers
 # The bounded reader lives with the lowest layer (drivers.yaml_input) so that the simulated
@@ -59,151 +56,14 @@ def load_yaml(path: Path) -> LoadedYaml:
     return read_yaml(path)
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-Seconds = Annotated[float, Field(le=ONE_DAY_S)]  # a duration or timeout: within a day
-Rate = Annotated[float, Field(ge=-MAX_RATE_DPS, le=MAX_RATE_DPS)]
-ChamberTemp = Annotated[float, Field(ge=TEMP_LOW_C, le=TEMP_HIGH_C)]
-Volts = Annotated[float, Field(gt=0, le=MAX_SUPPLY_V)]
-LimitValue = Annotated[float, Field(ge=-1e9, le=1e9)]
-
-
 # ---------------------------------------------------------------- product file
-
-
-class Limit(_Strict):
-    """Acceptance limits of one measurement with an optional marginal band inside them.
-
-    low <= marginal_low <= marginal_high <= high. A value inside [low, high] but outside
-    [marginal_low, marginal_high] is MARGINAL: it passes but is flagged for review.
-    """
-
-    low: LimitValue | None = Field(
-        None, description="lowest passing value (omit for no lower limit)"
-    )
-    high: LimitValue | None = Field(
-        None, description="highest passing value (omit for no upper limit)"
-    )
-    marginal_low: LimitValue | None = Field(None, description="below this (and >= low): MARGINAL")
-    marginal_high: LimitValue | None = Field(None, description="above this (and <= high): MARGINAL")
-    units: ShortName = Field("", description="units of the value, for the certificate")
-    on_fail: Literal["continue", "stop_part"] = Field(
-        "continue",
-        description="continue: a failing part goes on being measured; stop_part: it stops at "
-        "once (dropped from the remaining steps, verdict FAIL, the reason names this limit)",
-    )
-
-    @model_validator(mode="after")
-    def _ordered(self) -> Limit:
-        chain = [
-            (n, v)
-            for n, v in (
-                ("low", self.low),
-                ("marginal_low", self.marginal_low),
-                ("marginal_high", self.marginal_high),
-                ("high", self.high),
-            )
-            if v is not None
-        ]
-        for (n1, v1), (n2, v2) in zip(chain, chain[1:], strict=False):
-            if v1 > v2:
-                raise ValueError(
-                    f"{n1} ({v1}) must not exceed {n2} ({v2}); "
-                    "order low <= marginal_low <= marginal_high <= high"
-                )
-        if self.low is None and self.high is None:
-            raise ValueError("give at least one of low or high")
-        return self
-
-
-LIMIT_NAMES = (
-    "raw_bias_dps",
-    "raw_scale_error",
-    "noise_arw_deg_per_sqrt_h",
-    "bias_instability_deg_per_h",
-    "nonlinearity_pct_fs",
-    "asymmetry",
-    "bias_temp_coeff_dps_per_c",
-    "scale_temp_coeff_per_c",
-    "bias_supply_coeff_dps_per_v",
-    "scale_supply_coeff_per_v",
-    "residual_bias_dps",
-    "residual_scale_error",
-    "stop_table_consistency",
-    "supply_current_a",
-    "frames_lost_fraction",
-    "turn_on_bias_repeatability_dps",
-    "warm_up_time_s",
-    "bias_temp_coeff2_dps_per_c2",
-    "bias_temp_coeff3_dps_per_c3",
-    "scale_temp_coeff2_per_c2",
-    "scale_temp_coeff3_per_c3",
-    "misalignment_mrad",
-    "g_sensitivity_dps_per_mps2",
-)
-
-
-class Limits(_Strict):
-    """Limits per measurement name; a measurement without a limit is recorded, not judged."""
-
-    raw_bias_dps: Limit | None = Field(
-        None, description="uncalibrated bias at each condition, deg/s"
-    )
-    raw_scale_error: Limit | None = Field(
-        None, description="uncalibrated scale - 1 at each condition"
-    )
-    noise_arw_deg_per_sqrt_h: Limit | None = Field(None, description="angle random walk")
-    bias_instability_deg_per_h: Limit | None = Field(None, description="Allan floor / 0.664")
-    nonlinearity_pct_fs: Limit | None = Field(
-        None, description="largest residual from the line, % FS"
-    )
-    asymmetry: Limit | None = Field(None, description="(K+ - K-) / mean K")
-    bias_temp_coeff_dps_per_c: Limit | None = Field(
-        None, description="fitted bias temperature coefficient"
-    )
-    scale_temp_coeff_per_c: Limit | None = Field(
-        None, description="fitted relative scale temperature coefficient"
-    )
-    bias_supply_coeff_dps_per_v: Limit | None = Field(
-        None, description="fitted bias supply coefficient"
-    )
-    scale_supply_coeff_per_v: Limit | None = Field(
-        None, description="fitted relative scale supply coefficient"
-    )
-    residual_bias_dps: Limit | None = Field(None, description="compensated output at rest, deg/s")
-    residual_scale_error: Limit | None = Field(
-        None, description="compensated scale error at the verification rates"
-    )
-    stop_table_consistency: Limit | None = Field(
-        None, description="(stop scale - table scale) / combined k=2 uncertainty"
-    )
-    supply_current_a: Limit | None = Field(None, description="supply current per part, A")
-    frames_lost_fraction: Limit | None = Field(None, description="lost frames / expected frames")
-    turn_on_bias_repeatability_dps: Limit | None = Field(
-        None, description="turn-on to turn-on bias repeatability (1 sigma), deg/s"
-    )
-    warm_up_time_s: Limit | None = Field(
-        None, description="time from power-on until the bias settles within its band, s"
-    )
-    bias_temp_coeff2_dps_per_c2: Limit | None = Field(None, description="fitted b2, deg/s/C^2")
-    bias_temp_coeff3_dps_per_c3: Limit | None = Field(None, description="fitted b3, deg/s/C^3")
-    scale_temp_coeff2_per_c2: Limit | None = Field(None, description="fitted s2, 1/C^2")
-    scale_temp_coeff3_per_c3: Limit | None = Field(None, description="fitted s3, 1/C^3")
-    misalignment_mrad: Limit | None = Field(
-        None, description="three-axis: off-diagonal of M over its row's diagonal, mrad"
-    )
-    g_sensitivity_dps_per_mps2: Limit | None = Field(
-        None, description="three-axis: each element of G, deg/s per m/s^2"
-    )
 
 
 FitOrder = Literal[1, 2, 3]
 FIRST_ORDER: FitOrder = 1
 
 
-class CalibrationStorage(_Strict):
+class CalibrationStorage(StrictModel):
     """What the part's calibration registers can hold."""
 
     fit_orders: list[FitOrder] = Field(
@@ -215,7 +75,7 @@ class CalibrationStorage(_Strict):
     )
 
 
-class ConsistencyRule(_Strict):
+class ConsistencyRule(StrictModel):
     """How often the stop-vs-table judgement (`stop_table_consistency`, E_n at each condition)
     may reject a good part. The |E_n| limit at each condition is derived from these and the
     number of conditions the procedure judges (procedures.analysis.consistency, Sidak), so
@@ -241,8 +101,6 @@ class ConsistencyRule(_Strict):
 
     def limit(self, judgements: int) -> Limit:
         """The per-condition |E_n| limit for a part judged at `judgements` conditions."""
-        from procedures.analysis.consistency import per_condition_limit
-
         k = per_condition_limit(self.false_reject_rate, judgements)
         marginal = None
         if self.marginal_rate is not None:
@@ -254,7 +112,7 @@ class ConsistencyRule(_Strict):
         )
 
 
-class Dispositions(_Strict):
+class Dispositions(StrictModel):
     """What the operator does with a part of each verdict, shown with the verdict."""
 
     PASS: str = Field("", max_length=200, description="e.g. 'Place in tray A'")
@@ -263,7 +121,7 @@ class Dispositions(_Strict):
     ABORTED: str = Field("", max_length=200, description="e.g. 'Retest the part'")
 
 
-class ProductConfig(_Strict):
+class ProductConfig(StrictModel):
     """One product (part number): its range, nominal values, serial format and limits."""
 
     product: Name = Field(min_length=1, description="product name shown on the certificate")
@@ -426,7 +284,7 @@ class ProductConfig(_Strict):
 
 # ---------------------------------------------------------------- procedure file
 
-class ConditionsConfig(_Strict):
+class ConditionsConfig(StrictModel):
     temperatures_c: list[ChamberTemp] = Field(
         min_length=1, max_length=MAX_LIST, description="chamber setpoints, C"
     )
@@ -448,7 +306,7 @@ class ConditionsConfig(_Strict):
 
 
 
-class ChamberConfig(_Strict):
+class ChamberConfig(StrictModel):
     ramp_c_per_min: float = Field(5.0, ge=0, le=100, description="chamber ramp rate (0 = fastest)")
     safe_temp_c: float = Field(
         25.0, ge=0, le=50, description="setpoint the chamber goes to on any exit (0..50 C: "
@@ -483,7 +341,7 @@ class ChamberConfig(_Strict):
 
 
 
-class StreamConfig(_Strict):
+class StreamConfig(StrictModel):
     max_lost_fraction: float = Field(0.001, ge=0, le=1, description="allowed lost/expected frames")
     silent_timeout_s: float = Field(
         5.0, gt=0, le=ONE_HOUR_S, description="no frames this long: part is silent"
@@ -495,7 +353,7 @@ class StreamConfig(_Strict):
 
 
 
-class ProcedureConfig(_Strict):
+class ProcedureConfig(StrictModel):
     """A calibration procedure: run-wide settings and the list of steps (see docs/procedures.md).
 
     `steps` holds the list as written; it is parsed into step entries at validation (each
@@ -560,6 +418,19 @@ class ProcedureConfig(_Strict):
         return found[0].settings if found else None
 
 
+# the keys that mark a procedure file in the old section form (procedures.legacy_procedure
+# reads and converts such a file; load_procedure refuses it)
+SECTION_KEYS = ("power", "stability", "bias", "rate_table", "stop_method", "positions", "fit",
+                "verify")
+
+
+def is_section_form(data: Any) -> bool:
+    """Is this parsed YAML a procedure in the old section form?"""
+    if not isinstance(data, dict):
+        return False
+    return any(k in data for k in SECTION_KEYS) or isinstance(data.get("steps"), dict)
+
+
 def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:
     return load_yaml_model(path, ProductConfig)
 
@@ -567,8 +438,6 @@ def load_product(path: Path) -> tuple[ProductConfig, LoadedYaml]:
 def load_procedure(path: Path) -> tuple[ProcedureConfig, LoadedYaml]:
     """Load a procedure file in the step-list form; ConfigError with file:line on any problem
     (a file in the old section form is refused with the command that converts it)."""
-    from procedures.legacy_procedure import is_section_form
-
     loaded = read_yaml(path)
     if is_section_form(loaded.data):
         raise ConfigError(

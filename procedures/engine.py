@@ -46,19 +46,31 @@ from procedures.safe_state import (
     supply_target,
     table_target,
 )
+from procedures.steps.registry import Declared, StepPolicy, StepSettings
 from procedures.streams import Acquisition
 
 log = logging.getLogger(__name__)
 
 
 class Step(Protocol):
-    """One step of a procedure (procedures.steps.registry.StepType is the full interface)."""
+    """One step of a procedure: what the engine calls on it (procedures.steps.registry.StepType
+    is the full interface, and every step type's base)."""
 
     @property
     def name(self) -> str: ...
 
     @property
     def condition(self) -> str: ...
+
+    @property
+    def policy(self) -> StepPolicy: ...
+
+    @property
+    def settings(self) -> StepSettings: ...
+
+    def measurements(self, settings: StepSettings) -> list[Declared]: ...
+
+    def expected(self) -> list[Declared]: ...
 
     def estimate_s(self, ctx: RunContext) -> float: ...
 
@@ -162,9 +174,7 @@ class Engine:
 
     def _run_step(self, step: Step, estimate_s: float) -> None:
         ctx = self.ctx
-        policy = getattr(step, "policy", None)
-        retries = int(getattr(policy, "retries", 0))
-        timeout_s = float(getattr(policy, "timeout_s", 3600.0))
+        retries, timeout_s = step.policy.retries, step.policy.timeout_s
         for attempt in range(retries + 1):
             ctx.progress.begin(step.name, step.condition, estimate_s)
             self._declare(step)
@@ -196,24 +206,16 @@ class Engine:
                     ctx.records.save_all()
 
     def _declare(self, step: Step) -> None:
-        """The names the step may set (a step without declarations is not checked)."""
-        measurements = getattr(step, "measurements", None)
-        settings = getattr(step, "settings", None)
+        """The names the step may set (a measurement it does not declare is refused)."""
         self.ctx.records.made = {}
-        if measurements is None or settings is None:
-            self.ctx.records.declared = None
-            return
-        self.ctx.records.declared = {d.name for d in measurements(settings)}
+        self.ctx.records.declared = {d.name for d in step.measurements(step.settings)}
 
     def _mark_not_measured(self, step: Step) -> None:
         """A declared measurement the step never set, on a part still running: NOT_MEASURED."""
-        expected = getattr(step, "expected", None)
-        if expected is None:
-            return
         ctx = self.ctx
         for part in ctx.parts.alive():
             made = ctx.records.made.get(part.socket, set())
-            for d in expected():
+            for d in step.expected():
                 if d.name not in made:
                     ctx.records.not_measured(part, d.name, d.units, step.condition or None)
 

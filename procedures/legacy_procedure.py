@@ -23,15 +23,7 @@ from drivers.bounded import (
     Text,
 )
 from drivers.yaml_input import LoadedYaml, load_yaml_model
-from procedures.config import (
-    ChamberConfig,
-    ConditionsConfig,
-    Rate,
-    Seconds,
-    StreamConfig,
-    Volts,
-    _Strict,
-)
+from procedures.config import ChamberConfig, ConditionsConfig, StreamConfig
 from procedures.steps.bias import BiasSettings
 from procedures.steps.fit import FitSettings
 from procedures.steps.positions import PositionsSettings
@@ -39,12 +31,10 @@ from procedures.steps.power import PowerSettings
 from procedures.steps.stop import StopSettings
 from procedures.steps.sweep import RateTableSettings
 from procedures.steps.thermal import ThermalSettings
+from procedures.units import Rate, Seconds, StrictModel, Volts
 
-# the keys that mark a file in the old form
-SECTION_KEYS = ("power", "stability", "bias", "rate_table", "stop_method", "positions", "fit",
-                "verify")
 
-class StepPolicy(_Strict):
+class StepPolicy(StrictModel):
     timeout_s: Seconds = Field(
         3600.0, gt=0, description="station seconds before the step times out"
     )
@@ -93,7 +83,7 @@ class PositionsConfig(PositionsSettings):
     enabled: bool = True
 
 
-class VerifyConfig(_Strict):
+class VerifyConfig(StrictModel):
     enabled: bool = True
     method: Literal["auto", "rate_table", "stop_method"] = Field(
         "auto", description="auto: rate table if enabled, else stop moves with compensation on"
@@ -108,7 +98,7 @@ class VerifyConfig(_Strict):
     supply_v: Volts | None = Field(None, description="supply during verification (default V0)")
 
 
-class StepsConfig(_Strict):
+class StepsConfig(StrictModel):
     default: StepPolicy = StepPolicy()
     power: StepPolicy | None = None
     thermal: StepPolicy | None = None
@@ -124,7 +114,7 @@ class StepsConfig(_Strict):
         return getattr(self, step, None) or self.default
 
 
-class SectionProcedure(_Strict):
+class SectionProcedure(StrictModel):
     """A procedure in the old section form (read only to convert it)."""
 
     name: Name = Field(min_length=1, description="procedure name shown on the certificate")
@@ -190,13 +180,6 @@ class SectionProcedure(_Strict):
     @property
     def positions_enabled(self) -> bool:
         return self.positions is not None and self.positions.enabled
-
-
-def is_section_form(data: Any) -> bool:
-    """Is this parsed YAML a procedure in the old section form?"""
-    if not isinstance(data, dict):
-        return False
-    return any(k in data for k in SECTION_KEYS) or isinstance(data.get("steps"), dict)
 
 
 def load_section_procedure(path: Path) -> tuple[SectionProcedure, LoadedYaml]:

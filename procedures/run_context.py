@@ -18,9 +18,10 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError, PartAbsent, PartSilent, StreamCorrupted
@@ -36,6 +37,7 @@ if TYPE_CHECKING:
     from procedures.streams import PartStream
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 SUPPLY_SETTLE_S = 0.2  # station seconds after a change of supply setting before reading it
 
 
@@ -161,7 +163,9 @@ class Records:
     def alive(self) -> list[PartRun]:
         return [p for p in self._parts if p.alive]
 
-    def append_all(self, group: str, parts: list[PartRun] | None = None, **columns: Any) -> None:
+    def append_all(
+        self, group: str, parts: list[PartRun] | None = None, **columns: ArrayLike
+    ) -> None:
         """One row in raw.h5's `group` of every (alive) part."""
         for part in parts if parts is not None else self.alive():
             part.rows.append(group, **columns)
@@ -309,7 +313,7 @@ class Parts(list[PartRun]):
         self._records.save(part)
         self._progress.publish("part", message=f"socket {part.socket}: {verdict}")
 
-    def per_part(self, part: PartRun, fn: Callable[[PartRun], Any]) -> Any:
+    def per_part(self, part: PartRun, fn: Callable[[PartRun], T]) -> T | None:
         """Run `fn(part)`; a part-level instrument error drops this part only."""
         try:
             return fn(part)
@@ -322,7 +326,7 @@ class Parts(list[PartRun]):
                 raise
         return None
 
-    def each(self, fn: Callable[[PartRun], Any]) -> None:
+    def each(self, fn: Callable[[PartRun], object]) -> None:
         """`fn(part)` for every alive part (per_part), then NoPartsLeft if none is left."""
         for part in self.alive():
             self.per_part(part, fn)
@@ -359,7 +363,7 @@ class Waiting:
         self.abort_at_s: float | None = None  # station time of the first abort request
         self.deadline_s: float | None = None
         self.timeout_s = 0.0  # of the running step, for the message
-        self.on_silent: Callable[[], Any] | None = None  # reads the supply (current limit)
+        self.on_silent: Callable[[], object] | None = None  # reads the supply (current limit)
 
     def now_s(self) -> float:
         return self.clock.now_s()

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from drivers.clock import ScaledClock
-from drivers.protocols import Chamber, PartLink, RateTable, Supply
+from drivers.protocols import Chamber, Inclinometer, PartLink, RateTable, Supply
 from procedures.rawdata import RawDataWriter
 from procedures.record import ConditionRecord, RunRecord, StorageError, Verdict
 from procedures.streams import PartStream
@@ -33,7 +33,7 @@ class Bench:
     links: dict[int, PartLink]
     clock: ScaledClock
     table: RateTable | None = None
-    inclinometer: Any = None  # reads a fixture's angle at a stop (manual_stop), optional
+    inclinometer: Inclinometer | None = None  # a fixture's angle at a stop (manual_stop)
 
 
 @dataclass

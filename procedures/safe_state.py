@@ -20,7 +20,6 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Any
 
 from drivers.clock import Clock
 from drivers.errors import WrongInstrument
@@ -115,7 +114,7 @@ class SafeStateReport:
     def legacy(self) -> dict[str, str]:
         return {name: s.legacy() for name, s in self.instruments.items()}
 
-    def as_record(self) -> dict[str, Any]:
+    def as_record(self) -> dict[str, object]:
         return {
             "all_safe": self.all_safe,
             "started_station_s": round(self.started_station_s, 3),

@@ -53,7 +53,7 @@ def read_approvals(folder: Path) -> list[dict[str, Any]]:
 
 
 def _write_approvals(folder: Path, entries: list[dict[str, Any]]) -> None:
-    from reports.pdfdoc import write_atomic
+    from reports.pdfdoc import write_atomic  # reportlab (PDF): loaded only when a report is drawn
 
     text = json.dumps({"format": "gyrocal-approvals/1", "approvals": entries}, indent=2)
     write_atomic(folder / APPROVALS_FILE, (text + "\n").encode())
@@ -63,6 +63,7 @@ def approve(folder: Path, settings: LoadedSettings, *, by: str, role: str,
             remark: str = "") -> dict[str, Any]:
     """Record, show and sign an approval; returns the new entry. UserError when the folder
     is altered, has no certificate, the name is empty, or a FAIL run has no remark."""
+    # reportlab (PDF): loaded only when a report is drawn
     from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
 

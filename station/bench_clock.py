@@ -31,6 +31,7 @@ def station_clock(
         return ScaledClock(1.0)
     if not endpoints.lockstep:
         return ScaledClock(endpoints.speed)
+    # the simulated bench: loaded only when asked for
     from drivers.sim.control_client import ControlClient
 
     client = ControlClient(endpoints.control)

@@ -16,7 +16,7 @@ def _run() -> int:
     profile_path = os.environ.get("GYROCAL_BENCH_PROFILE")
     if not profile_path:
         return main(args, modules=("station.cli_bench",))
-    import cProfile
+    import cProfile  # only when profiling (GYROCAL_BENCH_PROFILE)
 
     profiler = cProfile.Profile()
     try:

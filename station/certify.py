@@ -163,6 +163,7 @@ def issue_certificate(folder: Path, settings: LoadedSettings, *, origin: str,
                       decision_rule: str = "") -> Path:
     """Number, render, sign and seal; returns the certificate's path. Raises on I/O or key
     problems (SigningKeyError, OSError)."""
+    # reportlab (PDF): loaded only when a report is drawn
     from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
 

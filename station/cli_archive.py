@@ -21,8 +21,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from station.cli_signing import station_settings, trusted_for
 from station.errors import UserError
 from station.results_db import ResultsDB, ResultsDBError
+from station.retention import ArchiveFailed, archive_runs
+from station.settings import LoadedSettings
 
 
 def parse_days(text: str) -> float:
@@ -38,9 +41,6 @@ def parse_days(text: str) -> float:
 
 def _places(args: argparse.Namespace) -> tuple[Path, Path | str | None]:
     """The runs folder and the results database (None: none to update)."""
-    from station.cli_signing import station_settings
-    from station.settings import LoadedSettings
-
     settings = station_settings(args.station)
     loaded = settings if isinstance(settings, LoadedSettings) else None
     if args.runs_dir:
@@ -90,9 +90,6 @@ def _out_folder(args: argparse.Namespace, root: Path) -> Path:
 
 
 def cmd_archive(args: argparse.Namespace) -> int:
-    from station.cli_signing import trusted_for
-    from station.retention import ArchiveFailed, archive_runs
-
     days = parse_days(args.older_than)
     root, db_path = _places(args)
     out = _out_folder(args, root)

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from station.errors import UserError
+from station.instrument_lock import held_by_a_station
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -53,8 +54,7 @@ def handle(args: argparse.Namespace) -> int:
             raise UserError(str(exc)) from None
     if args.state is not None and not args.state.parent.is_dir():
         raise UserError(f"--state: directory {args.state.parent} does not exist; create it first")
-    from drivers.sim.pty_twins import PtyPort
-    from station.instrument_lock import held_by_a_station
+    from drivers.sim.pty_twins import PtyPort  # the simulated bench: loaded only when asked for
 
     PtyPort.held_elsewhere = staticmethod(held_by_a_station)
     return run_bench(config, args.state, args.speed, lockstep=args.lockstep)

@@ -18,6 +18,8 @@ import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from procedures.model.data import write_csv
+from station.discrepancy_simulate import DEFAULT_SPEED, record_procedure, simulate
 from station.errors import UserError
 
 if TYPE_CHECKING:
@@ -138,6 +140,7 @@ class _Input:
 
 
 def _resolve_input(data: Path, dut: str | None) -> _Input:
+    # the discrepancy model: loaded only by this command
     from procedures.model.run_folder import find_run_folder
 
     if data.is_file():
@@ -223,6 +226,7 @@ def _check_file(option: str, path: Path, inputs: tuple[Path, ...]) -> None:
 
 
 def handler(args: argparse.Namespace) -> int:
+    # the discrepancy model: loaded only by this command
     from procedures.model.discrepancy import DEFAULT_ALPHA
 
     alpha = DEFAULT_ALPHA if args.alpha is None else args.alpha
@@ -261,10 +265,10 @@ def _check_simulate_args(args: argparse.Namespace, inp: _Input) -> None:
             f"{args.data}: --simulate needs a station run folder (the procedure it ran is "
             "simulated); a CSV names no procedure"
         )
-    from station.discrepancy_simulate import record_procedure
 
     record_procedure(inp.run_folder, procedure)  # found before the data are analysed
     if speed is not None:
+        # the simulated bench: loaded only when asked for
         from drivers.sim.config import speed_problem
 
         problem = speed_problem(speed)
@@ -275,6 +279,7 @@ def _check_simulate_args(args: argparse.Namespace, inp: _Input) -> None:
 def _run(
     args: argparse.Namespace, inp: _Input, out: Path, alpha: float, json_stdout: bool
 ) -> bool:
+    # the discrepancy model: loaded only by this command
     from procedures.model.model_io import load_model
 
     console = sys.stderr if json_stdout else sys.stdout
@@ -296,6 +301,7 @@ def _run(
 
 
 def _three_axis(folder: Path) -> bool:
+    # the discrepancy model: loaded only by this command
     from procedures.model.run_folder_xyz import is_three_axis
 
     return is_three_axis(folder)
@@ -307,6 +313,7 @@ def _run_axes(
 ) -> bool:
     """A three-axis run folder: each axis through the workflow on its own (docs/three-axis.md);
     out/axis-x/ ... hold each axis's model and report, discrepancy.json all three."""
+    # the discrepancy model: loaded only by this command
     from procedures.model.run_folder_xyz import AXES, load_axis
 
     assert inp.run_folder is not None
@@ -343,7 +350,7 @@ def _run_axes(
 
 
 def _trajectory(args: argparse.Namespace, inp: _Input) -> Trajectory:
-    from procedures.model.data import write_csv
+    # the discrepancy model: loaded only by this command
     from procedures.model.run_folder import load_data
 
     console = sys.stderr if args.json is not None and str(args.json) == STDOUT else sys.stdout
@@ -368,6 +375,7 @@ def _analyse(
 ) -> tuple[dict[str, Any], str | None, DiscrepancyResult, SimulationComparison | None]:
     """The workflow on one trajectory: its JSON payload (model and report written to out),
     why the report could not be written (or None), the result and any simulation."""
+    # the discrepancy model: loaded only by this command
     from procedures.model.discrepancy import run_discrepancy
     from procedures.model.model_io import save_model
     from procedures.model.output import result_to_json
@@ -438,8 +446,6 @@ def _simulate(
     console: Any,
 ) -> tuple[SimulationComparison, dict[str, Any]]:
     """Both twins run on the bench and compared with the measurement (JSON keys added)."""
-    from station.discrepancy_simulate import DEFAULT_SPEED, simulate
-
     return simulate(
         run_folder,
         traj,

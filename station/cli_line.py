@@ -17,23 +17,29 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from station import __version__
+from station.db.cfx_export import export_lines
+from station.db.connect import DatabaseError, shown
+from station.db.sync import Sync, SyncError
 from station.errors import UserError
+from station.line.users import load_line_users
+from station.results_db import ResultsDB, ResultsDBError, run_filters
+from station.secret_input import read_secret
+from station.station_file import load_settings
+from station.ui.auth import hash_password
+from station.ui.guard import allowed_hosts
 
 EXPORT_FORMATS = ("cfx",)  # IPC-CFX UnitsTested, one JSON message per line
 
 
 def _settings() -> Any:
     try:
-        from station.settings import load_settings
-
         return load_settings()
     except Exception as exc:  # no station.yaml here
         raise UserError(f"no station settings ({exc}); give the database with --db") from None
 
 
 def _open(url: str | None, fallback: str) -> Any:
-    from station.results_db import ResultsDB, ResultsDBError
-
     text = url
     if not text:
         s = _settings()
@@ -57,9 +63,6 @@ def _shift_starts(text: str) -> tuple[int, ...]:
 
 
 def _hash_line_password() -> int:
-    from station.secret_input import read_secret
-    from station.ui.auth import hash_password
-
     try:
         hashed = hash_password(read_secret("password"), what="password")
     except ValueError as exc:
@@ -74,9 +77,8 @@ def _hash_line_password() -> int:
 
 def _line_access(args: argparse.Namespace) -> Any:
     """Users, host names and HTTPS of `station line`: refused beyond loopback without TLS."""
+    # fastapi/uvicorn: loaded only when serving
     from station.line.access import LineAccess
-    from station.line.users import load_line_users
-    from station.ui.guard import allowed_hosts
     from station.ui.launch import refuse_clear_text, usable_tls
 
     if args.users is None:
@@ -96,6 +98,7 @@ def _line_access(args: argparse.Namespace) -> Any:
 
 
 def cmd_line(args: argparse.Namespace) -> int:
+    # fastapi/uvicorn: loaded only when serving
     from station.line.app import LineOptions, create_line_app
     from station.ui.server import serve_forever
 
@@ -112,10 +115,6 @@ def cmd_line(args: argparse.Namespace) -> int:
 
 
 def cmd_sync(args: argparse.Namespace) -> int:
-    from station import __version__
-    from station.db.connect import DatabaseError, shown
-    from station.db.sync import Sync, SyncError
-
     local = _open(args.db, "results_db")
     central_text = args.central or _settings().central_db
     if not central_text:
@@ -136,9 +135,6 @@ def cmd_sync(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from station.db.cfx_export import export_lines
-    from station.results_db import ResultsDBError, run_filters
-
     db = _open(args.db, "results_db")
     try:
         where = run_filters(args.since, args.until, args.product, None, args.serial)

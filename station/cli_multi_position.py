@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from drivers.bounded import MAX_RATE_DPS
 from drivers.csv_rows import shown
-from procedures.analysis import AnalysisError
+from procedures.analysis.errors import AnalysisError
 from procedures.analysis.multi_position import (
     AXES,
     SECTIONS,

@@ -19,10 +19,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record
+from procedures.record import CERTIFICATE_FILE, RAW_DATA_FILE, RECORD_FILE, read_record
 from reports.lot_rows import RunRow
 from station.errors import UserError
+from station.manifest import MANIFEST_FILE, verify_folder
 from station.results_db import ResultsDB, ResultsDBError
+from station.run_folder import recover_results
+from station.settings import LoadedSettings
+from station.station_file import load_settings
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +43,6 @@ def plural(n: int, noun: str) -> str:
 def default_db_path() -> Path | str:
     """The station file's results database, or runs/results.sqlite without one."""
     try:
-        from station.settings import load_settings
-
         return load_settings().results_db
     except Exception as exc:  # no station.yaml, or settings not part of this build
         log.info("station settings not loaded (%s); using %s", exc, FALLBACK_DB)
@@ -114,12 +116,10 @@ def _render_checked(folder: Path, args: argparse.Namespace) -> Path:
     record or raw file is refused, or with --unverified rendered as UNVERIFIED_FILE, marked
     on every page and neither signed nor sealed. A certificate.pdf altered alone is simply
     rendered again from the intact record."""
-    from procedures.record import CERTIFICATE_FILE
+    # reportlab (PDF): loaded only when a report is drawn
     from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
     from station.certify import issue_certificate, trusted_fingerprints
-    from station.manifest import MANIFEST_FILE, verify_folder
-    from station.settings import load_settings
 
     try:
         settings = load_settings(Path(args.station) if args.station else None)
@@ -160,9 +160,8 @@ def history_table(runs: list[RunRow]) -> list[str]:
 def _recover(runs_dir: Path | None, db_path: Path | str | None) -> None:
     """Runs a dead station left RUNNING become ERROR (naming their last completed step) and
     are indexed before anything is listed (station/run_folder.py)."""
+    # signing (pyhanko, cryptography): loaded only when used
     from station.certify import recovered_run_sealer
-    from station.run_folder import recover_results
-    from station.settings import LoadedSettings, load_settings
 
     settings: LoadedSettings | None = None
     try:
@@ -220,6 +219,7 @@ def cmd_history(args: argparse.Namespace) -> int:
 
 
 def cmd_lot_report(args: argparse.Namespace) -> int:
+    # reportlab (PDF): loaded only when a report is drawn
     from reports.lot_report import render_lot_report
 
     db = _open_db(args, must_exist=True)
@@ -228,7 +228,7 @@ def cmd_lot_report(args: argparse.Namespace) -> int:
         raise UserError(f"--out {out}: give a file name ending in .pdf")
     issued = None
     if args.issued:
-        from reports.pdfdoc import parse_utc
+        from reports.pdfdoc import parse_utc  # reportlab (PDF): loaded only when a report is drawn
 
         issued = parse_utc(args.issued)
         if issued is None:

@@ -23,13 +23,15 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from drivers.yaml_input import ConfigError
-from procedures.config import ProcedureConfig, ProductConfig
+from drivers.yaml_input import ConfigError, read_yaml
+from procedures.config import ProcedureConfig, ProductConfig, load_procedure, load_product
 from procedures.progress import ProgressEvent
 from procedures.step_list import procedure_json_schema
 from station.errors import UserError
 from station.exit_path import ExitPath, exit_bound_s
-from station.settings import CONFIG_DIR, StationSettings, load_settings
+from station.settings import CONFIG_DIR, StationSettings
+from station.station_file import load_settings
+from station.uut import Endpoints, UutRunner
 
 DEMO_SERIAL = "SIM-0001"
 DEMO_SPEED = 120.0
@@ -118,7 +120,6 @@ class ProgressDisplay:
             self._last_step = step
             print(line, file=self.stream, flush=True)
 
-
     def _prompt(self, ev: ProgressEvent) -> None:
         """An instruction to the operator on its own line (never overwritten by progress):
         `>>> OPERATOR (socket 1): Turn ...`; `prompt_done` says it was seen done."""
@@ -162,8 +163,6 @@ def _scanned_parts(duts: dict[int, str], axes: int) -> list[dict[str, Any]]:
 def _product_axes(args: argparse.Namespace) -> int:
     """The rate axes of the product the run will test (1 when the files do not say; the
     runner refuses a bad procedure or product itself, in its own words)."""
-    from procedures.config import load_procedure, load_product
-
     try:
         settings = load_settings(Path(args.station) if args.station else None)
         procedure_path = Path(args.procedure) if args.procedure else settings.procedure
@@ -183,8 +182,8 @@ def _sim_config(
         p = Path(path)
         if not p.is_file():
             raise UserError(f"--sim-config {path}: no such file")
+        # the simulated bench: loaded only when asked for
         from drivers.sim.config import SimConfigError, load_sim_config
-        from drivers.yaml_input import read_yaml
 
         try:
             load_sim_config(p)  # refused here, before a bench or a run folder exists
@@ -208,6 +207,7 @@ def _check_out(out: str | None) -> None:
 @contextlib.contextmanager
 def _bench_errors() -> Iterator[None]:
     """A simulated bench that will not start is an error (exit 2), said in one line."""
+    # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchStartError
 
     try:
@@ -230,6 +230,7 @@ class AttachedBench:
 @contextlib.contextmanager
 def _attached_bench(state: Path) -> Iterator[AttachedBench]:
     """The bench whose state file `state` is, checked alive before anything else happens."""
+    # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchEndpoints
 
     try:
@@ -262,8 +263,6 @@ def run_cycle(
     sim_bench: Path | None = None,
 ) -> int:
     """Shared by run and demo: load files, maybe start the bench, run, print the outcome."""
-    from station.uut import Endpoints, UutRunner
-
     _check_labels(args)
     settings, runner_kwargs, probe = _checked_runner(args, duts)
     bench_cm = _bench(duts, sim=sim, sim_config=sim_config, speed=speed, sim_bench=sim_bench)
@@ -301,8 +300,6 @@ def _checked_runner(args: argparse.Namespace, duts: dict[int, str]) -> tuple[Any
     """The settings, the runner's arguments and a runner that has checked them (serials, the
     output folder and its space) and recovered the runs a stopped station left RUNNING:
     refused before a bench or a run folder exists."""
-    from station.uut import UutRunner
-
     try:
         settings = load_settings(Path(args.station) if args.station else None)
         runner_kwargs: Any = dict(

@@ -17,6 +17,10 @@ from pathlib import Path
 
 from station.errors import UserError
 from station.manifest import Status, Verification, verify_folder
+from station.run_archive import verify_archive
+from station.settings import LoadedSettings
+from station.signing_keys import certificate_fingerprint, load_trusted_certificate
+from station.station_file import load_settings
 
 log = logging.getLogger(__name__)
 
@@ -38,8 +42,6 @@ def sealed_text(result: Verification) -> str:
 
 
 def station_settings(path: str | None) -> object | None:
-    from station.settings import load_settings
-
     try:
         return load_settings(Path(path) if path else None)
     except Exception as exc:  # verify still works without a station file: any valid signer
@@ -51,9 +53,9 @@ def station_settings(path: str | None) -> object | None:
 
 def trusted_for(args: argparse.Namespace) -> tuple[set[str] | None, str]:
     """The fingerprints to accept and a sentence saying where they came from."""
+    # station.certify loads pyhanko (PDF signing, ~270 modules): only for the commands that
+    # check signatures, not at every `station` start (station.cli imports every command group)
     from station.certify import trusted_fingerprints
-    from station.settings import LoadedSettings
-    from station.signing_keys import certificate_fingerprint, load_trusted_certificate
 
     if args.trust:
         cert = load_trusted_certificate(Path(args.trust))
@@ -68,8 +70,6 @@ def trusted_for(args: argparse.Namespace) -> tuple[set[str] | None, str]:
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
-    from station.run_archive import verify_archive
-
     folder = Path(args.run_folder)
     trusted, basis = trusted_for(args)
     result = (verify_folder(folder, trusted) if folder.is_dir() or not folder.exists()
@@ -89,8 +89,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 def cmd_approve(args: argparse.Namespace) -> int:
-    from station.approvals import approve
-    from station.settings import LoadedSettings
+    from station.approvals import approve  # pyhanko: only when approving (see trusted_for)
 
     settings = station_settings(args.station)
     if not isinstance(settings, LoadedSettings):

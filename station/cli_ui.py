@@ -8,12 +8,13 @@ from pathlib import Path
 from typing import Any
 
 from station.errors import UserError
+from station.exit_path import ExitPath, exit_bound_s
 from station.secret_input import read_secret
+from station.ui.auth import hash_badge, hash_password, hash_pin
+from station.uut import safe_state_policy_of
 
 
 def _hash_secret(kind: str) -> int:
-    from station.ui.auth import hash_badge, hash_password, hash_pin
-
     makers: dict[str, tuple[str, Callable[[str], str], str]] = {
         "password": ("engineer password", hash_password, "engineer_password_hash"),
         "pin": ("PIN", hash_pin, "pin_hash"),
@@ -44,13 +45,13 @@ def _ui(args: argparse.Namespace) -> int:
     if args.sim_config and not args.sim:
         raise UserError("--sim-config needs --sim (it configures the simulated bench)")
     if args.speed is not None:
+        # the simulated bench: loaded only when asked for
         from drivers.sim.config import speed_problem
 
         if problem := speed_problem(args.speed):
             raise UserError(problem)
-    from station.exit_path import ExitPath, exit_bound_s
+    # fastapi/uvicorn: loaded only when serving
     from station.ui.launch import ui_station
-    from station.uut import safe_state_policy_of
 
     # signals and uncaught thread exceptions: one exit path (station/exit_path.py); before
     # the screen is up a signal unwinds as Ctrl-C does
@@ -83,7 +84,7 @@ def _ui(args: argparse.Namespace) -> int:
 def _serve(station: Any, args: argparse.Namespace, exit_path: Any) -> bool:
     """Serve until a signal; True when that signal ended a run in progress. The run itself
     ends (safe state, record sealed) as `ui_station` closes, after the server stopped."""
-    from station.ui.server import station_server
+    from station.ui.server import station_server  # fastapi/uvicorn: loaded only when serving
 
     server = station_server(station.app, args.host, args.port, tls=station.tls,
                             limits=station.limits)

@@ -14,11 +14,13 @@ import hashlib
 import logging
 import shutil
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from procedures.record import read_record
 from station.errors import UserError
 
 if TYPE_CHECKING:
@@ -40,8 +42,6 @@ def record_procedure(run_folder: Path, override: Path | None) -> tuple[Path, str
     """The procedure to simulate: `override`, else the file the run's record names (as
     recorded, else relative to the run folder's parent); with a note when the file's content
     is not the one the run used."""
-    from procedures.record import read_record
-
     try:
         rec = read_record(run_folder)
     except ValueError as exc:
@@ -72,8 +72,6 @@ def record_procedure(run_folder: Path, override: Path | None) -> tuple[Path, str
 def supply_current_a(run_folder: Path) -> float | None:
     """The part's mean supply current over the run's conditions (its self-heating), if
     recorded."""
-    from procedures.record import read_record
-
     currents = [c.supply_current_a for c in read_record(run_folder).conditions
                 if c.supply_current_a is not None]
     return sum(currents) / len(currents) if currents else None
@@ -81,6 +79,7 @@ def supply_current_a(run_folder: Path) -> float | None:
 
 def _check_entry(entry: dict[str, Any], model_name: str) -> None:
     """UserError before any bench starts if the bench cannot hold the model as a part."""
+    # the simulated bench: loaded only when asked for
     from drivers.sim.config import SimConfigError, parse_sim_config
 
     try:
@@ -96,8 +95,8 @@ def run_twin(
     entry: dict[str, Any], procedure: Path, out: Path, speed: float | None
 ) -> tuple[Path, str]:
     """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
+    # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchStartError
-    from procedures.record import read_record
     from station.uut import run_simulated
 
     for attempt in range(1, BENCH_START_ATTEMPTS + 1):
@@ -138,6 +137,7 @@ def simulate(
 ) -> tuple[SimulationComparison, dict[str, Any]]:
     """Run both twins and compare; returns the comparison and the JSON detail (twin configs,
     run folders, verdicts)."""
+    # the discrepancy model: loaded only by this command
     from procedures.model.run_folder import load_data
     from procedures.model.twin import compare, part_entry
 
@@ -174,7 +174,5 @@ def simulate(
     except ValueError as exc:
         raise UserError(f"{run_folder}: {exc}") from exc
     if proc_note:
-        from dataclasses import replace
-
         comparison = replace(comparison, notes=(proc_note, *comparison.notes))
     return comparison, detail

@@ -20,9 +20,9 @@ from typing import TYPE_CHECKING, Any
 from pydantic import ValidationError
 
 from drivers import registry
-from drivers.clock import Clock
+from drivers.clock import Clock, ScaledClock
 from drivers.errors import InstrumentError
-from drivers.protocols import Identifiable, InstrumentIdentity
+from drivers.protocols import Identifiable, InstrumentIdentity, Probeable
 from station.errors import UserError
 from station.settings import FixtureSettings, InstrumentSettings, LoadedSettings
 
@@ -299,9 +299,6 @@ def _close_quietly(driver: Any) -> None:
 def probe_role(plan: RoleDriver) -> tuple[bool, str]:
     """(reachable, what it reports) for the instrument lights: opened with its own driver,
     asked its own `probe()` (or `identify()` when it has none), closed."""
-    from drivers.clock import ScaledClock
-    from drivers.protocols import Probeable
-
     try:
         driver = registry.open_driver(plan.factory, plan.settings, ScaledClock(1.0))
     except Exception as exc:  # noqa: BLE001 - any failure to open is "not connected"

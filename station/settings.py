@@ -2,7 +2,8 @@
 
 Validated with pydantic at the edge; errors name the file, line and field (see
 `drivers.yaml_input.load_yaml_model`). Relative paths inside the file are relative to the
-folder that holds it, so the file can travel with its configuration folder.
+folder that holds it, so the file can travel with its configuration folder. The model only:
+`station.station_file.load_settings` reads the file and has each driver check its settings.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any, Literal
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.bounded import Name, PathText, ShortName
-from drivers.yaml_input import ConfigError, LoadedYaml, load_yaml_model
+from drivers.yaml_input import LoadedYaml
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"
@@ -398,6 +399,7 @@ class LoadedSettings:
     @property
     def results_db(self) -> Path | str:
         """The results database: a Path for a SQLite file, else its URL."""
+        # sqlalchemy: loaded only when a database is used
         from station.db.connect import database_url, sqlite_path
 
         url = database_url(self.settings.results_db, self.folder)
@@ -406,6 +408,7 @@ class LoadedSettings:
     @property
     def central_db(self) -> str | None:
         """The line's central database URL (relative SQLite paths resolved), or None."""
+        # sqlalchemy: loaded only when a database is used
         from station.db.connect import database_url
 
         text = self.settings.central_db
@@ -414,16 +417,3 @@ class LoadedSettings:
     @property
     def procedure(self) -> Path:
         return self.resolve(self.settings.procedure)
-
-
-def load_settings(path: Path | None = None) -> LoadedSettings:
-    """Load station.yaml (default: config/station.yaml of this installation)."""
-    model, loaded = load_yaml_model(Path(path or DEFAULT_STATION_FILE), StationSettings)
-    settings = LoadedSettings(settings=model, source=loaded)
-    # each instrument's settings belong to its driver: checked by the driver's own model
-    from station.instruments import settings_problems
-
-    problems = settings_problems(settings)
-    if problems:
-        raise ConfigError("\n".join(problems))
-    return settings

@@ -54,6 +54,7 @@ from procedures.config import (
     product_for_procedure,
 )
 from procedures.engine import Engine
+from procedures.plan import build_plan
 from procedures.progress import ProgressBus, ProgressEvent
 from procedures.rawdata import RawDataWriter, file_sha256
 from procedures.record import (
@@ -65,13 +66,13 @@ from procedures.record import (
     RunRecord,
     Verdict,
     os_error_text,
+    read_record,
     save_record_anywhere,
     write_record,
 )
 from procedures.run_context import RunContext
 from procedures.run_parts import Bench, PartRun
 from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
-from procedures.steps.plan import build_plan
 from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
 from station import __version__, preflight
@@ -79,6 +80,7 @@ from station import instruments as roles
 from station.bench_clock import station_clock
 from station.errors import UserError
 from station.instrument_lock import InstrumentLock, lock_instruments
+from station.prompt_relay import PromptRelay
 from station.run_folder import (
     check_output_folder,
     create_run_folder,
@@ -87,6 +89,7 @@ from station.run_folder import (
     validate_serial,
 )
 from station.settings import LoadedSettings
+from station.station_file import load_settings
 
 if TYPE_CHECKING:
     from drivers.sim.launcher import BenchEndpoints
@@ -357,7 +360,6 @@ class UutRunner:
         self.certificate = certificate
         self.progress = ProgressBus()
         if endpoints is not None and endpoints.operator:  # the simulated operator's eyes
-            from station.prompt_relay import PromptRelay
 
             self.progress.subscribe(PromptRelay(endpoints.operator))
         self._lock = threading.Lock()
@@ -374,6 +376,7 @@ class UutRunner:
 
     def recover(self) -> list[Path]:
         """Mark ERROR the runs a crashed station left RUNNING in the output folder."""
+        # signing (pyhanko, cryptography): loaded only when used
         from station.certify import recovered_run_sealer
 
         folders = recover_crashed_runs(self.out, seal=recovered_run_sealer(self.settings))
@@ -837,6 +840,7 @@ class UutRunner:
 
     def _certificate(self, folder: Path) -> Path | None:
         """The signed certificate (when wanted) and the folder's signed manifest."""
+        # signing (pyhanko, cryptography): loaded only when used
         from station.certify import finish_run_folder
 
         return finish_run_folder(folder, self.settings, certificate=self.certificate,
@@ -857,6 +861,7 @@ class UutRunner:
         try:
             db = self._results_db()
             if db is not None:  # locally first, then forwarded to the line's central db
+                # sqlalchemy: loaded only when a database is used
                 from station.db.sync import store_finished_run
 
                 store_finished_run(db, self.settings, part.folder, part.record,
@@ -867,7 +872,6 @@ class UutRunner:
     def _mark_crashed_in_db(self, folders: list[Path]) -> None:
         if not folders:
             return
-        from procedures.record import read_record
 
         try:
             db = self._results_db()
@@ -921,8 +925,7 @@ def run_simulated(
     """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
     entries); returns the result and the bench's truth at the end (for benchmarks and tests).
     Without `speed` the bench runs in lockstep (station time is physics time)."""
-    from drivers.sim.launcher import launch_bench
-    from station.settings import load_settings
+    from drivers.sim.launcher import launch_bench  # the simulated bench: loaded only when asked for
 
     sockets = max(int(p["socket"]) for p in parts)
     settings = settings or load_settings()

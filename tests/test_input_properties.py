@@ -26,7 +26,7 @@ from procedures.model.data import load_csv
 from procedures.model.model_io import load_model
 from station.cli_analyze import read_rate_csv
 from station.errors import UserError
-from station.settings import load_settings
+from station.station_file import load_settings
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = {

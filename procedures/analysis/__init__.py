@@ -3,7 +3,9 @@
 Every uncertainty named `u_*` is a standard (k=1) uncertainty; `*_k2` names are 2 x that.
 Bad input raises `AnalysisError` (a ValueError) whose message names the problem and the fix.
 
-API (names are stable; the procedure engine calls them):
+API (names are stable; the procedure engine calls them). Import each name from the module
+that defines it: this package re-exports nothing, so its modules can import one another
+without an import cycle through the package.
 
 bias.py
     window_mean(rate_dps, sample_rate_hz, noise=None) -> WindowMean
@@ -41,87 +43,3 @@ consistency.py
     normalised_difference(a, u_a, b, u_b) -> Consistency (E_n, consistent at k=2)
     stop_vs_rate_table(stop_result, rate_table_fit) -> Consistency
 """
-
-from __future__ import annotations
-
-from procedures.analysis.allan import (
-    AllanAnalysis,
-    AllanDeviation,
-    NoiseFit,
-    NoiseModel,
-    analyze_allan,
-    fit_noise_model,
-    overlapping_adev,
-)
-from procedures.analysis.bias import (
-    BiasEstimate,
-    WindowMean,
-    estimate_bias,
-    required_averaging_time_s,
-    window_mean,
-)
-from procedures.analysis.consistency import (
-    Consistency,
-    normalised_difference,
-    stop_vs_rate_table,
-)
-from procedures.analysis.errors import AnalysisError
-from procedures.analysis.rate_table import (
-    RateTableFit,
-    ReferenceRate,
-    fit_rate_table,
-    reference_rate_from_encoder,
-)
-from procedures.analysis.stop_method import (
-    StopMethodResult,
-    StopMethodSettings,
-    StopMove,
-    analyze_stop_method,
-)
-from procedures.analysis.temp_supply_fit import (
-    ConditionMeasurement,
-    FirstOrderCoefficients,
-    TempSupplyFit,
-    fit_temp_supply,
-)
-from procedures.analysis.verification import (
-    VerificationResult,
-    correct_rate,
-    correction_uncertainty_dps,
-    verify_correction,
-)
-
-__all__ = [
-    "AllanAnalysis",
-    "AllanDeviation",
-    "AnalysisError",
-    "BiasEstimate",
-    "ConditionMeasurement",
-    "Consistency",
-    "FirstOrderCoefficients",
-    "NoiseFit",
-    "NoiseModel",
-    "RateTableFit",
-    "ReferenceRate",
-    "StopMethodResult",
-    "StopMethodSettings",
-    "StopMove",
-    "TempSupplyFit",
-    "VerificationResult",
-    "WindowMean",
-    "analyze_allan",
-    "analyze_stop_method",
-    "correct_rate",
-    "correction_uncertainty_dps",
-    "estimate_bias",
-    "fit_noise_model",
-    "fit_rate_table",
-    "fit_temp_supply",
-    "normalised_difference",
-    "overlapping_adev",
-    "reference_rate_from_encoder",
-    "required_averaging_time_s",
-    "stop_vs_rate_table",
-    "verify_correction",
-    "window_mean",
-]

@@ -226,6 +226,7 @@ def temperature_rate_c_per_s(traj: Trajectory) -> FloatArray:
 
 
 def _temperature_rate(traj: Trajectory) -> FloatArray:
+    # scipy.ndimage (slow to import): loaded on first use
     from scipy.ndimage import uniform_filter1d
 
     out = np.zeros(traj.n)

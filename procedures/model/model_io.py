@@ -26,8 +26,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
 
 from drivers.bounded import MAX_RATE_DPS, Name, ShortName
-from drivers.yaml_input import ConfigError, LoadedYaml, format_validation_error
-from procedures.config import load_yaml
+from drivers.yaml_input import ConfigError, LoadedYaml, format_validation_error, read_yaml
 from procedures.model import effects as fx
 from procedures.model.effects import CATALOG
 from procedures.model.gyro_model import BUILT_IN, GyroModel, zero_params
@@ -245,4 +244,4 @@ def load_model(spec: str | Path) -> GyroModel:
             f"model {str(spec)!r} is neither a built-in model ({', '.join(BUILT_IN)}) "
             "nor an existing YAML file"
         )
-    return model_from_loaded(load_yaml(path))
+    return model_from_loaded(read_yaml(path))

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.h5_input import open_h5
 from drivers.protocols import ENCODER_MODULO, SampleStatus
 from procedures.model.data import load_csv
 from procedures.model.trajectory import FloatArray, Segment, Trajectory
@@ -149,8 +150,6 @@ def raw_sizes(path: Path) -> tuple[int, int, bool]:
     """(samples, analysed windows, whether it holds a three-axis part's per-axis samples)
     of a raw data file, from the datasets' shapes alone (a truncated file is refused at once,
     ValueError, by the bounded opener: HDF5 itself retries it for minutes)."""
-    from drivers.h5_input import open_h5
-
     with open_h5(path) as f:
         n = int(f["samples/time_s"].shape[0]) if "samples/time_s" in f else 0
         windows = int(f["segments/kind"].shape[0]) if "segments/kind" in f else 0

@@ -12,12 +12,12 @@ from procedures.analysis.allan import analyze_allan
 from procedures.analysis.bias import estimate_bias, required_averaging_time_s
 from procedures.analysis.bias_wander import window_mean_covariance
 from procedures.analysis.errors import AnalysisError
-from procedures.config import Seconds
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.units import Seconds
 
 
 class BiasSettings(StepSettings):

@@ -39,13 +39,13 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from procedures.config import Volts
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, condition_record
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import Declared, StepSettings, StepType
 from procedures.steps.stop import stop_noise_model
+from procedures.units import Volts
 
 CLIP_BITS = int(SampleStatus.OVER_RANGE | SampleStatus.SATURATED)
 POLL_S = 0.25  # station seconds between looks at the part's data while waiting for a move
@@ -148,7 +148,7 @@ class ManualStop(StepType[ManualStopSettings]):
     # ------------------------------------------------------------ the moves
 
     def setup(self, ctx: RunContext) -> None:
-        self._inclinometer = getattr(ctx.instruments.bench, "inclinometer", None)
+        self._inclinometer = ctx.instruments.bench.inclinometer
         if self.settings.reference == "inclinometer" and self._inclinometer is None:
             for part in ctx.parts.alive():
                 ctx.parts.drop(

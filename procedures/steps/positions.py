@@ -22,11 +22,11 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
-from procedures.config import Seconds
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import StepSettings, StepType
+from procedures.units import Seconds
 
 SEGMENT_KIND = "position_static"
 AT_REST_DPS = 0.05  # |rate| at the snapshot above this: the table was not at rest

@@ -8,11 +8,11 @@ from pydantic import Field
 
 from drivers.bounded import ONE_HOUR_S
 from drivers.errors import InstrumentError, PartAbsent
-from procedures.config import Volts
 from procedures.record import InstrumentRecord
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.units import Volts
 
 
 class SerialMismatch(InstrumentError):  # noqa: N818 - like drivers.errors

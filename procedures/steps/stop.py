@@ -26,13 +26,13 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from procedures.config import Seconds, Volts
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.program import failed_limits
 from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.units import Seconds, Volts
 
 # the table counts as already at the first stop within this (a move is skipped)
 AT_STOP_TOLERANCE_DEG = 0.001

@@ -11,12 +11,12 @@ from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, MAX_REPEATS, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.rate_table import fit_rate_table, reference_rate_from_encoder
-from procedures.config import Rate, Seconds
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.units import Rate, Seconds
 
 
 def plateau_time_s(rate_dps: float, previous_dps: float, accel_dps2: float) -> float:

@@ -27,7 +27,6 @@ from procedures.chamber_strategy import (
     steady_die_c,
     straight_settle_s,
 )
-from procedures.config import Seconds
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import ConditionResult
@@ -42,6 +41,7 @@ from procedures.thermal_control import (
     heat_after_change,
     heat_now_c,
 )
+from procedures.units import Seconds
 
 
 @dataclass(frozen=True)

@@ -11,13 +11,13 @@ from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.verification import verify_correction
-from procedures.config import Rate, Seconds, Volts
 from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
+from procedures.units import Rate, Seconds, Volts
 
 
 class VerifySettings(StepSettings):

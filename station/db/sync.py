@@ -24,6 +24,7 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.exc import SQLAlchemyError
 
+from station import __version__
 from station.db.connect import DatabaseError, database_url, engine_for, shown
 from station.db.schema import calibration_elements, measurements, outbox, runs, stations
 from station.db.store import replace_runs, utc_now
@@ -267,7 +268,6 @@ def wake_station_sync(settings: Any, local: str, force: bool = False,
     central = settings.central_db
     if not central:
         return
-    from station import __version__
 
     thread = station_sync(
         local, central, station_id=settings.settings.station.id, software_version=__version__,

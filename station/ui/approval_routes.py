@@ -35,12 +35,14 @@ def add_approval_routes(app: FastAPI, controller: Controller, history: History,
         return controller.run_folders.get(key) or history.folder(key)
 
     def trusted() -> set[str] | None:
+        # signing (pyhanko, cryptography): loaded only when used
         from station.certify import trusted_fingerprints
 
         return trusted_fingerprints(sec.settings) if sec.settings is not None else None
 
     @app.get("/api/runs/{key}/integrity")
     def integrity(key: str) -> Response:
+        # signing (pyhanko, cryptography): loaded only when used
         from station.approvals import read_approvals
         from station.manifest import verify_folder
 
@@ -58,6 +60,7 @@ def add_approval_routes(app: FastAPI, controller: Controller, history: History,
 
     @app.post("/api/runs/{key}/approve")
     def approve_run(key: str, session: Guarded, body: ApproveBody | None = None) -> Response:
+        # signing (pyhanko, cryptography): loaded only when used
         from station.approvals import approve
 
         if not session.quality or not session.operator:

@@ -7,6 +7,7 @@ system's chromium is launched by path. Playwright is a test/tooling dependency o
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -41,6 +42,7 @@ def chromium() -> Iterator[Any]:
     reason = chromium_missing_reason()
     if reason:
         raise RuntimeError(reason)
+    # playwright (test extra): only for a headless browser
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
@@ -57,8 +59,6 @@ def wait_js(page: Any, expression: str, timeout_s: float = 30.0, poll_s: float =
     Playwright's wait_for_function compiles its predicate inside the page, which the pages'
     Content-Security-Policy (no eval) forbids; page.evaluate is not subject to it.
     """
-    import time
-
     deadline = time.monotonic() + timeout_s
     while True:
         value = page.evaluate(expression)

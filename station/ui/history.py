@@ -19,6 +19,7 @@ from typing import Any
 
 from procedures.record import CERTIFICATE_FILE, RECORD_FILE, RunRecord, read_record
 from station.errors import UserError
+from station.run_folder import recover_results
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +96,6 @@ class History:
     def recover(self, *, locks_only: bool = False) -> list[Path]:
         """Mark ERROR (and index) the runs of a station that died mid-run: they show here
         as ERROR with the last step they completed, not as missing or RUNNING."""
-        from station.run_folder import recover_results
-
         self._recovered_at = time.monotonic()
         return recover_results(self.out_dir, self.db_path, locks_only=locks_only, seal=self.seal)
 
@@ -129,6 +128,7 @@ class History:
         return self.db_path is not None and self.db_path.is_file()
 
     def _db_rows(self, flt: RunFilter) -> list[dict[str, Any]]:
+        # sqlalchemy: loaded only when a database is used
         from station.results_db import ResultsDB, ResultsDBError
 
         until = flt.until or None

@@ -14,6 +14,8 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
+from station.instruments import probe_role
+
 log = logging.getLogger(__name__)
 
 
@@ -48,8 +50,6 @@ def probe(
     instruments: list[InstrumentAddress], today: dt.date | None = None
 ) -> list[InstrumentLight]:
     """One light per instrument, probed now with its own driver."""
-    from station.instruments import probe_role
-
     today = today or dt.date.today()
     lights = []
     for inst in instruments:

@@ -15,8 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.yaml_input import ConfigError, read_yaml
 from station.certify import recovered_run_sealer
 from station.errors import UserError
+from station.station_file import load_settings
 from station.ui import catalog
 from station.ui.app import Security, create_app
 from station.ui.auth import Operator, OperatorBook, check_hash_format
@@ -161,8 +163,8 @@ def _sim_parts(sim_config: Path | None) -> tuple[dict[str, dict[str, Any]], int,
     states (None when it states none)."""
     if sim_config is None:
         return {}, 0, None
+    # the simulated bench: loaded only when asked for
     from drivers.sim.config import SimConfigError, load_sim_config
-    from drivers.yaml_input import read_yaml
 
     try:
         config = load_sim_config(sim_config)  # bounded reader and schema: refused in one line
@@ -218,9 +220,6 @@ def ui_station(
 
 
 def _load_settings(station_file: Path | None) -> Any:
-    from drivers.yaml_input import ConfigError
-    from station.settings import load_settings
-
     try:
         return load_settings(station_file)
     except ConfigError as exc:

@@ -19,7 +19,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from drivers.yaml_input import ConfigError
+from procedures.config import load_procedure, load_product
+from procedures.plan import build_plan
+from procedures.record import read_record
+from station import instruments as roles
 from station.errors import UserError
+from station.exit_path import exit_bound_s
+from station.ui.history import result_from_record
 from station.ui.instruments import InstrumentAddress, InstrumentLight, probe
 
 log = logging.getLogger(__name__)
@@ -290,6 +297,7 @@ class EngineRunner:
 
     def _uut_for(self, procedure: Path, product: Path | None) -> Any:
         """The engine's UutRunner for this selection, reused while its files are unchanged."""
+        # the engine: loaded when a run starts (a UI-only build has none: engine_available)
         from station.uut import UutRunner
 
         files = [procedure] + ([product] if product else [])
@@ -314,8 +322,6 @@ class EngineRunner:
     ) -> Iterator[tuple[Path, Any]]:
         """Each file of `paths` that loads, in order, with what it holds; the others are
         logged and skipped (the `what` list skips them)."""
-        from drivers.yaml_input import ConfigError
-
         for path in sorted(paths):
             try:
                 loaded = self._cached(path, loader)
@@ -325,8 +331,6 @@ class EngineRunner:
             yield path, loaded
 
     def procedures(self) -> list[Choice]:
-        from procedures.config import load_procedure
-
         paths = {
             self.settings.procedure.resolve(),
             *(p.resolve() for p in self._yaml_files("procedures")),
@@ -337,8 +341,6 @@ class EngineRunner:
         ]
 
     def products(self) -> list[ProductChoice]:
-        from procedures.config import load_product
-
         choices = []
         paths = {p.resolve() for p in self._yaml_files("products")}
         default_product = self._default_product()
@@ -357,9 +359,6 @@ class EngineRunner:
         return choices
 
     def _default_product(self) -> Path | None:
-        from drivers.yaml_input import ConfigError
-        from procedures.config import load_procedure
-
         try:
             proc = self._cached(self.settings.procedure.resolve(), load_procedure)
         except (ConfigError, OSError):
@@ -383,8 +382,6 @@ class EngineRunner:
     # ------------------------------------------------------------ instruments
 
     def instruments(self) -> list[InstrumentLight]:
-        from station import instruments as roles
-
         if self.busy():
             return []
         cfg = self.settings.settings.instruments
@@ -427,8 +424,6 @@ class EngineRunner:
         return self._thread is not None and self._thread.is_alive()
 
     def start(self, request: StartRequest, sink: EventSink) -> str:
-        from drivers.yaml_input import ConfigError
-
         if self._thread is not None:
             self._thread.join(2.0)  # "finished" is its last act; let it end
         if self.busy():
@@ -466,7 +461,7 @@ class EngineRunner:
     def close(self) -> None:
         """Abort a run in progress and wait, bounded, for its end (the safe state, the
         record sealed): as long as the station's exit path gives a stop."""
-        from station.exit_path import exit_bound_s
+        # the engine: loaded when a run starts (a UI-only build has none: engine_available)
         from station.uut import safe_state_policy_of
 
         self.abort()
@@ -486,8 +481,6 @@ class EngineRunner:
                 self.control.load(sock, part)
 
     def _run(self, uut: Any, serials: dict[int, str], sink: EventSink) -> None:
-        from procedures.steps.plan import build_plan
-
         relay = ProgressRelay(build_plan(uut.procedure), WallPace(self.endpoints), sink)
         relay.announce(serials)
         unsubscribe = uut.progress.subscribe(relay.on_event)
@@ -532,9 +525,6 @@ class EngineRunner:
     def _result(
         self, sock: int, serial: str, folder: Path | None, error: str = ""
     ) -> dict[str, Any]:
-        from procedures.record import read_record
-        from station.ui.history import result_from_record
-
         if folder is not None:
             try:
                 return result_from_record(read_record(folder), folder)

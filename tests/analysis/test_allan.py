@@ -4,8 +4,8 @@ import allantools
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError, analyze_allan, overlapping_adev
-from procedures.analysis.allan import NoiseModel
+from procedures.analysis.allan import NoiseModel, analyze_allan, overlapping_adev
+from procedures.analysis.errors import AnalysisError
 from tests.analysis.synth import gyro_noise, nbs14_1000
 
 NBS14_OADEV = {1: 0.2922319, 10: 0.09159953, 100: 0.03241343}  # NIST SP 1065, table 31

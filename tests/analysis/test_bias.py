@@ -5,9 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError, estimate_bias, overlapping_adev, window_mean
-from procedures.analysis.allan import NoiseModel
-from procedures.analysis.bias import require_averaging_time_s, required_averaging_time_s
+from procedures.analysis.allan import NoiseModel, overlapping_adev
+from procedures.analysis.bias import (
+    estimate_bias,
+    require_averaging_time_s,
+    required_averaging_time_s,
+    window_mean,
+)
+from procedures.analysis.errors import AnalysisError
 from tests.analysis.synth import gyro_noise
 
 FS = 100.0

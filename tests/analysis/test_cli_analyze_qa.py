@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from procedures.analysis import analyze_stop_method
+from procedures.analysis.stop_method import analyze_stop_method
 from station.cli import main
 from tests.analysis.synth import article_record, gyro_noise, raised_cosine
 

@@ -3,14 +3,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import (
-    AnalysisError,
-    Consistency,
-    analyze_stop_method,
-    fit_rate_table,
-    normalised_difference,
-    stop_vs_rate_table,
-)
+from procedures.analysis.consistency import Consistency, normalised_difference, stop_vs_rate_table
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.rate_table import fit_rate_table
+from procedures.analysis.stop_method import analyze_stop_method
 from tests.analysis.synth import raised_cosine
 
 RATES = np.array([-250.0, -100, -20, 0, 20, 100, 250])

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError
+from procedures.analysis.errors import AnalysisError
 from procedures.analysis.multi_position import (
     SECTIONS,
     MultiPositionResult,

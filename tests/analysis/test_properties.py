@@ -6,7 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from procedures.analysis import analyze_stop_method, fit_rate_table, overlapping_adev
+from procedures.analysis.allan import overlapping_adev
+from procedures.analysis.rate_table import fit_rate_table
+from procedures.analysis.stop_method import analyze_stop_method
 from tests.analysis.synth import raised_cosine
 
 

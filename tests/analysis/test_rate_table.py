@@ -3,7 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError, fit_rate_table, reference_rate_from_encoder
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.rate_table import fit_rate_table, reference_rate_from_encoder
 
 RATES = np.array([-250.0, -200, -100, -50, -10, 0, 10, 50, 100, 200, 250])
 FS_DPS = 250.0

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from drivers.fixture_protocol import SampleStatus
-from procedures.analysis import AnalysisError, StopMethodSettings, analyze_stop_method
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.stop_method import StopMethodSettings, analyze_stop_method
 from tests.analysis.synth import article_record, raised_cosine
 
 

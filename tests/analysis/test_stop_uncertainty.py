@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import analyze_stop_method
 from procedures.analysis.allan import NoiseModel
-from procedures.analysis.stop_method import angle_error_covariance
+from procedures.analysis.stop_method import analyze_stop_method, angle_error_covariance
 from tests.analysis.synth import gyro_noise, raised_cosine
 
 WHITE = NoiseModel(arw_deg_per_sqrt_s=0.01)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError, ConditionMeasurement, fit_temp_supply
+from procedures.analysis.errors import AnalysisError
 from procedures.analysis.temp_fit import fit_temperature
+from procedures.analysis.temp_supply_fit import ConditionMeasurement, fit_temp_supply
 
 TRUTH = {
     "bias_dps": 8.6,

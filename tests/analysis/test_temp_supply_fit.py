@@ -3,8 +3,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError, ConditionMeasurement, fit_temp_supply
-from procedures.analysis.temp_supply_fit import COEFFICIENT_NAMES
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.temp_supply_fit import (
+    COEFFICIENT_NAMES,
+    ConditionMeasurement,
+    fit_temp_supply,
+)
 from procedures.record import Calibration
 
 TRUTH = {

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError
+from procedures.analysis.errors import AnalysisError
 from procedures.analysis.turn_on import c4, turn_on_repeatability
 
 

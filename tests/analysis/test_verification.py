@@ -3,7 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.analysis import FirstOrderCoefficients, correct_rate, verify_correction
+from procedures.analysis.temp_supply_fit import FirstOrderCoefficients
+from procedures.analysis.verification import correct_rate, verify_correction
 
 COEFFS = FirstOrderCoefficients(
     bias_dps=8.6, bias_temp_coeff_dps_per_c=0.008, bias_supply_coeff_dps_per_v=0.05,
@@ -52,11 +53,8 @@ def test_a_stale_coefficient_shows_up_as_error_at_verification() -> None:
 def test_coefficient_uncertainty_propagates_to_the_corrected_rate() -> None:
     """MC: refit from noisy conditions many times; the scatter of the corrected rate at
     one (rate, T, V) point matches the propagated uncertainty."""
-    from procedures.analysis import (
-        ConditionMeasurement,
-        correction_uncertainty_dps,
-        fit_temp_supply,
-    )
+    from procedures.analysis.temp_supply_fit import ConditionMeasurement, fit_temp_supply
+    from procedures.analysis.verification import correction_uncertainty_dps
 
     rng = np.random.default_rng(1)
     design = [(25.0, 4.75), (25.0, 5.25), (60.0, 4.75), (60.0, 5.25)]

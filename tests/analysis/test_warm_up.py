@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from procedures.analysis import AnalysisError
+from procedures.analysis.errors import AnalysisError
 from procedures.analysis.warm_up import warm_up_time
 
 FS = 50.0

@@ -28,7 +28,8 @@ from station.certify import finish_run_folder
 from station.db.connect import dispose_all
 from station.db.schema import outbox
 from station.results_db import ResultsDB
-from station.settings import LoadedSettings, load_settings
+from station.settings import LoadedSettings
+from station.station_file import load_settings
 from tests.reports.synth_run import Part, make_run
 from tests.reports.test_signing import station, station_file
 

@@ -11,7 +11,7 @@ import pytest
 from station.cli import main
 from station.db.connect import database_url, dispose_all
 from station.results_db import ResultsDB
-from station.settings import load_settings
+from station.station_file import load_settings
 from tests.linedb.linekit import line_runs, station_yaml
 
 

@@ -21,7 +21,7 @@ from station.db import sync as sync_mod
 from station.db.connect import engine_for
 from station.db.schema import measurements, runs, stations
 from station.results_db import ResultsDB
-from station.settings import load_settings
+from station.station_file import load_settings
 from tests.linedb.linekit import line_runs, station_yaml
 from tests.linedb.pgserver import PgServer, started_server
 

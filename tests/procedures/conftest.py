@@ -14,7 +14,7 @@ import pytest
 from drivers.sim.control_client import ControlClient
 from drivers.sim.launcher import launch_bench
 from procedures.progress import ProgressEvent
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints, UutResult, UutRunner
 
 DATA = Path(__file__).resolve().parent / "data"

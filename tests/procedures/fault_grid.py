@@ -30,7 +30,7 @@ from drivers.sim.launcher import BenchStartError, launch_bench
 from procedures.progress import ProgressEvent
 from procedures.record import RAW_DATA_FILE, Verdict, read_record
 from procedures.safe_state import SafeStatePolicy
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 
 GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"

@@ -6,7 +6,7 @@ import pytest
 
 from drivers.yaml_input import ConfigError
 from procedures.config import load_procedure, load_product
-from station.settings import load_settings
+from station.station_file import load_settings
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 

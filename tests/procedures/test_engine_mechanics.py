@@ -19,6 +19,7 @@ from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
 from procedures.run_context import RunContext
 from procedures.run_parts import Bench, PartRun
 from procedures.steps.registry import StepPolicy
+from tests.procedures.fake_step import DeclaresNothing
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,7 +37,7 @@ POLICIES = {"power": StepPolicy(timeout_s=60.0, retries=1)}
 
 
 @dataclass
-class Scripted:
+class Scripted(DeclaresNothing):
     """A step that sleeps, then does what it is told (the engine's Step protocol)."""
 
     name: str = "step"

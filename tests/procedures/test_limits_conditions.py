@@ -3,8 +3,7 @@ from __future__ import annotations
 import pytest
 
 from procedures.conditions import Condition, chamber_transitions, plan_conditions
-from procedures.config import Limit, Limits
-from procedures.limits import judge, outcome_of, overall
+from procedures.limits import Limit, Limits, judge, outcome_of, overall
 from procedures.record import Outcome
 
 

@@ -16,7 +16,7 @@ from drivers.sim.launcher import launch_bench
 from procedures.record import Verdict
 from procedures.steps.manual_stop import ManualStop, prompt_text
 from procedures.steps.registry import step_type
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 
 REPO = Path(__file__).resolve().parents[2]

@@ -12,9 +12,9 @@ import yaml
 
 from drivers.yaml_input import ConfigError
 from procedures.config import load_procedure
+from procedures.plan import build_plan
 from procedures.rawdata import read_raw
 from procedures.record import RAW_DATA_FILE, Verdict, read_record
-from procedures.steps.plan import build_plan
 
 from .conftest import SHORT, run_on_bench
 

@@ -29,6 +29,7 @@ from procedures.safe_state import (
 )
 from procedures.steps.base import frames_lost_in
 from procedures.steps.registry import StepPolicy
+from tests.procedures.fake_step import DeclaresNothing
 
 ROOT = Path(__file__).resolve().parents[2]
 FAST = SafeStatePolicy(deadline_s=0.0, wall_floor_s=0.5, first_backoff_wall_s=0.01)
@@ -189,7 +190,7 @@ def _ctx(tmp_path: Path, table: FakeTable, chamber: FakeChamber) -> RunContext:
     return RunContext(bench, proc, prod, [part])
 
 
-class Dwell:
+class Dwell(DeclaresNothing):
     name, condition, policy = "dwell", "", StepPolicy()
 
     def __init__(self, sleep_s: float, hook: Any = None) -> None:

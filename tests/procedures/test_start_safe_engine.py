@@ -16,6 +16,8 @@ from procedures.engine import Engine
 from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
 from procedures.run_context import RunContext
 from procedures.run_parts import Bench, PartRun
+from procedures.steps.registry import StepPolicy
+from tests.procedures.fake_step import DeclaresNothing
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -78,13 +80,13 @@ class LinkWithoutReadback:
 
 
 @dataclass
-class Look:
+class Look(DeclaresNothing):
     """A step that notes the bench as it finds it at its setup."""
 
     bench: Bench
     name: str = "power_identify"
     condition: str = ""
-    policy: Any = None
+    policy: StepPolicy = field(default_factory=StepPolicy)
     seen: list[dict[str, Any]] = field(default_factory=list)
 
     def estimate_s(self, ctx: RunContext) -> float:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from procedures.config import Limit, Limits
+from procedures.limits import Limit, Limits
 from procedures.record import Outcome, Verdict, read_record
 from procedures.run_context import RunContext
 from procedures.steps.program import Program, ProgramSettings

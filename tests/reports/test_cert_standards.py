@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from procedures.config import Limit, Limits
-from procedures.limits import judge
+from procedures.limits import Limit, Limits, judge
 from procedures.record import Outcome, read_record
 from station.certify import ensure_certificate_number
-from station.settings import load_settings
+from station.station_file import load_settings
 from tests.reports.conftest import pdf_text
 from tests.reports.test_signing import station_file
 

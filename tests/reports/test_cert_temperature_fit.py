@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from procedures.analysis import ConditionMeasurement
 from procedures.analysis.temp_fit import fit_temperature, record_summary
+from procedures.analysis.temp_supply_fit import ConditionMeasurement
 from procedures.record import RECORD_FILE
 from reports.certificate import certificate_bytes, render_certificate
 from tests.reports.conftest import pdf_text

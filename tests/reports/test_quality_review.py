@@ -14,7 +14,8 @@ import pytest
 from procedures.record import Verdict
 from station.certify import finish_run_folder
 from station.results_db import ResultsDB
-from station.settings import LoadedSettings, load_settings
+from station.settings import LoadedSettings
+from station.station_file import load_settings
 from station.ui.history import History, RunFilter
 from tests.reports.conftest import pdf_text
 from tests.reports.synth_run import Part, make_record, make_run

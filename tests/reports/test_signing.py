@@ -18,8 +18,9 @@ from station.certify import finish_run_folder
 from station.cli import main
 from station.manifest import MANIFEST_FILE
 from station.pdf_signing import unsigned_revision
-from station.settings import LoadedSettings, load_settings
+from station.settings import LoadedSettings
 from station.signing_keys import load_or_create_identity
+from station.station_file import load_settings
 from tests.reports.conftest import pdf_pages, pdf_text
 from tests.reports.synth_run import Part, make_run
 

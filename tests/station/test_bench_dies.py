@@ -18,7 +18,7 @@ import pytest
 
 from drivers.sim.launcher import launch_bench
 from procedures.record import Verdict, read_record
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]

@@ -143,7 +143,7 @@ def test_a_recovered_run_is_numbered_and_sealed(tmp_path: Path) -> None:
     """The station recovers a crashed run as it finishes any other: a certificate number and
     a manifest that `station verify` accepts; a later edit shows as altered."""
     from station.manifest import Status, verify_folder
-    from station.settings import load_settings
+    from station.station_file import load_settings
     from station.uut import UutRunner
     from tests.reports.test_signing import station_file
 

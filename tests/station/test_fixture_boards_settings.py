@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from station.settings import FixtureSettings, load_settings
+from station.settings import FixtureSettings
+from station.station_file import load_settings
 
 ROOT = Path(__file__).resolve().parents[2]
 

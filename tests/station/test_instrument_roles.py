@@ -10,7 +10,7 @@ import pytest
 
 from drivers.yaml_input import ConfigError
 from station import instruments as roles
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints
 
 ROOT = Path(__file__).resolve().parents[2]

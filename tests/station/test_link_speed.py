@@ -13,7 +13,8 @@ from drivers.clock import ScaledClock
 from drivers.fixture_protocol import OUTPUT_RATES_HZ
 from drivers.protocols import InstrumentIdentity
 from station.errors import UserError
-from station.settings import LoadedSettings, load_settings
+from station.settings import LoadedSettings
+from station.station_file import load_settings
 from station.uut import UutRunner, link_speed_problem
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -269,7 +269,7 @@ def test_start_on_the_operator_screen_refuses_a_part_heated_past_its_maximum(
     """The operator screen's START runs the same pre-flight: refused, nothing written."""
     from drivers.sim.launcher import launch_bench
     from station.errors import UserError
-    from station.settings import load_settings
+    from station.station_file import load_settings
     from station.ui.runner_adapter import EngineRunner, StartRequest
     from station.uut import Endpoints
 

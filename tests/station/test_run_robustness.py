@@ -189,7 +189,7 @@ def test_run_help_says_what_sim_and_out_do() -> None:
 def test_out_moves_the_results_db_unless_it_is_the_stations_folder(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from station.settings import load_settings
+    from station.station_file import load_settings
     from station.uut import UutRunner
 
     text = (ROOT / "config/station.yaml").read_text()

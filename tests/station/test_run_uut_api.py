@@ -12,7 +12,7 @@ from drivers.sim.launcher import launch_bench
 from procedures.progress import ProgressEvent
 from procedures.record import Verdict, read_record
 from station.errors import UserError
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 
 ROOT = Path(__file__).resolve().parents[2]

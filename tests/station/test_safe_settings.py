@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from station.errors import UserError
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import UutRunner
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,7 +10,7 @@ import yaml
 
 from drivers.yaml_input import ConfigError
 from procedures.safe_state import SafeStatePolicy
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import UutRunner
 
 ROOT = Path(__file__).resolve().parents[2]

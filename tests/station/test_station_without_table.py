@@ -10,7 +10,7 @@ from procedures.config import load_procedure, load_product
 from procedures.run_parts import Bench
 from station import instruments as roles
 from station.preflight import instrument_problems
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -24,7 +24,8 @@ import yaml
 
 from station.certify import finish_run_folder
 from station.cli import build_parser, main
-from station.settings import LoadedSettings, load_settings
+from station.settings import LoadedSettings
+from station.station_file import load_settings
 from tests.reports.synth_run import Part, make_run
 from tests.reports.test_signing import station_file
 

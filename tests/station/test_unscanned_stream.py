@@ -13,7 +13,7 @@ from drivers.part_link import SerialPartLink
 from drivers.scpi import open_serial
 from drivers.sim.launcher import launch_bench
 from procedures.record import Verdict
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 
 pytestmark = pytest.mark.slow

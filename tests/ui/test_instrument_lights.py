@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 
 from drivers.sim.launcher import launch_bench
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.ui.instruments import InstrumentLight
 from station.ui.runner_adapter import EngineRunner
 from station.uut import Endpoints

@@ -162,7 +162,8 @@ def test_station_yaml_language_must_have_a_catalog(tmp_path: Path) -> None:
     from pydantic import ValidationError
 
     from station.errors import UserError
-    from station.settings import UiSettings, load_settings
+    from station.settings import UiSettings
+    from station.station_file import load_settings
     from station.ui.launch import security_of
     from tests.ui.test_ui_security import _station_yaml
 

@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from station.certify import finish_run_folder
-from station.settings import load_settings
+from station.station_file import load_settings
 from station.ui.app import Security, create_app
 from station.ui.auth import Operator, OperatorBook, hash_pin
 from station.ui.controller import Controller

@@ -351,7 +351,7 @@ def _station_yaml(folder: Path, ui: dict[str, object]) -> Path:
 
 def test_security_settings_from_station_yaml(tmp_path: Path) -> None:
     from station.errors import UserError
-    from station.settings import load_settings
+    from station.station_file import load_settings
     from station.ui.launch import security_of
 
     plain = load_settings(_station_yaml(tmp_path, {}))
@@ -391,7 +391,7 @@ def test_security_settings_from_station_yaml(tmp_path: Path) -> None:
 )
 def test_bad_ui_settings_are_one_clear_error(tmp_path: Path, ui: dict, message: str) -> None:
     from drivers.yaml_input import ConfigError
-    from station.settings import load_settings
+    from station.station_file import load_settings
 
     with pytest.raises(ConfigError, match=message):
         load_settings(_station_yaml(tmp_path, ui))
