@@ -104,6 +104,9 @@ class StepType(Generic[S]):
     # what the step leaves for later steps (e.g. "scale_table", "scale_stop", "fit",
     # "programmed"); `requires(settings)` names what must come from an earlier entry
     provides: ClassVar[frozenset[str]] = frozenset()
+    # the model of what the step writes to record.analysis (or record.verification),
+    # procedures/results.py; None for a step that records measurements only
+    Results: ClassVar[type[BaseModel] | None] = None
 
     def __init__(self, settings: S, place: Place | None = None,
                  policy: StepPolicy | None = None) -> None:
