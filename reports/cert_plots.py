@@ -6,8 +6,8 @@
 - Allan deviation with the fitted noise terms (angle random walk, bias instability);
 - the part's own temperature during stabilisation with the stability criterion.
 
-Any plot whose data is missing is replaced by a box saying what is missing (see
-reports/record_keys.py for the keys read); none of these functions raises on bad data.
+Any plot whose data is missing is replaced by a box saying what is missing (the sections
+read are procedures/results.py's models); none of these functions raises on bad data.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from procedures.results import AllanResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 
 class BiasSettings(StepSettings):
@@ -65,7 +65,7 @@ class Bias(StepType[BiasSettings]):
 
     type_name = "bias"
     Settings = BiasSettings
-    provides = frozenset({"bias"})
+    provides = frozenset({Provided.BIAS})
     Results = AllanResults
 
     @classmethod

@@ -29,7 +29,7 @@ from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
 from procedures.streams import XYZ_COLUMNS
 
@@ -73,7 +73,7 @@ class CubeFaces(StepType[CubeFacesSettings]):
     type_name = "cube_faces"
     Settings = CubeFacesSettings
     uses_table = True
-    provides = frozenset({"three_axis_windows"})
+    provides = frozenset({Provided.THREE_AXIS_WINDOWS})
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:

@@ -24,7 +24,7 @@ from procedures.steps.fit_order import (
     fit_beyond_first_order,
     record_first_order_summary,
 )
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 COEFF_UNITS = {
     "bias_temp_coeff_dps_per_c": "deg/s/C",
@@ -70,14 +70,14 @@ class Fit(StepType[FitSettings]):
 
     type_name = "fit"
     Settings = FitSettings
-    provides = frozenset({"fit"})
+    provides = frozenset({Provided.FIT})
     Results = FitResults
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        need = {"rate_table": {"scale_table"}, "stop_method": {"scale_stop"},
-                "both": {"scale_table", "scale_stop"}}[settings.source]
-        return {"bias", *need}
+    def requires(cls, settings: Any) -> set[Provided]:
+        need = {"rate_table": {Provided.SCALE_TABLE}, "stop_method": {Provided.SCALE_STOP},
+                "both": {Provided.SCALE_TABLE, Provided.SCALE_STOP}}[settings.source]
+        return {Provided.BIAS, *need}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:

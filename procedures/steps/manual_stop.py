@@ -45,7 +45,7 @@ from procedures.results import StopMethodResults, StopMove, Verification, Verifi
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, StopScale, condition_record
 from procedures.steps.base import check_window, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.stop import stop_angle, stop_noise_model
 
 CLIP_BITS = int(SampleStatus.OVER_RANGE | SampleStatus.SATURATED)
@@ -129,7 +129,7 @@ class ManualStop(StepType[ManualStopSettings]):
 
     type_name = "manual_stop"
     Settings = ManualStopSettings
-    provides = frozenset({"scale_stop"})  # a fit may take its scale (source: stop_method)
+    provides = frozenset({Provided.SCALE_STOP})  # a fit may take its scale (source: stop_method)
     Results: ClassVar[type[BaseModel] | None] = StopMethodResults
 
     @classmethod
@@ -415,8 +415,8 @@ class VerifyManualStop(ManualStop):
     Results = Verification
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"programmed"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.PROGRAMMED}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:

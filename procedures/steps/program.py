@@ -12,7 +12,7 @@ from procedures.results import ProgrammingResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, ProgrammableFit
 from procedures.steps.fit_order import readback_dict
-from procedures.steps.registry import Declared, S, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, S, StepSettings, StepType
 from procedures.streams import PartStream
 
 READBACK_REL_TOL = 1e-6
@@ -62,7 +62,7 @@ class ProgramStep(StepType[S]):
     a part that failed any limit is never programmed (it leaves the run FAIL, the record
     says why); the parts' streams stop while their registers are written."""
 
-    provides = frozenset({"programmed"})
+    provides = frozenset({Provided.PROGRAMMED})
     Results = ProgrammingResults
 
     @classmethod
@@ -97,14 +97,15 @@ class ProgramStep(StepType[S]):
 
 
 class Program(ProgramStep[ProgramSettings]):
-    """Write the fit to each part, read it back, switch compensation on."""
+    """Write the fit to each part, read it back, switch compensation on; a part that failed
+    any limit is never programmed (it leaves the run FAIL, the record says why)."""
 
     type_name = "program"
     Settings = ProgramSettings
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"fit"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.FIT}
 
     def _program(self, ctx: RunContext, part: PartRun) -> None:
         if part.fit is None:

@@ -42,7 +42,7 @@ from procedures.run_context import RunContext
 from procedures.run_parts import ConditionResult, PartRun, StopScale
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.program import failed_limits
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 # the table counts as already at the first stop within this (a move is skipped)
 AT_STOP_TOLERANCE_DEG = 0.001
@@ -116,7 +116,7 @@ class StopMethod(StepType[Any]):
     type_name = "stop_method"
     Settings = StopSettings
     uses_table = True
-    provides = frozenset({"scale_stop"})
+    provides = frozenset({Provided.SCALE_STOP})
     Results: ClassVar[type[BaseModel] | None] = StopMethodResults
     _again = False  # True while the stop moves are measured once more (a lone failure)
 
@@ -340,8 +340,8 @@ class VerifyStop(StopMethod):
     Results = Verification
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"programmed"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.PROGRAMMED}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:

@@ -17,7 +17,7 @@ from procedures.results import RateTableResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 
 def plateau_time_s(rate_dps: float, previous_dps: float, accel_dps2: float) -> float:
@@ -92,7 +92,7 @@ class RateSweep(StepType[RateTableSettings]):
     type_name = "rate_table"
     Settings = RateTableSettings
     uses_table = True
-    provides = frozenset({"scale_table"})
+    provides = frozenset({Provided.SCALE_TABLE})
     Results = RateTableResults
 
     @classmethod

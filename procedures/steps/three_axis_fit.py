@@ -24,7 +24,7 @@ from procedures.results import ProgrammingResults, ThreeAxisWindow
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, condition_record
 from procedures.steps.program import ProgramStep
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 AXES = "xyz"
 PER_AXIS_TV = (
@@ -91,12 +91,12 @@ class FitThreeAxis(StepType[FitThreeAxisSettings]):
 
     type_name = "fit_three_axis"
     Settings = FitThreeAxisSettings
-    provides = frozenset({"fit_three_axis"})
+    provides = frozenset({Provided.FIT_THREE_AXIS})
     Results = ThreeAxisWindow
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"three_axis_windows"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.THREE_AXIS_WINDOWS}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -160,8 +160,8 @@ class ProgramThreeAxis(ProgramStep[ProgramThreeAxisSettings]):
     Settings = ProgramThreeAxisSettings
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"fit_three_axis"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.FIT_THREE_AXIS}
 
     def _program(self, ctx: RunContext, part: PartRun) -> None:
         cal = part.three_axis_fit

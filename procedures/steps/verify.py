@@ -17,7 +17,7 @@ from procedures.results import Verification, VerificationRow
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
 
 
@@ -43,8 +43,8 @@ class Verify(StepType[VerifySettings]):
     Results = Verification
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"programmed"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.PROGRAMMED}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:

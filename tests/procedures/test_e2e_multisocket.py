@@ -82,8 +82,8 @@ def test_coefficients_within_k2_of_truth(four: SimRun) -> None:
 def test_residual_after_correction_below_0p05_percent(four: SimRun) -> None:
     for sock in (1, 2, 3):
         ver = read_record(four.result.folders[sock]).verification
-        assert ver is not None and len(ver["residuals"]) == 2
-        assert ver["max_error_pct"] < 0.05, ver
+        assert ver is not None and len(ver.residuals) == 2
+        assert ver.max_error_pct is not None and ver.max_error_pct < 0.05, ver
     failing = read_record(four.result.folders[4])  # a failed part is never programmed
     assert failing.verification is None
     assert failing.reason.startswith("not programmed: failed raw_bias_dps@")
