@@ -161,14 +161,14 @@ class CalibrationThreeAxis(_Model):
     """record.json's `calibration_three_axis` block (a three-axis part's fit and programming;
     procedures/steps/three_axis_fit.py writes it, single-axis records never have it)."""
 
-    axes: int = 3
+    axes: int = 3  # fields in the order the fit writes them (record.json as format 1)
     bias_dps: ArrayValue
-    matrix: ArrayValue
-    g_sensitivity_dps_per_mps2: ArrayValue
     bias_temp_coeff_dps_per_c: ArrayValue
     bias_supply_coeff_dps_per_v: ArrayValue
     scale_temp_coeff_per_c: ArrayValue
     scale_supply_coeff_per_v: ArrayValue
+    matrix: ArrayValue
+    g_sensitivity_dps_per_mps2: ArrayValue
     reference_temperature_c: float = 25.0
     reference_supply_v: float = 5.0
     temp_supply_fitted: bool = False

@@ -286,6 +286,8 @@ class ThreeAxisWindow(Section):
     condition: str = ""
     start_s: Num = None
     end_s: Num = None
+    bias_instability_dps: Num = None  # the part's, each axis shares its wander
+    rate_random_walk_dps_per_sqrt_s: Num = None
 
 
 # ------------------------------------------------------------------ the engine's sections
@@ -389,14 +391,6 @@ class Analysis(Section):
 # ------------------------------------------------------------------ format 1
 
 
-def _lenient(model: type[BaseModel], value: Any, where: str) -> Any:
-    try:
-        return model.model_validate(value, context={FORMAT_1: True})
-    except ValidationError as exc:
-        log.warning("format-1 record: %s dropped (%s)", where, exc.errors()[0].get("msg", exc))
-        return None
-
-
 PER_CONDITION = ("stability", "rate_table", "stop_method", "warm_up", "turn_on_repeatability",
                  "positions")
 LISTS = ("remeasured", "three_axis_windows")
@@ -456,8 +450,11 @@ def verification_from_format_1(raw: Any) -> Verification | None:
     data["residuals"] = [r for r in rows if _row_ok(r)] if isinstance(rows, list) else []
     if "residuals" not in raw:
         data.pop("residuals")
-    typed = _lenient(Verification, data, "verification")
-    return typed if isinstance(typed, Verification) else None
+    try:
+        return Verification.model_validate(data, context={FORMAT_1: True})
+    except ValidationError as exc:
+        log.warning("format-1 record: verification dropped (%s)", exc.errors()[0]["msg"])
+        return None
 
 
 def _row_ok(row: Any) -> bool:
