@@ -51,7 +51,8 @@ def condition_ratios(rec: Any, tr: dict[str, float]) -> dict[str, list[float]]:
     cal = rec.calibration
     t0 = cal.reference_temperature_c if cal is not None else 25.0
     v0 = cal.reference_supply_v if cal is not None else 5.0
-    for c in rec.analysis.get("fit", {}).get("conditions", []):
+    fit = rec.analysis.fit
+    for c in (fit.model_dump(mode="json")["conditions"] if fit is not None else []):
         dv = c["supply_v"] - v0
         bias = (
             tr["bias_dps"]
@@ -116,7 +117,7 @@ def main() -> int:
                     c = getattr(rec.calibration, k)
                     row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
             if rec.verification:
-                row["res"] = rec.verification["max_error_pct"]
+                row["res"] = rec.verification.max_error_pct
             row["cond"] = condition_ratios(rec, tr)
             rows.append(row)
         print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)

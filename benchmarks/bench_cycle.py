@@ -93,8 +93,9 @@ def with_strategy(proc_path: Path, strategy: str, out: Path) -> Path:
 
 
 def thermal_wait_s(record: RunRecord) -> float:
-    stab = record.analysis.get("stability", {}).values()
-    return sum(v["measurement_start_station_s"] - v["condition_set_station_s"] for v in stab)
+    stab = record.analysis.stability.values()
+    return sum((v.measurement_start_station_s or 0.0) - (v.condition_set_station_s or 0.0)
+               for v in stab)
 
 
 def thermal_bound_s(
@@ -108,10 +109,10 @@ def thermal_bound_s(
     thermal = proc.settings_of("thermal")
     # the lag learned where the die was driven (the temperature change), the slowest part's
     taus = [
-        v["die_tau_s"]
+        v.die_tau_s
         for r in records
-        for v in r.analysis.get("stability", {}).values()
-        if v.get("die_tau_s") and v.get("overshoot_c")
+        for v in r.analysis.stability.values()
+        if v.die_tau_s and v.overshoot_c
     ]
     tau_s = max(taus, default=product.die_tau_s)
     model = ThermalModel(
@@ -123,13 +124,13 @@ def thermal_bound_s(
     limits = ThermalLimits(setpoint_high_c=high_c, max_part_c=high_c)
     total = 0.0
     air_c, heat = ambient_c, {r.dut.socket: 0.0 for r in records}  # powered just before
-    conditions = list(records[0].analysis.get("stability", {}).items())
+    conditions = list(records[0].analysis.stability.items())
     for name, _ in conditions:
         target = _temp_of(name)
         new_heat = {}
         for r in records:
-            stab = r.analysis["stability"][name]
-            new_heat[r.dut.socket] = stab["die_temperature_c"] - target
+            stab = r.analysis.stability[name]
+            new_heat[r.dut.socket] = (stab.die_temperature_c or target) - target
         dies = {
             s: DieState(
                 die_c=air_c + heat[s], tau_s=tau_s, heat_c=heat[s], heat_final_c=new_heat[s],
@@ -183,7 +184,8 @@ def main() -> int:
             recs = [read_record(result.folders[s]) for s in sorted(result.folders)]
             total = max(r.timings.get("total", 0.0) for r in recs)
             thermal = thermal_wait_s(recs[0])
-            arws = [r.analysis.get("allan", {}).get("arw_deg_per_sqrt_h") for r in recs]
+            arws = [r.analysis.allan.arw_deg_per_sqrt_h if r.analysis.allan else None
+                    for r in recs]
             arw = max(a for a in arws if a) if any(arws) else 0.6
             floor = measurement_floor_s(proc_path, arw)
             bound = thermal_bound_s(proc_path, recs) + floor

@@ -56,16 +56,16 @@ def run_part(index: int, procedure: Path, speed: float, out: Path) -> dict[str, 
         result = runner.run({1: serial})
         truth = bench.control.truth()["sockets"]["1"]["parameters"]["scale"]
     record = read_record(result.folders[1])
-    stops = record.analysis.get("stop_method", {})
+    stops = record.analysis.stop_method
     stop = next(iter(stops.values()), None)
     row: dict[str, Any] = {"serial": serial, "verdict": str(result.verdicts[1]),
                            "station_s": result.station_time_s, "truth": truth,
                            "reason": result.reasons[1]}
     if "manual_stop" in steps and "manual_stop_end" in steps:
         row["manual_s"] = steps["manual_stop_end"] - steps["manual_stop"]
-    if stop is not None:
-        row.update(scale=stop["scale"], u_k2=2 * stop["u_scale"])
-        row["z"] = (stop["scale"] - truth) / stop["u_scale"]
+    if stop is not None and stop.scale is not None and stop.u_scale is not None:
+        row.update(scale=stop.scale, u_k2=2 * stop.u_scale)
+        row["z"] = (stop.scale - truth) / stop.u_scale
     return row
 
 

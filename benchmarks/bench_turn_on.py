@@ -44,11 +44,11 @@ def run_batch(
         s = int(p["socket"])  # type: ignore[call-overload]
         rec = read_record(result.folders[s])
         m = next((m for m in rec.measurements if m.name == NAME), None)
-        tor = rec.analysis.get("turn_on_repeatability", {}).get("run")
+        tor = rec.analysis.turn_on_repeatability.get("run")
         if m is None or m.value is None or tor is None:
             print(f"  {p['serial']}: {rec.verdict} {rec.reason}", flush=True)
             continue
-        n = len(tor["biases_dps"])
+        n = len(tor.biases_dps)
         drawn = truth["sockets"][str(s)]["turn_on_history_dps"][-n:]
         rows.append({
             "serial": str(p["serial"]),
@@ -56,8 +56,8 @@ def run_batch(
             "drawn": float(np.std(drawn, ddof=1)),
             "measured": float(m.value),
             "u_k2": float(m.uncertainty_k2 or math.nan),
-            "lo95": float(tor["interval_95_dps"][0]),
-            "hi95": float(tor["interval_95_dps"][1]),
+            "lo95": float(tor.interval_95_dps[0] or math.nan),
+            "hi95": float(tor.interval_95_dps[1] or math.nan),
             "floor": float(tor["noise_floor_dps"]),
         })
     return rows

@@ -27,6 +27,7 @@ from typing import Protocol
 from drivers.errors import InstrumentError, InstrumentTimeout
 from procedures.limits import overall
 from procedures.record import Event, Outcome, Verdict, os_error_text, save_record_anywhere
+from procedures.results import PlanResults, SafeStateResults, StreamResults
 from procedures.run_context import (
     Aborted,
     NoPartsLeft,
@@ -34,7 +35,7 @@ from procedures.run_context import (
     StepTimeout,
     utc_now,
 )
-from procedures.run_parts import PartRun
+from procedures.run_parts import KeptRecord, PartRun
 from procedures.safe_state import (
     InstrumentSafeState,
     SafeStatePass,
@@ -125,8 +126,8 @@ class Engine:
         estimates = [max(step.estimate_s(ctx), 0.0) for step in self.steps]
         ctx.progress.total_estimate_s = max(sum(estimates), 1.0)
         for part in ctx.parts:
-            part.record.analysis.setdefault("plan", {})["estimated_station_s"] = (
-                ctx.progress.total_estimate_s
+            part.record.analysis.plan = PlanResults(
+                estimated_station_s=ctx.progress.total_estimate_s
             )
         ctx.records.save_all()
         run_error: tuple[Verdict, str] | None = None
@@ -238,7 +239,9 @@ class Engine:
             ) from exc
         report.safe_temp_c = ctx.procedure.chamber.safe_temp_c
         for part in ctx.parts:
-            part.record.analysis["start_safe_state"] = report.as_record()
+            part.record.analysis.start_safe_state = SafeStateResults.model_validate(
+                report.as_record()
+            )
         for state in report.instruments.values():
             if state.safe:
                 ctx.records.event(f"safe before the first step: {state.label} ({state.detail})")
@@ -353,16 +356,16 @@ class Engine:
             rec.reason = part.reason
             rec.finished_utc = utc_now()
             rec.timings["total"] = round(ctx.wait.now_s() - started_s, 3)
-            rec.analysis["safe_state"] = dict(self.safe_state_report)
-            rec.analysis["safe_state_report"] = report.as_record()
+            rec.analysis.safe_state = dict(self.safe_state_report)
+            rec.analysis.safe_state_report = SafeStateResults.model_validate(report.as_record())
             if ctx.wait.abort_at_s is not None:  # when the stop was asked (signal, operator)
-                rec.analysis["stop_requested_station_s"] = round(ctx.wait.abort_at_s, 3)
+                rec.analysis.stop_requested_station_s = round(ctx.wait.abort_at_s, 3)
             if part.stream is not None:
-                rec.analysis["stream"] = {
-                    "frames_ok": part.stream.frames_ok,
-                    "frames_lost": part.stream.frames_lost,
-                    "frames_corrupted": part.stream.frames_corrupted,
-                }
+                rec.analysis.stream = StreamResults(
+                    frames_ok=part.stream.frames_ok,
+                    frames_lost=part.stream.frames_lost,
+                    frames_corrupted=part.stream.frames_corrupted,
+                )
             rec.events.append(
                 Event(
                     time_utc=utc_now(),
@@ -395,13 +398,13 @@ class Engine:
     def _keep(part: PartRun) -> None:
         """Write the record whatever the disk does: in the run folder, else in the fallback
         folder (procedures.record.save_record_anywhere, docs/safety.md); never raises."""
-        part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
+        part.kept = KeptRecord(save_record_anywhere(part.folder, part.record))
 
     def _judge(self, part: PartRun) -> None:
         ok, failed, marginal = overall(part.record.measurements)
         part.record.failed_measurements = failed
         if marginal:
-            part.record.analysis["marginal_measurements"] = marginal
+            part.record.analysis.marginal_measurements = marginal
         if ok:
             part.verdict = Verdict.PASS
             part.reason = "all measurements within limits" + (
@@ -418,7 +421,7 @@ class Engine:
         _, failed, marginal = overall(part.record.measurements)
         part.record.failed_measurements = failed
         if marginal:
-            part.record.analysis["marginal_measurements"] = marginal
+            part.record.analysis.marginal_measurements = marginal
         self._note_not_measured(part)
 
     @staticmethod
@@ -427,4 +430,4 @@ class Engine:
             m.name for m in part.record.measurements if m.outcome is Outcome.NOT_MEASURED
         ]
         if not_measured:
-            part.record.analysis["not_measured"] = not_measured
+            part.record.analysis.not_measured = not_measured

@@ -18,10 +18,26 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
+
+from procedures.results import (
+    Analysis,
+    Verification,
+    analysis_from_format_1,
+    verification_from_format_1,
+)
 
 log = logging.getLogger(__name__)
 
+RECORD_FORMAT = "gyrocal-record/2"  # analysis and verification typed (procedures/results.py)
+RECORD_FORMAT_1 = "gyrocal-record/1"  # free dicts; read through the converter
 RECORD_FILE = "record.json"
 MAX_RECORD_BYTES = 64 * 2**20  # read_record reads no more (a record is tens of kB)
 RAW_DATA_FILE = "raw.h5"
@@ -145,14 +161,14 @@ class CalibrationThreeAxis(_Model):
     """record.json's `calibration_three_axis` block (a three-axis part's fit and programming;
     procedures/steps/three_axis_fit.py writes it, single-axis records never have it)."""
 
-    axes: int = 3
+    axes: int = 3  # fields in the order the fit writes them (record.json as format 1)
     bias_dps: ArrayValue
-    matrix: ArrayValue
-    g_sensitivity_dps_per_mps2: ArrayValue
     bias_temp_coeff_dps_per_c: ArrayValue
     bias_supply_coeff_dps_per_v: ArrayValue
     scale_temp_coeff_per_c: ArrayValue
     scale_supply_coeff_per_v: ArrayValue
+    matrix: ArrayValue
+    g_sensitivity_dps_per_mps2: ArrayValue
     reference_temperature_c: float = 25.0
     reference_supply_v: float = 5.0
     temp_supply_fitted: bool = False
@@ -163,17 +179,26 @@ class CalibrationThreeAxis(_Model):
     readback_ok: bool | None = None
     readback: dict[str, Any] | None = None
 
+    @model_serializer(mode="wrap")
+    def _as_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """The keys the fit (and the read-back) set, as format 1 wrote them."""
+        data = handler(self)
+        keep = self.model_fields_set | set(self.model_extra or {})
+        return {k: v for k, v in data.items() if k in keep} if isinstance(data, dict) else data
+
 
 def three_axis_block(record: RunRecord) -> CalibrationThreeAxis | None:
-    """The record's three-axis calibration, typed; None for a single-axis record (or a block
-    that does not parse, which the reports then show as not recorded)."""
-    raw = (record.model_extra or {}).get("calibration_three_axis")
-    if not isinstance(raw, dict):
-        return None
+    """The record's three-axis calibration; None for a single-axis record."""
+    return record.calibration_three_axis
+
+
+def _three_axis_ok(block: Any) -> bool:
     try:
-        return CalibrationThreeAxis.model_validate(raw)
+        CalibrationThreeAxis.model_validate(block)
     except ValueError:
-        return None
+        log.warning("format-1 record: calibration_three_axis does not parse; dropped")
+        return False
+    return True
 
 
 class ConditionRecord(_Model):
@@ -222,7 +247,7 @@ class CertificateContext(_Model):
 class RunRecord(_Model):
     """Everything the station knows about one part's run."""
 
-    format: str = "gyrocal-record/1"
+    format: str = RECORD_FORMAT
     run_id: str
     verdict: Verdict
     reason: str = ""
@@ -245,12 +270,33 @@ class RunRecord(_Model):
     conditions: list[ConditionRecord] = Field(default_factory=list)
     measurements: list[Measurement] = Field(default_factory=list)
     calibration: Calibration | None = None
-    verification: dict[str, Any] | None = None
+    verification: Verification | None = None
     timings: dict[str, float] = Field(default_factory=dict)  # step name -> station seconds
     events: list[Event] = Field(default_factory=list)
-    analysis: dict[str, Any] = Field(default_factory=dict)  # per-step analysis summaries
+    analysis: Analysis = Field(default_factory=Analysis)  # per-step analysis summaries
     certificate_number: str = ""  # station id + sequence, given when the certificate is issued
     certificate_context: CertificateContext | None = None  # filled when the run ends
+    # a three-axis part's fit and programming (step program_three_axis); never single-axis
+    calibration_three_axis: CalibrationThreeAxis | None = Field(
+        default=None, exclude_if=lambda v: v is None
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_format_1(cls, data: Any) -> Any:
+        """A format-1 record (free analysis and verification dicts) read as format 2; the
+        file is never rewritten by reading it (signed manifests cover its bytes)."""
+        if not isinstance(data, dict) or data.get("format") != RECORD_FORMAT_1:
+            return data
+        data = dict(data)
+        data["analysis"] = analysis_from_format_1(data.get("analysis"))
+        data["verification"] = verification_from_format_1(data.get("verification"))
+        block = data.get("calibration_three_axis")
+        if block is not None and not _three_axis_ok(block):
+            data.pop("calibration_three_axis")
+        return data
+
+
 
 
 def new_file_mode() -> int:

@@ -10,12 +10,16 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from drivers.clock import ScaledClock
 from drivers.protocols import Chamber, Inclinometer, PartLink, RateTable, Supply
+from procedures.analysis.allan import NoiseModel
+from procedures.analysis.rate_table import RateTableFit
+from procedures.analysis.temp_supply_fit import FirstOrderCoefficients
+from procedures.analysis.three_axis import ThreeAxisCalibration, Window
 from procedures.rawdata import RawDataWriter
 from procedures.record import ConditionRecord, RunRecord, StorageError, Verdict
 from procedures.streams import PartStream
@@ -36,6 +40,36 @@ class Bench:
     inclinometer: Inclinometer | None = None  # a fixture's angle at a stop (manual_stop)
 
 
+@dataclass(frozen=True)
+class StopScale:
+    """The stop method's scale at one condition (steps stop, manual_stop), k=1."""
+
+    scale: float
+    u_scale: float
+    bias_dps: float
+    reference_angle_deg: float
+    u_reference_angle_deg: float
+
+
+class ProgrammableFit(Protocol):
+    """What the fit step leaves in `PartRun.fit` for the program step (procedures.steps.fit
+    CombinedFit, procedures.steps.fit_order HigherOrderFit)."""
+
+    @property
+    def coefficients(self) -> FirstOrderCoefficients: ...
+
+    @property
+    def registers_beyond_first_order(self) -> dict[str, float]: ...
+
+
+@dataclass(frozen=True)
+class KeptRecord:
+    """Where the run's end wrote record.json (None: nowhere; procedures.record
+    .save_record_anywhere)."""
+
+    path: Path | None
+
+
 @dataclass
 class ConditionResult:
     """What one part measured at one condition (engineering units, k=1 uncertainties)."""
@@ -50,7 +84,7 @@ class ConditionResult:
     stable: bool | None = None
     bias_dps: float | None = None
     u_bias_dps: float | None = None
-    table_fit: Any = None  # procedures.analysis.rate_table.RateTableFit
+    table_fit: RateTableFit | None = None
     # die temperature over the measurement windows: the bias and the scale are each paired
     # with the temperature of their own windows (the die may still creep within a condition)
     temp_sums: dict[str, tuple[float, int]] = field(default_factory=dict)
@@ -71,7 +105,7 @@ class ConditionResult:
             return total / n
         return self.die_temperature_c
 
-    stop: dict[str, Any] | None = None  # scale, u_scale, bias, moves...
+    stop: StopScale | None = None
 
 
 class RowBuffer:
@@ -122,8 +156,15 @@ class PartRun:
     verdict: Verdict | None = None
     reason: str = ""
     conditions: dict[str, ConditionResult] = field(default_factory=dict)
-    fit: Any = None
-    extra: dict[str, Any] = field(default_factory=dict)
+    fit: ProgrammableFit | None = None
+    noise: NoiseModel | None = None  # from the bias step, floored; later windows use it
+    stop_angle: tuple[float, float] | None = None  # the fixture's, deg, and its k=1 u
+    power_on_station_s: float | None = None  # when the part was last powered on
+    kept: KeptRecord | None = None  # set when the run's end wrote the record
+    unasked_sockets: int = 0  # sockets the bench has but nobody scanned (step power)
+    cube_face: str | None = None  # the face up on the cube fixture (step cube)
+    three_axis_windows: list[Window] = field(default_factory=list)  # step cube
+    three_axis_fit: ThreeAxisCalibration | None = None  # step fit_three_axis
     rows: RowBuffer = field(default_factory=lambda: RowBuffer(None))
     # set when the part failed a limit: what it failed (it is then never programmed)
     failed_limits: list[str] = field(default_factory=list)
@@ -141,7 +182,7 @@ class PartRun:
 
 def condition_record(result: ConditionResult) -> ConditionRecord:
     fit = result.table_fit
-    stop = result.stop or {}
+    stop = result.stop
     return ConditionRecord.model_validate(
         dict(
             name=result.name,
@@ -154,8 +195,8 @@ def condition_record(result: ConditionResult) -> ConditionRecord:
             bias_uncertainty_dps=None if result.u_bias_dps is None else 2 * result.u_bias_dps,
             scale_table=None if fit is None else fit.scale,
             scale_table_uncertainty=None if fit is None else 2 * fit.u_scale,
-            scale_stop=stop.get("scale"),
-            scale_stop_uncertainty=None if stop.get("u_scale") is None else 2 * stop["u_scale"],
+            scale_stop=None if stop is None else stop.scale,
+            scale_stop_uncertainty=None if stop is None else 2 * stop.u_scale,
             supply_current_a=result.supply_current_a,
             supply_measured_v=result.supply_measured_v,
         )

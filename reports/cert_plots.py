@@ -6,8 +6,8 @@
 - Allan deviation with the fitted noise terms (angle random walk, bias instability);
 - the part's own temperature during stabilisation with the stability criterion.
 
-Any plot whose data is missing is replaced by a box saying what is missing (see
-reports/record_keys.py for the keys read); none of these functions raises on bad data.
+Any plot whose data is missing is replaced by a box saying what is missing (the sections
+read are procedures/results.py's models); none of these functions raises on bad data.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableSt
 
 from procedures.rawdata import RawData
 from procedures.record import three_axis_block
+from procedures.results import Analysis
 from reports import record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.charts import INTEGRATION_FILL, PALETTE, STATIC_FILL, Chart, message_box
@@ -128,10 +129,9 @@ def _stop_chart(raw: RawData, cond: str, summary: record_keys.StopSummary | None
     items = [chart.drawing()]
     if summary is not None:
         moves = "; ".join(
-            f"move {i + 1}: {fmt(m.get('measured_angle_deg'))} deg, scale correction "
-            f"{fmt(m.get('scale_correction'))}" for i, m in enumerate(summary.moves)
-            if isinstance(m.get("measured_angle_deg"), int | float)
-            or isinstance(m.get("scale_correction"), int | float))
+            f"move {i + 1}: {fmt(m.measured_angle_deg)} deg, scale correction "
+            f"{fmt(m.scale_correction)}" for i, m in enumerate(summary.moves)
+            if m.measured_angle_deg is not None or m.scale_correction is not None)
         items.append(Paragraph(escape(
             f"{cond}: bias {fmt(summary.bias_dps)} deg/s (correction "
             f"{fmt(-summary.bias_dps if summary.bias_dps is not None else None)} deg/s); "
@@ -197,7 +197,7 @@ def rate_table(inputs: CertificateInputs) -> list[Flowable]:
     def build() -> list[Flowable]:
         rec = inputs.record
         try:
-            points = record_keys.rate_table(rec.analysis if rec else {})
+            points = record_keys.rate_table(rec.analysis if rec else Analysis())
         except record_keys.MissingAnalysisError:
             if inputs.raw is None:
                 raise
@@ -220,7 +220,7 @@ def allan(inputs: CertificateInputs) -> list[Flowable]:
     story: list[Flowable] = [Paragraph("Noise: Allan deviation", H2)]
 
     def build() -> list[Flowable]:
-        a = record_keys.allan(inputs.record.analysis if inputs.record else {})
+        a = record_keys.allan(inputs.record.analysis if inputs.record else Analysis())
         chart = Chart(HALF_W + 20 * mm, 62 * mm, title=f"Allan deviation {a.condition}".strip(),
                       x_label="averaging time tau (s)", y_label="Allan deviation (deg/s)",
                       log_x=True, log_y=True)

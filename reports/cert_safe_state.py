@@ -4,14 +4,13 @@ the station's own readback of each instrument)."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from reportlab.lib import colors
 from reportlab.lib.styles import ParagraphStyle
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, Paragraph, Spacer, Table, TableStyle
 
 from procedures.record import RunRecord
+from procedures.results import InstrumentSafeResults
 from reports.styles import BODY, FAIL_RED, FAIL_ROW, FONT_BOLD, escape
 
 TITLE = ParagraphStyle(
@@ -22,21 +21,14 @@ LABELS = {"rate_table": "Rate table", "supply": "DC supply", "chamber": "Thermal
           "streams": "Part streams"}
 
 
-def unsafe_instruments(rec: RunRecord) -> list[tuple[str, dict[str, Any]]]:
+def unsafe_instruments(rec: RunRecord) -> list[tuple[str, InstrumentSafeResults]]:
     """(name, its report) for every instrument the record says is not safe."""
-    report = rec.analysis.get("safe_state_report")
-    if not isinstance(report, dict):
-        legacy = rec.analysis.get("safe_state")
-        if isinstance(legacy, dict):
-            return [(k, {"detail": str(v)}) for k, v in legacy.items() if v != "safe"]
-        return []
-    instruments = report.get("instruments")
-    if not isinstance(instruments, dict):
-        return []
-    return [
-        (str(name), s) for name, s in instruments.items()
-        if isinstance(s, dict) and not s.get("safe", False)
-    ]
+    report = rec.analysis.safe_state_report
+    if report is None:
+        legacy = rec.analysis.safe_state or {}
+        return [(k, InstrumentSafeResults(name=k, safe=False, detail=v))
+                for k, v in legacy.items() if v != "safe"]
+    return [(name, s) for name, s in report.instruments.items() if not s.safe]
 
 
 def safe_state_box(rec: RunRecord | None, width: float) -> list[Flowable]:
@@ -50,10 +42,9 @@ def safe_state_box(rec: RunRecord | None, width: float) -> list[Flowable]:
         "SAFE STATE FAILED - the bench was NOT left safe: make it safe by hand before anyone "
         "touches it", TITLE)]]
     for name, s in unsafe:
-        attempts = s.get("attempts")
-        tries = f" after {attempts} attempt(s)" if attempts else ""
+        tries = f" after {s.attempts} attempt(s)" if s.attempts else ""
         rows.append([Paragraph(
-            f"{escape(LABELS.get(name, name))} NOT SAFE{tries}: {escape(s.get('detail', '?'))}",
+            f"{escape(LABELS.get(name, name))} NOT SAFE{tries}: {escape(s.detail or '?')}",
             LINE)])
     table = Table(rows, colWidths=[width])
     table.setStyle(TableStyle([

@@ -170,8 +170,8 @@ def summary_text(rec: RunRecord) -> str:
                     f"{fmt(cal.bias_dps.uncertainty_k2, 2)} deg/s, scale {fmt(cal.scale.value, 6)}"
                     f" +/- {fmt(cal.scale.uncertainty_k2, 2)} (k = 2); {rb}")
     v = rec.verification
-    if isinstance(v, dict) and isinstance(v.get("max_error_pct"), int | float):
-        cal_text += f"; verification largest error {fmt(v['max_error_pct'], 3)} % of rate"
+    if v is not None and v.max_error_pct is not None:
+        cal_text += f"; verification largest error {fmt(v.max_error_pct, 3)} % of rate"
     return f"{how}. {out}. {cal_text}."
 
 
@@ -451,16 +451,13 @@ def verification(rec: RunRecord | None) -> list[Flowable]:
     rows: list[list[str | Paragraph]] = [[_p(h) for h in (
         "Condition", "Input rate (deg/s)", "Residual (deg/s)", "Residual (%)")]]
     for r in rows_in:
-        def num(key: str, r: dict[str, Any] = r) -> float | None:
-            v = r.get(key)
-            return float(v) if isinstance(v, int | float) else None
-        rows.append([_p(r.get("condition", "-")), fmt(num("rate_in_dps")),
-                     fmt(num("error_dps"), 3), fmt(num("error_pct"), 3)])
+        rows.append([_p(r.condition or "-"), fmt(r.rate_in_dps),
+                     fmt(r.error_dps, 3), fmt(r.error_pct, 3)])
     t = fitted_table(rows, CONTENT_WIDTH, grid_style(), repeatRows=1)
     story.append(t)
     v = rec.verification if rec else None
-    if isinstance(v, dict) and isinstance(v.get("max_error_pct"), int | float):
-        story.append(Paragraph(f"Largest verification error {fmt(v['max_error_pct'], 3)} % "
+    if v is not None and v.max_error_pct is not None:
+        story.append(Paragraph(f"Largest verification error {fmt(v.max_error_pct, 3)} % "
                                f"of the input rate.", NOTE))
     return story
 

@@ -19,12 +19,12 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableStyle
 
+from procedures.results import TemperatureFitResults, TemperaturePoint
 from reports.cert_inputs import CertificateInputs
 from reports.charts import PALETTE, Chart, message_box
 from reports.styles import CELL, CELL_MONO, H2, NOTE, escape, fmt, grid_style, unit_label
@@ -39,21 +39,19 @@ _ORDER_WORDS = {1: "first", 2: "second", 3: "third"}
 
 
 class MalformedFit(ValueError):
-    """record.analysis["temperature_fit"] lacks a key or holds a non-number there."""
+    """record.analysis.temperature_fit holds a null (non-finite) number or no points."""
 
 
-def _num(d: dict[str, Any], key: str) -> float:
-    v = d.get(key)
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+def _num(value: float | None, key: str) -> float:
+    if value is None or not math.isfinite(value):
         raise MalformedFit(f"{KEY}.{key} is not a finite number")
-    return float(v)
+    return float(value)
 
 
-def _nums(d: dict[str, Any], key: str) -> list[float]:
-    v = d.get(key)
-    if not isinstance(v, list) or not v:
+def _nums(values: list[float | None], key: str) -> list[float]:
+    if not values:
         raise MalformedFit(f"{KEY}.{key} is not a list of numbers")
-    return [_num({"x": x}, "x") for x in v]
+    return [_num(x, key) for x in values]
 
 
 def polynomial_at(
@@ -66,34 +64,37 @@ def polynomial_at(
     return np.asarray(params[0] * (1.0 + terms) if relative else params[0] + terms)
 
 
-def _table(fit: dict[str, Any]) -> Table:
+def _table(fit: TemperatureFitResults) -> Table:
     rows: list[list[str | Paragraph]] = [
         [Paragraph(h, CELL) for h in ("Coefficient", "Value", "U (k=2)", "Units")]]
-    coefficients = fit.get("coefficients")
-    if not isinstance(coefficients, list) or not coefficients:
+    if not fit.coefficients:
         raise MalformedFit(f"{KEY}.coefficients is not a list")
-    for c in coefficients:
-        if not isinstance(c, dict):
-            raise MalformedFit(f"{KEY}.coefficients holds a non-mapping")
-        rows.append([Paragraph(escape(c.get("name", "-")), CELL_MONO),
-                     fmt(_num(c, "value"), 7),  # numbers: never broken (table_fit)
-                     fmt(_num(c, "uncertainty_k2"), 3),
-                     Paragraph(escape(unit_label(str(c.get("units", "")))), CELL)])
+    for c in fit.coefficients:
+        rows.append([Paragraph(escape(c.name), CELL_MONO),
+                     fmt(_num(c.value, "value"), 7),  # numbers: never broken (table_fit)
+                     fmt(_num(c.uncertainty_k2, "uncertainty_k2"), 3),
+                     Paragraph(escape(unit_label(c.units)), CELL)])
     return fitted_table(rows, FULL_W, grid_style(), repeatRows=1)
 
 
-def _chart(fit: dict[str, Any], kind: str) -> Chart:
-    order = int(_num(fit, "order"))
-    t0, v0 = _num(fit, "reference_temperature_c"), _num(fit, "reference_supply_v")
-    params = _nums(fit, f"{kind}_params")
+def _point(p: TemperaturePoint, kind: str) -> tuple[float, float, float, float]:
+    """(die temperature, supply, value, its k=1 u) of one fitted condition, for `kind`."""
+    temp, value, u = ((p.bias_temp_c, p.bias_dps, p.u_bias_dps) if kind == "bias"
+                      else (p.scale_temp_c, p.scale, p.u_scale))
+    return (_num(temp, f"{kind}_temp_c"), _num(p.supply_v, "supply_v"),
+            _num(value, f"points.{kind}"), _num(u, f"points.u_{kind}"))
+
+
+def _chart(fit: TemperatureFitResults, kind: str) -> Chart:
+    order = fit.order
+    t0, v0 = _num(fit.reference_temperature_c, "reference_temperature_c"), _num(
+        fit.reference_supply_v, "reference_supply_v")
+    params = _nums(fit.bias_params if kind == "bias" else fit.scale_params, f"{kind}_params")
     if len(params) != order + 2:
         raise MalformedFit(f"{KEY}.{kind}_params holds {len(params)} values, not {order + 2}")
-    points = fit.get("points")
-    if not isinstance(points, list) or not points:
+    if not fit.points:
         raise MalformedFit(f"{KEY}.points is not a list")
-    value_key, u_key = ("bias_dps", "u_bias_dps") if kind == "bias" else ("scale", "u_scale")
-    rows = [(_num(p, f"{kind}_temp_c"), _num(p, "supply_v"), _num(p, value_key), _num(p, u_key))
-            for p in points if isinstance(p, dict)]
+    rows = [_point(p, kind) for p in fit.points]
     title = "Bias against die temperature" if kind == "bias" else "Scale against die temperature"
     chart = Chart(HALF_W, 62 * mm, title=title, x_label="die temperature (C)",
                   y_label="bias (deg/s)" if kind == "bias" else "scale (1)")
@@ -110,18 +111,21 @@ def _chart(fit: dict[str, Any], kind: str) -> Chart:
     return chart
 
 
-def _note(fit: dict[str, Any]) -> Paragraph:
-    order = int(_num(fit, "order"))
-    dof = int(_num(fit, "dof"))
+def _note(fit: TemperatureFitResults) -> Paragraph:
+    order = fit.order
+    if fit.dof is None:
+        raise MalformedFit(f"{KEY}.dof is not a finite number")
+    dof = fit.dof
     text = (f"{_ORDER_WORDS.get(order, str(order)).capitalize()}-order fit in temperature "
-            f"(first order in supply) about {fmt(_num(fit, 'reference_temperature_c'))} C and "
-            f"{fmt(_num(fit, 'reference_supply_v'))} V, weighted by each condition's own "
+            f"(first order in supply) about {fmt(fit.reference_temperature_c)} C and "
+            f"{fmt(fit.reference_supply_v)} V, weighted by each condition's own "
             f"uncertainty: bias = b0 + sum b_k dT^k + bV dV, scale = s0 (1 + sum s_k dT^k + "
             f"sV dV). Points: the measured conditions with k = 2 error bars; lines: the fit at "
             f"each supply level.")
     if dof > 0:
-        text += (f" Chi-square of the fit: bias {fmt(_num(fit, 'bias_chi2'), 3)}, scale "
-                 f"{fmt(_num(fit, 'scale_chi2'), 3)}, on {dof} degree(s) of freedom.")
+        text += (f" Chi-square of the fit: bias {fmt(_num(fit.bias_chi2, 'bias_chi2'), 3)}, "
+                 f"scale {fmt(_num(fit.scale_chi2, 'scale_chi2'), 3)}, on {dof} degree(s) "
+                 "of freedom.")
     else:
         text += " No spare degree of freedom: the fit passes through every condition."
     return Paragraph(escape(text), NOTE)
@@ -130,13 +134,11 @@ def _note(fit: dict[str, Any]) -> Paragraph:
 def temperature_fit(inputs: CertificateInputs) -> list[Flowable]:
     """The section's flowables; empty when the record has no temperature fit to show."""
     rec = inputs.record
-    fit = rec.analysis.get(KEY) if rec is not None else None
+    fit = rec.analysis.temperature_fit if rec is not None else None
     if fit is None:
         return []
     story: list[Flowable] = [Paragraph("Temperature fit of bias and scale", H2)]
     try:
-        if not isinstance(fit, dict):
-            raise MalformedFit(f"{KEY} is not a mapping")
         table, note = _table(fit), _note(fit)
         charts = Table([[_chart(fit, "bias").drawing(), _chart(fit, "scale").drawing()]],
                        colWidths=[HALF_W + 1 * mm, HALF_W])

@@ -97,10 +97,10 @@ def _judged(rec: RunRecord) -> str:
 
 
 def _readback(rec: RunRecord, cal: CalibrationThreeAxis) -> str:
-    programmed = (rec.analysis.get("programming") or {}).get("programmed")
-    if not programmed:
-        why = (rec.analysis.get("programming") or {}).get("reason") or rec.reason
-        return f"<b>Programming:</b> not programmed: {str(why).removeprefix('not programmed: ')}."
+    programming = rec.analysis.programming
+    if programming is None or not programming.programmed:
+        why = (programming.reason if programming else None) or rec.reason
+        return f"<b>Programming:</b> not programmed: {why.removeprefix('not programmed: ')}."
     text = {True: "PASSED (registers read back equal to the values written)",
             False: "FAILED (registers read back differ from the values written)",
             None: "not recorded"}[cal.readback_ok]
@@ -119,8 +119,8 @@ def summary(rec: RunRecord) -> str | None:
     cal = three_axis_block(rec)
     if cal is None:
         return None
-    programmed = (rec.analysis.get("programming") or {}).get("programmed")
-    if not programmed:
+    programming = rec.analysis.programming
+    if programming is None or not programming.programmed:
         return "No calibration was written to the part"
     rb = {True: "read-back PASSED", False: "read-back FAILED",
           None: "read-back not recorded"}[cal.readback_ok]

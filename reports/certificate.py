@@ -10,8 +10,8 @@ Page one: verdict banner, failing measurements or the reason, overdue-instrument
 identity (certificate number, product, serial, times UTC and station local, station,
 operator, software). Then traceability, decision rule / reference standards / ambient
 (reports/cert_standards.py), conditions, results, calibration with uncertainties and
-verification, and the plots (see reports/cert_plots.py, and reports/record_keys.py for the
-analysis keys read).
+verification, and the plots (see reports/cert_plots.py; the analysis sections read are the
+typed models of procedures/results.py).
 
 This module renders only; station/certify.py numbers, signs (PAdES) and seals the folder.
 With `unverified` set every page is marked UNVERIFIED (a folder that failed verification).

@@ -20,9 +20,13 @@ from numpy.typing import NDArray
 from drivers.bounded import MAX_RATE_DPS
 from drivers.csv_rows import shown
 from drivers.fixture_protocol import RATED_RANGE_DPS
-from procedures.analysis import AnalysisError, analyze_allan, analyze_stop_method
-from procedures.analysis.allan import AllanAnalysis, check_static
-from procedures.analysis.stop_method import StopMethodResult, StopMethodSettings
+from procedures.analysis.allan import AllanAnalysis, analyze_allan, check_static
+from procedures.analysis.errors import AnalysisError
+from procedures.analysis.stop_method import (
+    StopMethodResult,
+    StopMethodSettings,
+    analyze_stop_method,
+)
 from station.cli_multi_position import add_multi_position
 from station.csv_input import read_csv_rows
 from station.errors import UserError

@@ -71,9 +71,8 @@ from procedures.record import (
     write_record,
 )
 from procedures.run_context import RunContext
-from procedures.run_parts import Bench, PartRun
+from procedures.run_parts import Bench, KeptRecord, PartRun
 from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
-from procedures.steps.power import UNASKED_SOCKETS
 from procedures.streams import PartStream
 from station import __version__, preflight
 from station import instruments as roles
@@ -637,8 +636,8 @@ class UutRunner:
                 release(part.folder)
         result = UutResult(folders={p.socket: p.folder for p in parts})
         for part in parts:
-            if "record_file" in part.extra:  # where the record went (None: nowhere)
-                result.record_files[part.socket] = part.extra["record_file"]
+            if part.kept is not None:  # where the record went (path None: nowhere)
+                result.record_files[part.socket] = part.kept.path
             result.verdicts[part.socket] = part.record.verdict
             result.reasons[part.socket] = part.record.reason
             cert = self._certificate(part.folder)
@@ -719,7 +718,7 @@ class UutRunner:
         for warning in [*(warnings or []), *self.limit_warnings]:
             ctx.records.event(warning, level="WARNING")
         for part in parts:  # the supply limit must allow for parts that may sit there
-            part.extra[UNASKED_SOCKETS] = len(warnings or [])
+            part.unasked_sockets = len(warnings or [])
         if overdue:
             ctx.records.event(
                 f"instrument calibration overdue: {', '.join(overdue)}", level="WARNING"
@@ -748,7 +747,7 @@ class UutRunner:
                 except OSError as exc:
                     log.error("cannot hash %s: %s", raw, exc.strerror or exc)
                     continue
-                part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
+                part.kept = KeptRecord(save_record_anywhere(part.folder, part.record))
         with self._lock:
             self._ctx = None
 
@@ -772,7 +771,7 @@ class UutRunner:
                     part.writer.close()
                 except OSError as exc:
                     log.error("%s", exc)
-            part.extra["record_file"] = save_record_anywhere(part.folder, part.record)
+            part.kept = KeptRecord(save_record_anywhere(part.folder, part.record))
 
     def _new_part(self, sock: int, serial: str, counts_per_rev: int | None) -> PartRun:
         folder = create_run_folder(self.out, serial)

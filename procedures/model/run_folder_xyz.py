@@ -54,7 +54,11 @@ def load_axis(folder: Path, axis: str, dut: str | None = None) -> Trajectory:
     j = AXES.index(axis)
     record = read_record(folder)
     cal = three_axis_block(record)
-    windows = record.analysis.get("three_axis_windows") or []
+    windows = {  # start, end, table rate, face of each window the fit used
+        round(w.start_s, 6): (w.start_s, w.end_s, w.table_rate_dps, w.face)
+        for w in record.analysis.three_axis_windows or []
+        if w.start_s is not None and w.end_s is not None and w.table_rate_dps is not None
+    }
     if cal is None or not windows:
         raise ValueError(
             f"{folder}: a three-axis run without its fit (verdict {record.verdict.value}; "
@@ -72,14 +76,14 @@ def load_axis(folder: Path, axis: str, dut: str | None = None) -> Trajectory:
     g_row = np.asarray(cal.g_sensitivity_dps_per_mps2.value, dtype=float)[j]
     gyro = rate[:, j] - accel @ g_row
     segs = {k: np.array(v, copy=True) for k, v in rec.segs.items()}
-    by_start = {round(float(w["start_s"]), 6): w for w in windows}
     for k in range(segs["start_s"].size):
-        w = by_start.get(round(float(segs["start_s"][k]), 6))
+        w = windows.get(round(float(segs["start_s"][k]), 6))
         if w is None:
             continue
-        w_part = float(w["table_rate_dps"]) * _up(str(w["face"]))
+        start_s, end_s, table_rate_dps, face = w
+        w_part = table_rate_dps * _up(face)
         segs["ref_rate_dps"][k] = w_part[j]
-        inside = (rec.t_fix >= w["start_s"]) & (rec.t_fix <= w["end_s"])
+        inside = (rec.t_fix >= start_s) & (rec.t_fix <= end_s)
         gyro[inside] -= sum(p[j, c] * w_part[c] for c in range(3) if c != j)
     traj = _windowed_trajectory(dataclasses.replace(rec, gyro=gyro, segs=segs))
     note = (f"axis {axis} of a three-axis part: cross-axis terms and g-sensitivity of the "

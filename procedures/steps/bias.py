@@ -8,15 +8,16 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, field_validator
 
-from procedures.analysis.allan import analyze_allan
+from procedures.analysis.allan import AllanAnalysis, analyze_allan
 from procedures.analysis.bias import estimate_bias, required_averaging_time_s
 from procedures.analysis.bias_wander import window_mean_covariance
 from procedures.analysis.errors import AnalysisError
 from procedures.record import Verdict
+from procedures.results import AllanResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.units import Seconds
 
 
@@ -64,7 +65,8 @@ class Bias(StepType[BiasSettings]):
 
     type_name = "bias"
     Settings = BiasSettings
-    provides = frozenset({"bias"})
+    provides = frozenset({Provided.BIAS})
+    Results = AllanResults
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -137,9 +139,7 @@ class Bias(StepType[BiasSettings]):
         # the noise model from the longest static record at this condition: the stability
         # window (die within its band, table at rest) and the dwell, so that slow terms (bias
         # instability, the die's residual creep) reach the bias uncertainty
-        stab = part.record.analysis.get("stability", {}).get(self.condition, {})
-        static_from = stab.get("stable_at_station_s", t0) - stab.get("window_s", 0.0)
-        long = samples_between(ctx, part, min(static_from, t0), t1)
+        long = samples_between(ctx, part, min(self._static_from(part, t0), t0), t1)
         try:
             allan = analyze_allan(
                 long["rate_dps"]
@@ -159,7 +159,7 @@ class Bias(StepType[BiasSettings]):
         rrw = ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 216000.0
         # the windows measured after this one (rate plateaus, stops, verification) see the
         # wander within them too: their model has the same floor
-        part.extra["noise"] = noise.with_floor(b_dps, rrw)
+        part.noise = noise.with_floor(b_dps, rrw)
         u_wander = self._wander_dps(t0, t1, b_dps, rrw)
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
         res.note_temperature("bias", data["temp_c"])
@@ -183,33 +183,47 @@ class Bias(StepType[BiasSettings]):
             supply_v=res.supply_v,
         )
         if self.first:
-            arw = noise.arw_deg_per_sqrt_h
-            bi = noise.bias_instability_deg_per_h
-            part.record.analysis["allan"] = {
-                "condition": self.condition,
-                "tau_s": [float(x) for x in allan.adev.tau_s],
-                "adev_dps": [float(x) for x in allan.adev.adev_dps],
-                "arw_deg_per_sqrt_h": arw,
-                "bias_instability_deg_per_h": bi,
-                "rate_random_walk_deg_per_h_per_sqrt_h": noise.rrw_deg_per_h_per_sqrt_h,
-                "record_s": float(data["time_s"][-1] - data["time_s"][0]),
-            }
+            self._record_allan(ctx, part, allan, float(data["time_s"][-1] - data["time_s"][0]))
+
+    def _static_from(self, part: PartRun, t0: float) -> float:
+        """Where the static record at this condition began: the thermal step's stability
+        window, when it judged one (station clock); else t0."""
+        stab = part.record.analysis.stability.get(self.condition)
+        if stab is None:
+            return t0
+        start = t0 if stab.stable_at_station_s is None else stab.stable_at_station_s
+        return start - (stab.window_s or 0.0)
+
+    def _record_allan(self, ctx: RunContext, part: PartRun, allan: AllanAnalysis,
+                      record_s: float) -> None:
+        noise = allan.noise.model
+        arw = noise.arw_deg_per_sqrt_h
+        bi = noise.bias_instability_deg_per_h
+        part.record.analysis.allan = AllanResults(
+            condition=self.condition,
+            tau_s=[float(x) for x in allan.adev.tau_s],
+            adev_dps=[float(x) for x in allan.adev.adev_dps],
+            arw_deg_per_sqrt_h=arw,
+            bias_instability_deg_per_h=bi,
+            rate_random_walk_deg_per_h_per_sqrt_h=noise.rrw_deg_per_h_per_sqrt_h,
+            record_s=record_s,
+        )
+        ctx.records.measure(
+            part,
+            "noise_arw_deg_per_sqrt_h",
+            arw if math.isfinite(arw) else None,
+            units="deg/sqrt(h)",
+            condition=self.condition,
+            uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
+            description="angle random walk from the Allan deviation",
+        )
+        if bi > 0 and np.isfinite(bi):
             ctx.records.measure(
                 part,
-                "noise_arw_deg_per_sqrt_h",
-                arw if math.isfinite(arw) else None,
-                units="deg/sqrt(h)",
+                "bias_instability_deg_per_h",
+                bi,
+                units="deg/h",
                 condition=self.condition,
-                uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
-                description="angle random walk from the Allan deviation",
+                uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
+                description="bias instability (short record: indicative)",
             )
-            if bi > 0 and np.isfinite(bi):
-                ctx.records.measure(
-                    part,
-                    "bias_instability_deg_per_h",
-                    bi,
-                    units="deg/h",
-                    condition=self.condition,
-                    uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
-                    description="bias instability (short record: indicative)",
-                )

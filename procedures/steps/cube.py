@@ -7,7 +7,7 @@ operator (a ProgressEvent kind="prompt" with `orientation` set and the instructi
 words), waits until every part's accelerometer shows gravity along the named axis (within
 `max_tilt_deg`) at rest, re-prompts a socket whose cube came to rest in another face, then
 records a static window and a +r/-r table plateau pair. Each window becomes a
-procedures.analysis.three_axis.Window in part.extra["three_axis_windows"], which
+procedures.analysis.three_axis.Window in the part's `three_axis_windows`, which
 `fit_three_axis` (procedures/steps/three_axis_fit.py) fits.
 """
 
@@ -29,13 +29,11 @@ from procedures.record import Verdict
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
 from procedures.streams import XYZ_COLUMNS
 
 log = logging.getLogger(__name__)
-WINDOWS_KEY = "three_axis_windows"
-FACE_KEY = "cube_face"
 POLL_S = 0.5
 AT_REST_ACCEL_STD_MPS2 = 0.05  # accelerometer scatter over the look window at rest
 
@@ -75,14 +73,14 @@ class CubeFaces(StepType[CubeFacesSettings]):
     type_name = "cube_faces"
     Settings = CubeFacesSettings
     uses_table = True
-    provides = frozenset({"three_axis_windows"})
+    provides = frozenset({Provided.THREE_AXIS_WINDOWS})
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
         return []
 
     def _faces(self, ctx: RunContext) -> list[str]:
-        current = next((p.extra.get(FACE_KEY) for p in ctx.parts.alive()), None)
+        current = next((p.cube_face for p in ctx.parts.alive()), None)
         return faces_for_condition(self.place.condition_index, current)
 
     def estimate_s(self, ctx: RunContext) -> float:
@@ -113,7 +111,7 @@ class CubeFaces(StepType[CubeFacesSettings]):
 
     def _orient(self, ctx: RunContext, face: str) -> None:
         face = normalise_face(face)
-        pending = [p for p in ctx.parts.alive() if p.extra.get(FACE_KEY) != face]
+        pending = [p for p in ctx.parts.alive() if p.cube_face != face]
         if not pending:
             return
         before = {p.socket: self._face_now(ctx, p) for p in pending}
@@ -125,7 +123,7 @@ class CubeFaces(StepType[CubeFacesSettings]):
             for part in list(pending):
                 seen = self._face_now(ctx, part)
                 if seen == face:
-                    part.extra[FACE_KEY] = face
+                    part.cube_face = face
                     pending.remove(part)
                 elif seen is not None and seen != before[part.socket]:
                     self._wrong_face(ctx, part, face, seen, prompts, pending)
@@ -177,7 +175,7 @@ class CubeFaces(StepType[CubeFacesSettings]):
     def _windows(self, ctx: RunContext, part: PartRun, face: str, plateaus: list[Plateau]) -> None:
         fs = sample_rate_hz(ctx)
         res = part.conditions[self.condition]
-        out: list[Window] = part.extra.setdefault(WINDOWS_KEY, [])
+        out: list[Window] = part.three_axis_windows
         for p in plateaus:
             data = samples_between(ctx, part, p.t0_s, p.t1_s)
             what = f"face {face.upper()} at {p.ref_dps:+.1f} deg/s, {self.condition}"

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from pydantic import Field
@@ -16,6 +16,7 @@ from procedures.analysis.temp_supply_fit import (
     fit_temp_supply,
 )
 from procedures.record import Calibration, Verdict
+from procedures.results import FitCondition, FitResults
 from procedures.run_context import RunContext
 from procedures.run_parts import ConditionResult, PartRun, condition_record
 from procedures.steps.fit_order import (
@@ -23,7 +24,7 @@ from procedures.steps.fit_order import (
     fit_beyond_first_order,
     record_first_order_summary,
 )
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 COEFF_UNITS = {
     "bias_temp_coeff_dps_per_c": "deg/s/C",
@@ -36,7 +37,7 @@ COEFF_UNITS = {
 def scale_estimate(source: str, res: ConditionResult) -> tuple[float, float]:
     """(scale, k=1 uncertainty) at one condition from the chosen source."""
     table = None if res.table_fit is None else (res.table_fit.scale, res.table_fit.u_scale)
-    stop = None if res.stop is None else (res.stop["scale"], res.stop["u_scale"])
+    stop = None if res.stop is None else (res.stop.scale, res.stop.u_scale)
     if source == "rate_table" or (source == "both" and stop is None):
         if table is None:
             raise AnalysisError(f"{res.name}: no rate-table scale to fit")
@@ -69,13 +70,14 @@ class Fit(StepType[FitSettings]):
 
     type_name = "fit"
     Settings = FitSettings
-    provides = frozenset({"fit"})
+    provides = frozenset({Provided.FIT})
+    Results = FitResults
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        need = {"rate_table": {"scale_table"}, "stop_method": {"scale_stop"},
-                "both": {"scale_table", "scale_stop"}}[settings.source]
-        return {"bias", *need}
+    def requires(cls, settings: Any) -> set[Provided]:
+        need = {"rate_table": {Provided.SCALE_TABLE}, "stop_method": {Provided.SCALE_STOP},
+                "both": {Provided.SCALE_TABLE, Provided.SCALE_STOP}}[settings.source]
+        return {Provided.BIAS, *need}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -88,27 +90,8 @@ class Fit(StepType[FitSettings]):
 
     def _fit(self, ctx: RunContext, part: PartRun) -> None:
         source = self.settings.source
-        by_kind: dict[str, list[ConditionMeasurement]] = {"bias": [], "scale": []}
         try:
-            for res in part.conditions.values():
-                if res.bias_dps is None or res.u_bias_dps is None:
-                    raise AnalysisError(f"{res.name}: the bias was not measured")
-                scale, u_scale = scale_estimate(source, res)
-                supply = res.supply_measured_v if res.supply_measured_v else res.supply_v
-                for kind, cond_list in by_kind.items():
-                    temp = res.temperature_for(kind)
-                    if temp is None:
-                        raise AnalysisError(f"{res.name}: no die temperature recorded")
-                    cond_list.append(
-                        ConditionMeasurement(
-                            temp_c=temp,
-                            supply_v=supply,
-                            bias_dps=res.bias_dps,
-                            u_bias_dps=res.u_bias_dps,
-                            scale=scale,
-                            u_scale=u_scale,
-                        )
-                    )
+            by_kind = fit_inputs(part, source)
             t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
             if self.settings.order > 1:
                 fit_beyond_first_order(ctx, part, self.settings.order, by_kind, t0, v0, source)
@@ -127,35 +110,27 @@ class Fit(StepType[FitSettings]):
             scale_supply_coeff_per_v=cs.scale_supply_coeff_per_v,
         )
         part.fit = CombinedFit(coefficients, fit_b, fit_s)
-        cal = {k: v for k, v in fit_b.as_calibration_dict().items() if not k.startswith("scale")}
-        cal.update({k: v for k, v in fit_s.as_calibration_dict().items() if k.startswith("scale")})
-        inter_b, inter_s = fit_b.interaction, fit_s.interaction
-        if inter_b is not None and inter_s is not None:
-            cal["interaction_check"] = {
-                **{k: v for k, v in inter_b.as_dict().items() if not k.startswith("scale")},
-                **{k: v for k, v in inter_s.as_dict().items() if k.startswith("scale")},
-            }
         part.record.conditions = [condition_record(r) for r in part.conditions.values()]
-        part.record.calibration = Calibration.model_validate(cal)
+        part.record.calibration = _calibration(fit_b, fit_s)
         record_first_order_summary(part, by_kind, t0, v0)
-        part.record.analysis["fit"] = {
-            "source": source,
-            "conditions": [
-                {
-                    "name": r.name,
-                    "bias_temp_c": b.temp_c,
-                    "scale_temp_c": sc.temp_c,
-                    "supply_v": b.supply_v,
-                    "bias_dps": b.bias_dps,
-                    "u_bias_dps": b.u_bias_dps,
-                    "scale": b.scale,
-                    "u_scale": b.u_scale,
-                }
+        part.record.analysis.fit = FitResults(
+            source=source,
+            conditions=[
+                FitCondition(
+                    name=r.name,
+                    bias_temp_c=b.temp_c,
+                    scale_temp_c=sc.temp_c,
+                    supply_v=b.supply_v,
+                    bias_dps=b.bias_dps,
+                    u_bias_dps=b.u_bias_dps,
+                    scale=b.scale,
+                    u_scale=b.u_scale,
+                )
                 for r, b, sc in zip(
                     part.conditions.values(), by_kind["bias"], by_kind["scale"], strict=True
                 )
             ],
-        }
+        )
         for name, units in COEFF_UNITS.items():
             fit = fit_b if name.startswith("bias") else fit_s
             ctx.records.measure(
@@ -168,6 +143,45 @@ class Fit(StepType[FitSettings]):
             )
 
 
+def fit_inputs(part: PartRun, source: str) -> dict[str, list[ConditionMeasurement]]:
+    """Each condition's bias and scale with the die temperature of its own windows; raises
+    AnalysisError naming what a condition lacks."""
+    by_kind: dict[str, list[ConditionMeasurement]] = {"bias": [], "scale": []}
+    for res in part.conditions.values():
+        if res.bias_dps is None or res.u_bias_dps is None:
+            raise AnalysisError(f"{res.name}: the bias was not measured")
+        scale, u_scale = scale_estimate(source, res)
+        supply = res.supply_measured_v if res.supply_measured_v else res.supply_v
+        for kind, cond_list in by_kind.items():
+            temp = res.temperature_for(kind)
+            if temp is None:
+                raise AnalysisError(f"{res.name}: no die temperature recorded")
+            cond_list.append(
+                ConditionMeasurement(
+                    temp_c=temp,
+                    supply_v=supply,
+                    bias_dps=res.bias_dps,
+                    u_bias_dps=res.u_bias_dps,
+                    scale=scale,
+                    u_scale=u_scale,
+                )
+            )
+    return by_kind
+
+
+def _calibration(fit_b: TempSupplyFit, fit_s: TempSupplyFit) -> Calibration:
+    """The record's calibration: bias terms from the bias fit, scale terms from the scale's."""
+    cal = {k: v for k, v in fit_b.as_calibration_dict().items() if not k.startswith("scale")}
+    cal.update({k: v for k, v in fit_s.as_calibration_dict().items() if k.startswith("scale")})
+    inter_b, inter_s = fit_b.interaction, fit_s.interaction
+    if inter_b is not None and inter_s is not None:
+        cal["interaction_check"] = {
+            **{k: v for k, v in inter_b.as_dict().items() if not k.startswith("scale")},
+            **{k: v for k, v in inter_s.as_dict().items() if k.startswith("scale")},
+        }
+    return Calibration.model_validate(cal)
+
+
 @dataclass(frozen=True)
 class CombinedFit:
     """Bias terms from the bias-temperature fit, scale terms from the scale-temperature fit."""
@@ -175,3 +189,4 @@ class CombinedFit:
     coefficients: FirstOrderCoefficients
     bias_fit: TempSupplyFit
     scale_fit: TempSupplyFit
+    registers_beyond_first_order: dict[str, float] = field(default_factory=dict)  # none here

@@ -26,6 +26,7 @@ from procedures.analysis.temp_fit import (
 )
 from procedures.analysis.temp_supply_fit import ConditionMeasurement, FirstOrderCoefficients
 from procedures.record import Calibration, Verdict
+from procedures.results import FitResults, TemperatureFitResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, condition_record
 from procedures.steps.registry import Declared
@@ -104,7 +105,8 @@ def record_first_order_summary(
         fit_s = fit_temperature(by_kind["scale"], 1, t0, v0)
     except AnalysisError:
         return  # the first-order fit itself succeeded; the plot is not worth an error
-    part.record.analysis["temperature_fit"] = record_summary(fit_b, fit_s, _points(part, by_kind))
+    part.record.analysis.temperature_fit = TemperatureFitResults.model_validate(
+        record_summary(fit_b, fit_s, _points(part, by_kind)))
 
 
 def fit_beyond_first_order(
@@ -134,13 +136,14 @@ def fit_beyond_first_order(
     part.record.conditions = [condition_record(r) for r in part.conditions.values()]
     part.record.calibration = Calibration.model_validate(cal)
     points = _points(part, by_kind)
-    part.record.analysis["fit"] = {
+    part.record.analysis.fit = FitResults.model_validate({
         "source": source,
         "order": order,
         "conditions": [{"name": p["condition"], **{k: v for k, v in p.items()
                                                    if k != "condition"}} for p in points],
-    }
-    part.record.analysis["temperature_fit"] = record_summary(fit_b, fit_s, points)
+    })
+    part.record.analysis.temperature_fit = TemperatureFitResults.model_validate(
+        record_summary(fit_b, fit_s, points))
     for name in (*FIRST_ORDER_BIAS[1:], *FIRST_ORDER_SCALE[1:], *higher):
         fit = fit_b if name.startswith("bias") else fit_s
         ctx.records.measure(

@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
 from drivers.bounded import ONE_HOUR_S
 from drivers.errors import InstrumentError
@@ -40,11 +40,12 @@ from procedures.analysis.stop_method import (
     analyze_stop_method,
 )
 from procedures.record import Verdict
+from procedures.results import StopMethodResults, StopMove, Verification, VerificationRow
 from procedures.run_context import RunContext
-from procedures.run_parts import PartRun, condition_record
+from procedures.run_parts import PartRun, StopScale, condition_record
 from procedures.steps.base import check_window, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
-from procedures.steps.stop import stop_noise_model
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
+from procedures.steps.stop import stop_angle, stop_noise_model
 from procedures.units import Volts
 
 CLIP_BITS = int(SampleStatus.OVER_RANGE | SampleStatus.SATURATED)
@@ -128,7 +129,8 @@ class ManualStop(StepType[ManualStopSettings]):
 
     type_name = "manual_stop"
     Settings = ManualStopSettings
-    provides = frozenset({"scale_stop"})  # a fit may take its scale (source: stop_method)
+    provides = frozenset({Provided.SCALE_STOP})  # a fit may take its scale (source: stop_method)
+    Results: ClassVar[type[BaseModel] | None] = StopMethodResults
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -300,7 +302,7 @@ class ManualStop(StepType[ManualStopSettings]):
             assert cfg.stop_angle_deg is not None and cfg.stop_angle_u_deg is not None
             return cfg.stop_angle_deg, cfg.stop_angle_u_deg
         if cfg.reference == "fixture":
-            ref, u_ref = part.extra["stop_angle"]
+            ref, u_ref = stop_angle(part)
             return float(ref), float(u_ref)
         angles = np.array([a for a, _ in stops.readings])
         u_read = max(u for _, u in stops.readings)
@@ -365,8 +367,7 @@ class ManualStop(StepType[ManualStopSettings]):
         )
         res = part.conditions.get(condition)
         if res is not None:
-            res.stop = {"scale": scale, "u_scale": u_scale, "bias_dps": result.bias_dps,
-                        "reference_angle_deg": ref, "u_reference_angle_deg": u_ref}
+            res.stop = StopScale(scale, u_scale, result.bias_dps, ref, u_ref)
             res.note_temperature("scale", data_temp_c)
             # the conditions so far on the record (a later fit step writes them again), so a
             # procedure without a fit still shows its condition and stop scale
@@ -376,25 +377,25 @@ class ManualStop(StepType[ManualStopSettings]):
                 part, "stop_move", i, mv.start_s, mv.end_s,
                 ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
             )
-        part.record.analysis.setdefault("stop_method", {})[condition or "manual"] = {
-            "method": "manual_stop",
-            "bias_dps": result.bias_dps,
-            "scale": scale,
-            "u_scale": u_scale,
-            "scale_correction": result.scale_correction,
-            "reference_angle_deg": ref,
-            "u_reference_angle_deg": u_ref,
-            "reference": self.settings.reference,
-            "static_windows": [[a, b] for a, b in result.static_segments_s],
-            "moves": [
-                {"start_s": m.start_s, "end_s": m.end_s,
-                 "measured_angle_deg": m.measured_angle_deg,
-                 "peak_rate_dps": m.peak_rate_dps, "over_range_samples": m.n_over_range,
-                 "scale_correction": m.scale_correction}
+        part.record.analysis.stop_method[condition or "manual"] = StopMethodResults(
+            method="manual_stop",
+            bias_dps=result.bias_dps,
+            scale=scale,
+            u_scale=u_scale,
+            scale_correction=result.scale_correction,
+            reference_angle_deg=ref,
+            u_reference_angle_deg=u_ref,
+            reference=self.settings.reference,
+            static_windows=[[a, b] for a, b in result.static_segments_s],
+            moves=[
+                StopMove(start_s=m.start_s, end_s=m.end_s,
+                         measured_angle_deg=m.measured_angle_deg,
+                         peak_rate_dps=m.peak_rate_dps, over_range_samples=m.n_over_range,
+                         scale_correction=m.scale_correction)
                 for m in result.moves
             ],
-            "warnings": list(result.warnings),
-        }
+            warnings=list(result.warnings),
+        )
 
 
 class VerifyManualStopSettings(ManualStopSettings):
@@ -411,10 +412,11 @@ class VerifyManualStop(ManualStop):
     type_name = "verify_manual_stop"
     Settings = VerifyManualStopSettings
     provides = frozenset()
+    Results = Verification
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"programmed"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.PROGRAMMED}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -452,19 +454,19 @@ class VerifyManualStop(ManualStop):
         # a hand move has no set rate: its mean rate stands for "the rate" of the row
         move_s = float(np.mean([m.end_s - m.start_s for m in result.moves]))
         rate_in = ref / move_s if move_s > 0 else math.nan
-        part.record.verification = {
-            "method": "manual_stop",
-            "residuals": [{
-                "condition": "verify@stop",
-                "rate_in_dps": rate_in,
-                "error_dps": (scale - 1.0) * rate_in,
-                "error_pct": 100 * (scale - 1.0),
-                "u_error_pct_k2": 200 * u_scale,
-            }],
-            "residual_bias_dps": result.bias_dps,
-            "max_error_pct": abs(100 * (scale - 1.0)),
-            "supply_v": self.supply_v,
-            "reference": self.settings.reference,
-            "reference_angle_deg": ref,
-            "u_reference_angle_deg": u_ref,
-        }
+        part.record.verification = Verification(
+            method="manual_stop",
+            residuals=[VerificationRow(
+                condition="verify@stop",
+                rate_in_dps=rate_in,
+                error_dps=(scale - 1.0) * rate_in,
+                error_pct=100 * (scale - 1.0),
+                u_error_pct_k2=200 * u_scale,
+            )],
+            residual_bias_dps=result.bias_dps,
+            max_error_pct=abs(100 * (scale - 1.0)),
+            supply_v=self.supply_v,
+            reference=self.settings.reference,
+            reference_angle_deg=ref,
+            u_reference_angle_deg=u_ref,
+        )

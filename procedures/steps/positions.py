@@ -22,6 +22,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
+from procedures.results import PositionWindow as PositionResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
@@ -76,6 +77,7 @@ class Positions(StepType[PositionsSettings]):
     """Static windows at several table angles (records segments; no judged measurement)."""
 
     type_name = "positions"
+    Results = PositionResults
     Settings = PositionsSettings
     uses_table = True
 
@@ -131,7 +133,7 @@ class Positions(StepType[PositionsSettings]):
     def _analyse(self, ctx: RunContext, part: PartRun) -> None:
         cfg = self.settings
         res = part.conditions[self.condition]
-        summary = []
+        summary: list[PositionResults] = []
         for i, w in enumerate(self.windows):
             data = samples_between(ctx, part, w.t0_s, w.t1_s)
             if not check_window(
@@ -155,13 +157,13 @@ class Positions(StepType[PositionsSettings]):
                 supply_v=res.supply_v,
             )
             summary.append(
-                {
-                    "angle_cmd_deg": w.angle_cmd_deg,
-                    "angle_deg": w.angle_deg,
-                    "start_s": start_s,
-                    "end_s": end_s,
-                    "mean_dps": float(np.mean(data["rate_dps"])),
-                    "samples": int(data["rate_dps"].size),
-                }
+                PositionResults(
+                    angle_cmd_deg=w.angle_cmd_deg,
+                    angle_deg=w.angle_deg,
+                    start_s=start_s,
+                    end_s=end_s,
+                    mean_dps=float(np.mean(data["rate_dps"])),
+                    samples=int(data["rate_dps"].size),
+                )
             )
-        part.record.analysis.setdefault("positions", {})[self.condition] = summary
+        part.record.analysis.positions[self.condition] = summary

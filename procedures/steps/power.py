@@ -19,14 +19,11 @@ class SerialMismatch(InstrumentError):  # noqa: N818 - like drivers.errors
     """The part's own serial register does not match the scanned label."""
 
 
-# set by the station on each part: fixture sockets that were not scanned and could not be
-# asked whether they hold a part (a part there draws current from the shared supply too)
-UNASKED_SOCKETS = "unasked_sockets"
-
-
 def parts_maybe_powered(ctx: RunContext) -> int:
     """Scanned parts still running plus unscanned sockets that may hold a part."""
-    unasked = max((int(p.extra.get(UNASKED_SOCKETS, 0)) for p in ctx.parts), default=0)
+    # set by the station on each part: fixture sockets that were not scanned and could not
+    # be asked whether they hold a part (a part there draws current from the supply too)
+    unasked = max((p.unasked_sockets for p in ctx.parts), default=0)
     return len(ctx.parts.alive()) + unasked
 
 
@@ -94,7 +91,7 @@ class PowerIdentify(StepType[PowerSettings]):
                 units="A",
                 description="supply current at power-on (shared supply, per part)",
             )
-            part.extra["power_on_station_s"] = ctx.wait.clock.now_s()
+            part.power_on_station_s = ctx.wait.clock.now_s()
         ctx.parts.each(self._start)
 
     def _identify(self, ctx: RunContext, part: PartRun) -> None:
@@ -122,7 +119,7 @@ class PowerIdentify(StepType[PowerSettings]):
                 "refused, check which part is in which socket",
                 instrument=f"fixture_{part.socket}",
             )
-        part.extra["stop_angle"] = link.stop_angle()
+        part.stop_angle = link.stop_angle()
         link.set_compensation(False)  # calibrate on the raw output
         link.set_output_rate(ctx.procedure.output_rate_hz)
 

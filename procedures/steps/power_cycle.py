@@ -36,7 +36,7 @@ def power_on(ctx: RunContext, supply_v: float) -> float:
     ctx.wait.sleep(BOOT_S)
     supply.check_errors()
     for part in ctx.parts.alive():
-        part.extra["power_on_station_s"] = on_s
+        part.power_on_station_s = on_s
         if part.stream is not None:
             ctx.parts.per_part(part, lambda p: p.stream.start())  # type: ignore[union-attr]
     return on_s

@@ -8,16 +8,18 @@ from typing import Any
 
 from drivers.protocols import CalibrationRegisters
 from procedures.record import Outcome, Verdict
+from procedures.results import ProgrammingResults
 from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.run_parts import PartRun, ProgrammableFit
 from procedures.steps.fit_order import readback_dict
-from procedures.steps.registry import StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, S, StepSettings, StepType
+from procedures.streams import PartStream
 
 READBACK_REL_TOL = 1e-6
 
 
-def registers_from_fit(part: PartRun) -> CalibrationRegisters:
-    co = part.fit.coefficients
+def registers_from_fit(fit: ProgrammableFit) -> CalibrationRegisters:
+    co = fit.coefficients
     return CalibrationRegisters(
         bias_dps=co.bias_dps,
         scale=co.scale,
@@ -27,7 +29,7 @@ def registers_from_fit(part: PartRun) -> CalibrationRegisters:
         scale_vc_per_v=co.scale_supply_coeff_per_v,
         t0_c=co.reference_temperature_c,
         v0_v=co.reference_supply_v,
-        **getattr(part.fit, "registers_beyond_first_order", {}),  # procedures.steps.fit_order
+        **fit.registers_beyond_first_order,  # procedures.steps.fit_order
     )
 
 
@@ -50,49 +52,66 @@ def failed_limits(part: PartRun) -> list[str]:
             for m in part.record.measurements if m.outcome is Outcome.FAIL]
 
 
-class Program(StepType[ProgramSettings]):
-    """Write the fit to each part, read it back, switch compensation on; a part that failed
-    any limit is never programmed (it leaves the run FAIL, the record says why)."""
+def _stream(part: PartRun) -> PartStream:
+    assert part.stream is not None
+    return part.stream
 
-    type_name = "program"
-    Settings = ProgramSettings
-    provides = frozenset({"programmed"})
+
+class ProgramStep(StepType[S]):
+    """What every programming step does around writing its registers (`_program`, one part):
+    a part that failed any limit is never programmed (it leaves the run FAIL, the record
+    says why); the parts' streams stop while their registers are written."""
+
+    provides = frozenset({Provided.PROGRAMMED})
+    Results = ProgrammingResults
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"fit"}
-
-    @classmethod
-    def measurements(cls, settings: Any) -> list[Any]:
+    def measurements(cls, settings: Any) -> list[Declared]:
         return []
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        return 2.0
 
     def setup(self, ctx: RunContext) -> None:
         for part in ctx.parts.alive():
             failed = failed_limits(part)
             if failed:
                 reason = f"not programmed: failed {', '.join(failed)}"
-                part.record.analysis["programming"] = {"programmed": False, "reason": reason}
+                part.record.analysis.programming = ProgrammingResults(
+                    programmed=False, reason=reason
+                )
                 ctx.parts.drop(part, Verdict.FAIL, reason)
         ctx.parts.require()
 
-    def estimate_s(self, ctx: RunContext) -> float:
-        return 2.0
-
     def main(self, ctx: RunContext) -> None:
         for part in ctx.parts.alive():
-            assert part.stream is not None
-            ctx.parts.per_part(part, lambda p: p.stream.stop())  # type: ignore[union-attr]
+            ctx.parts.per_part(part, lambda p: _stream(p).stop())
         ctx.wait.check()  # the watchdog: programming is no reason to miss an e-stop
         ctx.parts.each(lambda part: self._program(ctx, part))
         ctx.wait.check()
         for part in ctx.parts.alive():
-            ctx.parts.per_part(part, lambda p: p.stream.start())  # type: ignore[union-attr]
+            ctx.parts.per_part(part, lambda p: _stream(p).start())
+
+    def _program(self, ctx: RunContext, part: PartRun) -> None:
+        raise NotImplementedError
+
+
+class Program(ProgramStep[ProgramSettings]):
+    """Write the fit to each part, read it back, switch compensation on; a part that failed
+    any limit is never programmed (it leaves the run FAIL, the record says why)."""
+
+    type_name = "program"
+    Settings = ProgramSettings
+
+    @classmethod
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.FIT}
 
     def _program(self, ctx: RunContext, part: PartRun) -> None:
         if part.fit is None:
             ctx.parts.drop(part, Verdict.ERROR, "no fitted coefficients to program")
             return
-        regs = registers_from_fit(part)
+        regs = registers_from_fit(part.fit)
         link = part.link
         link.write_calibration(regs)
         read = link.read_calibration()

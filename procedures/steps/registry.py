@@ -19,6 +19,7 @@ An instance holds its typed settings as `self.settings` and where it runs as `se
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from functools import cache
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
@@ -95,15 +96,31 @@ class Place:
 S = TypeVar("S", bound=StepSettings)
 
 
+class Provided(StrEnum):
+    """What a step leaves for later steps (`StepType.provides`) and what a step needs from
+    an earlier one (`StepType.requires`), checked when the procedure is loaded."""
+
+    BIAS = "bias"  # each condition's bias (step bias)
+    SCALE_TABLE = "scale_table"  # each condition's rate-table scale (step rate_table)
+    SCALE_STOP = "scale_stop"  # each condition's stop-method scale (stop_method, manual_stop)
+    FIT = "fit"  # PartRun.fit (step fit)
+    PROGRAMMED = "programmed"  # the part compensates its output (program, program_three_axis)
+    THREE_AXIS_WINDOWS = "three_axis_windows"  # PartRun.three_axis_windows (step cube_faces)
+    FIT_THREE_AXIS = "fit_three_axis"  # PartRun.three_axis_fit (step fit_three_axis)
+
+
 class StepType(Generic[S]):
     """Base of every step type; see the module docstring."""
 
     type_name: ClassVar[str] = ""  # set from the entry-point name when loaded
     Settings: ClassVar[type[StepSettings]] = StepSettings
     uses_table: ClassVar[bool] = False  # True: the station must have a rate table
-    # what the step leaves for later steps (e.g. "scale_table", "scale_stop", "fit",
-    # "programmed"); `requires(settings)` names what must come from an earlier entry
-    provides: ClassVar[frozenset[str]] = frozenset()
+    # what the step leaves for later steps; `requires(settings)` names what must come from
+    # an earlier entry
+    provides: ClassVar[frozenset[Provided]] = frozenset()
+    # the model of what the step writes to record.analysis (or record.verification),
+    # procedures/results.py; None for a step that records measurements only
+    Results: ClassVar[type[BaseModel] | None] = None
 
     def __init__(self, settings: S, place: Place | None = None,
                  policy: StepPolicy | None = None) -> None:
@@ -126,7 +143,7 @@ class StepType(Generic[S]):
         return []
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
+    def requires(cls, settings: Any) -> set[Provided]:
         """What an earlier entry of the procedure must provide (checked at load)."""
         return set()
 

@@ -12,26 +12,36 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import BaseModel, Field
 
 from drivers.bounded import MAX_REPEATS, ONE_HOUR_S
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import stop_vs_rate_table
 from procedures.analysis.errors import AnalysisError
+from procedures.analysis.rate_table import RateTableFit
 from procedures.analysis.stop_method import (
     StopMethodResult,
     StopMethodSettings,
     analyze_stop_method,
 )
 from procedures.record import Verdict
+from procedures.results import (
+    RemeasuredFirst,
+    RemeasuredResults,
+    RemeasuredSecond,
+    StopMethodResults,
+    StopMove,
+    Verification,
+    VerificationRow,
+)
 from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.run_parts import ConditionResult, PartRun, StopScale
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.program import failed_limits
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.units import Seconds, Volts
 
 # the table counts as already at the first stop within this (a move is skipped)
@@ -45,18 +55,25 @@ def stop_noise_model(ctx: RunContext, part: PartRun) -> NoiseModel | None:
     short on the simulated bench (benchmarks/bench_consistency.py); a minute's record rarely
     resolves the bias instability, so the product's typical value stands in for it.
     """
-    noise = part.extra.get("noise")
-    if not isinstance(noise, NoiseModel):
+    noise = part.noise
+    if noise is None:
         return None
     floor_dps = ctx.product.bias_instability_deg_per_h / 3600.0
     return replace(noise, bias_instability_dps=max(noise.bias_instability_dps, floor_dps))
+
+
+def stop_angle(part: PartRun) -> tuple[float, float]:
+    """The fixture's stop angle and its k=1 uncertainty (step power read it), deg."""
+    if part.stop_angle is None:
+        raise AnalysisError("the fixture's stop angle was not read at power-on")
+    return part.stop_angle
 
 
 def _limit_text(value: float | None) -> str:
     return "none" if value is None else f"{value:.3g}"
 
 
-def _take_back(part: PartRun, name: str, condition: str) -> dict[str, Any]:
+def _take_back(part: PartRun, name: str, condition: str) -> RemeasuredFirst:
     """Take a judged measurement off the part's record (it is measured again); what it was,
     with its stop-method scale, for `analysis.remeasured`."""
     m = next(m for m in reversed(part.record.measurements)
@@ -65,9 +82,10 @@ def _take_back(part: PartRun, name: str, condition: str) -> dict[str, Any]:
     label = f"{name}@{condition}"
     if label in part.failed_limits:
         part.failed_limits.remove(label)
-    stop = part.record.analysis.get("stop_method", {}).get(condition, {})
-    return {"value": m.value, "outcome": m.outcome.value, "low": m.low, "high": m.high,
-            "scale_stop": stop.get("scale"), "u_scale_stop": stop.get("u_scale")}
+    stop = part.record.analysis.stop_method.get(condition)
+    return RemeasuredFirst(value=m.value, outcome=m.outcome.value, low=m.low, high=m.high,
+                           scale_stop=None if stop is None else stop.scale,
+                           u_scale_stop=None if stop is None else stop.u_scale)
 
 
 class StopSettings(StepSettings):
@@ -98,7 +116,8 @@ class StopMethod(StepType[Any]):
     type_name = "stop_method"
     Settings = StopSettings
     uses_table = True
-    provides = frozenset({"scale_stop"})
+    provides = frozenset({Provided.SCALE_STOP})
+    Results: ClassVar[type[BaseModel] | None] = StopMethodResults
     _again = False  # True while the stop moves are measured once more (a lone failure)
 
     @classmethod
@@ -131,8 +150,8 @@ class StopMethod(StepType[Any]):
         for part in lone:
             first = firsts[part.socket]
             ctx.records.event(
-                f"socket {part.socket}: {label} failed alone (E_n {first['value']:+.2f}, "
-                f"limits {_limit_text(first['low'])}..{_limit_text(first['high'])}): the "
+                f"socket {part.socket}: {label} failed alone (E_n {first.value:+.2f}, "
+                f"limits {_limit_text(first.low)}..{_limit_text(first.high)}): the "
                 f"stop moves at {self.condition} are measured once more before the verdict",
                 "WARNING", [part],
             )
@@ -145,15 +164,15 @@ class StopMethod(StepType[Any]):
             second = next((m for m in reversed(part.record.measurements)
                            if m.name == "stop_table_consistency"
                            and m.condition == self.condition), None)
-            part.record.analysis.setdefault("remeasured", []).append({
-                "measurement": "stop_table_consistency",
-                "condition": self.condition,
-                "why": "the part failed only this judgement: the stop moves were measured "
-                       "once more and the second judgement stands",
-                "first": firsts[part.socket],
-                "second": None if second is None else {
-                    "value": second.value, "outcome": second.outcome.value},
-            })
+            part.record.analysis.remeasured.append(RemeasuredResults(
+                measurement="stop_table_consistency",
+                condition=self.condition,
+                why="the part failed only this judgement: the stop moves were measured "
+                    "once more and the second judgement stands",
+                first=firsts[part.socket],
+                second=None if second is None else RemeasuredSecond(
+                    value=second.value, outcome=second.outcome.value),
+            ))
         ctx.parts.require()
 
     def _moves(self, ctx: RunContext) -> tuple[float, float]:
@@ -178,7 +197,7 @@ class StopMethod(StepType[Any]):
         far = cfg.stop_angle_deg
         if cfg.reference == "fixture":
             # the stops are the fixture's: move to its measured angle (mean over sockets)
-            far = float(np.mean([p.extra["stop_angle"][0] for p in ctx.parts.alive()]))
+            far = float(np.mean([stop_angle(p)[0] for p in ctx.parts.alive()]))
         for _ in range(cfg.repeats):
             for target in (origin + far, origin):
                 table.move_to(target, move_time_s=cfg.move_time_s)
@@ -201,7 +220,7 @@ class StopMethod(StepType[Any]):
         scale, its standard uncertainty, the reference angle and its uncertainty."""
         cfg = self.settings
         if cfg.reference == "fixture":
-            ref, u_ref = part.extra["stop_angle"]
+            ref, u_ref = stop_angle(part)
         else:
             ref, u_ref = self._encoder_angle, self._encoder_u
         result = analyze_stop_method(
@@ -237,13 +256,35 @@ class StopMethod(StepType[Any]):
             ctx.parts.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
             return
         res.note_temperature("scale", data["temp_c"])
-        res.stop = {
-            "scale": scale,
-            "u_scale": u_scale,
-            "bias_dps": result.bias_dps,
-            "reference_angle_deg": ref,
-            "u_reference_angle_deg": u_ref,
-        }
+        res.stop = StopScale(scale, u_scale, result.bias_dps, ref, u_ref)
+        self._segments(ctx, part, res, result, ref)
+        part.record.analysis.stop_method[self.condition] = StopMethodResults(
+            bias_dps=result.bias_dps,
+            bias_correction_dps=result.bias_correction_dps,
+            scale_correction=result.scale_correction,
+            scale=scale,
+            u_scale=u_scale,
+            reference_angle_deg=ref,
+            u_reference_angle_deg=u_ref,
+            reference=cfg.reference,
+            static_windows=[[a, b] for a, b in result.static_segments_s],
+            moves=[
+                StopMove(
+                    start_s=m.start_s,
+                    end_s=m.end_s,
+                    measured_angle_deg=m.measured_angle_deg,
+                    scale_correction=m.scale_correction,
+                )
+                for m in result.moves
+            ],
+            warnings=list(result.warnings),
+        )
+        if res.table_fit is not None:
+            self._judge_consistency(ctx, part, result, res.table_fit)
+
+    def _segments(self, ctx: RunContext, part: PartRun, res: ConditionResult,
+                  result: StopMethodResult, ref: float) -> None:
+        """raw.h5 /segments: the static windows and the moves of the stop record."""
         for i, (a, b) in enumerate(result.static_segments_s):
             ctx.records.segment(
                 part,
@@ -266,45 +307,27 @@ class StopMethod(StepType[Any]):
                 temp_setpoint_c=res.temperature_c,
                 supply_v=res.supply_v,
             )
-        part.record.analysis.setdefault("stop_method", {})[self.condition] = {
-            "bias_dps": result.bias_dps,
-            "bias_correction_dps": result.bias_correction_dps,
-            "scale_correction": result.scale_correction,
-            "scale": scale,
-            "u_scale": u_scale,
-            "reference_angle_deg": ref,
-            "u_reference_angle_deg": u_ref,
-            "reference": cfg.reference,
-            "static_windows": [[a, b] for a, b in result.static_segments_s],
-            "moves": [
-                {
-                    "start_s": m.start_s,
-                    "end_s": m.end_s,
-                    "measured_angle_deg": m.measured_angle_deg,
-                    "scale_correction": m.scale_correction,
-                }
-                for m in result.moves
-            ],
-            "warnings": list(result.warnings),
-        }
-        if res.table_fit is not None:
-            try:
-                cons = stop_vs_rate_table(result, res.table_fit)
-            except AnalysisError as exc:
-                ctx.records.event(
-                    f"socket {part.socket}: consistency not computed: {exc}", "WARNING", [part]
-                )
-                return
-            ctx.records.measure(
-                part,
-                "stop_table_consistency",
-                cons.normalised_difference,
-                units="1",
-                condition=self.condition,
-                description="(stop scale - table scale) / combined standard (k=1) uncertainty"
-                + ("; measured again: the first judgement at this condition failed alone"
-                   if self._again else ""),
+
+    def _judge_consistency(self, ctx: RunContext, part: PartRun, result: StopMethodResult,
+                           table_fit: RateTableFit) -> None:
+        """stop_table_consistency: the stop scale against the rate table's at this condition."""
+        try:
+            cons = stop_vs_rate_table(result, table_fit)
+        except AnalysisError as exc:
+            ctx.records.event(
+                f"socket {part.socket}: consistency not computed: {exc}", "WARNING", [part]
             )
+            return
+        ctx.records.measure(
+            part,
+            "stop_table_consistency",
+            cons.normalised_difference,
+            units="1",
+            condition=self.condition,
+            description="(stop scale - table scale) / combined standard (k=1) uncertainty"
+            + ("; measured again: the first judgement at this condition failed alone"
+               if self._again else ""),
+        )
 
 
 class VerifyStop(StopMethod):
@@ -314,10 +337,11 @@ class VerifyStop(StopMethod):
     type_name = "verify_stop"
     Settings = VerifyStopSettings
     provides = frozenset()
+    Results = Verification
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"programmed"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.PROGRAMMED}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -371,19 +395,19 @@ class VerifyStop(StopMethod):
                 ref_angle_deg=ref * (1 if mv.direction > 0 else -1),
                 supply_v=self.supply_v,
             )
-        part.record.verification = {
-            "method": "stop_method",
+        part.record.verification = Verification(
+            method="stop_method",
             # the move's mean rate stands for "the rate" of a stop-method verification
-            "residuals": [
-                {
-                    "condition": "verify@stop",
-                    "rate_in_dps": ref / cfg.move_time_s,
-                    "error_dps": (scale - 1.0) * ref / cfg.move_time_s,
-                    "error_pct": 100 * (scale - 1.0),
-                    "u_error_pct_k2": 200 * u_scale,
-                }
+            residuals=[
+                VerificationRow(
+                    condition="verify@stop",
+                    rate_in_dps=ref / cfg.move_time_s,
+                    error_dps=(scale - 1.0) * ref / cfg.move_time_s,
+                    error_pct=100 * (scale - 1.0),
+                    u_error_pct_k2=200 * u_scale,
+                )
             ],
-            "residual_bias_dps": result.bias_dps,
-            "max_error_pct": abs(100 * (scale - 1.0)),
-            "supply_v": self.supply_v,
-        }
+            residual_bias_dps=result.bias_dps,
+            max_error_pct=abs(100 * (scale - 1.0)),
+            supply_v=self.supply_v,
+        )

@@ -12,10 +12,11 @@ from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.rate_table import fit_rate_table, reference_rate_from_encoder
 from procedures.record import Verdict
+from procedures.results import RateTableResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.units import Rate, Seconds
 
 
@@ -91,7 +92,8 @@ class RateSweep(StepType[RateTableSettings]):
     type_name = "rate_table"
     Settings = RateTableSettings
     uses_table = True
-    provides = frozenset({"scale_table"})
+    provides = frozenset({Provided.SCALE_TABLE})
+    Results = RateTableResults
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -128,7 +130,7 @@ class RateSweep(StepType[RateTableSettings]):
     def _analyse(self, ctx: RunContext, part: PartRun) -> None:
         cfg = self.settings
         fs = sample_rate_hz(ctx)
-        noise = part.extra.get("noise")
+        noise = part.noise
         res = part.conditions[self.condition]
         ref, u_ref, out, u_out = [], [], [], []
         for i, p in enumerate(self.plateaus):
@@ -190,16 +192,16 @@ class RateSweep(StepType[RateTableSettings]):
             uncertainty_k2=2 * fit.u_asymmetry_ppm * 1e-6,
             condition=self.condition,
         )
-        part.record.analysis.setdefault("rate_table", {})[self.condition] = {
-            "rate_in_dps": [float(x) for x in ref],
-            "u_rate_in_dps": [float(x) for x in u_ref],
-            "rate_out_dps": [float(x) for x in out],
-            "u_rate_out_dps": [float(x) for x in u_out],
-            "residual_dps": [float(x) for x in fit.residual_dps],
-            "scale": fit.scale,
-            "u_scale": fit.u_scale,
-            "bias_dps": fit.bias_dps,
-            "u_bias_dps": fit.u_bias_dps,
-            "nonlinearity_pct_fs": fit.nonlinearity_pct_fs,
-            "asymmetry_ppm": fit.asymmetry_ppm,
-        }
+        part.record.analysis.rate_table[self.condition] = RateTableResults(
+            rate_in_dps=[float(x) for x in ref],
+            u_rate_in_dps=[float(x) for x in u_ref],
+            rate_out_dps=[float(x) for x in out],
+            u_rate_out_dps=[float(x) for x in u_out],
+            residual_dps=[float(x) for x in fit.residual_dps],
+            scale=fit.scale,
+            u_scale=fit.u_scale,
+            bias_dps=fit.bias_dps,
+            u_bias_dps=fit.u_bias_dps,
+            nonlinearity_pct_fs=fit.nonlinearity_pct_fs,
+            asymmetry_ppm=fit.asymmetry_ppm,
+        )

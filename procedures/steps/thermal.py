@@ -28,6 +28,7 @@ from procedures.chamber_strategy import (
     straight_settle_s,
 )
 from procedures.record import Verdict
+from procedures.results import StabilityResults
 from procedures.run_context import RunContext
 from procedures.run_parts import ConditionResult
 from procedures.steps.registry import StepSettings, StepType
@@ -124,6 +125,7 @@ class Stabilise(StepType[ThermalSettings]):
     strategy" above) and is at the target when measurement starts."""
 
     type_name = "thermal"
+    Results = StabilityResults
     Settings = ThermalSettings
 
     @property
@@ -370,23 +372,22 @@ class Stabilise(StepType[ThermalSettings]):
             temp_setpoint_c=self.target.temperature_c,
             supply_v=self.target.supply_v,
         )
-        part.record.analysis.setdefault("stability", {})[self.condition] = {
-            "window_s": st.window_s,
-            "max_rate_c_per_min": st.slope_c_per_min,
-            "band_c": st.band_c,
-            "tolerance_c": st.target_tolerance_c,
-            "time_to_stability_s": res.time_to_stability_s,
-            "stable": True,
-            "slope_c_per_min": v.slope_c_per_min,
-            "measured_band_c": v.band_c,
-            "die_temperature_c": v.mean_c,
-            "stable_at_station_s": stable_s,
-            "stable_at_fixture_s": part.stream.fixture_time(stable_s),
-            "condition_set_station_s": start,
-            "measurement_start_station_s": end,
+        control = {} if self._control is None else {
+            **self._control.summary(part.socket), "self_heating_c_per_w": part.thermal.c_per_w
         }
-        if self._control is not None:
-            part.record.analysis["stability"][self.condition].update(
-                self._control.summary(part.socket),
-                self_heating_c_per_w=part.thermal.c_per_w,
-            )
+        part.record.analysis.stability[self.condition] = StabilityResults(
+            window_s=st.window_s,
+            max_rate_c_per_min=st.slope_c_per_min,
+            band_c=st.band_c,
+            tolerance_c=st.target_tolerance_c,
+            time_to_stability_s=res.time_to_stability_s,
+            stable=True,
+            slope_c_per_min=v.slope_c_per_min,
+            measured_band_c=v.band_c,
+            die_temperature_c=v.mean_c,
+            stable_at_station_s=stable_s,
+            stable_at_fixture_s=part.stream.fixture_time(stable_s),
+            condition_set_station_s=start,
+            measurement_start_station_s=end,
+            **control,
+        )

@@ -19,16 +19,14 @@ import numpy as np
 from drivers.protocols import CalibrationRegisters3, CalibrationStore3
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.three_axis import ThreeAxisCalibration, fit_three_axis, vec3
-from procedures.record import Verdict
+from procedures.record import CalibrationThreeAxis, Verdict
+from procedures.results import ProgrammingResults, ThreeAxisWindow
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun, condition_record
-from procedures.steps.cube import WINDOWS_KEY
-from procedures.steps.program import failed_limits
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.program import ProgramStep
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 
 AXES = "xyz"
-FIT_KEY = "three_axis_fit"
-RECORD_KEY = "calibration_three_axis"
 PER_AXIS_TV = (
     ("bias_temp_coeff", "dps_per_c", "bias_temp_coeff_dps_per_c", "deg/s/C"),
     ("bias_supply_coeff", "dps_per_v", "bias_supply_coeff_dps_per_v", "deg/s/V"),
@@ -93,11 +91,12 @@ class FitThreeAxis(StepType[FitThreeAxisSettings]):
 
     type_name = "fit_three_axis"
     Settings = FitThreeAxisSettings
-    provides = frozenset({"fit_three_axis"})
+    provides = frozenset({Provided.FIT_THREE_AXIS})
+    Results = ThreeAxisWindow
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"three_axis_windows"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.THREE_AXIS_WINDOWS}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -127,17 +126,21 @@ class FitThreeAxis(StepType[FitThreeAxisSettings]):
     def _fit(self, ctx: RunContext, part: PartRun) -> None:
         try:
             cal = fit_three_axis(
-                part.extra.get(WINDOWS_KEY, []),
+                part.three_axis_windows,
                 ctx.product.reference_temperature_c,
                 ctx.product.reference_supply_v,
             )
         except AnalysisError as exc:
             ctx.parts.drop(part, Verdict.ERROR, f"three-axis fit: {exc}")
             return
-        part.extra[FIT_KEY] = cal
-        setattr(part.record, RECORD_KEY, cal.as_calibration_dict())
+        part.three_axis_fit = cal
+        part.record.calibration_three_axis = CalibrationThreeAxis.model_validate(
+            cal.as_calibration_dict()
+        )
         part.record.conditions = [condition_record(r) for r in part.conditions.values()]
-        part.record.analysis[WINDOWS_KEY] = [asdict(w) for w in part.extra.get(WINDOWS_KEY, [])]
+        part.record.analysis.three_axis_windows = [
+            ThreeAxisWindow.model_validate(asdict(w)) for w in part.three_axis_windows
+        ]
         for note in cal.notes:
             ctx.records.event(f"socket {part.socket}: {note}", parts=[part])
         for name, value, u_k2, units, limit in per_axis_measurements(cal):
@@ -150,44 +153,18 @@ class ProgramThreeAxisSettings(StepSettings):
     pass
 
 
-class ProgramThreeAxis(StepType[ProgramThreeAxisSettings]):
+class ProgramThreeAxis(ProgramStep[ProgramThreeAxisSettings]):
     """Write CalibrationRegisters3 to each part that passed, read back, compensation on."""
 
     type_name = "program_three_axis"
     Settings = ProgramThreeAxisSettings
-    provides = frozenset({"programmed"})
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"fit_three_axis"}
-
-    @classmethod
-    def measurements(cls, settings: Any) -> list[Declared]:
-        return []
-
-    def estimate_s(self, ctx: RunContext) -> float:
-        return 2.0
-
-    def setup(self, ctx: RunContext) -> None:
-        for part in ctx.parts.alive():
-            failed = failed_limits(part)
-            if failed:
-                reason = f"not programmed: failed {', '.join(failed)}"
-                part.record.analysis["programming"] = {"programmed": False, "reason": reason}
-                ctx.parts.drop(part, Verdict.FAIL, reason)
-        ctx.parts.require()
-
-    def main(self, ctx: RunContext) -> None:
-        for part in ctx.parts.alive():
-            ctx.parts.per_part(part, lambda p: p.stream.stop())  # type: ignore[union-attr]
-        ctx.wait.check()
-        ctx.parts.each(lambda part: self._program(ctx, part))
-        ctx.wait.check()
-        for part in ctx.parts.alive():
-            ctx.parts.per_part(part, lambda p: p.stream.start())  # type: ignore[union-attr]
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.FIT_THREE_AXIS}
 
     def _program(self, ctx: RunContext, part: PartRun) -> None:
-        cal = part.extra.get(FIT_KEY)
+        cal = part.three_axis_fit
         link = part.link
         if cal is None or not isinstance(link, CalibrationStore3):
             ctx.parts.drop(part, Verdict.ERROR, (
@@ -197,12 +174,12 @@ class ProgramThreeAxis(StepType[ProgramThreeAxisSettings]):
         regs = registers_from(cal)
         link.write_calibration3(regs)  # reads back and compares; raises on a mismatch
         read = link.read_calibration3()
-        block = getattr(part.record, RECORD_KEY, None)
-        if isinstance(block, dict):
-            block["readback_ok"] = True  # write_calibration3 compared the read-back
-            block["readback"] = {"bias_dps": list(read.bias_dps),
-                                 "matrix": [list(r) for r in read.matrix]}
+        block = part.record.calibration_three_axis
+        if block is not None:
+            block.readback_ok = True  # write_calibration3 compared the read-back
+            block.readback = {"bias_dps": list(read.bias_dps),
+                              "matrix": [list(r) for r in read.matrix]}
         link.set_compensation(True)
-        part.record.analysis["programming"] = {"programmed": True}
+        part.record.analysis.programming = ProgrammingResults(programmed=True)
         ctx.records.event(f"socket {part.socket}: three-axis registers written and read back",
                           parts=[part])

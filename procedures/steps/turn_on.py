@@ -19,6 +19,7 @@ from procedures.analysis.bias import estimate_bias
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.turn_on import turn_on_repeatability
 from procedures.record import Verdict
+from procedures.results import TurnOnResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
@@ -41,6 +42,7 @@ class TurnOnRepeatability(StepType[TurnOnSettings]):
     """Power off, wait, power on, bias; N times; the standard deviation of the biases."""
 
     type_name = "turn_on_repeatability"
+    Results = TurnOnResults
     Settings = TurnOnSettings
 
     @classmethod
@@ -79,7 +81,7 @@ class TurnOnRepeatability(StepType[TurnOnSettings]):
             return
         fs = sample_rate_hz(ctx)
         try:
-            noise = part.extra.get("noise") or analyze_allan(data["rate_dps"], fs).noise.model
+            noise = part.noise or analyze_allan(data["rate_dps"], fs).noise.model
             est = estimate_bias(data["rate_dps"], fs, noise)
         except AnalysisError as exc:
             ctx.parts.drop(part, Verdict.ERROR, f"{what}: {exc}")
@@ -93,12 +95,12 @@ class TurnOnRepeatability(StepType[TurnOnSettings]):
             ctx.parts.drop(part, Verdict.ERROR, f"turn-on repeatability: {exc}")
             return
         key = self.place.condition_name or "run"
-        part.record.analysis.setdefault("turn_on_repeatability", {})[key] = {
+        part.record.analysis.turn_on_repeatability[key] = TurnOnResults.model_validate({
             **result.as_dict(),
             "off_s": self.settings.off_s,
             "settle_s": self.settings.settle_s,
             "dwell_s": self.settings.dwell_s,
-        }
+        })
         ctx.records.measure(
             part,
             MEASUREMENT,

@@ -10,12 +10,13 @@ from pydantic import Field
 from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
-from procedures.analysis.verification import verify_correction
+from procedures.analysis.verification import VerificationResult, verify_correction
 from procedures.record import Verdict
+from procedures.results import Verification, VerificationRow
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.registry import Declared, StepSettings, StepType
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
 from procedures.units import Rate, Seconds, Volts
 
@@ -39,10 +40,11 @@ class Verify(StepType[VerifySettings]):
     type_name = "verify"
     Settings = VerifySettings
     uses_table = True
+    Results = Verification
 
     @classmethod
-    def requires(cls, settings: Any) -> set[str]:
-        return {"programmed"}
+    def requires(cls, settings: Any) -> set[Provided]:
+        return {Provided.PROGRAMMED}
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
@@ -81,11 +83,10 @@ class Verify(StepType[VerifySettings]):
     ) -> None:
         cfg = self.settings
         fs = sample_rate_hz(ctx)
-        noise = part.extra.get("noise")
         data = samples_between(ctx, part, *rest)
         if not check_window(ctx, part, data, "verification at rest", cfg.dwell_s):
             return
-        zero = window_mean(data["rate_dps"], fs, noise)
+        zero = window_mean(data["rate_dps"], fs, part.noise)
         ctx.records.measure(
             part,
             "residual_bias_dps",
@@ -104,14 +105,46 @@ class Verify(StepType[VerifySettings]):
             ref_rate_dps=0.0,
             supply_v=self.supply_v,
         )
-        ref, u_ref, out, u_out = [], [], [], []
+        means = self._plateau_means(ctx, part, plateaus)
+        if means is None:
+            return
+        ref, u_ref, out, u_out = means
+        try:
+            # the rest offset is the residual bias; the scale residual is judged without it
+            result = verify_correction(
+                ref, u_ref, np.asarray(out) - zero.mean_dps, u_out, ctx.product.range_dps
+            )
+        except AnalysisError as exc:
+            ctx.parts.drop(part, Verdict.ERROR, f"verification: {exc}")
+            return
+        residuals = self._residuals(ctx, part, result)
+        part.record.verification = Verification(
+            residuals=residuals,
+            residual_bias_dps=zero.mean_dps,
+            max_error_pct=max(abs(r.error_pct or 0.0) for r in residuals),
+            max_abs_error_pct_fs=result.max_abs_error_pct_fs,
+            supply_v=self.supply_v,
+            die_temperature_c=float(np.mean(data["temp_c"])),
+        )
+
+    def _plateau_means(
+        self, ctx: RunContext, part: PartRun, plateaus: list[Plateau]
+    ) -> tuple[list[float], list[float], list[float], list[float]] | None:
+        """Reference rates, their u, the part's mean outputs and their u (k=1), one per
+        plateau; None when a window was not usable (the part is then dropped)."""
+        cfg = self.settings
+        fs = sample_rate_hz(ctx)
+        ref: list[float] = []
+        u_ref: list[float] = []
+        out: list[float] = []
+        u_out: list[float] = []
         for i, p in enumerate(plateaus):
             d = samples_between(ctx, part, p.t0_s, p.t1_s)
             if not check_window(
                 ctx, part, d, f"verification at {p.rate_cmd_dps:g} deg/s", cfg.dwell_s
             ):
-                return
-            wm = window_mean(d["rate_dps"], fs, noise)
+                return None
+            wm = window_mean(d["rate_dps"], fs, part.noise)
             ref.append(p.ref_dps)
             u_ref.append(p.u_ref_dps)
             out.append(wm.mean_dps)
@@ -126,14 +159,12 @@ class Verify(StepType[VerifySettings]):
                 ref_angle_deg=p.angle_deg,
                 supply_v=self.supply_v,
             )
-        try:
-            # the rest offset is the residual bias; the scale residual is judged without it
-            result = verify_correction(
-                ref, u_ref, np.asarray(out) - zero.mean_dps, u_out, ctx.product.range_dps
-            )
-        except AnalysisError as exc:
-            ctx.parts.drop(part, Verdict.ERROR, f"verification: {exc}")
-            return
+        return ref, u_ref, out, u_out
+
+    def _residuals(
+        self, ctx: RunContext, part: PartRun, result: VerificationResult
+    ) -> list[VerificationRow]:
+        """residual_scale_error at each verification rate, measured and as record rows."""
         residuals = []
         for pt in result.points:
             rel = pt.error_dps / pt.reference_rate_dps
@@ -148,19 +179,12 @@ class Verify(StepType[VerifySettings]):
                 description="compensated output / encoder rate - 1",
             )
             residuals.append(
-                {
-                    "condition": f"verify@{pt.reference_rate_dps:.0f}dps",
-                    "rate_in_dps": pt.reference_rate_dps,
-                    "error_dps": pt.error_dps,
-                    "error_pct": 100 * rel,
-                    "u_error_pct_k2": 200 * u_rel,
-                }
+                VerificationRow(
+                    condition=f"verify@{pt.reference_rate_dps:.0f}dps",
+                    rate_in_dps=pt.reference_rate_dps,
+                    error_dps=pt.error_dps,
+                    error_pct=100 * rel,
+                    u_error_pct_k2=200 * u_rel,
+                )
             )
-        part.record.verification = {
-            "residuals": residuals,
-            "residual_bias_dps": zero.mean_dps,
-            "max_error_pct": max(abs(float(r["error_pct"])) for r in residuals),  # type: ignore[arg-type]
-            "max_abs_error_pct_fs": result.max_abs_error_pct_fs,
-            "supply_v": self.supply_v,
-            "die_temperature_c": float(np.mean(data["temp_c"])),
-        }
+        return residuals

@@ -18,6 +18,7 @@ from drivers.bounded import ONE_DAY_S
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.warm_up import DEFAULT_WINDOWS, MIN_WINDOWS, warm_up_time
 from procedures.record import Verdict
+from procedures.results import WarmUpResults
 from procedures.run_context import RunContext
 from procedures.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
@@ -44,6 +45,7 @@ class WarmUp(StepType[WarmUpSettings]):
     """Power the part on from cold and time its bias transient into a band."""
 
     type_name = "warm_up"
+    Results = WarmUpResults
     Settings = WarmUpSettings
 
     @classmethod
@@ -76,7 +78,7 @@ class WarmUp(StepType[WarmUpSettings]):
             ctx.parts.drop(part, Verdict.ERROR, f"warm-up: {exc}")
             return
         key = self.place.condition_name or "run"
-        part.record.analysis.setdefault("warm_up", {})[key] = w.as_dict()
+        part.record.analysis.warm_up[key] = WarmUpResults.model_validate(w.as_dict())
         if not w.settled_in_record:
             ctx.records.event(
                 f"socket {part.socket}: the bias had not settled within +/-{s.band_dps:g} deg/s "

@@ -281,15 +281,15 @@ def _run_cell(fault_id: str, step: str, out: Path, speed: float | None) -> CellR
     cell.verdict, cell.reason = str(rec.verdict), rec.reason
     cell.fault_named = any(w.lower() in rec.reason.lower() for w in fault.words)
     cell.truth_safe = {TRUTH_KEYS[k]: bool(v) for k, v in truth["safe"].items() if k in TRUTH_KEYS}
-    report = rec.analysis.get("safe_state_report", {})
-    instruments = report.get("instruments", {})
-    cell.station_safe = {name: bool(s.get("safe")) for name, s in instruments.items()}
+    report = rec.analysis.safe_state_report
+    instruments = report.instruments if report is not None else {}
+    cell.station_safe = {name: s.safe for name, s in instruments.items()}
     pdf = folder / "certificate.pdf"
     cell.certificate_text = first_page_text(pdf)
     cell.data_kept = all((folder / f).exists() for f in ("record.json", RAW_DATA_FILE)) and (
         pdf.exists()
     )
-    times = [s.get("safe_at_station_s") for s in instruments.values() if s.get("safe")]
+    times = [s.safe_at_station_s for s in instruments.values() if s.safe]
     if injected_at is not None and times and len(times) == len(instruments):
         # safe_at_station_s is rounded to 1 ms: an instrument already safe reads -0.0
         cell.fault_to_safe_s = max(max(float(t) for t in times) - injected_at, 0.0)

@@ -140,14 +140,15 @@ def test_a_part_failing_only_consistency_is_measured_once_more_and_recorded(
     assert second.condition is not None and second.condition.startswith("T25")
     cond = second.condition
     assert "measured again" in second.description
-    again = rec.analysis["remeasured"]
+    again = rec.analysis.remeasured
     assert len(again) == 1, "measured once more, not again and again"
     entry = again[0]
-    assert entry["measurement"] == "stop_table_consistency" and entry["condition"] == cond
-    assert entry["first"]["outcome"] == "FAIL"
-    assert abs(entry["first"]["value"]) > 0.001
-    assert entry["second"]["value"] == second.value
-    assert entry["first"]["value"] != second.value  # a new measurement, not a copy
+    assert entry.measurement == "stop_table_consistency" and entry.condition == cond
+    assert entry.first is not None and entry.second is not None
+    assert entry.first.outcome == "FAIL"
+    assert entry.first.value is not None and abs(entry.first.value) > 0.001
+    assert entry.second.value == second.value
+    assert entry.first.value != second.value  # a new measurement, not a copy
     # one second measurement, said on the record
     moves = [e for e in rec.events if "measured once more" in e.message]
     assert len(moves) == 1

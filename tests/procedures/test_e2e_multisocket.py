@@ -82,8 +82,8 @@ def test_coefficients_within_k2_of_truth(four: SimRun) -> None:
 def test_residual_after_correction_below_0p05_percent(four: SimRun) -> None:
     for sock in (1, 2, 3):
         ver = read_record(four.result.folders[sock]).verification
-        assert ver is not None and len(ver["residuals"]) == 2
-        assert ver["max_error_pct"] < 0.05, ver
+        assert ver is not None and len(ver.residuals) == 2
+        assert ver.max_error_pct is not None and ver.max_error_pct < 0.05, ver
     failing = read_record(four.result.folders[4])  # a failed part is never programmed
     assert failing.verification is None
     assert failing.reason.startswith("not programmed: failed raw_bias_dps@")
@@ -101,18 +101,22 @@ def test_plateaus_carry_the_references_and_the_wanders_uncertainty(four: SimRun)
         product, _ = load_product(Path(rec.product.path))
         procedure, _ = load_procedure(Path(rec.procedure.path))
         dwell_s = procedure.settings_of("rate_table").plateau_dwell_s
-        noise = rec.analysis["allan"]  # the noise record at the first condition
-        fit = rec.analysis["rate_table"][noise["condition"]]
-        rate = np.abs(np.asarray(fit["rate_in_dps"]))
-        assert np.all(np.asarray(fit["u_rate_in_dps"]) / rate < 2e-6)
-        white = (noise["arw_deg_per_sqrt_h"] / 60.0) ** 2 / dwell_s
-        measured_b = noise["bias_instability_deg_per_h"] / 3600.0
+        noise = rec.analysis.allan  # the noise record at the first condition
+        assert noise is not None
+        assert noise.arw_deg_per_sqrt_h is not None
+        assert noise.bias_instability_deg_per_h is not None
+        fit = rec.analysis.rate_table[noise.condition]
+        rate = np.abs(np.asarray(fit.rate_in_dps))
+        assert np.all(np.asarray(fit.u_rate_in_dps) / rate < 2e-6)
+        white = (noise.arw_deg_per_sqrt_h / 60.0) ** 2 / dwell_s
+        measured_b = noise.bias_instability_deg_per_h / 3600.0
         floor_b = max(measured_b, product.bias_instability_deg_per_h / 3600.0)
         expected = math.sqrt(white + FLICKER_AVAR_FACTOR * floor_b**2)
-        assert min(fit["u_rate_out_dps"]) == pytest.approx(expected, rel=0.03), sock
+        u_out = [u for u in fit.u_rate_out_dps if u is not None]
+        assert min(u_out) == pytest.approx(expected, rel=0.03), sock
         if measured_b < 0.5 * floor_b:  # the floor is what makes the difference here
             unfloored = math.sqrt(white + FLICKER_AVAR_FACTOR * measured_b**2)
-            assert min(fit["u_rate_out_dps"]) > 1.1 * unfloored
+            assert min(u_out) > 1.1 * unfloored
 
 
 def test_bench_safe_after_run(four: SimRun) -> None:
@@ -143,7 +147,7 @@ def test_no_measurement_before_die_is_stable(four: SimRun) -> None:
     slope_limit = 0.3  # C/min, the short procedure's criterion
     seg = raw["segments"]
     checked = 0
-    for cond in rec.analysis["stability"]:
+    for cond in rec.analysis.stability:
         starts = seg["start_s"][(seg["condition"] == cond) & (seg["kind"] == "static")]
         t_meas = float(starts.min()) - offset
         m = (t_w >= t_meas - window) & (t_w <= t_meas)

@@ -47,22 +47,22 @@ def test_turn_on_warm_up_and_second_order_fit_on_the_bench(tmp_path: Path) -> No
     by_name = {m.name: m for m in rec.measurements}
 
     # turn-on repeatability: the biases move with the offsets the bench drew at each power-on
-    tor = rec.analysis["turn_on_repeatability"]["run"]
+    tor = rec.analysis.turn_on_repeatability["run"]
     # the warm-up step's power-on is the last one: the turn-ons are the ones before it
     offsets = np.array(truth["turn_on_history_dps"][-TURN_ONS - 1 : -1])
-    biases = np.array(tor["biases_dps"])
+    biases = np.array(tor.biases_dps)
     assert biases.size == TURN_ONS
     assert np.std(biases - offsets) < 0.01
     rep = by_name["turn_on_bias_repeatability_dps"]
     assert rep.value is not None and rep.uncertainty_k2 is not None
     assert abs(rep.value - np.std(offsets, ddof=1)) < 0.01
-    assert tor["resolved"] is True
+    assert tor.resolved is True
 
     # warm-up: the bench's exponential enters the 0.01 deg/s band at tau ln(A / band)
     warm = by_name["warm_up_time_s"]
     expected_s = 40.0 * math.log(0.15 / 0.01)
     assert warm.value is not None and abs(warm.value - expected_s) < 0.25 * expected_s
-    assert rec.analysis["warm_up"]["run"]["settled_in_record"] is True
+    assert rec.analysis.warm_up["run"].settled_in_record is True
 
     # second-order fit: the curvature is found, programmed and read back
     cal = rec.calibration
@@ -76,8 +76,10 @@ def test_turn_on_warm_up_and_second_order_fit_on_the_bench(tmp_path: Path) -> No
     assert cal.readback_ok and cal.readback is not None
     assert cal.readback["bias_tc2_dps_per_c2"] == truth["calibration"]["bias_tc2_dps_per_c2"]
     assert math.isclose(truth["calibration"]["bias_tc2_dps_per_c2"], b2["value"], rel_tol=1e-6)
-    assert len(rec.analysis["temperature_fit"]["points"]) == 6
-    assert rec.verification is not None and rec.verification["max_error_pct"] < 0.1
+    assert rec.analysis.temperature_fit is not None
+    assert len(rec.analysis.temperature_fit.points) == 6
+    assert rec.verification is not None and rec.verification.max_error_pct is not None
+    assert rec.verification.max_error_pct < 0.1
 
     text = pdf_text(render_certificate(folder))
     # the results table shows both new measurements with their values (the long name wraps in

@@ -25,12 +25,13 @@ def test_stop_method_procedure_against_truth(tmp_path: Path) -> None:
     assert abs(cal.scale.value - truth["scale"]) <= cal.scale.uncertainty_k2
     assert abs(cal.bias_dps.value - truth["bias_dps"]) <= cal.bias_dps.uncertainty_k2
     # no rate table was swept: every scale came from the stop moves, against the fixture angle
-    assert "rate_table" not in rec.analysis and len(rec.analysis["stop_method"]) == 4
-    sm = next(iter(rec.analysis["stop_method"].values()))
-    assert sm["reference"] == "fixture" and len(sm["moves"]) == 4
-    assert abs(sm["reference_angle_deg"] - run.final_truth["sockets"]["1"]["stop_angle_deg"]) < 1e-3
+    assert not rec.analysis.rate_table and len(rec.analysis.stop_method) == 4
+    sm = next(iter(rec.analysis.stop_method.values()))
+    assert sm.reference == "fixture" and len(sm.moves) == 4
+    assert sm.reference_angle_deg is not None
+    assert abs(sm.reference_angle_deg - run.final_truth["sockets"]["1"]["stop_angle_deg"]) < 1e-3
     # the automatic dwell was chosen from the measured noise and the 0.01 deg/s target
     assert any("automatic dwell" in e.message for e in rec.events)
     ver = rec.verification
-    assert ver is not None and ver["method"] == "stop_method"
-    assert ver["max_error_pct"] < 0.1
+    assert ver is not None and ver.method == "stop_method"
+    assert ver.max_error_pct is not None and ver.max_error_pct < 0.1

@@ -36,7 +36,8 @@ def test_a_failing_part_stops_early_and_no_failed_part_is_programmed(tmp_path: P
     assert len(scale_fails) == 4  # measured at every condition (on_fail: continue)
     failed = ", ".join(f"raw_scale_error@{m.condition}" for m in scale_fails)
     assert measured.reason == f"not programmed: failed {failed}"
-    assert measured.analysis["programming"]["programmed"] is False
+    assert measured.analysis.programming is not None
+    assert measured.analysis.programming.programmed is False
     assert measured.calibration is not None and measured.calibration.readback is None
 
     good = read_record(res.folders[3])

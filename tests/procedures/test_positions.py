@@ -54,8 +54,8 @@ def test_positions_step_writes_a_static_window_per_angle(tmp_path: Path) -> None
     assert np.all(ends - starts > 3.5)  # about the 4 s dwell each
     conds = {str(c) for c in np.asarray(seg["condition"])[pos]}
     assert len(conds) == 1
-    summary = rec.analysis["positions"][conds.pop()]
-    assert [round(w["angle_cmd_deg"]) for w in summary] == [0, 90, 180, 270]
+    summary = rec.analysis.positions[conds.pop()]
+    assert [round(w.angle_cmd_deg or 0) for w in summary] == [0, 90, 180, 270]
 
 
 def test_positions_every_condition_and_disabled_plans(tmp_path: Path) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from procedures.steps.power import UNASKED_SOCKETS, PowerIdentify, PowerSettings
+from procedures.steps.power import PowerIdentify, PowerSettings
 
 STEP = PowerIdentify(PowerSettings(settle_s=0.0, supply_v=5.0))
 
@@ -33,7 +33,8 @@ class _Parts(list[Any]):
 
 
 def _ctx(n_parts: int, unasked: int) -> Any:
-    parts = [SimpleNamespace(extra={UNASKED_SOCKETS: unasked}) for _ in range(n_parts)]
+    # PartRun.unasked_sockets, a typed field since PartRun.extra went (issue 27)
+    parts = [SimpleNamespace(unasked_sockets=unasked) for _ in range(n_parts)]
     return SimpleNamespace(
         instruments=SimpleNamespace(supply=FakeSupply()),
         product=SimpleNamespace(current_limit_a=0.01),

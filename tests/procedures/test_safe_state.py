@@ -252,11 +252,11 @@ def test_a_failed_safe_state_is_an_error_in_the_reason_record_and_events(tmp_pat
     assert engine.run() == {1: Verdict.ERROR}
     rec = read_record(tmp_path / "p1")
     assert "SAFE STATE FAILED" in rec.reason and "rate table NOT SAFE" in rec.reason
-    report = rec.analysis["safe_state_report"]
-    assert report["all_safe"] is False
-    assert report["instruments"]["rate_table"]["safe"] is False
-    assert report["instruments"]["chamber"]["safe"] is True
-    assert rec.analysis["safe_state"]["supply"] == "safe"
+    report = rec.analysis.safe_state_report
+    assert report is not None and report.all_safe is False
+    assert report.instruments["rate_table"].safe is False
+    assert report.instruments["chamber"].safe is True
+    assert rec.analysis.safe_state is not None and rec.analysis.safe_state["supply"] == "safe"
     assert any(
         e.level == "ERROR" and "SAFE STATE FAILED: rate table" in e.message for e in rec.events
     )

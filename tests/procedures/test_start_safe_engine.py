@@ -134,9 +134,9 @@ def test_a_bench_left_unsafe_is_safe_before_the_first_step(tmp_path: Path) -> No
     ]
     rec = read_record(tmp_path / "p1")
     assert rec.verdict is Verdict.PASS, rec.reason
-    start = rec.analysis["start_safe_state"]
-    assert start["all_safe"]
-    assert start["instruments"]["streams"]["detail"] == "sockets 1, 2: STREAM? 0"
+    start = rec.analysis.start_safe_state
+    assert start is not None and start.all_safe
+    assert start.instruments["streams"].detail == "sockets 1, 2: STREAM? 0"
     assert any(e.message.startswith("safe before the first step: part streams") for e in rec.events)
 
 
@@ -148,8 +148,9 @@ def test_a_stream_that_will_not_stop_runs_no_step_and_is_not_called_safe(tmp_pat
     assert "could not be made safe before the first step" in rec.reason
     assert "part streams NOT SAFE" in rec.reason and "socket 2: STREAM? 1" in rec.reason
     # the end's pass read the fixture back too: the stream is named, not "commanded"
-    end = rec.analysis["safe_state_report"]["instruments"]["streams"]
-    assert end["safe"] is False and "socket 2: STREAM? 1" in end["detail"]
+    assert rec.analysis.safe_state_report is not None
+    end = rec.analysis.safe_state_report.instruments["streams"]
+    assert end.safe is False and "socket 2: STREAM? 1" in end.detail
 
 
 def test_a_link_that_cannot_read_back_is_still_sent_stop(tmp_path: Path) -> None:
@@ -157,5 +158,6 @@ def test_a_link_that_cannot_read_back_is_still_sent_stop(tmp_path: Path) -> None
     _, _ = _run(tmp_path, {1: link})
     assert link.stopped == 2  # before the first step and at the end, whatever it believed
     rec = read_record(tmp_path / "p1")
-    assert "cannot read its stream back" in rec.analysis["start_safe_state"]["instruments"][
-        "streams"]["detail"]
+    assert rec.analysis.start_safe_state is not None
+    assert "cannot read its stream back" in rec.analysis.start_safe_state.instruments[
+        "streams"].detail

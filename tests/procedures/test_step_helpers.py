@@ -9,7 +9,7 @@ import pytest
 
 from drivers.protocols import CalibrationRegisters
 from procedures.analysis.errors import AnalysisError
-from procedures.run_parts import ConditionResult
+from procedures.run_parts import ConditionResult, StopScale
 from procedures.steps.fit import scale_estimate
 from procedures.steps.program import readback_differences
 from procedures.steps.thermal import judge_stability
@@ -41,7 +41,8 @@ def _res(table: tuple[float, float] | None, stop: tuple[float, float] | None) ->
     if table is not None:
         r.table_fit = SimpleNamespace(scale=table[0], u_scale=table[1])
     if stop is not None:
-        r.stop = {"scale": stop[0], "u_scale": stop[1]}
+        r.stop = StopScale(stop[0], stop[1], bias_dps=0.0, reference_angle_deg=90.0,
+                           u_reference_angle_deg=0.01)
     return r
 
 

@@ -9,6 +9,7 @@ from typing import Any
 
 from procedures.limits import Limit, Limits
 from procedures.record import Outcome, Verdict, read_record
+from procedures.results import ProgrammingResults
 from procedures.run_context import RunContext
 from procedures.steps.program import Program, ProgramSettings
 from procedures.steps.registry import Declared, Place, StepSettings, StepType
@@ -58,7 +59,7 @@ def test_a_declared_measurement_never_set_is_not_measured(tmp_path: Path) -> Non
     m = missing[0]
     assert m.value is None and m.outcome is Outcome.NOT_MEASURED
     assert m.units == "deg/h" and m.high == 60.0 and m.condition == "T25_V5"
-    assert rec.analysis["not_measured"] == ["bias_instability_deg_per_h"]
+    assert rec.analysis.not_measured == ["bias_instability_deg_per_h"]
     set_ = [m for m in rec.measurements if m.name == "raw_bias_dps"]
     assert len(set_) == 1 and set_[0].outcome is Outcome.PASS
 
@@ -132,5 +133,5 @@ def test_a_part_that_failed_a_limit_is_never_programmed(tmp_path: Path) -> None:
     assert programmed == [2]
     rec = read_record(tmp_path / "p1")
     assert rec.reason == "not programmed: failed raw_bias_dps@T25_V5"
-    assert rec.analysis["programming"] == {"programmed": False, "reason": rec.reason}
+    assert rec.analysis.programming == ProgrammingResults(programmed=False, reason=rec.reason)
     assert rec.failed_measurements == ["raw_bias_dps@T25_V5"]

@@ -16,6 +16,7 @@ import pytest
 from drivers.errors import SetpointOutOfRange
 from procedures.conditions import Condition
 from procedures.config import ChamberConfig
+from procedures.results import Analysis
 from procedures.run_context import Aborted
 from procedures.steps.registry import Place
 from procedures.steps.thermal import Stabilise, ThermalSettings
@@ -112,7 +113,7 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
     clock = SimpleNamespace(now_s=lambda: world.now_s)
     parts = [
         SimpleNamespace(socket=i + 1, stream=Stream(world, i), conditions={},
-                        record=SimpleNamespace(analysis={}), thermal=PartThermal())
+                        record=SimpleNamespace(analysis=Analysis()), thermal=PartThermal())
         for i in range(len(world.taus))
     ]
 

@@ -21,7 +21,7 @@ def run(proc: Path, out: Path) -> dict[str, dict[str, float]]:
     record = read_record(result.folders[1])
     assert record.verdict == Verdict.PASS
     assert truth["chamber"]["setpoint_c"] == 25.0  # the run's safe temperature at the end
-    return dict(record.analysis["stability"])
+    return {c: s.model_dump() for c, s in record.analysis.stability.items()}
 
 
 @pytest.mark.station_grid

@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 from procedures.record import read_record, write_record
+from procedures.results import SafeStateResults
 from reports.certificate import render_certificate
 from tests.reports.conftest import pdf_text
 
@@ -32,7 +33,7 @@ def test_failed_safe_state_is_on_page_one(tmp_path: Path) -> None:
 
     folder, _ = make_run(tmp_path, Part(serial="SIM-SAF-1", verdict="ERROR"))
     rec = read_record(folder)
-    rec.analysis["safe_state_report"] = _report(table_safe=False)
+    rec.analysis.safe_state_report = SafeStateResults.model_validate(_report(table_safe=False))
     write_record(folder, rec)
     page1 = _flat(pdf_text(render_certificate(folder), page=1))
     assert "SAFE STATE FAILED" in page1
@@ -45,6 +46,6 @@ def test_no_box_when_every_instrument_read_back_safe(tmp_path: Path) -> None:
 
     folder, _ = make_run(tmp_path, Part(serial="SIM-SAF-2", verdict="ERROR"))
     rec = read_record(folder)
-    rec.analysis["safe_state_report"] = _report(table_safe=True)
+    rec.analysis.safe_state_report = SafeStateResults.model_validate(_report(table_safe=True))
     write_record(folder, rec)
     assert "SAFE STATE FAILED" not in pdf_text(render_certificate(folder), page=1)

@@ -11,7 +11,7 @@ import pytest
 
 from procedures.analysis.temp_fit import fit_temperature, record_summary
 from procedures.analysis.temp_supply_fit import ConditionMeasurement
-from procedures.record import RECORD_FILE
+from procedures.record import RECORD_FILE, RECORD_FORMAT_1, read_record
 from reports.certificate import certificate_bytes, render_certificate
 from tests.reports.conftest import pdf_text
 from tests.reports.synth_run import Part, make_run
@@ -35,10 +35,12 @@ def _summary(order: int = 2) -> dict:
     return record_summary(fit, fit, points)
 
 
-def _with_fit(root: Path, serial: str, fit: object) -> Path:
+def _with_fit(root: Path, serial: str, fit: object, record_format: str = "") -> Path:
     folder, _ = make_run(root, Part(serial=serial))
     data = json.loads((folder / RECORD_FILE).read_text())
     data["analysis"]["temperature_fit"] = fit
+    if record_format:
+        data["format"] = record_format
     (folder / RECORD_FILE).write_text(json.dumps(data))
     return folder
 
@@ -64,18 +66,40 @@ def test_a_record_without_a_temperature_fit_has_no_section(pass_run: Path) -> No
     assert "Temperature fit of bias and scale" not in text
 
 
-@pytest.mark.parametrize("broken", [
-    "not a mapping",
-    {"order": 2},
-    {**_summary(2), "bias_params": [1.0, 2.0]},
-    {**_summary(2), "points": [{"bias_temp_c": "hot"}]},
-])
-def test_a_broken_fit_says_so_and_the_certificate_is_still_issued(
-    tmp_path: Path, broken: object
+def test_a_fit_that_cannot_be_drawn_says_so_and_the_certificate_is_still_issued(
+    tmp_path: Path,
 ) -> None:
-    folder = _with_fit(tmp_path, "SIM-TF-2", broken)
+    folder = _with_fit(tmp_path, "SIM-TF-2", {**_summary(2), "bias_params": [1.0, 2.0]})
     text = pdf_text(render_certificate(folder))
     assert "Temperature fit of bias and scale" in text and "Not drawn:" in text
+    assert "bias_params holds 2 values, not 4" in text
+
+
+# Changed with record format 2: a section that does not match its model (a string, a fit
+# without its keys, a point whose temperature is not a number) is refused when a format-2
+# record is read, naming the key; in a format-1 record the converter drops that section and
+# the certificate is issued without it (format 1 drew a "Not drawn" box instead).
+BROKEN = ["not a mapping", {"order": 2}, {**_summary(2), "points": [{"bias_temp_c": "hot"}]}]
+
+
+@pytest.mark.parametrize("broken", BROKEN)
+def test_a_malformed_fit_in_a_format_2_record_is_refused_naming_it(
+    tmp_path: Path, broken: object
+) -> None:
+    folder = _with_fit(tmp_path, "SIM-TF-4", broken)
+    with pytest.raises(ValueError, match="temperature_fit"):
+        read_record(folder)
+
+
+@pytest.mark.parametrize("broken", BROKEN)
+def test_a_malformed_fit_in_a_format_1_record_is_dropped_and_the_certificate_issued(
+    tmp_path: Path, broken: object
+) -> None:
+    folder = _with_fit(tmp_path, "SIM-TF-5", broken, RECORD_FORMAT_1)
+    assert read_record(folder).analysis.temperature_fit is None
+    text = pdf_text(render_certificate(folder))
+    assert "Calibration certificate" in text
+    assert "Temperature fit of bias and scale" not in text
 
 
 def test_the_section_renders_byte_identically_twice(tmp_path: Path) -> None:

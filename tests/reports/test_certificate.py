@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from procedures.record import Verdict, read_record, write_record
+from procedures.results import Analysis, ProgrammingResults
 from reports.certificate import certificate_bytes, render_certificate
 from reports.styles import fmt
 from tests.reports.conftest import need_poppler, pdf_pages, pdf_text
@@ -198,7 +199,7 @@ def test_aborted_run_states_its_reason(tmp_path: Path) -> None:
 
 def test_missing_analysis_draws_boxes_saying_why(fresh_run: Path) -> None:
     rec = read_record(fresh_run)
-    write_record(fresh_run, rec.model_copy(update={"analysis": {}}))
+    write_record(fresh_run, rec.model_copy(update={"analysis": Analysis()}))
     text = _flat(pdf_text(render_certificate(fresh_run), layout=False))
     assert "Not drawn: record.analysis['allan'] is not in the record" in text
     # rate-table and stop-method plots fall back to raw.h5
@@ -298,7 +299,8 @@ def test_a_part_not_programmed_is_not_said_to_be_written(fresh_run: Path) -> Non
     the certificate must not call them written to the part."""
     rec = read_record(fresh_run)
     reason = "not programmed: failed stop_table_consistency@T25_V4.75"
-    analysis = {**rec.analysis, "programming": {"programmed": False, "reason": reason}}
+    analysis = rec.analysis.model_copy()
+    analysis.programming = ProgrammingResults(programmed=False, reason=reason)
     write_record(fresh_run, rec.model_copy(update={"analysis": analysis,
                                                    "verdict": Verdict.FAIL}))
     text = _flat(pdf_text(render_certificate(fresh_run), layout=False))

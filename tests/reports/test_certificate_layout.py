@@ -24,6 +24,7 @@ from procedures.record import (
     Outcome,
     write_record,
 )
+from procedures.results import TemperatureFitResults, Verification
 from reports.certificate import render_certificate
 from reports.styles import fmt
 from tests.reports.conftest import pdf_text
@@ -109,14 +110,15 @@ def edge_certificate(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, An
                                          if m.outcome is Outcome.FAIL})
     cal = third_order_calibration()
     record.calibration = Calibration.model_validate(cal)
-    record.analysis["temperature_fit"] = temperature_fit(cal)
+    record.analysis.temperature_fit = TemperatureFitResults.model_validate(temperature_fit(cal))
     record.conditions = [ConditionRecord(
         name=name, temperature_c=-99.9999, supply_v=99.9999, die_temperature_c=-98.765432,
         supply_current_a=0.0123456789, time_to_stability_s=86399.5, stable=True)
         for name in CONDITIONS[:2]]
-    record.verification = {"max_error_pct": -0.000123456789, "residuals": [
-        {"condition": name, "rate_in_dps": -19999.9876, "error_dps": -0.000123456789,
-         "error_pct": -123.456789} for name in CONDITIONS[2:]]}
+    record.verification = Verification.model_validate({
+        "max_error_pct": -0.000123456789, "residuals": [
+            {"condition": name, "rate_in_dps": -19999.9876, "error_dps": -0.000123456789,
+             "error_pct": -123.456789} for name in CONDITIONS[2:]]})
     write_record(folder, record)
     render_certificate(folder)
     return folder, record

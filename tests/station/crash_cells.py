@@ -190,10 +190,10 @@ def run_crash_cell(step: str, folder: Path) -> CrashCell:
 def _times(cell: CrashCell, killed_utc: dt.datetime) -> None:
     assert cell.new_folder is not None
     record = read_record(cell.new_folder)
-    start = record.analysis.get("start_safe_state") or {}
-    if not start.get("all_safe"):
+    start = record.analysis.start_safe_state
+    if start is None or not start.all_safe:
         return
-    safe_at = [s["safe_at_station_s"] for s in start["instruments"].values()]
+    safe_at = [s.safe_at_station_s for s in start.instruments.values()]
     cell.kill_to_safe_station_s = max(max(safe_at) - float(cell.found["time_s"]), 0.0)
     last = max(
         dt.datetime.fromisoformat(e.time_utc)

@@ -316,9 +316,10 @@ def _judge(cell: SignalCell, runs: Path, station_yaml: Path) -> None:
     cell.lock_left = (folder / ".running").exists()
     cell.sealed = _verify(folder, station_yaml)
     cell.indexed = _indexed(runs / "results.sqlite", folder.name, str(rec.verdict))
-    requested = rec.analysis.get("stop_requested_station_s")
-    instruments = rec.analysis.get("safe_state_report", {}).get("instruments", {})
-    times = [s.get("safe_at_station_s") for s in instruments.values() if s.get("safe")]
+    requested = rec.analysis.stop_requested_station_s
+    report = rec.analysis.safe_state_report
+    instruments = report.instruments if report is not None else {}
+    times = [s.safe_at_station_s for s in instruments.values() if s.safe]
     if requested is not None and times and len(times) == len(instruments):
         cell.fault_to_safe_s = max(max(float(t) for t in times) - float(requested), 0.0)
     if cell.phase == "certificate":

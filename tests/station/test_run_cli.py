@@ -144,7 +144,7 @@ def test_sigint_aborts_cleanly(tmp_path: Path) -> None:
     assert proc.returncode == 2, stderr
     rec = read_record(next(out.glob("*_SIM-0001")))
     assert rec.verdict is Verdict.ABORTED and "Ctrl-C" in rec.reason
-    assert all(v == "safe" for v in rec.analysis["safe_state"].values())
+    assert all(v == "safe" for v in (rec.analysis.safe_state or {"-": "missing"}).values())
     assert "ABORTED" in stdout
 
 

@@ -74,9 +74,9 @@ def test_kill9_mid_step_then_the_next_run_starts_safe_and_passes(
     assert verify_folder(cell.crashed_folder).status is Status.INTACT
     # the new run says what it found and read back before its first step
     assert cell.new_folder is not None
-    start = read_record(cell.new_folder).analysis["start_safe_state"]
-    assert start["all_safe"], start
-    assert "STREAM? 0" in start["instruments"]["streams"]["detail"]
+    start = read_record(cell.new_folder).analysis.start_safe_state
+    assert start is not None and start.all_safe, start
+    assert "STREAM? 0" in start.instruments["streams"].detail
     assert cell.kill_to_safe_station_s is not None and cell.kill_to_safe_wall_s is not None
 
 

@@ -56,19 +56,23 @@ def summary(rec: RunRecord, folder: Path) -> dict[str, Any]:
     measured = sorted({(m.name, m.condition or "") for m in rec.measurements
                        if m.value is not None})
     cal = rec.calibration.model_dump(exclude_none=True) if rec.calibration else {}
+    # the keys as record.json holds them (record format 2 types the sections; the JSON keys
+    # are the same as format 1's)
+    analysis = rec.analysis.model_dump(mode="json")
+    verification = rec.verification.model_dump(mode="json") if rec.verification else {}
     return {
         "verdict": str(rec.verdict),
         "reason": rec.reason,
         "measurements": [list(x) for x in measured],
         "calibration_keys": sorted(cal),
-        "analysis_keys": sorted(rec.analysis),
+        "analysis_keys": sorted(analysis),
         "analysis_condition_keys": {
-            k: sorted(v) for k, v in rec.analysis.items()
+            k: sorted(v) for k, v in analysis.items()
             if k in ("rate_table", "stop_method", "stability", "positions")
             and isinstance(v, dict)
         },
         "conditions": [c.name for c in rec.conditions],
-        "verification_keys": sorted(rec.verification or {}),
+        "verification_keys": sorted(verification),
         "certificate_headings": certificate_headings(folder),
     }
 
