@@ -22,7 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from procedures.record import CERTIFICATE_FILE  # noqa: E402
+from procedures.runtime.record import CERTIFICATE_FILE  # noqa: E402
 from station.retention import archive_folder  # noqa: E402
 from station.run_archive import read_member, verify_archive  # noqa: E402
 

@@ -10,7 +10,7 @@ Per load (one UUT cycle of 1, 4 or 8 sockets) with the chamber strategy `setpoin
                 chamber's limits (ramp rate, setpoint limits, the part's maximum) makes the die
                 meet the step's stability criterion, for the die lag the run learned (the
                 product's value with `setpoint`) and the self-heating the parts showed
-                (procedures.chamber_profile.settle_bound_s: a linear programme), and
+                (procedures.thermal.chamber_profile.settle_bound_s: a linear programme), and
                 measurement floor = per condition, the bias averaging time for the target
                 accuracy (from the measured angle random walk) + the plateau and stop-method
                 dwells, + the verification dwells,
@@ -42,15 +42,15 @@ import yaml  # noqa: E402
 
 from procedures.analysis.allan import NoiseModel  # noqa: E402
 from procedures.analysis.bias import required_averaging_time_s  # noqa: E402
-from procedures.chamber_profile import load_settle_bound_s, settle_bound_s  # noqa: E402
-from procedures.chamber_strategy import (  # noqa: E402
+from procedures.loading.config import load_procedure, load_product  # noqa: E402
+from procedures.runtime.record import RunRecord, read_record  # noqa: E402
+from procedures.thermal.chamber_profile import load_settle_bound_s, settle_bound_s  # noqa: E402
+from procedures.thermal.chamber_strategy import (  # noqa: E402
     Criterion,
     DieState,
     ThermalLimits,
     ThermalModel,
 )
-from procedures.config import load_procedure, load_product  # noqa: E402
-from procedures.record import RunRecord, read_record  # noqa: E402
 from station.uut import run_simulated  # noqa: E402
 
 

@@ -50,7 +50,7 @@ def _window_inputs(folder: Path, serial: str
 
 
 def one_part(serial: str, amplitude: float, speed: float | None, work: Path) -> dict[str, float]:
-    from station import cli
+    from station.cli import main as cli
     from station.uut import run_simulated
 
     part = {"socket": 1, "serial": serial,

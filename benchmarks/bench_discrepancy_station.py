@@ -41,7 +41,7 @@ from bench_discrepancy import five_sigma_on  # noqa: E402
 from procedures.model.discrepancy import run_discrepancy  # noqa: E402
 from procedures.model.gyro_model import first_order_model  # noqa: E402
 from procedures.model.run_folder import load_data  # noqa: E402
-from procedures.record import read_record  # noqa: E402
+from procedures.runtime.record import read_record  # noqa: E402
 
 PROCEDURE = ROOT / "tests" / "model" / "data" / "eol-discrepancy.yaml"
 SOCKETS = 8

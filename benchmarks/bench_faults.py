@@ -211,7 +211,7 @@ def crash_cells(steps: list[str] | None) -> int:
 
 
 def _crash_correct(c: CrashCell) -> bool:
-    from procedures.record import Verdict, read_record
+    from procedures.runtime.record import Verdict, read_record
 
     if c.code != 0 or not c.at_power.get("safe", {}).get("all") or c.crashed_folder is None:
         return False

@@ -33,10 +33,10 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.clock import ScaledClock  # noqa: E402
 from drivers import registry  # noqa: E402
-from drivers.clock import ScaledClock  # noqa: E402
 from drivers.sim.launcher import BenchEndpoints, launch_bench  # noqa: E402
-from procedures.record import read_record  # noqa: E402
+from procedures.runtime.record import read_record  # noqa: E402
 
 # family sets as the sim config's `instruments:` names them (the default set first)
 FAMILY_SETS: dict[str, dict[str, str]] = {

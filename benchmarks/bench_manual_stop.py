@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.sim.launcher import launch_bench  # noqa: E402
-from procedures.progress import ProgressEvent  # noqa: E402
-from procedures.record import read_record  # noqa: E402
+from procedures.runtime.progress import ProgressEvent  # noqa: E402
+from procedures.runtime.record import read_record  # noqa: E402
 from station.station_file import load_settings  # noqa: E402
 from station.uut import Endpoints, UutRunner  # noqa: E402
 

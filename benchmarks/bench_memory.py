@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.fixture_protocol import sample_stream_baud  # noqa: E402
-from procedures.record import read_record  # noqa: E402
+from procedures.runtime.record import read_record  # noqa: E402
 from station.settings import LoadedSettings  # noqa: E402
 from station.station_file import load_settings  # noqa: E402
 from station.uut import run_simulated  # noqa: E402

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from procedures.record import read_record  # noqa: E402
+from procedures.runtime.record import read_record  # noqa: E402
 from reports.certificate import certificate_bytes  # noqa: E402
 from reports.lot_report import render_lot_report  # noqa: E402
 from reports.pdfdoc import page_count  # noqa: E402

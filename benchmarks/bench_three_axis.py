@@ -3,7 +3,7 @@ supply coefficients) over many simulated parts, and the station time per part.
 
 Each part's truth is drawn from the bench's three-axis population (drivers/sim/gyro3.py,
 `resolve_three_axis`, per serial number); its windows follow the station's orientation plan
-(procedures/orientation_plan.py: six faces at the first condition, one face per axis at the
+(procedures/runtime/orientation_plan.py: six faces at the first condition, one face per axis at the
 others; at each face a static window and +r/-r table plateaus) and the contract's model
 raw = M^-1 D w + b + G a, with white noise on each window's mean from the part's angle random
 walk over the dwell. The fit is procedures/analysis/three_axis.py; the station time is the
@@ -35,7 +35,7 @@ from drivers.orientation import gravity_specific_force_mps2, up_vector  # noqa: 
 from drivers.sim.config import ThreeAxisSpec  # noqa: E402
 from drivers.sim.gyro3 import resolve_three_axis  # noqa: E402
 from procedures.analysis.three_axis import Window, fit_three_axis  # noqa: E402
-from procedures.orientation_plan import plan, turns  # noqa: E402
+from procedures.runtime.orientation_plan import plan, turns  # noqa: E402
 
 CONDITIONS = ((25.0, 4.75), (25.0, 5.25), (45.0, 5.25), (45.0, 4.75))
 RATE_DPS = 100.0

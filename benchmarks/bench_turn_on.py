@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from procedures.record import read_record  # noqa: E402
+from procedures.runtime.record import read_record  # noqa: E402
 from station.uut import run_simulated  # noqa: E402
 
 PROCEDURE = ROOT / "tests/data/newsteps/turn_on_only.yaml"

@@ -29,9 +29,9 @@ from typing import Any
 
 from pydantic import Field
 
+from common.address import TcpInstrumentSettings
+from common.clock import Clock, ScaledClock
 from drivers.acutrol_codes import Err, StatusBit, fault_text
-from drivers.address import TcpInstrumentSettings
-from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ProtocolError,
     SetpointOutOfRange,

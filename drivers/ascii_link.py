@@ -20,7 +20,7 @@ from typing import Protocol
 
 import serial
 
-from drivers.address import parse_host_port
+from common.address import parse_host_port
 from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
 from drivers.fd_wait import use_poll
 

@@ -13,9 +13,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.address import check_host_port, split_host_port
+from common.address import check_host_port, split_host_port
+from common.clock import Clock, ScaledClock
 from drivers.chamber_map import DEVICE_ID, STRING_REGS, TENTHS, Reg, State
-from drivers.clock import Clock, ScaledClock
 from drivers.errors import (
     ChamberFault,
     ChamberSetpointNotReached,

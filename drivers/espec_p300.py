@@ -26,9 +26,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.address import parse_host_port
+from common.address import parse_host_port
+from common.clock import Clock
 from drivers.ascii_link import LineLink, LinePort, open_port
-from drivers.clock import Clock
 from drivers.errors import ChamberRefused, InstrumentError, ProtocolError, SetpointOutOfRange
 from drivers.protocols import InstrumentIdentity
 from drivers.ramped_chamber import RampedChamber

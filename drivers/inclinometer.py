@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.address import split_host_port
+from common.address import split_host_port
 from drivers.errors import ProtocolError
 from drivers.protocols import InstrumentIdentity
 from drivers.tcp_lines import LineLink

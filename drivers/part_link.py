@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from drivers.clock import Clock, ScaledClock
+from common.clock import Clock, ScaledClock
 from drivers.errors import (
     ConnectionLost,
     InstrumentError,

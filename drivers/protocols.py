@@ -20,7 +20,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.clock import Clock
+from common.clock import Clock
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import logging
 from abc import ABC, abstractmethod
 
-from drivers.clock import Clock, ScaledClock
+from common.clock import Clock, ScaledClock
 from drivers.errors import (
     ChamberAlarm,
     ChamberSetpointNotReached,

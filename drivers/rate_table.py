@@ -18,8 +18,9 @@ from typing import Any
 
 from pydantic import Field, field_validator
 
-from drivers.address import TcpInstrumentSettings
-from drivers.clock import Clock, ScaledClock
+from common.address import TcpInstrumentSettings
+from common.clock import Clock, ScaledClock
+from common.yaml_input import ConfigError
 from drivers.errors import (
     ControllerHung,
     InstrumentError,
@@ -38,7 +39,6 @@ from drivers.servo_profile import (
     load_profile,
 )
 from drivers.table_waits import TableWaits
-from drivers.yaml_input import ConfigError
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ import logging
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from drivers.clock import Clock
+from common.clock import Clock
 from drivers.protocols import ClockUser
 
 log = logging.getLogger(__name__)

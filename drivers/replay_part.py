@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from drivers.clock import Clock, ScaledClock
+from common.clock import Clock, ScaledClock
 from drivers.errors import ConnectionLost, PartSilent
 from drivers.fixture_protocol import OUTPUT_RATES_HZ, ReplyError, SampleStatus
 from drivers.part_codes import CodeFormat

@@ -1,6 +1,7 @@
 """Recorded part output for the replay driver: a run folder's raw.h5, or a CSV.
 
-A raw.h5 (format gyrocal-raw/1, written by `procedures.rawdata`) gives the samples exactly as
+A raw.h5 (format gyrocal-raw/1, written by `procedures.runtime.rawdata`) gives the samples exactly
+as
 the fixture sent them: fixture time, sequence number, rate and temperature codes, status and
 the latched encoder count; its /supply log gives the supply voltage at each sample (for the
 part's compensation). It is read here with h5py directly, so drivers need nothing from
@@ -23,13 +24,13 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.csv_rows import CsvInputError, csv_rows, shown
+from common.csv_rows import CsvInputError, csv_rows, shown
+from common.h5_input import H5InputError, one_line, open_h5
 from drivers.errors import ConnectionLost
 from drivers.fixture_protocol import SEQ_MODULO, SampleStatus
-from drivers.h5_input import H5InputError, one_line, open_h5
 from drivers.part_codes import CodeFormat
 
-RAW_FORMAT = "gyrocal-raw/1"  # procedures.rawdata.FORMAT (a test keeps the two equal)
+RAW_FORMAT = "gyrocal-raw/1"  # procedures.runtime.rawdata.FORMAT (a test keeps the two equal)
 RAW_DATA_FILE = "raw.h5"
 CSV_COLUMNS = ("time_s", "rate_dps", "temp_c")
 CSV_OPTIONAL_COLUMNS = ("supply_v",)
@@ -207,7 +208,7 @@ def _check_conversion(
 
 def _load_csv(path: Path, codes: CodeFormat) -> Recording:
     try:
-        numbered = list(csv_rows(path))  # bounded: drivers.csv_rows
+        numbered = list(csv_rows(path))  # bounded: common.csv_rows
     except CsvInputError as exc:
         raise RecordingError(str(exc)) from None
     if not numbered:

@@ -21,7 +21,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from drivers.yaml_input import ConfigError, load_yaml_model
+from common.yaml_input import ConfigError, load_yaml_model
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
 DEFAULT_PROFILE = "servo-default"

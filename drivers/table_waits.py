@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
-from drivers.clock import Clock
+from common.clock import Clock
 from drivers.errors import InstrumentError, InstrumentTimeout, InterlockOpen, TableFault
 from drivers.protocols import TableStatus
 

@@ -17,8 +17,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from drivers.address import parse_host_port
-from drivers.clock import Clock
+from common.address import parse_host_port
+from common.clock import Clock
 from drivers.errors import ProtocolError, SetpointOutOfRange
 from drivers.modbus_link import ModbusLink, ModbusRefused, reopen_link
 from drivers.protocols import InstrumentIdentity

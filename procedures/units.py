@@ -1,7 +1,7 @@
 """The unit types of procedure and product files (pydantic-annotated floats bounded to what
 the bench can do) and the strict base model of their sections.
 
-They sit below the steps, whose settings use them, and below procedures.config, which builds
+They sit below the steps, whose settings use them, and below procedures.loading.config, which builds
 the plan out of the steps: a step's settings import from here, never from the config.
 """
 
@@ -11,7 +11,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from drivers.bounded import MAX_RATE_DPS, MAX_SUPPLY_V, ONE_DAY_S, TEMP_HIGH_C, TEMP_LOW_C
+from common.bounded import MAX_RATE_DPS, MAX_SUPPLY_V, ONE_DAY_S, TEMP_HIGH_C, TEMP_LOW_C
 
 
 class StrictModel(BaseModel):

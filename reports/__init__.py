@@ -6,7 +6,7 @@
     cert_plots.py     stop method, rate table, Allan deviation, stabilisation plots
     cert_standards.py decision rule, reference standards and ambient conditions
     record_keys.py    typed accessors of record.analysis for the plots (the sections are the
-                      models of procedures/results.py)
+                      models of procedures/runtime/results.py)
     lot_report.py     render_lot_report(db, out, issued=None, **filters): yield, pareto, Cpk,
                       trends
     lot_stats.py      yield, pareto and capability arithmetic (sigma estimator stated there)

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from procedures.rawdata import RawData, RawDataError, file_sha256, read_raw
-from procedures.record import RAW_DATA_FILE, RunRecord, Verdict, read_record
+from procedures.runtime.rawdata import RawData, RawDataError, file_sha256, read_raw
+from procedures.runtime.record import RAW_DATA_FILE, RunRecord, Verdict, read_record
 
 log = logging.getLogger(__name__)
 

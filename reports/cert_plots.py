@@ -7,7 +7,7 @@
 - the part's own temperature during stabilisation with the stability criterion.
 
 Any plot whose data is missing is replaced by a box saying what is missing (the sections
-read are procedures/results.py's models); none of these functions raises on bad data.
+read are procedures/runtime/results.py's models); none of these functions raises on bad data.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from reportlab.graphics.shapes import Drawing
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableStyle
 
-from procedures.rawdata import RawData
-from procedures.record import three_axis_block
-from procedures.results import Analysis
+from procedures.runtime.rawdata import RawData
+from procedures.runtime.record import three_axis_block
+from procedures.runtime.results import Analysis
 from reports import record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.charts import INTEGRATION_FILL, PALETTE, STATIC_FILL, Chart, message_box

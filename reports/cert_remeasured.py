@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from reportlab.platypus import Flowable, Paragraph
 
-from procedures.results import RemeasuredFirst, RemeasuredSecond
+from procedures.runtime.results import RemeasuredFirst, RemeasuredSecond
 from reports.cert_inputs import CertificateInputs
 from reports.styles import NOTE, escape, fmt
 

@@ -9,8 +9,8 @@ from reportlab.lib.styles import ParagraphStyle
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, Paragraph, Spacer, Table, TableStyle
 
-from procedures.record import RunRecord
-from procedures.results import InstrumentSafeResults
+from procedures.runtime.record import RunRecord
+from procedures.runtime.results import InstrumentSafeResults
 from reports.styles import BODY, FAIL_RED, FAIL_ROW, FONT_BOLD, escape
 
 TITLE = ParagraphStyle(

@@ -17,7 +17,7 @@ from reportlab.lib.styles import ParagraphStyle
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
 
-from procedures.record import Calibration, Coefficient, Measurement, Outcome, RunRecord
+from procedures.runtime.record import Calibration, Coefficient, Measurement, Outcome, RunRecord
 from reports import cert_three_axis, record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.cert_safe_state import safe_state_box

@@ -9,7 +9,7 @@ from __future__ import annotations
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, Paragraph, Spacer
 
-from procedures.record import CertificateContext
+from procedures.runtime.record import CertificateContext
 from reports.cert_inputs import CertificateInputs
 from reports.styles import BODY, CELL, H2, escape, fmt, grid_style
 from reports.table_fit import fitted_table

@@ -24,7 +24,7 @@ import numpy as np
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableStyle
 
-from procedures.results import TemperatureFitResults, TemperaturePoint
+from procedures.runtime.results import TemperatureFitResults, TemperaturePoint
 from reports.cert_inputs import CertificateInputs
 from reports.charts import PALETTE, Chart, message_box
 from reports.styles import CELL, CELL_MONO, H2, NOTE, escape, fmt, grid_style, unit_label

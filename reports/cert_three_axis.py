@@ -15,7 +15,7 @@ import numpy as np
 from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table
 
-from procedures.record import (
+from procedures.runtime.record import (
     ArrayValue,
     CalibrationThreeAxis,
     Outcome,

@@ -11,7 +11,7 @@ identity (certificate number, product, serial, times UTC and station local, stat
 operator, software). Then traceability, decision rule / reference standards / ambient
 (reports/cert_standards.py), conditions, results, calibration with uncertainties and
 verification, and the plots (see reports/cert_plots.py; the analysis sections read are the
-typed models of procedures/results.py).
+typed models of procedures/runtime/results.py).
 
 This module renders only; station/certify.py numbers, signs (PAdES) and seals the folder.
 With `unverified` set every page is marked UNVERIFIED (a folder that failed verification).
@@ -27,7 +27,7 @@ from typing import Any
 
 from reportlab.platypus import Flowable, KeepTogether, Spacer
 
-from procedures.record import CERTIFICATE_FILE
+from procedures.runtime.record import CERTIFICATE_FILE
 from reports import (
     cert_plots,
     cert_remeasured,

@@ -24,7 +24,7 @@ from reportlab.lib.units import mm
 from reportlab.pdfgen.canvas import Canvas
 from reportlab.platypus import Flowable, SimpleDocTemplate
 
-from procedures.record import new_file_mode
+from procedures.runtime.record import new_file_mode
 from reports.styles import FONT, FONT_BOLD, RULE_GREY, SIM_MAGENTA, UNVERIFIED_RED
 
 PAGE_SIZE = A4

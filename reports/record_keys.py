@@ -1,6 +1,6 @@
 """The certificate's typed accessors of `record.analysis` and `record.verification`.
 
-What the sections hold is declared once, in procedures/results.py (each step type's
+What the sections hold is declared once, in procedures/runtime/results.py (each step type's
 `Results` model). These helpers only turn a section into what a plot draws: finite numbers,
 equal-length series, windows as pairs. A section the record lacks raises
 MissingAnalysisError (the page then says so and the certificate is still issued).
@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from procedures.results import (
+from procedures.runtime.results import (
     Analysis,
     StabilityResults,
     StopMethodResults,

@@ -1,5 +1,5 @@
 import sys
 
-from station.cli import main
+from station.cli.main import main
 
 sys.exit(main())

@@ -25,7 +25,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from procedures.record import CERTIFICATE_FILE, Verdict, read_record
+from procedures.runtime.record import CERTIFICATE_FILE, Verdict, read_record
 from station.certify import signed_certificate, station_identity, trusted_fingerprints
 from station.errors import UserError
 from station.manifest import APPROVALS_FILE, file_digest, seal, verify_folder

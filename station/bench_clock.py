@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from drivers.clock import LockstepClock, ScaledClock
+from common.clock import LockstepClock, ScaledClock
 
 
 class BenchTiming(Protocol):

@@ -20,7 +20,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from procedures.record import (
+from procedures.runtime.record import (
     CERTIFICATE_FILE,
     CertificateContext,
     ReferenceStandard,

@@ -1,13 +1,13 @@
 """Reading a user's CSV file: every way it can fail becomes one clear UserError.
 
 The bounds (a regular file of limited size, the header line's length, one value per header
-column in every row) are drivers.csv_rows'; docs/input-bounds.md lists them."""
+column in every row) are common.csv_rows'; docs/input-bounds.md lists them."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.csv_rows import CsvInputError, csv_rows
+from common.csv_rows import CsvInputError, csv_rows
 from station.errors import UserError
 
 

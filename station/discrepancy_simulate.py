@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from procedures.record import read_record
+from procedures.runtime.record import read_record
 from station.errors import UserError
 
 if TYPE_CHECKING:

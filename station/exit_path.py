@@ -36,7 +36,7 @@ from collections.abc import Callable
 from types import FrameType, TracebackType
 from typing import Any, TextIO
 
-from procedures.safe_state import SafeStatePolicy
+from procedures.engine.safe_state import SafeStatePolicy
 
 log = logging.getLogger(__name__)
 

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
+from common.clock import Clock, ScaledClock
 from drivers import registry
-from drivers.clock import Clock, ScaledClock
 from drivers.errors import InstrumentError
 from drivers.protocols import Identifiable, InstrumentIdentity, Probeable
 from station.errors import UserError

@@ -34,7 +34,7 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import padding, rsa
 
-from procedures.record import CERTIFICATE_FILE, RAW_DATA_FILE, RECORD_FILE, new_file_mode
+from procedures.runtime.record import CERTIFICATE_FILE, RAW_DATA_FILE, RECORD_FILE, new_file_mode
 from station.signing_keys import StationIdentity, certificate_fingerprint
 
 MANIFEST_FILE = "manifest.json"

@@ -4,7 +4,7 @@ the value, the limit and who reports it; the caller refuses the run (exit 2) if 
 
 A setting the product refuses (a rate beyond the part's range, a supply level outside its
 supply range) is found from the files alone, when they are loaded
-(`procedures.config.check_procedure_for_product`); a setting an instrument refuses (a
+(`procedures.loading.config.check_procedure_for_product`); a setting an instrument refuses (a
 setpoint beyond the chamber's limits, a rate or an acceleration beyond the table's, a voltage
 or current beyond the supply's) needs the opened instrument and the capability
 (`SetpointLimited`, `RateLimited`, `OutputLimited`); a driver without it is not checked (and
@@ -17,12 +17,12 @@ import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from common.yaml_input import LoadedYaml
 from drivers.protocols import OutputLimited, RateLimited, SetpointLimited
-from drivers.yaml_input import LoadedYaml
-from procedures.chamber_strategy import steady_die_c
-from procedures.conditions import Condition
-from procedures.config import ProcedureConfig, ProductConfig
-from procedures.run_parts import Bench
+from procedures.loading.config import ProcedureConfig, ProductConfig
+from procedures.runtime.conditions import Condition
+from procedures.runtime.run_parts import Bench
+from procedures.thermal.chamber_strategy import steady_die_c
 
 log = logging.getLogger(__name__)
 

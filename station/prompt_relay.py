@@ -16,8 +16,8 @@ import socket
 import threading
 import time
 
-from drivers.address import split_host_port
-from procedures.progress import ProgressEvent
+from common.address import split_host_port
+from procedures.runtime.progress import ProgressEvent
 
 log = logging.getLogger(__name__)
 PROMPT_KINDS = ("prompt", "prompt_done")

@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 import sqlalchemy as sa
 from sqlalchemy.exc import SQLAlchemyError
 
-from procedures.record import RECORD_FILE, RunRecord, read_record
+from procedures.runtime.record import RECORD_FILE, RunRecord, read_record
 from reports.lot_rows import CalibrationElement, MeasurementRow, RunRow
 from station.db.connect import DatabaseError, database_url, engine_for, shown, sqlite_path
 from station.db.schema import CAL_KEYS, calibration_elements, measurements, runs

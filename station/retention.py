@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from procedures.record import RECORD_FILE, Verdict, os_error_text, read_record
+from procedures.runtime.record import RECORD_FILE, Verdict, os_error_text, read_record
 from station.manifest import MANIFEST_FILE, folder_changes, is_run_folder, verify_folder
 from station.results_db import ResultsDB, ResultsDBError
 from station.run_archive import SUFFIX, archive_ref, examine, write_archive

@@ -25,7 +25,7 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from procedures.record import RAW_DATA_FILE, RECORD_FILE
+from procedures.runtime.record import RAW_DATA_FILE, RECORD_FILE
 from station.manifest import (
     MANIFEST_FILE,
     MAX_MANIFEST_BYTES,

@@ -19,7 +19,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from procedures.record import (
+from procedures.runtime.record import (
     RECORD_FILE,
     Event,
     RunRecord,

@@ -1,7 +1,7 @@
 """The station file (config/station.yaml): which instruments, where, and where results go.
 
 Validated with pydantic at the edge; errors name the file, line and field (see
-`drivers.yaml_input.load_yaml_model`). Relative paths inside the file are relative to the
+`common.yaml_input.load_yaml_model`). Relative paths inside the file are relative to the
 folder that holds it, so the file can travel with its configuration folder. The model only:
 `station.station_file.load_settings` reads the file and has each driver check its settings.
 """
@@ -16,8 +16,8 @@ from typing import Any, Literal
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from drivers.bounded import Name, PathText, ShortName
-from drivers.yaml_input import LoadedYaml
+from common.bounded import Name, PathText, ShortName
+from common.yaml_input import LoadedYaml
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = REPO_ROOT / "config"

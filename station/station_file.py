@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.yaml_input import ConfigError, load_yaml_model
+from common.yaml_input import ConfigError, load_yaml_model
 from station.instruments import settings_problems
 from station.settings import DEFAULT_STATION_FILE, LoadedSettings, StationSettings
 

@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
+from common.yaml_input import ConfigError
 from drivers.errors import InstrumentError
 from drivers.fixture_protocol import (
     OUTPUT_RATES_HZ,
@@ -44,8 +45,9 @@ from drivers.protocols import (
     StreamReadsBackSafe,
     Supply,
 )
-from drivers.yaml_input import ConfigError
-from procedures.config import (
+from procedures.engine.engine import Engine
+from procedures.engine.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
+from procedures.loading.config import (
     ProcedureConfig,
     ProductConfig,
     check_procedure_for_product,
@@ -53,11 +55,10 @@ from procedures.config import (
     load_product,
     product_for_procedure,
 )
-from procedures.engine import Engine
-from procedures.plan import build_plan
-from procedures.progress import ProgressBus, ProgressEvent
-from procedures.rawdata import RawDataWriter, file_sha256
-from procedures.record import (
+from procedures.loading.plan import build_plan
+from procedures.runtime.progress import ProgressBus, ProgressEvent
+from procedures.runtime.rawdata import RawDataWriter, file_sha256
+from procedures.runtime.record import (
     RAW_DATA_FILE,
     Dut,
     Event,
@@ -70,10 +71,9 @@ from procedures.record import (
     save_record_anywhere,
     write_record,
 )
-from procedures.run_context import RunContext
-from procedures.run_parts import Bench, KeptRecord, PartRun
-from procedures.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
-from procedures.streams import PartStream
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import Bench, KeptRecord, PartRun
+from procedures.runtime.streams import PartStream
 from station import __version__, preflight
 from station import instruments as roles
 from station.bench_clock import station_clock
@@ -145,7 +145,7 @@ class UutResult:
     reasons: dict[int, str] = field(default_factory=dict)
     certificates: dict[int, Path] = field(default_factory=dict)
     # where each record.json was written: its run folder, the fallback folder when that
-    # could not be written (procedures.record.save_record_anywhere), None when nowhere
+    # could not be written (procedures.runtime.record.save_record_anywhere), None when nowhere
     record_files: dict[int, Path | None] = field(default_factory=dict)
     station_time_s: float = 0.0
     wall_time_s: float = 0.0

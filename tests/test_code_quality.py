@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ["station", "drivers", "procedures", "reports"]
+PACKAGES = ["common", "station", "drivers", "procedures", "reports"]
 
 
 def _tool(name: str) -> list[str]:
@@ -77,12 +77,13 @@ def test_import_graph_counts_imports_in_function_bodies(tmp_path: Path) -> None:
     assert cycles(g) == [frozenset({"pkg.a", "pkg.b"})]
 
 
-LAYERS = ("drivers", "procedures", "reports", "station")  # each may import only those before
+# each may import only those before it
+LAYERS = ("common", "drivers", "procedures", "reports", "station")
 
 
 def test_dependencies_run_one_way() -> None:
-    """station -> reports -> procedures -> drivers: no module imports a layer above its own,
-    not even inside a function body (reports read records, never the station)."""
+    """station -> reports -> procedures -> drivers -> common: no module imports a layer
+    above its own, not even inside a function body (reports read records, never the station)."""
     from tests.import_graph import graph
 
     rank = {name: i for i, name in enumerate(LAYERS)}

@@ -19,12 +19,12 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from common.yaml_input import ConfigError
 from drivers.sim.config import SimConfigError, load_sim_config
-from drivers.yaml_input import ConfigError
-from procedures.config import load_procedure, load_product
+from procedures.loading.config import load_procedure, load_product
 from procedures.model.data import load_csv
 from procedures.model.model_io import load_model
-from station.cli_analyze import read_rate_csv
+from station.cli.analyze import read_rate_csv
 from station.errors import UserError
 from station.station_file import load_settings
 

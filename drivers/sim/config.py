@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from drivers.bounded import (
+from common.bounded import (
     MAX_ACCEL_DPS2,
     MAX_RATE_DPS,
     MAX_SUPPLY_V,
@@ -23,10 +23,10 @@ from drivers.bounded import (
     TEMP_LOW_C,
     ShortName,
 )
+from common.yaml_input import ConfigError, format_validation_error, read_yaml
 from drivers.rate_table_map import COUNTS_PER_REV
 from drivers.sim.generic_terms import MAX_TERMS as MAX_GENERIC_TERMS
 from drivers.sim.generic_terms import check_term, is_generic
-from drivers.yaml_input import ConfigError, format_validation_error, read_yaml
 
 # effect id -> parameter names it accepts (docs/interfaces.md's catalog)
 EFFECT_PARAMS: dict[str, frozenset[str]] = {

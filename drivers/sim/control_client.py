@@ -14,7 +14,7 @@ import threading
 from types import TracebackType
 from typing import Any
 
-from drivers.address import split_host_port
+from common.address import split_host_port
 
 
 class ControlError(RuntimeError):

@@ -119,7 +119,7 @@ def launch_bench(
     extra_args: tuple[str, ...] = (),
     lockstep: bool = False,
 ) -> Iterator[BenchHandle]:
-    """Run `station bench` (python -m station.bench_main) in a subprocess for the block.
+    """Run `station bench` (python -m station.cli.bench_main) in a subprocess for the block.
 
     `config` is a sim config file path or a mapping (written to a temp YAML file).
     `lockstep`: the world moves only when the station's clock asks (`LockstepClock`).
@@ -127,8 +127,8 @@ def launch_bench(
     with tempfile.TemporaryDirectory(prefix="simbench-") as tmp:
         tmp_dir = Path(tmp)
         state_path = tmp_dir / "state.json"
-        # `station bench` without the other commands' imports (station/bench_main.py)
-        cmd = [sys.executable, "-m", "station.bench_main", "--state", str(state_path)]
+        # `station bench` without the other commands' imports (station/cli/bench_main.py)
+        cmd = [sys.executable, "-m", "station.cli.bench_main", "--state", str(state_path)]
         if isinstance(config, Mapping):
             cfg_path = tmp_dir / "sim.yaml"
             cfg_path.write_text(yaml.safe_dump(dict(config)), encoding="utf-8")

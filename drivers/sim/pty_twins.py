@@ -36,7 +36,7 @@ class PtyPort:
     `held_elsewhere(path)` says whether a station process still holds a pty path (its
     instrument lock, from a bench that died); such a number is passed over, so no station
     ever commands this bench through an address it still keeps for another. The bench's
-    process sets it (station/cli_bench.py); by default nothing is held."""
+    process sets it (station/cli/bench.py); by default nothing is held."""
 
     held_elsewhere: Callable[[str], bool] = staticmethod(_never_held)
 

@@ -23,7 +23,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from drivers.csv_rows import check_csv_file, shown
+from common.csv_rows import check_csv_file, shown
 from procedures.model.trajectory import SEGMENT_KINDS, FloatArray, Segment, Trajectory
 
 CSV_COLUMNS = ("time_s", "gyro_dps", "ref_rate_dps", "ref_angle_deg", "temp_c", "supply_v")

@@ -13,7 +13,7 @@
 `scale` is required; an effect's parameters left out start at zero (time constants and the
 tilt at their defaults, gyro_model.zero_params). A mistake is a ConfigError (a ValueError)
 of one line per problem, `file:line: field a.b: what is wrong; what is allowed`, the same
-form as the station's other YAML files (procedures/config.py).
+form as the station's other YAML files (procedures/loading/config.py).
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
 
-from drivers.bounded import MAX_RATE_DPS, Name, ShortName
-from drivers.yaml_input import ConfigError, LoadedYaml, format_validation_error, read_yaml
+from common.bounded import MAX_RATE_DPS, Name, ShortName
+from common.yaml_input import ConfigError, LoadedYaml, format_validation_error, read_yaml
 from procedures.model import effects as fx
 from procedures.model.effects import CATALOG
 from procedures.model.gyro_model import BUILT_IN, GyroModel, zero_params

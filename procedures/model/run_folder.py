@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.h5_input import open_h5
+from common.h5_input import open_h5
 from drivers.protocols import ENCODER_MODULO, SampleStatus
 from procedures.model.data import load_csv
 from procedures.model.trajectory import FloatArray, Segment, Trajectory
-from procedures.rawdata import RawDataError, read_raw
-from procedures.record import RAW_DATA_FILE, RECORD_FILE, read_record, three_axis_block
+from procedures.runtime.rawdata import RawDataError, read_raw
+from procedures.runtime.record import RAW_DATA_FILE, RECORD_FILE, read_record, three_axis_block
 
 log = logging.getLogger(__name__)
 

@@ -25,8 +25,8 @@ import numpy as np
 
 from procedures.model.run_folder import _read, _windowed_trajectory, raw_sizes
 from procedures.model.trajectory import Trajectory
-from procedures.rawdata import RawDataError, read_raw
-from procedures.record import RAW_DATA_FILE, read_record, three_axis_block
+from procedures.runtime.rawdata import RawDataError, read_raw
+from procedures.runtime.record import RAW_DATA_FILE, read_record, three_axis_block
 
 AXES = ("x", "y", "z")
 

@@ -17,7 +17,7 @@ FloatArray = NDArray[np.float64]
 REFERENCE_TEMPERATURE_C = 25.0
 REFERENCE_SUPPLY_V = 5.0
 
-# Segment kinds as the engine writes them (procedures/rawdata.py) plus `transition`, the
+# Segment kinds as the engine writes them (procedures/runtime/rawdata.py) plus `transition`, the
 # time between analysed windows, which the discrepancy workflow also uses.
 SEGMENT_KINDS = (
     "static",

@@ -9,9 +9,9 @@ from numpy.typing import NDArray
 
 from drivers.fixture_protocol import SEQ_MODULO
 from drivers.protocols import SampleStatus
-from procedures.record import Verdict
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import Verdict
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 
 DELIVERY_WAIT_WALL_S = 3.0
 

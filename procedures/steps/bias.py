@@ -12,10 +12,10 @@ from procedures.analysis.allan import AllanAnalysis, analyze_allan
 from procedures.analysis.bias import estimate_bias, required_averaging_time_s
 from procedures.analysis.bias_wander import window_mean_covariance
 from procedures.analysis.errors import AnalysisError
-from procedures.record import Verdict
-from procedures.results import AllanResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import AllanResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.units import Seconds

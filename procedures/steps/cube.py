@@ -1,7 +1,7 @@
 """Three-axis parts in a cube on the single-axis table: orientation, measurement per face.
 
 `cube_faces` (inside `for_each: condition`) measures each part in the faces that
-procedures/orientation_plan.py plans for this condition (all six at the first condition, one
+procedures/runtime/orientation_plan.py plans for this condition (all six at the first condition, one
 per axis at the others, starting in the face the cube is in). For each face it prompts the
 operator (a ProgressEvent kind="prompt" with `orientation` set and the instruction in plain
 words), waits until every part's accelerometer shows gravity along the named axis (within
@@ -19,19 +19,19 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from drivers.bounded import MAX_ACCEL_DPS2, ONE_HOUR_S
+from common.bounded import MAX_ACCEL_DPS2, ONE_HOUR_S
 from drivers.orientation import face_from_accel, normalise_face
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.three_axis import Window, vec3
-from procedures.orientation_plan import faces_for_condition
-from procedures.record import Verdict
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.orientation_plan import faces_for_condition
+from procedures.runtime.record import Verdict
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
+from procedures.runtime.streams import XYZ_COLUMNS
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus
-from procedures.streams import XYZ_COLUMNS
 
 log = logging.getLogger(__name__)
 POLL_S = 0.5

@@ -15,10 +15,10 @@ from procedures.analysis.temp_supply_fit import (
     TempSupplyFit,
     fit_temp_supply,
 )
-from procedures.record import Calibration, Verdict
-from procedures.results import FitCondition, FitResults
-from procedures.run_context import RunContext
-from procedures.run_parts import ConditionResult, PartRun, condition_record
+from procedures.runtime.record import Calibration, Verdict
+from procedures.runtime.results import FitCondition, FitResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import ConditionResult, PartRun, condition_record
 from procedures.steps.fit_order import (
     declared_beyond_first_order,
     fit_beyond_first_order,

@@ -25,10 +25,10 @@ from procedures.analysis.temp_fit import (
     record_summary,
 )
 from procedures.analysis.temp_supply_fit import ConditionMeasurement, FirstOrderCoefficients
-from procedures.record import Calibration, Verdict
-from procedures.results import FitResults, TemperatureFitResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun, condition_record
+from procedures.runtime.record import Calibration, Verdict
+from procedures.runtime.results import FitResults, TemperatureFitResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun, condition_record
 from procedures.steps.registry import Declared
 
 # record name of each higher-order term -> the calibration register it is programmed into

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field, model_validator
 
-from drivers.bounded import ONE_HOUR_S
+from common.bounded import ONE_HOUR_S
 from drivers.errors import InstrumentError
 from drivers.protocols import SampleStatus
 from procedures.analysis.errors import AnalysisError
@@ -39,10 +39,10 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from procedures.record import Verdict
-from procedures.results import StopMethodResults, StopMove, Verification, VerificationRow
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun, StopScale, condition_record
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import StopMethodResults, StopMove, Verification, VerificationRow
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun, StopScale, condition_record
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.stop import stop_angle, stop_noise_model

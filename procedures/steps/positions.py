@@ -21,10 +21,10 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator
 
-from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
-from procedures.results import PositionWindow as PositionResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
+from procedures.runtime.results import PositionWindow as PositionResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import StepSettings, StepType
 from procedures.units import Seconds

@@ -6,11 +6,11 @@ from typing import Any
 
 from pydantic import Field
 
-from drivers.bounded import ONE_HOUR_S
+from common.bounded import ONE_HOUR_S
 from drivers.errors import InstrumentError, PartAbsent
-from procedures.record import InstrumentRecord
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import InstrumentRecord
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.registry import Declared, StepSettings, StepType
 from procedures.units import Volts
 

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from procedures.run_context import RunContext
+from procedures.runtime.run_context import RunContext
 
 # station seconds between the supply coming on and the streams being started (the part's
 # own power-on reset); the warm-up is measured from the supply switching on, not from here

@@ -7,13 +7,13 @@ from dataclasses import asdict
 from typing import Any
 
 from drivers.protocols import CalibrationRegisters
-from procedures.record import Outcome, Verdict
-from procedures.results import ProgrammingResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun, ProgrammableFit
+from procedures.runtime.record import Outcome, Verdict
+from procedures.runtime.results import ProgrammingResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun, ProgrammableFit
+from procedures.runtime.streams import PartStream
 from procedures.steps.fit_order import readback_dict
 from procedures.steps.registry import Declared, Provided, S, StepSettings, StepType
-from procedures.streams import PartStream
 
 READBACK_REL_TOL = 1e-6
 

@@ -26,10 +26,10 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from procedures.conditions import Condition
+from procedures.runtime.conditions import Condition
 
 if TYPE_CHECKING:
-    from procedures.run_context import RunContext
+    from procedures.runtime.run_context import RunContext
 
 STEP_GROUP = "gyrocal.steps"  # pinned: the entry-point group of step types
 
@@ -119,7 +119,7 @@ class StepType(Generic[S]):
     # an earlier entry
     provides: ClassVar[frozenset[Provided]] = frozenset()
     # the model of what the step writes to record.analysis (or record.verification),
-    # procedures/results.py; None for a step that records measurements only
+    # procedures/runtime/results.py; None for a step that records measurements only
     Results: ClassVar[type[BaseModel] | None] = None
 
     def __init__(self, settings: S, place: Place | None = None,

@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from drivers.bounded import MAX_REPEATS, ONE_HOUR_S
+from common.bounded import MAX_REPEATS, ONE_HOUR_S
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import stop_vs_rate_table
 from procedures.analysis.errors import AnalysisError
@@ -27,8 +27,8 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from procedures.record import Verdict
-from procedures.results import (
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import (
     RemeasuredFirst,
     RemeasuredResults,
     RemeasuredSecond,
@@ -37,8 +37,8 @@ from procedures.results import (
     Verification,
     VerificationRow,
 )
-from procedures.run_context import RunContext
-from procedures.run_parts import ConditionResult, PartRun, StopScale
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import ConditionResult, PartRun, StopScale
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.program import failed_limits
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType

@@ -7,14 +7,14 @@ from typing import Any
 
 from pydantic import Field
 
-from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, MAX_REPEATS, ONE_HOUR_S
+from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, MAX_REPEATS, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.rate_table import fit_rate_table, reference_rate_from_encoder
-from procedures.record import Verdict
-from procedures.results import RateTableResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import RateTableResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.units import Rate, Seconds

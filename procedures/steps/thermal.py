@@ -18,26 +18,26 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field
 
-from drivers.bounded import ONE_HOUR_S
+from common.bounded import ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached
-from procedures.chamber_strategy import (
-    Criterion,
-    DieState,
-    ThermalModel,
-    steady_die_c,
-    straight_settle_s,
-)
-from procedures.record import Verdict
-from procedures.results import StabilityResults
-from procedures.run_context import RunContext
-from procedures.run_parts import ConditionResult
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import StabilityResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import ConditionResult
 from procedures.steps.registry import StepSettings, StepType
 from procedures.steps.thermal_fastest import (
     control_settings,
     latest_reading_c,
     leave_at_target,
 )
-from procedures.thermal_control import (
+from procedures.thermal.chamber_strategy import (
+    Criterion,
+    DieState,
+    ThermalModel,
+    steady_die_c,
+    straight_settle_s,
+)
+from procedures.thermal.thermal_control import (
     FastestController,
     heat_after_change,
     heat_now_c,
@@ -215,7 +215,7 @@ class Stabilise(StepType[ThermalSettings]):
 
     def _remember_dies(self, ctx: RunContext) -> None:
         """Each part's die as the controller estimates it now: the next condition starts
-        from it (procedures.thermal_control.PartThermal)."""
+        from it (procedures.thermal.thermal_control.PartThermal)."""
         assert self._control is not None
         for part in ctx.parts.alive():
             state = self._control.die_lag_now(part.socket)

@@ -9,10 +9,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.errors import InstrumentError, SetpointOutOfRange
-from procedures.chamber_strategy import Criterion, ThermalLimits, ThermalModel
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
-from procedures.thermal_control import ControlSettings, FastestController
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
+from procedures.thermal.chamber_strategy import Criterion, ThermalLimits, ThermalModel
+from procedures.thermal.thermal_control import ControlSettings, FastestController
 
 if TYPE_CHECKING:
     from procedures.steps.thermal import Stabilise

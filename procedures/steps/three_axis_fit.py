@@ -19,10 +19,10 @@ import numpy as np
 from drivers.protocols import CalibrationRegisters3, CalibrationStore3
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.three_axis import ThreeAxisCalibration, fit_three_axis, vec3
-from procedures.record import CalibrationThreeAxis, Verdict
-from procedures.results import ProgrammingResults, ThreeAxisWindow
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun, condition_record
+from procedures.runtime.record import CalibrationThreeAxis, Verdict
+from procedures.runtime.results import ProgrammingResults, ThreeAxisWindow
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun, condition_record
 from procedures.steps.program import ProgramStep
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 

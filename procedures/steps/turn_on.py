@@ -13,15 +13,15 @@ from typing import Any
 
 from pydantic import Field
 
-from drivers.bounded import ONE_HOUR_S
+from common.bounded import ONE_HOUR_S
 from procedures.analysis.allan import analyze_allan
 from procedures.analysis.bias import estimate_bias
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.turn_on import turn_on_repeatability
-from procedures.record import Verdict
-from procedures.results import TurnOnResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import TurnOnResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.power_cycle import power_off, power_on, supply_level_v
 from procedures.steps.registry import Declared, StepSettings, StepType

@@ -7,14 +7,14 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from drivers.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
+from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.verification import VerificationResult, verify_correction
-from procedures.record import Verdict
-from procedures.results import Verification, VerificationRow
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import Verification, VerificationRow
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import Plateau, run_plateaus

@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from drivers.bounded import ONE_DAY_S
+from common.bounded import ONE_DAY_S
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.warm_up import DEFAULT_WINDOWS, MIN_WINDOWS, warm_up_time
-from procedures.record import Verdict
-from procedures.results import WarmUpResults
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
+from procedures.runtime.record import Verdict
+from procedures.runtime.results import WarmUpResults
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.power_cycle import power_off, power_on, supply_level_v
 from procedures.steps.registry import Declared, StepSettings, StepType

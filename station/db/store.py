@@ -14,7 +14,7 @@ from typing import Any
 
 import sqlalchemy as sa
 
-from procedures.record import RunRecord, three_axis_block
+from procedures.runtime.record import RunRecord, three_axis_block
 from station.db import rollups
 from station.db.bulk import insert_new
 from station.db.links import lock_units, relink_units, with_links

@@ -29,7 +29,7 @@ from fastapi.staticfiles import StaticFiles
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import SQLAlchemyError
 
-from procedures.record import CERTIFICATE_FILE
+from procedures.runtime.record import CERTIFICATE_FILE
 from station.db.schema import CAL_KEYS
 from station.db.yields import DEFAULT_SHIFT_STARTS_H
 from station.line import queries

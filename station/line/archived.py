@@ -10,7 +10,7 @@ from pathlib import Path
 
 from fastapi.responses import JSONResponse, Response
 
-from procedures.record import CERTIFICATE_FILE
+from procedures.runtime.record import CERTIFICATE_FILE
 from station.run_archive import read_member
 
 MAX_CERTIFICATE_BYTES = 64 << 20  # a certificate is a few hundred kB

@@ -1,6 +1,6 @@
 """Run history for the review screen: the run folders under the station's output directory.
 
-Each run folder holds its record.json (procedures/record.py), so the history is read from
+Each run folder holds its record.json (procedures/runtime/record.py), so the history is read from
 there; records are cached by modification time, so a refresh only reads new or changed runs.
 """
 
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from procedures.record import CERTIFICATE_FILE, RECORD_FILE, RunRecord, read_record
+from procedures.runtime.record import CERTIFICATE_FILE, RECORD_FILE, RunRecord, read_record
 from station.errors import UserError
 from station.run_folder import recover_results
 

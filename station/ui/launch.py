@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.yaml_input import ConfigError, read_yaml
+from common.yaml_input import ConfigError, read_yaml
 from station.certify import recovered_run_sealer
 from station.errors import UserError
 from station.station_file import load_settings

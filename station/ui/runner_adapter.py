@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from drivers.yaml_input import ConfigError
-from procedures.config import load_procedure, load_product
-from procedures.plan import build_plan
-from procedures.record import read_record
+from common.yaml_input import ConfigError
+from procedures.loading.config import load_procedure, load_product
+from procedures.loading.plan import build_plan
+from procedures.runtime.record import read_record
 from station import instruments as roles
 from station.errors import UserError
 from station.exit_path import exit_bound_s

@@ -9,20 +9,20 @@ from typing import Any
 import numpy as np
 import pytest
 
-from procedures.chamber_profile import (
+from procedures.steps.thermal import judge_stability
+from procedures.thermal.chamber_profile import (
     STEP_S,
     ProfilePlan,
     plan_lp_profile,
     settle_bound_s,
 )
-from procedures.chamber_strategy import (
+from procedures.thermal.chamber_strategy import (
     Criterion,
     DieState,
     ThermalLimits,
     ThermalModel,
     plan_profile,
 )
-from procedures.steps.thermal import judge_stability
 
 BENCH = ThermalModel(air_tau_s=60.0, die_tau_s=300.0, ramp_c_per_min=5.0)
 CRIT = Criterion(window_s=60.0, slope_c_per_min=0.1, band_c=0.2)
@@ -131,7 +131,7 @@ def test_a_replan_searching_from_the_last_plan_finds_the_bisections_answer(
 ) -> None:
     """The hint (where the last plan would settle) changes how many solves, never the plan;
     a hint the replan confirms takes two (one where it is the first index a window allows)."""
-    import procedures.chamber_profile as cp
+    import procedures.thermal.chamber_profile as cp
 
     air, dies, target = CASES["supply up"]
     base = plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT)
@@ -166,7 +166,7 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
     programme counts as infeasible (the station falls back), with a warning."""
     from scipy.optimize import OptimizeResult
 
-    import procedures.chamber_profile as cp
+    import procedures.thermal.chamber_profile as cp
 
     air, dies, target = CASES["supply up"]
     expected = settle_bound_s(BENCH, LIMITS, air, dies[0], target, CRIT)
@@ -186,7 +186,7 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
 
     monkeypatch.setattr(cp, "linprog", lambda *a, **k: OptimizeResult(
         status=1, x=None, message="Time limit reached"))
-    with caplog.at_level("WARNING", logger="procedures.chamber_profile"):
+    with caplog.at_level("WARNING", logger="procedures.thermal.chamber_profile"):
         assert plan_lp_profile(BENCH, LIMITS, air, air, dies, target, CRIT) is None
     assert "no solver decided" in caplog.text
 
@@ -194,7 +194,7 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
 def test_an_index_is_solved_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """A search whose first and last index are one (the plan to beat settles as soon as a
     window can) solves that index once, not once as each end of the search."""
-    import procedures.chamber_profile as cp
+    import procedures.thermal.chamber_profile as cp
 
     air, dies, target = CASES["supply up"]
     window_s = CRIT.window_s

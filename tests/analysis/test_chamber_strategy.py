@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from procedures.chamber_strategy import (
+from procedures.thermal.chamber_strategy import (
     ThermalLimits,
     ThermalModel,
     ThermalState,
@@ -75,8 +75,8 @@ def test_no_movement_keeps_the_prior() -> None:
 
 # ---------------------------------------------------------------- several dies, the bound
 
-from procedures.chamber_profile import settle_bound_s  # noqa: E402
-from procedures.chamber_strategy import (  # noqa: E402
+from procedures.thermal.chamber_profile import settle_bound_s  # noqa: E402
+from procedures.thermal.chamber_strategy import (  # noqa: E402
     Criterion,
     DieState,
     plan_profile,
@@ -154,7 +154,7 @@ def test_no_profile_settles_sooner_than_the_bound() -> None:
 def test_the_running_extremes_judge_windows_as_the_windows_themselves_would() -> None:
     """settled_from_s takes each window's peak-to-peak from running extremes: the same
     verdicts as the windows' own max - min, for odd and even window lengths."""
-    from procedures.chamber_strategy import STEP_S, settled_from_s
+    from procedures.thermal.chamber_strategy import STEP_S, settled_from_s
 
     rng = np.random.default_rng(0)
     t = np.arange(200) * STEP_S

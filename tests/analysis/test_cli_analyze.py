@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from station.cli import main
+from station.cli.main import main
 from tests.analysis.synth import article_record, gyro_noise
 
 REPO = Path(__file__).resolve().parents[2]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from procedures.analysis.stop_method import analyze_stop_method
-from station.cli import main
+from station.cli.main import main
 from tests.analysis.synth import article_record, gyro_noise, raised_cosine
 
 

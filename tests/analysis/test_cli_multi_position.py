@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from station.cli import main
-from station.cli_multi_position import read_sections
+from station.cli.main import main
+from station.cli.multi_position import read_sections
 from station.errors import UserError
 from tests.analysis.hand_turned import Session, hand_turned_session, random_truth
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.csv_rows import MAX_CSV_BYTES
-from station.cli import main
+from common.csv_rows import MAX_CSV_BYTES
+from station.cli.main import main
 
 
 def analyze(*args: str) -> tuple[int, str]:

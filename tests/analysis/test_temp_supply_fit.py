@@ -9,7 +9,7 @@ from procedures.analysis.temp_supply_fit import (
     ConditionMeasurement,
     fit_temp_supply,
 )
-from procedures.record import Calibration
+from procedures.runtime.record import Calibration
 
 TRUTH = {
     "bias_dps": 8.6,

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from common.clock import ScaledClock
 from drivers.chamber import ModbusChamber
-from drivers.clock import ScaledClock
 from drivers.errors import (
     ChamberSetpointNotReached,
     ConnectionLost,

@@ -12,7 +12,7 @@ from functools import partial
 
 import pytest
 
-from drivers.address import parse_host_port
+from common.address import parse_host_port
 from drivers.ascii_link import LineLink, open_port
 from drivers.errors import ConnectionLost, InstrumentTimeout
 from tests.drivers.expected_protocol import Stream
@@ -132,9 +132,9 @@ def test_host_port_form(address, expected):
 
 
 def test_one_host_port_form_for_every_tcp_address() -> None:
-    """Issue 27: one parser (drivers/address.py) for the tables, chambers, inclinometers, the
+    """Issue 27: one parser (common/address.py) for the tables, chambers, inclinometers, the
     bench's control channel and the operator relay; the refusal names the form."""
-    from drivers.address import split_host_port
+    from common.address import split_host_port
     from drivers.sim.control_client import ControlClient
     from station.prompt_relay import PromptRelay
 

@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
+from common.clock import ScaledClock
 from drivers import espec_p300, watlow_f4t
-from drivers.clock import ScaledClock
 from drivers.errors import (
     ChamberAlarm,
     ChamberSetpointNotReached,

@@ -11,7 +11,7 @@ from drivers.errors import ConnectionLost, InstrumentTimeout, ProtocolError
 from drivers.inclinometer import AsciiInclinometer, Settings, factory
 from drivers.sim.launcher import launch_bench
 from drivers.tcp_lines import LineLink
-from procedures.progress import ProgressEvent
+from procedures.runtime.progress import ProgressEvent
 from station.prompt_relay import PromptRelay
 from tests.drivers.expected_protocol import Pair, TcpPeer
 from tests.sim.conftest import wait_until

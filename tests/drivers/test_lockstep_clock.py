@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from drivers.clock import LockstepClock
+from common.clock import LockstepClock
 
 
 class FakeBench:

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.clock import ScaledClock
 from drivers import fixture_protocol as fp
-from drivers.clock import ScaledClock
 from drivers.errors import (
     InstrumentError,
     InstrumentTimeout,

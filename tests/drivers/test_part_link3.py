@@ -13,8 +13,8 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
+from common.clock import ScaledClock
 from drivers import fixture_protocol as fp
-from drivers.clock import ScaledClock
 from drivers.errors import InstrumentError, ProtocolError
 from drivers.part_link import FixtureRefused, SerialPartLink
 from drivers.protocols import CalibrationRegisters3

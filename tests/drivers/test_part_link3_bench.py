@@ -11,14 +11,14 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.orientation import face_from_accel
 from drivers.part_codes import ADIS16130
 from drivers.part_link import SerialPartLink
 from drivers.protocols import CalibrationRegisters3, CalibrationStore3, SampleBlock
 from drivers.sim.launcher import BenchHandle, launch_bench
 from drivers.supply import ScpiSupply
-from procedures.progress import ProgressEvent
+from procedures.runtime.progress import ProgressEvent
 from station.prompt_relay import PromptRelay
 
 SPEED = 20.0

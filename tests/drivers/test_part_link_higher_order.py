@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.part_link import FixtureRefused, SerialPartLink
 from drivers.protocols import CalibrationRegisters
 from tests.drivers._fixture_fake import FakeFixture

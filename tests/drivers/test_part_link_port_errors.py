@@ -9,8 +9,8 @@ import time
 
 import pytest
 
+from common.clock import ScaledClock
 from drivers import part_link
-from drivers.clock import ScaledClock
 from drivers.errors import ConnectionLost
 from drivers.part_link import SerialPartLink
 

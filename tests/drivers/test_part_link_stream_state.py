@@ -7,8 +7,8 @@ from collections.abc import Iterator
 
 import pytest
 
+from common.clock import ScaledClock
 from drivers import fixture_protocol as fp
-from drivers.clock import ScaledClock
 from drivers.part_link import SerialPartLink
 from drivers.sim.config import parse_sim_config
 from drivers.sim.world import World

@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
+from common.clock import ScaledClock
 from drivers import registry
-from drivers.clock import ScaledClock
 
 PINNED = {
     "rate_table.modbus-servo": "drivers.rate_table:factory",

@@ -13,8 +13,8 @@ from drivers.fixture_protocol import SampleStatus
 from drivers.part_codes import ADIS16130
 from drivers.protocols import CalibrationRegisters
 from drivers.replay_part import RecordingEnded, factory
-from procedures.rawdata import read_raw
-from procedures.record import Verdict, read_record
+from procedures.runtime.rawdata import read_raw
+from procedures.runtime.record import Verdict, read_record
 from tests.drivers.test_replay_part import FakeClock
 from tests.procedures.conftest import DATA, run_on_bench
 

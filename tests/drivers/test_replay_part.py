@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from common.clock import LockstepClock
 from drivers import fixture_protocol as fp
-from drivers.clock import LockstepClock
 from drivers.errors import ConnectionLost, PartSilent
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.part_link import FixtureRefused
 from drivers.protocols import CalibrationRegisters, PartLink
 from drivers.replay_part import RecordingEnded, RecordingError, ReplayPartLink, factory
 from drivers.replay_source import RAW_FORMAT
-from procedures.rawdata import FORMAT, RawDataWriter
-from procedures.streams import PartStream
+from procedures.runtime.rawdata import FORMAT, RawDataWriter
+from procedures.runtime.streams import PartStream
 
 PERIOD_S = 0.01
 N = 300

@@ -10,10 +10,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
+from common.yaml_input import ConfigError
 from drivers import rate_table_map as rm
 from drivers.rate_table import Settings
 from drivers.servo_profile import Register, builtin_profiles, load_profile
-from drivers.yaml_input import ConfigError
 
 EXAMPLE = "servo-lowword-example"
 

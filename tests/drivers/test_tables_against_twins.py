@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
+from common.clock import ScaledClock
 from drivers import acutrol, rate_table
-from drivers.clock import ScaledClock
 from drivers.errors import (
     ConnectionLost,
     InstrumentError,

@@ -30,7 +30,7 @@ import yaml
 
 from drivers.servo_profile import load_profile
 from drivers.sim.config import load_sim_config
-from procedures.config import load_procedure, load_product
+from procedures.loading.config import load_procedure, load_product
 from station.station_file import load_settings
 from tests.journeys.doc_commands import MARKER, REPO
 

@@ -21,7 +21,7 @@ from tests.journeys.sim_runs import station_run_once
 
 ROOT = Path(__file__).resolve().parents[2]
 STATION = Path(sys.executable).parent / "station"  # the installed command (dev.py's .venv)
-LINE_WIDTH = 100  # station run's progress lines in a log (station/cli_run.py)
+LINE_WIDTH = 100  # station run's progress lines in a log (station/cli/run.py)
 
 
 @dataclass

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from procedures.record import RunRecord, Verdict
+from procedures.runtime.record import RunRecord, Verdict
 from tests.reports.synth_run import Part, make_record
 
 REPO = Path(__file__).resolve().parents[2]

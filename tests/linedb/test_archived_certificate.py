@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from procedures.record import CERTIFICATE_FILE, write_record
+from procedures.runtime.record import CERTIFICATE_FILE, write_record
 from station.db.connect import dispose_all
 from station.results_db import ResultsDB
 from station.run_archive import archive_ref, write_archive

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from station.cli import main
+from station.cli.main import main
 from station.db.connect import database_url, dispose_all
 from station.results_db import ResultsDB
 from station.station_file import load_settings

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from procedures.record import CERTIFICATE_FILE
+from procedures.runtime.record import CERTIFICATE_FILE
 from station.db.connect import dispose_all
 from station.line.spc import capability
 from station.results_db import ResultsDB

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from procedures.record import RunRecord
+from procedures.runtime.record import RunRecord
 from station.db.connect import dispose_all
 from station.line.spc import MIN_CPK_N, capability
 from station.results_db import ResultsDB

@@ -15,8 +15,8 @@ import pytest
 import yaml
 from fastapi.testclient import TestClient
 
-from station.cli import main
-from station.cli_line import _line_access
+from station.cli.line import _line_access
+from station.cli.main import main
 from station.db.connect import dispose_all
 from station.errors import UserError
 from station.line.app import create_line_app

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from procedures.record import RunRecord
+from procedures.runtime.record import RunRecord
 from station.db import store
 from station.db.connect import dispose_all, engine_for
 from station.db.links import LINK_COLUMNS

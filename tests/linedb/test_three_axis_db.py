@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from procedures.record import RunRecord
+from procedures.runtime.record import RunRecord
 from reports.lot_report import build_lot
 from reports.lot_three_axis import element_lines
 from station.db.connect import HEAD_REVISION, MIGRATIONS, dispose_all

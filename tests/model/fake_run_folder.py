@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from procedures.rawdata import RawDataWriter
-from procedures.record import Dut, FileRef, RunRecord, Verdict, write_record
+from procedures.runtime.rawdata import RawDataWriter
+from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, write_record
 
 STATION_OFFSET_S = 1000.0  # station clock = fixture clock + offset
 

@@ -26,7 +26,8 @@ from procedures.model.data import CSV_COLUMNS, load_csv, write_csv
 from procedures.model.run_folder import find_run_folder, load_data
 from reports.charts import nice_ticks
 from reports.discrepancy_report import step_axis_range
-from station import cli, cli_discrepancy
+from station.cli import discrepancy as cli_discrepancy
+from station.cli import main as cli
 
 ROOT = Path(__file__).resolve().parents[2]
 PINNED = {"gap_initial_dps", "noise_floor_dps", "iterations", "effects_added", "gap_final_dps"}

@@ -18,8 +18,8 @@ from procedures.model import fit
 from procedures.model.discrepancy import run_discrepancy
 from procedures.model.gyro_model import base_model
 from procedures.model.run_folder import find_run_folder, unusable_reason
-from procedures.rawdata import EXTRA_GROUPS, RawDataWriter
-from procedures.record import Dut, FileRef, RunRecord, Verdict, write_record
+from procedures.runtime.rawdata import EXTRA_GROUPS, RawDataWriter
+from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, write_record
 
 
 def test_a_full_lag_cache_keeps_the_columns_of_the_solve_in_hand(
@@ -77,7 +77,7 @@ def test_the_newest_usable_run_folder_is_picked_and_the_skipped_one_named(
 
 
 def test_cli_uses_the_newest_usable_run_and_says_so(results: Path, tmp_path: Path) -> None:
-    from station import cli
+    from station.cli import main as cli
 
     out = tmp_path / "out"
     code = cli.main(["discrepancy", str(results), "--dut", "SIM-0001", "--out", str(out)])
@@ -107,7 +107,7 @@ def test_a_three_axis_run_that_ended_before_its_fit_is_refused_not_read_as_one_a
     is refused with one line, and under a results folder it is skipped."""
     import h5py
 
-    from station import cli
+    from station.cli import main as cli
 
     folder = write_run_folder(tmp_path / "results" / "20260102T000000Z_IMU-0001",
                               generate(Part(), 5, TINY), serial="IMU-0001")

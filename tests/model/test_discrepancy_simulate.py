@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from drivers.sim.config import load_sim_config
-from station import cli
+from station.cli import main as cli
 from station.uut import run_simulated
 
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]

@@ -11,8 +11,8 @@ from fake_run_folder import write_run_folder
 from helpers_model import TINY
 from synth_gyro import Part, generate
 
-from procedures.record import FileRef, read_record, write_record
-from station import cli
+from procedures.runtime.record import FileRef, read_record, write_record
+from station.cli import main as cli
 from station.discrepancy_simulate import record_procedure
 from station.errors import UserError
 

@@ -13,7 +13,7 @@ import pytest
 
 from drivers.sim.control_client import ControlClient
 from drivers.sim.launcher import launch_bench
-from procedures.progress import ProgressEvent
+from procedures.runtime.progress import ProgressEvent
 from station.station_file import load_settings
 from station.uut import Endpoints, UutResult, UutRunner
 

@@ -1,4 +1,4 @@
-"""What the engine reads of a step's declarations (procedures.engine.Step), for the tests'
+"""What the engine reads of a step's declarations (procedures.engine.engine.Step), for the tests'
 hand-made steps that declare no measurement."""
 
 from __future__ import annotations

@@ -27,9 +27,9 @@ from typing import Any
 import yaml
 
 from drivers.sim.launcher import BenchStartError, launch_bench
-from procedures.progress import ProgressEvent
-from procedures.record import RAW_DATA_FILE, Verdict, read_record
-from procedures.safe_state import SafeStatePolicy
+from procedures.engine.safe_state import SafeStatePolicy
+from procedures.runtime.progress import ProgressEvent
+from procedures.runtime.record import RAW_DATA_FILE, Verdict, read_record
 from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 

@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.yaml_input import ConfigError
-from procedures.config import load_procedure, load_product
+from common.yaml_input import ConfigError
+from procedures.loading.config import load_procedure, load_product
 from station.station_file import load_settings
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"

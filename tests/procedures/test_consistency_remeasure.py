@@ -14,14 +14,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drivers.yaml_input import ConfigError
+from common.yaml_input import ConfigError
 from procedures.analysis.consistency import (
     part_false_reject_rate,
     per_condition_limit,
     per_condition_rate,
 )
-from procedures.config import load_procedure, load_product, product_for_procedure
-from procedures.record import Outcome, Verdict, read_record
+from procedures.loading.config import load_procedure, load_product, product_for_procedure
+from procedures.runtime.record import Outcome, Verdict, read_record
 from reports.cert_inputs import load_inputs
 from reports.cert_remeasured import remeasured
 from station.uut import run_simulated

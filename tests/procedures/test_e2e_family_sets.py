@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 
 from .conftest import run_on_bench
 from .test_e2e_multisocket import COEFFS

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from procedures.analysis.allan import FLICKER_AVAR_FACTOR
-from procedures.rawdata import read_raw
-from procedures.record import Verdict, read_record
+from procedures.runtime.rawdata import read_raw
+from procedures.runtime.record import Verdict, read_record
 
 from .conftest import SimRun, run_on_bench, truth_series
 
@@ -94,7 +94,7 @@ def test_plateaus_carry_the_references_and_the_wanders_uncertainty(four: SimRun)
     the encoder and that clock make it (a 1 ms stamp would be 50 ppm of an 8 s plateau). Each
     plateau's mean carries the bias wander within it, which a short noise record cannot
     resolve: the product's typical bias instability is its floor."""
-    from procedures.config import load_procedure, load_product
+    from procedures.loading.config import load_procedure, load_product
 
     for sock in (1, 2, 3):
         rec = read_record(four.result.folders[sock])

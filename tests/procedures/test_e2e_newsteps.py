@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from reports.certificate import render_certificate
 from tests.reports.conftest import pdf_text
 

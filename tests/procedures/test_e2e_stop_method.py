@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 
 from .conftest import DATA, run_on_bench
 

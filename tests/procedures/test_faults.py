@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
-from procedures.rawdata import read_raw
-from procedures.record import Verdict, read_record
+from procedures.runtime.rawdata import read_raw
+from procedures.runtime.record import Verdict, read_record
 
 from .conftest import DATA, run_on_bench
 

@@ -2,9 +2,9 @@ from __future__ import annotations
 
 import pytest
 
-from procedures.conditions import Condition, chamber_transitions, plan_conditions
-from procedures.limits import Limit, Limits, judge, outcome_of, overall
-from procedures.record import Outcome
+from procedures.runtime.conditions import Condition, chamber_transitions, plan_conditions
+from procedures.runtime.limits import Limit, Limits, judge, outcome_of, overall
+from procedures.runtime.record import Outcome
 
 
 def test_outcomes_with_marginal_band() -> None:

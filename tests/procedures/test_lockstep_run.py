@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from station.uut import run_simulated
 
 LOCKSTEP_PROC = Path(__file__).resolve().parent / "data" / "lockstep.yaml"

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from drivers.sim.launcher import launch_bench
-from procedures.record import Verdict
+from procedures.runtime.record import Verdict
 from procedures.steps.manual_stop import ManualStop, prompt_text
 from procedures.steps.registry import step_type
 from station.station_file import load_settings
@@ -144,7 +144,7 @@ class _Parts:
         self.dropped.append(reason)
 
     def require(self) -> None:
-        from procedures.run_context import NoPartsLeft
+        from procedures.runtime.run_context import NoPartsLeft
 
         if not self.alive():
             raise NoPartsLeft("every part has dropped out of the run")
@@ -156,7 +156,7 @@ def test_every_socket_dropped_before_the_prompt_ends_the_step_without_a_prompt()
     from types import SimpleNamespace
 
     from drivers.errors import ConnectionLost
-    from procedures.run_context import NoPartsLeft
+    from procedures.runtime.run_context import NoPartsLeft
 
     class DeadInclinometer:
         def read_angle(self, socket: int) -> tuple[float, float]:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.config import load_procedure
+from procedures.loading.config import load_procedure
 from procedures.steps.manual_stop import VerifyManualStop
 from procedures.steps.registry import step_type
 

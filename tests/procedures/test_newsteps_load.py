@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.yaml_input import ConfigError
-from procedures.config import check_procedure_for_product, load_procedure, load_product
+from common.yaml_input import ConfigError
+from procedures.loading.config import check_procedure_for_product, load_procedure, load_product
 from procedures.steps.registry import step_type
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "newsteps"

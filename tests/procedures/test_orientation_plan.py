@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import pytest
 
-from procedures.orientation_plan import faces_for_condition, plan, turns
+from procedures.runtime.orientation_plan import faces_for_condition, plan, turns
 
 
 def test_reference_condition_visits_all_six_faces_starting_where_the_cube_is() -> None:

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
-from drivers.yaml_input import ConfigError
-from procedures.config import load_procedure
-from procedures.plan import build_plan
-from procedures.rawdata import read_raw
-from procedures.record import RAW_DATA_FILE, Verdict, read_record
+from common.yaml_input import ConfigError
+from procedures.loading.config import load_procedure
+from procedures.loading.plan import build_plan
+from procedures.runtime.rawdata import read_raw
+from procedures.runtime.record import RAW_DATA_FILE, Verdict, read_record
 
 from .conftest import SHORT, run_on_bench
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.yaml_input import ConfigError
-from procedures.config import load_procedure
+from common.yaml_input import ConfigError
+from procedures.loading.config import load_procedure
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -6,7 +6,7 @@ import pytest
 import yaml
 from pydantic import ValidationError
 
-from procedures.config import ProductConfig
+from procedures.loading.config import ProductConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 import yaml
 
+from common.clock import ScaledClock
+from common.yaml_input import ConfigError
 from drivers import fixture_protocol as fp
-from drivers.clock import ScaledClock
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import SampleBlock
-from drivers.yaml_input import ConfigError
-from procedures.config import load_product
-from procedures.run_context import RunContext
-from procedures.run_parts import PartRun
-from procedures.streams import PartStream
+from procedures.loading.config import load_product
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import PartRun
+from procedures.runtime.streams import PartStream
 from tests.procedures.test_streams import FakeLink
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"

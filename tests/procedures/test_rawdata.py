@@ -5,7 +5,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from procedures.rawdata import RawDataWriter, read_raw
+from procedures.runtime.rawdata import RawDataWriter, read_raw
 
 SAMPLE = {
     "time_s": [0.01, 0.02], "seq": [0, 1], "rate_code": [1, 2], "temp_code": [3, 4],

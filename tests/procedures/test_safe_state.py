@@ -10,15 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.errors import ChamberFault, ConnectionLost, TableFault, WrongInstrument
 from drivers.protocols import SafeReadback, TableStatus
-from procedures.config import load_procedure, load_product
-from procedures.engine import Engine
-from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
-from procedures.run_context import RunContext
-from procedures.run_parts import Bench, PartRun
-from procedures.safe_state import (
+from procedures.engine.engine import Engine
+from procedures.engine.safe_state import (
     SafeSettingsError,
     SafeStatePass,
     SafeStatePolicy,
@@ -27,6 +23,10 @@ from procedures.safe_state import (
     supply_target,
     table_target,
 )
+from procedures.loading.config import load_procedure, load_product
+from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, read_record
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import Bench, PartRun
 from procedures.steps.base import frames_lost_in
 from procedures.steps.registry import StepPolicy
 from tests.procedures.fake_step import DeclaresNothing

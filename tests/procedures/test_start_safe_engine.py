@@ -9,13 +9,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.protocols import SafeReadback
-from procedures.config import load_procedure, load_product
-from procedures.engine import Engine
-from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record
-from procedures.run_context import RunContext
-from procedures.run_parts import Bench, PartRun
+from procedures.engine.engine import Engine
+from procedures.loading.config import load_procedure, load_product
+from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, read_record
+from procedures.runtime.run_context import RunContext
+from procedures.runtime.run_parts import Bench, PartRun
 from procedures.steps.registry import StepPolicy
 from tests.procedures.fake_step import DeclaresNothing
 

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.protocols import CalibrationRegisters
 from procedures.analysis.errors import AnalysisError
-from procedures.run_parts import ConditionResult, StopScale
+from procedures.runtime.run_parts import ConditionResult, StopScale
 from procedures.steps.fit import scale_estimate
 from procedures.steps.program import readback_differences
 from procedures.steps.thermal import judge_stability

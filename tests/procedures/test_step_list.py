@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drivers.yaml_input import ConfigError
-from procedures.conditions import Condition
-from procedures.config import check_procedure_for_product, load_procedure, load_product
-from procedures.legacy_procedure import convert, load_section_procedure
+from common.yaml_input import ConfigError
+from procedures.loading.config import check_procedure_for_product, load_procedure, load_product
+from procedures.loading.legacy_procedure import convert, load_section_procedure
+from procedures.runtime.conditions import Condition
 from procedures.steps.registry import STEP_GROUP, Declared, StepSettings, step_types
-from station.cli import main
+from station.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "config" / "procedures"
@@ -182,7 +182,7 @@ def test_the_shipped_files_are_their_old_form_converted(name: str) -> None:
     converted = convert(old)
     converted["product"] = str(PRODUCT)
     shipped, _ = load_procedure(SHIPPED / name)
-    from procedures.config import ProcedureConfig
+    from procedures.loading.config import ProcedureConfig
 
     again = ProcedureConfig.model_validate(converted)
     assert [(e.type_name, e.settings, e.policy, e.path) for e in again.entries()] == [

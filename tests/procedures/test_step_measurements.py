@@ -7,10 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from procedures.limits import Limit, Limits
-from procedures.record import Outcome, Verdict, read_record
-from procedures.results import ProgrammingResults
-from procedures.run_context import RunContext
+from procedures.runtime.limits import Limit, Limits
+from procedures.runtime.record import Outcome, Verdict, read_record
+from procedures.runtime.results import ProgrammingResults
+from procedures.runtime.run_context import RunContext
 from procedures.steps.program import Program, ProgramSettings
 from procedures.steps.registry import Declared, Place, StepSettings, StepType
 
@@ -41,7 +41,7 @@ class Measures(StepType[Settings]):
 
 
 def _step(values: dict[str, float], condition: str = "") -> Measures:
-    from procedures.conditions import Condition
+    from procedures.runtime.conditions import Condition
 
     cond = Condition(25.0, 5.0) if condition else None
     return Measures(Settings(values=values), Place(condition=cond))
@@ -49,7 +49,7 @@ def _step(values: dict[str, float], condition: str = "") -> Measures:
 
 def test_a_declared_measurement_never_set_is_not_measured(tmp_path: Path) -> None:
     ctx, _ = _ctx(tmp_path)
-    from procedures.engine import Engine
+    from procedures.engine.engine import Engine
 
     verdicts = Engine(ctx, [_step({"raw_bias_dps": 1.0}, condition="T25_V5")]).run()
     assert verdicts == {1: Verdict.PASS}
@@ -66,7 +66,7 @@ def test_a_declared_measurement_never_set_is_not_measured(tmp_path: Path) -> Non
 
 def test_an_undeclared_measurement_ends_the_run_in_error(tmp_path: Path) -> None:
     ctx, calls = _ctx(tmp_path)
-    from procedures.engine import Engine
+    from procedures.engine.engine import Engine
 
     assert Engine(ctx, [_step({"asymmetry": 0.0})]).run() == {1: Verdict.ERROR}
     rec = read_record(tmp_path / "p1")
@@ -83,7 +83,7 @@ def _stop_part(ctx: RunContext, name: str) -> None:
 def test_on_fail_stop_part_takes_the_failing_part_out_at_once(tmp_path: Path) -> None:
     ctx, _ = _ctx(tmp_path, n_parts=2)
     _stop_part(ctx, "raw_bias_dps")
-    from procedures.engine import Engine
+    from procedures.engine.engine import Engine
 
     Measures.ran = []
 
@@ -111,7 +111,7 @@ def test_on_fail_stop_part_takes_the_failing_part_out_at_once(tmp_path: Path) ->
 
 def test_a_part_that_failed_a_limit_is_never_programmed(tmp_path: Path) -> None:
     ctx, _ = _ctx(tmp_path, n_parts=2)
-    from procedures.engine import Engine
+    from procedures.engine.engine import Engine
 
     class Scale(Measures):
         def main(self, ctx: RunContext) -> None:

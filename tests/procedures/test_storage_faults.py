@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import procedures.rawdata as rawdata
-import procedures.record as record_module
-from procedures.engine import Engine
-from procedures.rawdata import RawDataWriter, read_raw
-from procedures.record import StorageError, Verdict, read_record, storage_error
-from procedures.run_context import RunContext
+import procedures.runtime.rawdata as rawdata
+import procedures.runtime.record as record_module
+from procedures.engine.engine import Engine
+from procedures.runtime.rawdata import RawDataWriter, read_raw
+from procedures.runtime.record import StorageError, Verdict, read_record, storage_error
+from procedures.runtime.run_context import RunContext
 from tests.procedures.test_engine_mechanics import SAFE_START_AND_END, Scripted, _ctx
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -108,8 +108,8 @@ _FILL = textwrap.dedent("""
     import sys
     from pathlib import Path
     import numpy as np
-    import procedures.rawdata as rawdata
-    from procedures.record import StorageError
+    import procedures.runtime.rawdata as rawdata
+    from procedures.runtime.record import StorageError
     rawdata.RESERVE_BYTES = 0
     w = rawdata.RawDataWriter(Path(sys.argv[1]), {"serial": "X"})
     n = 0

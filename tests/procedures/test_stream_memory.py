@@ -8,11 +8,11 @@ import h5py
 import numpy as np
 import pytest
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.fixture_protocol import rate_dps_to_code, temp_c_to_code
 from drivers.protocols import SampleBlock
-from procedures.rawdata import RawDataWriter
-from procedures.streams import PartStream
+from procedures.runtime.rawdata import RawDataWriter
+from procedures.runtime.streams import PartStream
 
 
 class FakeLink:

@@ -4,11 +4,11 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.fixture_protocol import rate_dps_to_code, temp_c_to_code
 from drivers.protocols import SampleBlock
-from procedures.rawdata import RawDataWriter, read_raw
-from procedures.streams import FIXTURE_WRAP_S, PartStream
+from procedures.runtime.rawdata import RawDataWriter, read_raw
+from procedures.runtime.streams import FIXTURE_WRAP_S, PartStream
 
 
 class FakeLink:
@@ -79,7 +79,7 @@ def test_a_lost_stream_is_named_by_its_cause() -> None:
     cable either way, but the record says which)."""
     from types import SimpleNamespace
 
-    from procedures.run_context import _stream_loss_reason
+    from procedures.runtime.run_context import _stream_loss_reason
 
     dropped = SimpleNamespace(frames_lost=40, frames_ok=960, frames_corrupted=0)
     corrupted = SimpleNamespace(frames_lost=40, frames_ok=960, frames_corrupted=12)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.part_codes import CodeFormat
 from drivers.protocols import SampleBlock
-from procedures.streams import XYZ_COLUMNS, PartStream
+from procedures.runtime.streams import XYZ_COLUMNS, PartStream
 from tests.procedures.test_streams import FakeLink, block
 
 CODES = CodeFormat()

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from procedures.config import load_procedure, load_product
-from procedures.plan import build_plan
+from procedures.loading.config import load_procedure, load_product
+from procedures.loading.plan import build_plan
 
 ROOT = Path(__file__).resolve().parents[2]
 # `station run --sim --dut SIM-0001` (lockstep, eol-rate-table.yaml): station time of each

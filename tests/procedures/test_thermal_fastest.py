@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from drivers.errors import SetpointOutOfRange
-from procedures.conditions import Condition
-from procedures.config import ChamberConfig
-from procedures.results import Analysis
-from procedures.run_context import Aborted
+from procedures.loading.config import ChamberConfig
+from procedures.runtime.conditions import Condition
+from procedures.runtime.results import Analysis
+from procedures.runtime.run_context import Aborted
 from procedures.steps.registry import Place
 from procedures.steps.thermal import Stabilise, ThermalSettings
-from procedures.thermal_control import PartThermal, learn_heat_final_c
+from procedures.thermal.thermal_control import PartThermal, learn_heat_final_c
 
 SAMPLE_S = 0.5
 

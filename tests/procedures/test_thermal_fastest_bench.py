@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from station.uut import run_simulated
 
 PROC = Path(__file__).resolve().parent / "data" / "thermal_fastest.yaml"

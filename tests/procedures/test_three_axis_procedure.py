@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from procedures.analysis.three_axis import fit_three_axis
-from procedures.config import check_procedure_for_product, load_procedure, load_product
+from procedures.loading.config import check_procedure_for_product, load_procedure, load_product
 from procedures.steps.cube import prompt_text
 from procedures.steps.three_axis_fit import FitThreeAxis, per_axis_measurements, registers_from
 from tests.analysis.test_three_axis import random_truth, synth_windows

@@ -1,5 +1,5 @@
 """Typed step results (issue 27): record.analysis and record.verification are the models of
-procedures/results.py, record format gyrocal-record/2.
+procedures/runtime/results.py, record format gyrocal-record/2.
 
 - a full run's certificate draws every section the record holds (none says "not in the
   record" / "not recorded" / "Not drawn");
@@ -20,7 +20,7 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
-from procedures.record import (
+from procedures.runtime.record import (
     RECORD_FILE,
     RECORD_FORMAT,
     RECORD_FORMAT_1,
@@ -28,7 +28,7 @@ from procedures.record import (
     Verdict,
     read_record,
 )
-from procedures.results import AllanResults, Analysis, Section, Verification
+from procedures.runtime.results import AllanResults, Analysis, Section, Verification
 from procedures.steps.registry import step_types
 from reports.certificate import certificate_bytes
 from station.manifest import seal
@@ -131,7 +131,7 @@ def test_mypy_catches_a_writer_that_misspells_a_field(tmp_path: Path) -> None:
     """What test_code_quality's mypy run reports when a step's writer and its Results model
     disagree on a name."""
     snippet = tmp_path / "writer.py"
-    snippet.write_text("from procedures.results import AllanResults\n\n"
+    snippet.write_text("from procedures.runtime.results import AllanResults\n\n"
                        "AllanResults(condition='T25', arw_deg_per_sqrth=0.2)\n")
     done = subprocess.run(
         [sys.executable, "-m", "mypy", "--no-incremental", "--follow-imports=silent",

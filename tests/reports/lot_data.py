@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from procedures.record import RunRecord
+from procedures.runtime.record import RunRecord
 from station.results_db import ResultsDB
 from tests.reports.synth_run import Part, make_record
 

@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from procedures.rawdata import RawDataWriter, file_sha256
-from procedures.record import (
+from procedures.runtime.rawdata import RawDataWriter, file_sha256
+from procedures.runtime.record import (
     RAW_DATA_FILE,
     Calibration,
     Coefficient,

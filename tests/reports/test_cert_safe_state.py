@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from procedures.record import read_record, write_record
-from procedures.results import SafeStateResults
+from procedures.runtime.record import read_record, write_record
+from procedures.runtime.results import SafeStateResults
 from reports.certificate import render_certificate
 from tests.reports.conftest import pdf_text
 

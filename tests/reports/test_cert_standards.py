@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from procedures.limits import Limit, Limits, judge
-from procedures.record import Outcome, read_record
+from procedures.runtime.limits import Limit, Limits, judge
+from procedures.runtime.record import Outcome, read_record
 from station.certify import ensure_certificate_number
 from station.station_file import load_settings
 from tests.reports.conftest import pdf_text

@@ -11,7 +11,7 @@ import pytest
 
 from procedures.analysis.temp_fit import fit_temperature, record_summary
 from procedures.analysis.temp_supply_fit import ConditionMeasurement
-from procedures.record import RECORD_FILE, RECORD_FORMAT_1, read_record
+from procedures.runtime.record import RECORD_FILE, RECORD_FORMAT_1, read_record
 from reports.certificate import certificate_bytes, render_certificate
 from tests.reports.conftest import pdf_text
 from tests.reports.synth_run import Part, make_run

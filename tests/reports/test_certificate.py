@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import Verdict, read_record, write_record
-from procedures.results import Analysis, ProgrammingResults
+from procedures.runtime.record import Verdict, read_record, write_record
+from procedures.runtime.results import Analysis, ProgrammingResults
 from reports.certificate import certificate_bytes, render_certificate
 from reports.styles import fmt
 from tests.reports.conftest import need_poppler, pdf_pages, pdf_text
@@ -218,7 +218,7 @@ def test_unfinished_run_is_an_error_certificate(fresh_run: Path) -> None:
 
 @pytest.mark.filterwarnings("error::UserWarning")  # e.g. pydantic's serializer warning
 def test_unmeasured_values_and_markup_in_text_render(fresh_run: Path) -> None:
-    from procedures.record import Measurement, Outcome
+    from procedures.runtime.record import Measurement, Outcome
 
     rec = read_record(fresh_run)
     extra = Measurement(name="g_sensitivity_<dps/g>", value=None, units="deg/s/g", low=0.0,

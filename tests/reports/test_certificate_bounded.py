@@ -9,7 +9,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from procedures.record import read_record, write_record
+from procedures.runtime.record import read_record, write_record
 from reports.certificate import certificate_bytes
 from reports.styles import MAX_TEXT_CHARS, bounded, escape
 

@@ -16,15 +16,15 @@ from typing import Any
 import pytest
 import yaml
 
-from procedures.conditions import Condition
-from procedures.record import (
+from procedures.runtime.conditions import Condition
+from procedures.runtime.record import (
     Calibration,
     ConditionRecord,
     Measurement,
     Outcome,
     write_record,
 )
-from procedures.results import TemperatureFitResults, Verification
+from procedures.runtime.results import TemperatureFitResults, Verification
 from reports.certificate import render_certificate
 from reports.styles import fmt
 from tests.reports.conftest import pdf_text
@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parents[2]
 PRODUCT = REPO / "config" / "products" / "gyr130.yaml"
 
 # The longest names the procedures make: chamber -100..200 C and supply up to 100 V with
-# six significant digits (procedures/conditions.py), verification up to +/-20,000 deg/s.
+# six significant digits (procedures/runtime/conditions.py), verification up to +/-20,000 deg/s.
 CONDITIONS = [Condition(-99.9999, 99.9999).name, Condition(-12.3457, 4.75).name,
               "verify@-20000dps", "verify@-150dps"]
 LONG_VALUES = [-0.000123456789, -123456.789012, -1.23456789e-11, 98765.4321]

@@ -9,7 +9,7 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from procedures.record import RECORD_FILE, RECORD_FORMAT_1, read_record
+from procedures.runtime.record import RECORD_FILE, RECORD_FORMAT_1, read_record
 from reports.certificate import certificate_bytes
 
 _json = st.recursive(
@@ -43,7 +43,7 @@ def test_any_analysis_content_still_gives_a_pdf(pass_run: Path, tmp_path: Path,
     folder = tmp_path / "run"
     if not folder.exists():
         shutil.copytree(pass_run, folder)
-    # A format-2 record refuses such content on validation (procedures/results.py), so
+    # A format-2 record refuses such content on validation (procedures/runtime/results.py), so
     # arbitrary analysis can only come from a format-1 record: written as one, it is read
     # through the converter and must still render.
     data = read_record(pass_run).model_dump(mode="json")

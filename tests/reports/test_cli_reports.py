@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from station.cli import main
+from station.cli.main import main
 from station.pdf_signing import unsigned_revision
 from tests.reports.conftest import pdf_text
 from tests.reports.lot_data import make_lot

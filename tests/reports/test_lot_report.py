@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from procedures.record import Verdict
+from procedures.runtime.record import Verdict
 from reports import lot_stats
 from reports.lot_report import render_lot_report
 from station.results_db import ResultsDB

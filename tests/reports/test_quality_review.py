@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import Verdict
+from procedures.runtime.record import Verdict
 from station.certify import finish_run_folder
 from station.results_db import ResultsDB
 from station.settings import LoadedSettings
@@ -99,7 +99,7 @@ def test_approval_is_visible_on_the_certificate_and_both_signatures_valid(
 def test_a_fail_run_is_approved_only_with_a_remark(
         tmp_path: Path, settings: LoadedSettings) -> None:
     folder = _issued(tmp_path, settings, Part(serial="SIM-FAIL-9", bias_dps=12.5, seed=12))
-    from procedures.record import read_record
+    from procedures.runtime.record import read_record
 
     assert read_record(folder).verdict is Verdict.FAIL
     code, _, err = station("approve", str(folder), "--by", "Q. Engineer",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import Outcome, Verdict
+from procedures.runtime.record import Outcome, Verdict
 from station.results_db import ResultsDB, ResultsDBError
 from tests.reports.lot_data import make_lot
 from tests.reports.synth_run import Part, make_record

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import read_record
+from procedures.runtime.record import read_record
 from station.certify import finish_run_folder
-from station.cli import main
+from station.cli.main import main
 from station.manifest import MANIFEST_FILE
 from station.pdf_signing import unsigned_revision
 from station.settings import LoadedSettings

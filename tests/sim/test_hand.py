@@ -9,7 +9,7 @@ import pytest
 from drivers.sim.config import HandConfig
 from drivers.sim.hand import HandFixture
 from drivers.sim.launcher import launch_bench
-from procedures.progress import ProgressEvent
+from procedures.runtime.progress import ProgressEvent
 from station.prompt_relay import PromptRelay
 from tests.sim.conftest import wait_until
 

@@ -35,7 +35,7 @@ def main() -> int:
             control.close()
 
     launcher.launch_bench = attach
-    from station.cli import main as station_main
+    from station.cli.main import main as station_main
 
     return station_main(sys.argv[2:])
 

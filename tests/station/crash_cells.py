@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.sim.control_client import ControlClient
-from procedures.record import read_record
+from procedures.runtime.record import read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"

@@ -109,7 +109,7 @@ def main() -> int:
     p.add_argument("--until", type=Path)
     args = p.parse_args(argv[:split])
     install(args.marks, args.freeze_at, args.truth_at, args.until)
-    from station.cli import main as station_main
+    from station.cli.main import main as station_main
 
     return int(station_main(argv[split + 1 :]))
 

@@ -40,7 +40,7 @@ import httpx
 import yaml
 
 from drivers.sim.launcher import BenchHandle, launch_bench
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from station.ui.server import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -352,7 +352,7 @@ def _judge(cell: SignalCell, runs: Path, station_yaml: Path) -> None:
 
 def _verify(folder: Path, station_yaml: Path) -> bool:
     """`station verify FOLDER` says intact (run here: the command, without a process start)."""
-    from station.cli import main
+    from station.cli.main import main
 
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from drivers.sim.launcher import launch_bench
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 

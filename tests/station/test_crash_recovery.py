@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from procedures.record import (
+from procedures.runtime.record import (
     Dut,
     Event,
     FileRef,

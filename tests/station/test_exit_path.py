@@ -13,7 +13,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from procedures.safe_state import SafeStatePolicy
+from procedures.engine.safe_state import SafeStatePolicy
 from station.exit_path import ExitPath, exit_bound_s
 
 

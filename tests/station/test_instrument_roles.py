@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.yaml_input import ConfigError
+from common.yaml_input import ConfigError
 from station import instruments as roles
 from station.station_file import load_settings
 from station.uut import Endpoints

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 import station.uut as uut
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.fixture_protocol import OUTPUT_RATES_HZ
 from drivers.protocols import InstrumentIdentity
 from station.errors import UserError

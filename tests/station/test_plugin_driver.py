@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"  # 25 and 35 C, the full 2 x 2 procedure

@@ -246,7 +246,7 @@ def test_a_condition_that_heats_the_die_past_the_parts_maximum_is_refused(
 
 def test_the_predicted_die_counts_self_heating_near_the_maximum(tmp_path: Path) -> None:
     """A setpoint below the maximum whose die, self-heated, would pass it: refused too."""
-    from procedures.config import load_procedure, load_product
+    from procedures.loading.config import load_procedure, load_product
     from station.preflight import part_temperature_problems
 
     proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 80]")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import socket
 
-from procedures.progress import ProgressEvent
+from procedures.runtime.progress import ProgressEvent
 from station.prompt_relay import PromptRelay
 
 

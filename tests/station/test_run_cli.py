@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from procedures.rawdata import read_raw
-from procedures.record import Verdict, read_record
+from procedures.runtime.rawdata import read_raw
+from procedures.runtime.record import Verdict, read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import io
 
-from procedures.progress import ProgressEvent
-from station.cli_run import ProgressDisplay
+from procedures.runtime.progress import ProgressEvent
+from station.cli.run import ProgressDisplay
 
 
 class _Tty(io.StringIO):

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from drivers.sim.launcher import BenchStartError, launch_bench
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"
@@ -170,7 +170,7 @@ def test_part_in_unscanned_socket_refuses_the_run_before_power(tmp_path: Path) -
 def test_shipped_sim_configs_have_serials_the_product_accepts(name: str) -> None:
     import yaml
 
-    from procedures.config import load_product
+    from procedures.loading.config import load_product
     from station.run_folder import validate_serial
 
     product, _ = load_product(ROOT / "config/products/gyr130.yaml")
@@ -205,7 +205,7 @@ def test_out_moves_the_results_db_unless_it_is_the_stations_folder(
 
 
 def test_scanned_serials_are_stripped_before_the_sim_config_is_made() -> None:
-    from station.cli_run import _duts, _sim_config
+    from station.cli.run import _duts, _sim_config
 
     duts = _duts([" QA-0001", "3=QA-0003 "])
     assert duts == {1: "QA-0001", 3: "QA-0003"}

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from drivers.sim.launcher import launch_bench
-from procedures.progress import ProgressEvent
-from procedures.record import Verdict, read_record
+from procedures.runtime.progress import ProgressEvent
+from procedures.runtime.record import Verdict, read_record
 from station.errors import UserError
 from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drivers.yaml_input import ConfigError
-from procedures.safe_state import SafeStatePolicy
+from common.yaml_input import ConfigError
+from procedures.engine.safe_state import SafeStatePolicy
 from station.station_file import load_settings
 from station.uut import UutRunner
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from procedures.record import Dut, FileRef, RunRecord, Verdict, read_record, write_record
+from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, read_record, write_record
 from station.errors import UserError
 from station.run_folder import (
     LOCK_FILE,

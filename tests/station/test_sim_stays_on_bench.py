@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from station.cli import main
+from station.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"

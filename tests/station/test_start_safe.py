@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from station.manifest import Status, verify_folder
 from tests.station.crash_cells import (
     KILL_POINTS,

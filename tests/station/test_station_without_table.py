@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from procedures.config import load_procedure, load_product
-from procedures.run_parts import Bench
+from procedures.loading.config import load_procedure, load_product
+from procedures.runtime.run_parts import Bench
 from station import instruments as roles
 from station.preflight import instrument_problems
 from station.station_file import load_settings

@@ -20,8 +20,8 @@ from typing import Any
 import pytest
 import yaml
 
-from procedures.rawdata import read_raw
-from procedures.record import Verdict, read_record
+from procedures.runtime.rawdata import read_raw
+from procedures.runtime.record import Verdict, read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 PROCEDURE = ROOT / "config/procedures/eol-rate-table.yaml"

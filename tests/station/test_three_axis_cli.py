@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from station.cli_run import _product_axes, _sim_config
+from station.cli.run import _product_axes, _sim_config
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from procedures.progress import ProgressEvent
+from procedures.runtime.progress import ProgressEvent
 from station.uut import run_simulated
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,7 +59,7 @@ def test_three_axis_part_on_the_bench(tmp_path: Path) -> None:
 def _raw_h5_has_the_axes_and_the_windows(folder: Path, record: dict) -> None:
     """raw.h5's /samples_xyz lines up with /samples; every window the fit used is a
     /segments row, and the decoded x, y, z over it give the window's means."""
-    from procedures.rawdata import read_raw
+    from procedures.runtime.rawdata import read_raw
 
     raw = read_raw(folder / "raw.h5")
     assert raw.attrs["axes"] == 3

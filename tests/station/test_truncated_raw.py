@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from station.certify import finish_run_folder
-from station.cli import build_parser, main
+from station.cli.main import build_parser, main
 from station.settings import LoadedSettings
 from station.station_file import load_settings
 from tests.reports.synth_run import Part, make_run
@@ -47,7 +47,7 @@ def sealed(tmp_path_factory: pytest.TempPathFactory, settings: LoadedSettings) -
     finish_run_folder(folder, settings, certificate=False)  # sealed, as a run leaves it
     build_parser()  # the command modules imported once, outside the bound
     import drivers.replay_part  # noqa: F401
-    import station.cli_discrepancy  # noqa: F401
+    import station.cli.discrepancy  # noqa: F401
     return folder
 
 

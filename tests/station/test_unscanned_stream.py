@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.part_link import SerialPartLink
 from drivers.scpi import open_serial
 from drivers.sim.launcher import launch_bench
-from procedures.record import Verdict
+from procedures.runtime.record import Verdict
 from station.station_file import load_settings
 from station.uut import Endpoints, UutRunner
 

@@ -14,7 +14,7 @@ import threading
 from datetime import UTC, datetime
 from pathlib import Path
 
-from procedures.record import (
+from procedures.runtime.record import (
     Dut,
     FileRef,
     Measurement,

@@ -15,7 +15,7 @@ pytest.importorskip(
 )
 from playwright.sync_api import Browser, Page, expect  # noqa: E402
 
-from procedures.record import Measurement, Outcome, Verdict  # noqa: E402
+from procedures.runtime.record import Measurement, Outcome, Verdict  # noqa: E402
 from station.ui.history import result_from_record  # noqa: E402
 from tests.ui.test_operator_screen_browser import HEIGHT, WIDTH, Line  # noqa: E402
 
@@ -37,7 +37,7 @@ def _line(tmp_path: Path) -> Line:
     def varied(socket: int, serial: str, request: object, aborted: bool) -> dict:
         result = write(socket, serial, request, aborted)
         folder = Path(result["run_folder"])
-        from procedures.record import read_record, write_record
+        from procedures.runtime.record import read_record, write_record
 
         record = read_record(folder)
         if socket <= 4:

@@ -179,7 +179,7 @@ def test_station_yaml_language_must_have_a_catalog(tmp_path: Path) -> None:
 def test_product_dispositions_from_the_product_file() -> None:
     from pydantic import ValidationError
 
-    from procedures.config import Dispositions, load_product
+    from procedures.loading.config import Dispositions, load_product
 
     repo = Path(__file__).resolve().parents[2]
     product, _ = load_product(repo / "config" / "products" / "gyr130.yaml")
@@ -194,8 +194,8 @@ def test_engine_runner_forwards_prompts_and_step_types() -> None:
     with each progress event and planned step, and a prompt with its sockets, then its end."""
     from types import SimpleNamespace
 
-    from procedures.config import load_procedure
-    from procedures.progress import ProgressBus, ProgressEvent
+    from procedures.loading.config import load_procedure
+    from procedures.runtime.progress import ProgressBus, ProgressEvent
     from station.ui.runner_adapter import EngineRunner
 
     repo = Path(__file__).resolve().parents[2]

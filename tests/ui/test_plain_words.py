@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from procedures.limits import LIMIT_NAMES
+from procedures.runtime.limits import LIMIT_NAMES
 from procedures.steps.registry import STEP_GROUP
 from station.ui import catalog, plain_words
 from station.ui.plain_words import failure_phrase, step_phrases

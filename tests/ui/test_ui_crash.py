@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from procedures.record import Verdict, read_record
+from procedures.runtime.record import Verdict, read_record
 from tests.ui.stationkit import (
     PASS_SERIAL,
     make_station_config,

@@ -390,7 +390,7 @@ def test_security_settings_from_station_yaml(tmp_path: Path) -> None:
     ],
 )
 def test_bad_ui_settings_are_one_clear_error(tmp_path: Path, ui: dict, message: str) -> None:
-    from drivers.yaml_input import ConfigError
+    from common.yaml_input import ConfigError
     from station.station_file import load_settings
 
     with pytest.raises(ConfigError, match=message):

@@ -176,7 +176,7 @@ def test_login_throttle_backs_off_per_client() -> None:
 
 def test_review_reads_the_results_database_when_there_is_one(tmp_path: Path) -> None:
     """Same answers from the database index as from the run folders themselves."""
-    from procedures.record import Dut, FileRef, RunRecord, Verdict, write_record
+    from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, write_record
     from station.results_db import ResultsDB
     from station.ui.history import History
 

@@ -21,7 +21,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT))
 
-from procedures.record import RunRecord, read_record  # noqa: E402
+from procedures.runtime.record import RunRecord, read_record  # noqa: E402
 from station.uut import run_simulated  # noqa: E402
 
 HERE = Path(__file__).resolve().parent

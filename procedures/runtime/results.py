@@ -132,7 +132,7 @@ class StabilityResults(Section):
     stable_at_fixture_s: Num = None
     condition_set_station_s: Num = None
     measurement_start_station_s: Num = None
-    # the `fastest` strategy's summary (procedures/thermal_control.py)
+    # the `fastest` strategy's summary (procedures/thermal/thermal_control.py)
     strategy: str | None = None
     plan: str | None = None
     die_tau_s: Num = None
@@ -308,7 +308,7 @@ class InstrumentSafeResults(Section):
 
 
 class SafeStateResults(Section):
-    """analysis.start_safe_state and .safe_state_report (procedures.safe_state)."""
+    """analysis.start_safe_state and .safe_state_report (procedures.engine.safe_state)."""
 
     all_safe: bool
     started_station_s: Num = None

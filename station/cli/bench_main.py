@@ -1,4 +1,4 @@
-"""`python -m station.bench_main ARGS` is `station bench ARGS` without importing the other
+"""`python -m station.cli.bench_main ARGS` is `station bench ARGS` without importing the other
 commands (their analysis and report modules): the simulated bench's process starts seconds
 sooner. `drivers.sim.launcher` starts the bench this way.
 
@@ -8,19 +8,19 @@ statistics to PATH when the bench stops (benchmarks/bench_wall.py --profile uses
 import os
 import sys
 
-from station.cli import main
+from station.cli.main import main
 
 
 def _run() -> int:
     args = ["bench", *sys.argv[1:]]
     profile_path = os.environ.get("GYROCAL_BENCH_PROFILE")
     if not profile_path:
-        return main(args, modules=("station.cli_bench",))
+        return main(args, modules=("station.cli.bench",))
     import cProfile  # only when profiling (GYROCAL_BENCH_PROFILE)
 
     profiler = cProfile.Profile()
     try:
-        return int(profiler.runcall(main, args, modules=("station.cli_bench",)) or 0)
+        return int(profiler.runcall(main, args, modules=("station.cli.bench",)) or 0)
     finally:
         profiler.dump_stats(profile_path)
 

@@ -18,9 +18,9 @@ from typing import Any, Literal
 
 from pydantic import ValidationError
 
-from drivers.bounded import MAX_LIST, MAX_REPEATS
-from drivers.yaml_input import ConfigError, LoadedYaml, format_validation_error
-from procedures.conditions import Condition
+from common.bounded import MAX_LIST, MAX_REPEATS
+from common.yaml_input import ConfigError, LoadedYaml, format_validation_error
+from procedures.runtime.conditions import Condition
 from procedures.steps.registry import (
     COMMON_KEYS,
     Declared,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from drivers.clock import Clock
+from common.clock import Clock
 from drivers.errors import InterlockOpen, TableFault
 from drivers.protocols import Watched
 

@@ -1,6 +1,6 @@
 """The parts of a run: one socket's part (`PartRun`), its results per condition, its row buffer.
 
-These are the data a step works on; `procedures.run_context` holds the helpers that wait,
+These are the data a step works on; `procedures.runtime.run_context` holds the helpers that wait,
 log, record and publish around them.
 """
 
@@ -14,16 +14,16 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.protocols import Chamber, Inclinometer, PartLink, RateTable, Supply
 from procedures.analysis.allan import NoiseModel
 from procedures.analysis.rate_table import RateTableFit
 from procedures.analysis.temp_supply_fit import FirstOrderCoefficients
 from procedures.analysis.three_axis import ThreeAxisCalibration, Window
-from procedures.rawdata import RawDataWriter
-from procedures.record import ConditionRecord, RunRecord, StorageError, Verdict
-from procedures.streams import PartStream
-from procedures.thermal_control import PartThermal
+from procedures.runtime.rawdata import RawDataWriter
+from procedures.runtime.record import ConditionRecord, RunRecord, StorageError, Verdict
+from procedures.runtime.streams import PartStream
+from procedures.thermal.thermal_control import PartThermal
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ class ProgrammableFit(Protocol):
 
 @dataclass(frozen=True)
 class KeptRecord:
-    """Where the run's end wrote record.json (None: nowhere; procedures.record
+    """Where the run's end wrote record.json (None: nowhere; procedures.runtime.record
     .save_record_anywhere)."""
 
     path: Path | None

@@ -23,18 +23,18 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drivers.clock import ScaledClock
+from common.clock import ScaledClock
 from drivers.errors import InstrumentError, PartAbsent, PartSilent, StreamCorrupted
 from drivers.protocols import Chamber, RateTable, Supply, TableStatus
-from procedures.limits import judge
-from procedures.progress import ProgressBus, ProgressEvent
-from procedures.record import Event, Measurement, Outcome, Verdict, write_record
-from procedures.run_parts import Bench, PartRun
-from procedures.watchdog import Watchdog
+from procedures.runtime.limits import judge
+from procedures.runtime.progress import ProgressBus, ProgressEvent
+from procedures.runtime.record import Event, Measurement, Outcome, Verdict, write_record
+from procedures.runtime.run_parts import Bench, PartRun
+from procedures.runtime.watchdog import Watchdog
 
 if TYPE_CHECKING:
-    from procedures.config import ProcedureConfig, ProductConfig
-    from procedures.streams import PartStream
+    from procedures.loading.config import ProcedureConfig, ProductConfig
+    from procedures.runtime.streams import PartStream
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")

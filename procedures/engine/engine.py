@@ -25,18 +25,7 @@ from contextlib import contextmanager
 from typing import Protocol
 
 from drivers.errors import InstrumentError, InstrumentTimeout
-from procedures.limits import overall
-from procedures.record import Event, Outcome, Verdict, os_error_text, save_record_anywhere
-from procedures.results import PlanResults, SafeStateResults, StreamResults
-from procedures.run_context import (
-    Aborted,
-    NoPartsLeft,
-    RunContext,
-    StepTimeout,
-    utc_now,
-)
-from procedures.run_parts import KeptRecord, PartRun
-from procedures.safe_state import (
+from procedures.engine.safe_state import (
     InstrumentSafeState,
     SafeStatePass,
     SafeStatePolicy,
@@ -47,8 +36,19 @@ from procedures.safe_state import (
     supply_target,
     table_target,
 )
+from procedures.runtime.limits import overall
+from procedures.runtime.record import Event, Outcome, Verdict, os_error_text, save_record_anywhere
+from procedures.runtime.results import PlanResults, SafeStateResults, StreamResults
+from procedures.runtime.run_context import (
+    Aborted,
+    NoPartsLeft,
+    RunContext,
+    StepTimeout,
+    utc_now,
+)
+from procedures.runtime.run_parts import KeptRecord, PartRun
+from procedures.runtime.streams import Acquisition
 from procedures.steps.registry import Declared, StepPolicy, StepSettings
-from procedures.streams import Acquisition
 
 log = logging.getLogger(__name__)
 
@@ -397,7 +397,7 @@ class Engine:
     @staticmethod
     def _keep(part: PartRun) -> None:
         """Write the record whatever the disk does: in the run folder, else in the fallback
-        folder (procedures.record.save_record_anywhere, docs/safety.md); never raises."""
+        folder (procedures.runtime.record.save_record_anywhere, docs/safety.md); never raises."""
         part.kept = KeptRecord(save_record_anywhere(part.folder, part.record))
 
     def _judge(self, part: PartRun) -> None:

@@ -8,7 +8,8 @@ as the run goes (`learn_die_tau_s`; the product file gives the starting value). 
 overshoot and the hold are searched for the soonest time the die enters its band and stays,
 within the chamber's setpoint limits, a maximum overshoot and the product's maximum part
 temperature. With no overshoot allowed it is the `setpoint` strategy (straight to target).
-procedures/chamber_profile.py plans freer profiles (and the physics bound) on the same model.
+procedures/thermal/chamber_profile.py plans freer profiles (and the physics bound) on the same
+model.
 The stability criterion itself is unchanged and is still judged on each part's own sensor.
 """
 

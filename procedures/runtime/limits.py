@@ -14,8 +14,8 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from drivers.bounded import ShortName
-from procedures.record import Measurement, Outcome
+from common.bounded import ShortName
+from procedures.runtime.record import Measurement, Outcome
 from procedures.units import LimitValue, StrictModel
 
 

@@ -27,7 +27,7 @@ from pydantic import (
     model_validator,
 )
 
-from procedures.results import (
+from procedures.runtime.results import (
     Analysis,
     Verification,
     analysis_from_format_1,
@@ -36,7 +36,7 @@ from procedures.results import (
 
 log = logging.getLogger(__name__)
 
-RECORD_FORMAT = "gyrocal-record/2"  # analysis and verification typed (procedures/results.py)
+RECORD_FORMAT = "gyrocal-record/2"  # typed analysis and verification (runtime/results.py)
 RECORD_FORMAT_1 = "gyrocal-record/1"  # free dicts; read through the converter
 RECORD_FILE = "record.json"
 MAX_RECORD_BYTES = 64 * 2**20  # read_record reads no more (a record is tens of kB)

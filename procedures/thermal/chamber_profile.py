@@ -1,6 +1,6 @@
 """Chamber setpoint profiles from a linear programme (no I/O).
 
-The chamber and die model of procedures/chamber_strategy.py on a STEP_S grid: the ramped
+The chamber and die model of procedures/thermal/chamber_strategy.py on a STEP_S grid: the ramped
 setpoint moves by at most the ramp limit per step, the air follows it with `air_tau_s`, each die
 follows the air with its own lag, and a part's reading is its die plus its self-heating. Every
 quantity is linear in the ramp rates, so "is there a profile after which every die meets the
@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linprog
 from scipy.sparse import coo_matrix
 
-from procedures.chamber_strategy import (
+from procedures.thermal.chamber_strategy import (
     Criterion,
     DieState,
     ThermalLimits,

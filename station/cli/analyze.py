@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.bounded import MAX_RATE_DPS
-from drivers.csv_rows import shown
+from common.bounded import MAX_RATE_DPS
+from common.csv_rows import shown
 from drivers.fixture_protocol import RATED_RANGE_DPS
 from procedures.analysis.allan import AllanAnalysis, analyze_allan, check_static
 from procedures.analysis.errors import AnalysisError
@@ -27,7 +27,7 @@ from procedures.analysis.stop_method import (
     StopMethodSettings,
     analyze_stop_method,
 )
-from station.cli_multi_position import add_multi_position
+from station.cli.multi_position import add_multi_position
 from station.csv_input import read_csv_rows
 from station.errors import UserError
 

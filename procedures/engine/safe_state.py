@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 
-from drivers.clock import Clock
+from common.clock import Clock
 from drivers.errors import WrongInstrument
 from drivers.protocols import (
     Chamber,

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from procedures.record import CERTIFICATE_FILE, RAW_DATA_FILE, RECORD_FILE, read_record
+from procedures.runtime.record import CERTIFICATE_FILE, RAW_DATA_FILE, RECORD_FILE, read_record
 from reports.lot_rows import RunRow
 from station.errors import UserError
 from station.manifest import MANIFEST_FILE, verify_folder

@@ -23,10 +23,10 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from drivers.yaml_input import ConfigError, read_yaml
-from procedures.config import ProcedureConfig, ProductConfig, load_procedure, load_product
-from procedures.progress import ProgressEvent
-from procedures.step_list import procedure_json_schema
+from common.yaml_input import ConfigError, read_yaml
+from procedures.loading.config import ProcedureConfig, ProductConfig, load_procedure, load_product
+from procedures.loading.step_list import procedure_json_schema
+from procedures.runtime.progress import ProgressEvent
 from station.errors import UserError
 from station.exit_path import ExitPath, exit_bound_s
 from station.settings import CONFIG_DIR, StationSettings

@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from drivers.bounded import (
+from common.bounded import (
     MAX_LIST,
     ONE_HOUR_S,
     Name,
@@ -22,8 +22,8 @@ from drivers.bounded import (
     ShortName,
     Text,
 )
-from drivers.yaml_input import LoadedYaml, load_yaml_model
-from procedures.config import ChamberConfig, ConditionsConfig, StreamConfig
+from common.yaml_input import LoadedYaml, load_yaml_model
+from procedures.loading.config import ChamberConfig, ConditionsConfig, StreamConfig
 from procedures.steps.bias import BiasSettings
 from procedures.steps.fit import FitSettings
 from procedures.steps.positions import PositionsSettings

@@ -2,8 +2,8 @@
 
 At a condition's start the controller plans a setpoint profile for every part's die, each with
 its own lag and self-heating, and commands it: the sooner of the linear programme's profile
-(procedures/chamber_profile.py) and a bounded overshoot held, then the target
-(procedures/chamber_strategy.py). Every check it advances its estimate of the chamber's
+(procedures/thermal/chamber_profile.py) and a bounded overshoot held, then the target
+(procedures/thermal/chamber_strategy.py). Every check it advances its estimate of the chamber's
 ramped setpoint, records the air and each part's own reading, and every
 `replan_interval_s` learns each die's lag from those readings and plans again from where
 things are. The self-heating step of a supply change is predicted from the reading's excess
@@ -20,8 +20,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from procedures.chamber_profile import ProfilePlan, plan_lp_profile
-from procedures.chamber_strategy import (
+from procedures.thermal.chamber_profile import ProfilePlan, plan_lp_profile
+from procedures.thermal.chamber_strategy import (
     Criterion,
     DieState,
     SetpointPlan,

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from station.cli_signing import station_settings, trusted_for
+from station.cli.signing import station_settings, trusted_for
 from station.errors import UserError
 from station.results_db import ResultsDB, ResultsDBError
 from station.retention import ArchiveFailed, archive_runs

@@ -1,6 +1,6 @@
 """The `station` command line.
 
-Each group of commands lives in its own module (`station/cli_*.py`) exposing
+Each group of commands lives in its own module (`station/cli/*.py`) exposing
 `register(subparsers)`, which adds its subcommands with a `handler(args) -> int` default.
 Errors meant for the user are `UserError`: printed as one clear line, exit code 2.
 """
@@ -17,16 +17,16 @@ from station import __version__
 from station.errors import UserError
 
 COMMAND_MODULES = (
-    "station.cli_bench",  # bench
-    "station.cli_run",  # run, demo, schema
-    "station.cli_analyze",  # analyze stop-method | allan
-    "station.cli_reports",  # report, history, lot-report
-    "station.cli_discrepancy",  # discrepancy
-    "station.cli_ui",  # ui
-    "station.cli_line",  # line, sync, export
-    "station.cli_signing",  # verify, approve
-    "station.cli_archive",  # archive
-    "station.cli_procedure",  # procedure convert
+    "station.cli.bench",  # bench
+    "station.cli.run",  # run, demo, schema
+    "station.cli.analyze",  # analyze stop-method | allan
+    "station.cli.reports",  # report, history, lot-report
+    "station.cli.discrepancy",  # discrepancy
+    "station.cli.ui",  # ui
+    "station.cli.line",  # line, sync, export
+    "station.cli.signing",  # verify, approve
+    "station.cli.archive",  # archive
+    "station.cli.procedure",  # procedure convert
 )
 
 

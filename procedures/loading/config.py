@@ -21,7 +21,7 @@ from pydantic import (
     model_validator,
 )
 
-from drivers.bounded import (
+from common.bounded import (
     MAX_LIST,
     MAX_RATE_DPS,
     ONE_HOUR_S,
@@ -30,23 +30,30 @@ from drivers.bounded import (
     ShortName,
     Text,
 )
-from drivers.part_codes import CodeFormat
-from drivers.yaml_input import (
+from common.yaml_input import (
     ConfigError,
     LoadedYaml,
     format_validation_error,
     load_yaml_model,
     read_yaml,
 )
+from drivers.part_codes import CodeFormat
 from procedures.analysis.consistency import per_condition_limit
-from procedures.conditions import Condition, plan_conditions
-from procedures.limits import LIMIT_NAMES, Limit, Limits
-from procedures.step_list import Node, StepEntry, entries, expand, measurement_problems, parse_steps
+from procedures.loading.step_list import (
+    Node,
+    StepEntry,
+    entries,
+    expand,
+    measurement_problems,
+    parse_steps,
+)
+from procedures.runtime.conditions import Condition, plan_conditions
+from procedures.runtime.limits import LIMIT_NAMES, Limit, Limits
 from procedures.steps.registry import StepType
 from procedures.units import ChamberTemp, Seconds, StrictModel, Volts
 
 # ---------------------------------------------------------------- YAML with line numbers
-# The bounded reader lives with the lowest layer (drivers.yaml_input) so that the simulated
+# The bounded reader lives with the lowest layer (common.yaml_input) so that the simulated
 # bench's configuration and station.yaml are read by the same code; import it from there.
 
 
@@ -418,7 +425,7 @@ class ProcedureConfig(StrictModel):
         return found[0].settings if found else None
 
 
-# the keys that mark a procedure file in the old section form (procedures.legacy_procedure
+# the keys that mark a procedure file in the old section form (procedures.loading.legacy_procedure
 # reads and converts such a file; load_procedure refuses it)
 SECTION_KEYS = ("power", "stability", "bias", "rate_table", "stop_method", "positions", "fit",
                 "verify")

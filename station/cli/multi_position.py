@@ -23,8 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from drivers.bounded import MAX_RATE_DPS
-from drivers.csv_rows import shown
+from common.bounded import MAX_RATE_DPS
+from common.csv_rows import shown
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.multi_position import (
     AXES,

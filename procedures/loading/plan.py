@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from procedures.config import ProcedureConfig
+from procedures.loading.config import ProcedureConfig
 from procedures.steps.registry import StepType
 
 

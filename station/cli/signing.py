@@ -54,7 +54,7 @@ def station_settings(path: str | None) -> object | None:
 def trusted_for(args: argparse.Namespace) -> tuple[set[str] | None, str]:
     """The fingerprints to accept and a sentence saying where they came from."""
     # station.certify loads pyhanko (PDF signing, ~270 modules): only for the commands that
-    # check signatures, not at every `station` start (station.cli imports every command group)
+    # check signatures, not at every `station` start (station.cli.main imports every command group)
     from station.certify import trusted_fingerprints
 
     if args.trust:

@@ -26,13 +26,13 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.clock import Clock
+from common.clock import Clock
 from drivers.errors import InstrumentError, PartSilent
 from drivers.fixture_protocol import SEQ_MODULO
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import PartLink, SampleBlock
-from procedures.rawdata import RawDataWriter
-from procedures.record import StorageError
+from procedures.runtime.rawdata import RawDataWriter
+from procedures.runtime.record import StorageError
 
 log = logging.getLogger(__name__)
 

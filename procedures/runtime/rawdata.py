@@ -46,8 +46,8 @@ import h5py
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.h5_input import H5InputError, one_line, open_h5
-from procedures.record import StorageError, storage_error
+from common.h5_input import H5InputError, one_line, open_h5
+from procedures.runtime.record import StorageError, storage_error
 
 log = logging.getLogger(__name__)
 

@@ -8,9 +8,9 @@ from typing import Any
 
 import yaml
 
-from drivers.yaml_input import ConfigError
-from procedures.config import is_section_form, load_procedure, load_yaml
-from procedures.legacy_procedure import convert, load_section_procedure
+from common.yaml_input import ConfigError
+from procedures.loading.config import is_section_form, load_procedure, load_yaml
+from procedures.loading.legacy_procedure import convert, load_section_procedure
 from station.errors import UserError
 
 HEADER = (
