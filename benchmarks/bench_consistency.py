@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from procedures.analysis.consistency import part_false_reject_rate  # noqa: E402
-from station.uut import run_simulated  # noqa: E402
+from station.sim_run import run_simulated  # noqa: E402
 
 OLD_LIMIT = 3.0  # the fixed per-condition |E_n| limit gyr130 had before the product setting
 

@@ -51,7 +51,7 @@ from procedures.thermal.chamber_strategy import (  # noqa: E402
     ThermalLimits,
     ThermalModel,
 )
-from station.uut import run_simulated  # noqa: E402
+from station.sim_run import run_simulated  # noqa: E402
 
 
 def cpu_s() -> float:

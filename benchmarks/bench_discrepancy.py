@@ -231,7 +231,7 @@ HIDDEN_ANGLE_2ND = {"lib_angleh2": {"amplitude_dps": 0.03, "phase_deg": 30.0}}
 def station_run_folder(workdir: Path, speed: float) -> Path:
     """One full station run of the default procedure on the simulated bench: a population
     part with a bias at twice the table angle (a generic term the bench carries)."""
-    from station.uut import run_simulated
+    from station.sim_run import run_simulated
 
     part = {"socket": 1, "serial": "SIM-6201", "effects": HIDDEN_ANGLE_2ND}
     t0 = time.perf_counter()

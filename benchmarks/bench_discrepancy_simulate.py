@@ -51,7 +51,7 @@ def _window_inputs(folder: Path, serial: str
 
 def one_part(serial: str, amplitude: float, speed: float | None, work: Path) -> dict[str, float]:
     from station.cli import main as cli
-    from station.uut import run_simulated
+    from station.sim_run import run_simulated
 
     part = {"socket": 1, "serial": serial,
             "effects": {"lib_angleh2": {"amplitude_dps": amplitude, "phase_deg": 30.0}}}

@@ -126,8 +126,9 @@ def print_round_trips(rows: list[dict[str, Any]]) -> None:
 
 def procedure_times(procedure: Path, speed: float) -> list[dict[str, Any]]:
     """The full procedure on one part with each family set: station time from the record."""
+    from station.endpoints import Endpoints
     from station.station_file import load_settings
-    from station.uut import Endpoints, UutRunner
+    from station.uut import UutRunner
 
     out = Path(tempfile.mkdtemp(prefix="bench-instruments-"))
     rows = []

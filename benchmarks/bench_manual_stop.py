@@ -28,8 +28,9 @@ sys.path.insert(0, str(ROOT))
 from drivers.sim.launcher import launch_bench  # noqa: E402
 from procedures.runtime.progress import ProgressEvent  # noqa: E402
 from procedures.runtime.record import read_record  # noqa: E402
+from station.endpoints import Endpoints  # noqa: E402
 from station.station_file import load_settings  # noqa: E402
-from station.uut import Endpoints, UutRunner  # noqa: E402
+from station.uut import UutRunner  # noqa: E402
 
 
 def run_part(index: int, procedure: Path, speed: float, out: Path) -> dict[str, Any]:

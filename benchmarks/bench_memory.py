@@ -28,8 +28,8 @@ sys.path.insert(0, str(ROOT))
 from drivers.fixture_protocol import sample_stream_baud  # noqa: E402
 from procedures.runtime.record import read_record  # noqa: E402
 from station.settings import LoadedSettings  # noqa: E402
+from station.sim_run import run_simulated  # noqa: E402
 from station.station_file import load_settings  # noqa: E402
-from station.uut import run_simulated  # noqa: E402
 
 
 def rss_mb() -> float:

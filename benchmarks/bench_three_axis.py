@@ -79,7 +79,7 @@ def full_runs(n_parts: int, load: int, procedure: Path, seed: int) -> None:
     """N parts through the station on the bench; coverage, error/U and station time."""
     import tempfile
 
-    from station.uut import run_simulated
+    from station.sim_run import run_simulated
 
     inside: dict[str, list[bool]] = {n: [] for n in NAMES}
     z2: dict[str, list[float]] = {n: [] for n in NAMES}

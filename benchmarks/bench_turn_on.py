@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from procedures.runtime.record import read_record  # noqa: E402
-from station.uut import run_simulated  # noqa: E402
+from station.sim_run import run_simulated  # noqa: E402
 
 PROCEDURE = ROOT / "tests/data/newsteps/turn_on_only.yaml"
 NAME = "turn_on_bias_repeatability_dps"

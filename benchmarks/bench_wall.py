@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from procedures.runtime.record import read_record  # noqa: E402
-from station.uut import run_simulated  # noqa: E402
+from station.sim_run import run_simulated  # noqa: E402
 
 HOG = "import os\nos.nice(5)\nwhile True:\n    pass\n"
 

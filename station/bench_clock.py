@@ -10,7 +10,7 @@ from common.clock import LockstepClock, ScaledClock
 
 
 class BenchTiming(Protocol):
-    """What the clock needs to know of the bench (station.uut.Endpoints has it)."""
+    """What the clock needs to know of the bench (station.endpoints.Endpoints has it)."""
 
     @property
     def speed(self) -> float: ...

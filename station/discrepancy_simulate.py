@@ -97,7 +97,8 @@ def run_twin(
     """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
     # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchStartError
-    from station.uut import run_simulated
+    from procedures.runtime.record import read_record
+    from station.sim_run import run_simulated
 
     for attempt in range(1, BENCH_START_ATTEMPTS + 1):
         try:

@@ -27,7 +27,7 @@ from station.errors import UserError
 from station.settings import FixtureSettings, InstrumentSettings, LoadedSettings
 
 if TYPE_CHECKING:
-    from station.uut import Endpoints
+    from station.endpoints import Endpoints
 
 log = logging.getLogger(__name__)
 

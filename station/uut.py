@@ -9,47 +9,31 @@ The small API the CLI uses and the browser UI will use:
     runner.state()                                        # {"state": "running", "step": ...}
     result = runner.wait()                                # UutResult: folders, verdicts, PDFs
 
-`endpoints` (from the simulated bench's state file) replaces the addresses of station.yaml,
-chooses the driver of every role station.yaml leaves to its default (the family each twin
-serves) and sets the clock's speed; real instruments run at speed 1. Every instrument is
-opened through its configured driver (`station.instruments`, `drivers.registry`) and the
+`endpoints` (station/endpoints.py, from the simulated bench's state file) replaces the
+addresses of station.yaml, chooses the driver of every role station.yaml leaves to its default
+(the family each twin serves) and sets the clock's speed; real instruments run at speed 1.
+Every instrument is opened through its configured driver (station/open_bench.py) and the
 procedure is checked against what they report (`station.preflight`) before any run folder
-exists.
+exists; each part's run folder starts with station/part_record.py. The fixture's baud
+arithmetic is station/link_speed.py, a cycle on a fresh simulated bench station/sim_run.py.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import logging
-import socket as socketlib
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from common.clock import ScaledClock
 from common.yaml_input import ConfigError
 from drivers.errors import InstrumentError
-from drivers.fixture_protocol import (
-    OUTPUT_RATES_HZ,
-    SAMPLE3_FRAME_SIZE,
-    SAMPLE_FRAME_SIZE,
-    sample_stream_baud,
-)
-from drivers.protocols import (
-    Chamber,
-    InstrumentIdentity,
-    PartLink,
-    RateTable,
-    StreamReadsBackSafe,
-    Supply,
-)
+from drivers.protocols import PartLink, StreamReadsBackSafe
 from procedures.engine.engine import Engine
 from procedures.engine.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
 from procedures.loading.config import (
-    ProcedureConfig,
-    ProductConfig,
     check_procedure_for_product,
     load_procedure,
     load_product,
@@ -57,85 +41,37 @@ from procedures.loading.config import (
 )
 from procedures.loading.plan import build_plan
 from procedures.runtime.progress import ProgressBus, ProgressEvent
-from procedures.runtime.rawdata import RawDataWriter, file_sha256
+from procedures.runtime.rawdata import file_sha256
 from procedures.runtime.record import (
     RAW_DATA_FILE,
-    Dut,
     Event,
-    FileRef,
-    InstrumentRecord,
-    RunRecord,
     Verdict,
     os_error_text,
     read_record,
     save_record_anywhere,
-    write_record,
 )
 from procedures.runtime.run_context import RunContext
-from procedures.runtime.run_parts import Bench, KeptRecord, PartRun
+from procedures.runtime.run_parts import KeptRecord, PartRun
 from procedures.runtime.streams import PartStream
-from station import __version__, preflight
 from station import instruments as roles
-from station.bench_clock import station_clock
+from station import preflight
+from station.endpoints import Endpoints
 from station.errors import UserError
 from station.instrument_lock import InstrumentLock, lock_instruments
-from station.prompt_relay import PromptRelay
-from station.run_folder import (
-    check_output_folder,
-    create_run_folder,
-    recover_crashed_runs,
-    release,
-    validate_serial,
+from station.link_speed import link_speed_problem
+from station.open_bench import (
+    OpenBench,
+    instrument_record,
+    open_bench,
+    open_part_link,
+    silent_floor_s,
 )
+from station.part_record import new_part
+from station.prompt_relay import PromptRelay
+from station.run_folder import check_output_folder, recover_crashed_runs, release, validate_serial
 from station.settings import LoadedSettings
-from station.station_file import load_settings
-
-if TYPE_CHECKING:
-    from drivers.sim.launcher import BenchEndpoints
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Endpoints:
-    """Where the instruments are, when they are not where station.yaml says (the sim bench)."""
-
-    speed: float
-    rate_table: str
-    chamber: str
-    supply: str
-    duts: dict[int, str]
-    # role -> the family its twin serves (the station picks `<role>.<family>`)
-    families: dict[str, str] = field(default_factory=dict)
-    # where the simulated operator reads the station's prompts ('' = nobody simulated)
-    operator: str = ""
-    # socket -> the inclinometer twin on that socket's fixture (none when the bench has none)
-    inclinometers: dict[int, str] = field(default_factory=dict)
-    lockstep: bool = False  # the bench's world moves only when the station's clock asks
-    control: str = ""  # the bench's control channel (host:port)
-
-    @classmethod
-    def of_bench(cls, e: BenchEndpoints) -> Endpoints:
-        """The simulated bench's endpoints (its state file) as the station's."""
-        return cls(
-            speed=e.speed, rate_table=e.rate_table, chamber=e.chamber, supply=e.supply,
-            duts=dict(e.duts), families=dict(e.families),
-            operator=str(e.raw.get("operator", "") or ""),
-            inclinometers={int(k): str(v) for k, v in (e.raw.get("inclinometers") or {}).items()},
-            lockstep=e.lockstep, control=e.control,
-        )
-
-    def address(self, role: str) -> str:
-        """The twin's address of a station role in its driver's form ('' if none)."""
-        return str(getattr(self, role, "") or "") if role in (
-            "rate_table", "chamber", "supply") else ""
-
-    def serves(self, role: str) -> bool:
-        """Whether the bench has a twin for a station role (the inclinometer: one on a
-        fixture); a role it does not serve must never be reached at station.yaml's address."""
-        if role == "inclinometer":
-            return bool(self.inclinometers)
-        return bool(self.address(role))
 
 
 @dataclass
@@ -158,149 +94,6 @@ class UutResult:
         ):
             return 2
         return 1 if any(v is Verdict.FAIL for v in self.verdicts.values()) else 0
-
-
-# ---------------------------------------------------------------- instruments
-
-
-@dataclass
-class OpenBench:
-    bench: Bench
-    instruments: list[InstrumentRecord]
-    closers: list[Callable[[], None]]
-    names: dict[str, str] = field(default_factory=dict)  # role -> "driver at address"
-
-    def close(self) -> None:
-        for closer in reversed(self.closers):
-            try:
-                closer()
-            except Exception as exc:  # closing a dead link must not hide the run's result
-                log.info("closing an instrument: %s", exc)
-
-
-def _record(
-    role: str,
-    ident: InstrumentIdentity | None,
-    address: str,
-    due: dt.date | None = None,
-) -> InstrumentRecord:
-    return InstrumentRecord(
-        role=role,
-        manufacturer=ident.manufacturer if ident else "",
-        model=ident.model if ident else "",
-        serial=ident.serial if ident else "",
-        firmware=ident.firmware if ident else "",
-        address=address,
-        calibration_due=due.isoformat() if due else None,
-        calibration_overdue=bool(due and due < dt.date.today()),
-    )
-
-
-# share of the fixture link's baud the sample stream may take; the rest carries replies
-LINK_BAUD_SHARE = 0.9
-_STANDARD_BAUDS = (19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600)
-
-
-def link_speed_problem(output_rate_hz: int, baud: int, axes: int = 1) -> str | None:
-    """Why a fixture link at `baud` cannot carry samples at `output_rate_hz`, or None
-    (`axes=3`: a three-axis part's longer frames)."""
-    needed = sample_stream_baud(output_rate_hz, axes)
-    if needed <= LINK_BAUD_SHARE * baud:
-        return None
-    enough = [b for b in _STANDARD_BAUDS if needed <= LINK_BAUD_SHARE * b]
-    raise_to = f"to {enough[0]:,}" if enough else f"above {needed / LINK_BAUD_SHARE:,.0f}"
-    fits = [r for r in OUTPUT_RATES_HZ if sample_stream_baud(r, axes) <= LINK_BAUD_SHARE * baud]
-    lower_to = f" to {fits[-1]} Hz or less" if fits else ""
-    frame_size = SAMPLE3_FRAME_SIZE if axes == 3 else SAMPLE_FRAME_SIZE
-    return (
-        f"an output rate of {output_rate_hz} Hz needs {needed:,} baud for its "
-        f"{frame_size}-byte sample frames, more than {LINK_BAUD_SHARE:.0%} of the "
-        f"fixture's {baud:,} baud (the rest is kept for replies): raise instruments.fixture.baud "
-        f"in station.yaml {raise_to} (the fixtures must be set to the same rate) or lower "
-        f"power.output_rate_hz in the procedure{lower_to}"
-    )
-
-
-def open_part_link(
-    settings: LoadedSettings,
-    socket: int,
-    port: str,
-    clock: ScaledClock,
-    silent_after_s: float,
-    endpoints: Endpoints | None = None,
-) -> PartLink:
-    """The part driver of one socket (station.yaml's part role, default `part.fixture`), at the
-    fixture's configured baud; it judges silence after `silent_after_s` station s (floored)."""
-    plan = roles.plan_part(settings, socket, port, endpoints)
-    link: PartLink = roles.open_role(settings, plan, clock)
-    if hasattr(link, "silent_after_s"):
-        # frame loss is judged by the engine against the procedure's fraction, not by the
-        # driver; silence needs a wall-time floor too: at 200x, 5 station s are 25 wall ms
-        link.silent_after_s = silent_floor_s(silent_after_s, clock)
-    return link
-
-
-def silent_floor_s(silent_after_s: float, clock: ScaledClock, wall_floor_s: float = 1.0) -> float:
-    """Station seconds of silence before a part counts as silent (at least `wall_floor_s` wall,
-    and two of a lockstep clock's steps: a step's frames arrive only after it)."""
-    return max(silent_after_s, wall_floor_s * clock.speed, 2 * clock.check_every_s)
-
-
-def open_bench(
-    settings: LoadedSettings,
-    sockets: list[int],
-    endpoints: Endpoints | None,
-    needs_table: bool,
-    silent_after_s: float = 5.0,
-) -> OpenBench:
-    """Open every role through its configured driver (station.yaml `driver:`, or the family
-    the bench's twin serves). A bad driver name or setting is a UserError (file:line); an
-    instrument that cannot be reached raises `station.instruments.Unreachable`."""
-    closers: list[Callable[[], None]] = []
-    clock = station_clock(endpoints, closers)
-    records: list[InstrumentRecord] = []
-    names: dict[str, str] = {}
-    opened: dict[str, Any] = {}
-    try:
-        for role in roles.station_roles(needs_table):
-            plan = roles.plan_role(settings, role, endpoints)
-            if plan is None:
-                continue
-            driver = roles.open_role(settings, plan, clock)
-            closers.append(driver.close)
-            opened[role] = driver
-            names[role] = f"the {plan.label} ({plan.name} at {plan.address})"
-            records.append(
-                _record(role, roles.identity(driver), plan.address, plan.calibration_due)
-            )
-        ports = endpoints.duts if endpoints else settings.settings.instruments.fixture.ports
-        links: dict[int, PartLink] = {}
-        for s in sockets:
-            port = ports.get(s)
-            if not port:
-                raise UserError(
-                    f"socket {s} has no fixture port (station.yaml instruments.fixture.ports "
-                    "or the bench's sockets); load fewer parts or configure the socket"
-                )
-            link = open_part_link(settings, s, port, clock, silent_after_s, endpoints)
-            closers.append(link.close)
-            links[s] = link
-        chamber: Chamber = opened["chamber"]
-        supply: Supply = opened["supply"]
-        table: RateTable | None = opened.get("rate_table")
-        return OpenBench(
-            Bench(chamber=chamber, supply=supply, links=links, clock=clock, table=table,
-                  inclinometer=opened.get("inclinometer")),
-            records,
-            closers,
-            names,
-        )
-    except BaseException:
-        OpenBench(None, [], closers).close()  # type: ignore[arg-type]
-        raise
-
-
-# ---------------------------------------------------------------- the runner
 
 
 def safe_state_policy_of(settings: LoadedSettings) -> SafeStatePolicy:
@@ -611,7 +404,7 @@ class UutRunner:
             counts = opened.bench.table.counts_per_rev() if opened.bench.table else None
             for sock, serial in sorted(duts.items()):
                 try:
-                    parts.append(self._new_part(sock, serial, counts))
+                    parts.append(new_part(self, sock, serial, counts))
                 except OSError as exc:  # the disk filled or went read-only since validate
                     raise UserError(
                         f"{os_error_text(exc)}; free space or choose another --out"
@@ -694,7 +487,7 @@ class UutRunner:
         for part in parts:
             part.record.instruments = list(opened.instruments)
             part.record.instruments.append(
-                _record(
+                instrument_record(
                     f"fixture_{part.socket}",
                     None,
                     self.fixture_ports().get(part.socket, ""),
@@ -773,68 +566,6 @@ class UutRunner:
                     log.error("%s", exc)
             part.kept = KeptRecord(save_record_anywhere(part.folder, part.record))
 
-    def _new_part(self, sock: int, serial: str, counts_per_rev: int | None) -> PartRun:
-        folder = create_run_folder(self.out, serial)
-        info = self.settings.settings.station
-        now = dt.datetime.now(dt.UTC)
-        record = RunRecord(
-            run_id=folder.name,
-            verdict=Verdict.RUNNING,
-            simulated=self.endpoints is not None,
-            started_utc=now.isoformat(timespec="milliseconds"),
-            station_local_tz=str(dt.datetime.now().astimezone().tzinfo),
-            station={
-                "id": info.id,
-                "name": info.name,
-                "location": info.location,
-                "host": socketlib.gethostname(),
-            },
-            operator=self.operator,
-            work_order=self.work_order,
-            lot=self.lot,
-            software_version=__version__,
-            dut=Dut(serial=serial, socket=sock, product=self.product.product),
-            product=FileRef(
-                path=str(self.product_path),
-                name=self.product.product,
-                version=self.product.part_number,
-                sha256=self.product_file.sha256,
-            ),
-            procedure=FileRef(
-                path=str(self.procedure_path),
-                name=self.procedure.name,
-                version=self.procedure.version,
-                sha256=self.procedure_file.sha256,
-            ),
-            station_config=FileRef(
-                path=str(self.settings.source.path),
-                name=info.id,
-                sha256=self.settings.source.sha256,
-            ),
-            raw_data=FileRef(path=RAW_DATA_FILE, name="raw data (HDF5)", sha256=""),
-        )
-        write_record(folder, record)
-        writer = RawDataWriter(
-            folder / RAW_DATA_FILE,
-            {
-                "serial": serial,
-                "run_id": folder.name,
-                "socket": sock,
-                "procedure": self.procedure.name,
-                "product": self.product.product,
-                "station": info.id,
-                "simulated": self.endpoints is not None,
-                "software_version": __version__,
-                "time_base": "fixture clock (s); station_time_s: station clock estimate",
-                # scales /samples/encoder_counts (the fixture latches the table's encoder);
-                # the table driver says how many counts it has per turn
-                **({"encoder_counts_per_rev": counts_per_rev} if counts_per_rev else {}),
-                **({"axes": 3} if self.product.axes == 3 else {}),
-            },
-            extra_groups=("samples_xyz",) if self.product.axes == 3 else (),
-        )
-        return PartRun(socket=sock, serial=serial, folder=folder, record=record, writer=writer)
-
     # ------------------------------------------------------------ after the run
 
     def _certificate(self, folder: Path) -> Path | None:
@@ -894,68 +625,3 @@ def _stop_stream(link: PartLink, sock: int) -> None:
     if back is not None and not back.safe:
         log.warning("socket %d (not scanned): its stream did not stop: %s", sock, back.detail)
 
-
-def procedure_product(
-    procedure_path: Path, product_path: Path | None
-) -> tuple[ProcedureConfig, ProductConfig]:
-    """Load both files (ConfigError with file:line:field on any problem)."""
-    procedure, procedure_file = load_procedure(procedure_path)
-    if product_path is None:
-        if not procedure.product:
-            raise ConfigError(
-                f"{procedure_path}: no product given; add 'product:' or pass --product"
-            )
-        product_path = (procedure_path.parent / procedure.product).resolve()
-    product, product_file = load_product(product_path)
-    check_procedure_for_product(procedure, procedure_file, product, product_file)
-    return procedure, product_for_procedure(product, procedure)
-
-
-def run_simulated(
-    parts: list[dict[str, Any]],
-    *,
-    procedure_path: Path | None = None,
-    out: Path,
-    speed: float | None = None,
-    settings: LoadedSettings | None = None,
-    certificate: bool = False,
-    on_progress: Callable[[ProgressEvent], None] | None = None,
-) -> tuple[UutResult, dict[str, Any]]:
-    """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
-    entries); returns the result and the bench's truth at the end (for benchmarks and tests).
-    Without `speed` the bench runs in lockstep (station time is physics time)."""
-    from drivers.sim.launcher import launch_bench  # the simulated bench: loaded only when asked for
-
-    sockets = max(int(p["socket"]) for p in parts)
-    settings = settings or load_settings()
-    # the procedure's step modules import while the bench process starts (seconds of each)
-    warm = threading.Thread(
-        target=_warm_up, args=(procedure_path or settings.procedure,), daemon=True
-    )
-    warm.start()
-    with launch_bench(
-        config={"parts": parts}, speed=speed, sockets=sockets, lockstep=speed is None
-    ) as bench:
-        warm.join()
-        runner = UutRunner(
-            settings,
-            procedure_path=procedure_path,
-            out=out,
-            endpoints=Endpoints.of_bench(bench.endpoints),
-            certificate=certificate,
-            operator="benchmark",
-        )
-        if on_progress is not None:
-            runner.progress.subscribe(on_progress)
-        result = runner.run({int(p["socket"]): str(p["serial"]) for p in parts})
-        truth = bench.control.truth()
-    return result, truth
-
-
-def _warm_up(procedure_path: Path) -> None:
-    """Load the procedure once, for its imports (UutRunner loads it again and reports any
-    error in it)."""
-    try:
-        load_procedure(Path(procedure_path))
-    except Exception:  # noqa: BLE001 - reported by the runner's own load
-        log.debug("warm-up load of %s failed", procedure_path, exc_info=True)

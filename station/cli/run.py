@@ -27,11 +27,12 @@ from common.yaml_input import ConfigError, read_yaml
 from procedures.loading.config import ProcedureConfig, ProductConfig, load_procedure, load_product
 from procedures.loading.step_list import procedure_json_schema
 from procedures.runtime.progress import ProgressEvent
+from station.endpoints import Endpoints
 from station.errors import UserError
 from station.exit_path import ExitPath, exit_bound_s
 from station.settings import CONFIG_DIR, StationSettings
 from station.station_file import load_settings
-from station.uut import Endpoints, UutRunner
+from station.uut import UutRunner
 
 DEMO_SERIAL = "SIM-0001"
 DEMO_SPEED = 120.0

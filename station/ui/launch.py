@@ -254,7 +254,7 @@ def _engine_runner(
     endpoints = None
     control = None
     if bench is not None:
-        from station.uut import Endpoints
+        from station.endpoints import Endpoints
 
         endpoints = Endpoints.of_bench(bench.endpoints)
         control = bench.control

@@ -254,7 +254,7 @@ class EngineRunner:
         settings: Any,  # station.settings.LoadedSettings
         *,
         out: Path | None = None,
-        endpoints: Any = None,  # station.uut.Endpoints
+        endpoints: Any = None,  # station.endpoints.Endpoints
         control: Any = None,  # drivers.sim.control_client.ControlClient
         sim_parts: dict[str, dict[str, Any]] | None = None,
         sample_interval_s: float = 0.25,

@@ -15,7 +15,7 @@ import pytest
 
 from drivers.sim.config import load_sim_config
 from station.cli import main as cli
-from station.uut import run_simulated
+from station.sim_run import run_simulated
 
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 

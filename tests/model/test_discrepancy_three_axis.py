@@ -20,7 +20,7 @@ import pytest
 from procedures.model.discrepancy import run_discrepancy
 from procedures.model.gyro_model import first_order_model
 from procedures.model.run_folder_xyz import AXES, load_axis
-from station.uut import run_simulated
+from station.sim_run import run_simulated
 
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 

@@ -88,7 +88,7 @@ def test_a_bench_slow_to_start_is_started_again_then_refused_in_one_line(
     """On a loaded machine a bench can take longer than the launcher waits for its state
     file: the twin run starts it again (3 attempts in all), then says what happened."""
     from drivers.sim.launcher import BenchStartError
-    from station import discrepancy_simulate, uut
+    from station import discrepancy_simulate, sim_run
 
     calls = []
 
@@ -96,7 +96,7 @@ def test_a_bench_slow_to_start_is_started_again_then_refused_in_one_line(
         calls.append(1)
         raise BenchStartError("the bench wrote no state file within 20 s")
 
-    monkeypatch.setattr(uut, "run_simulated", slow_bench)
+    monkeypatch.setattr(sim_run, "run_simulated", slow_bench)
     with pytest.raises(UserError, match="did not start in 3 attempts"):
         discrepancy_simulate.run_twin({"socket": 1}, PROCEDURE, tmp_path, None)
     assert len(calls) == discrepancy_simulate.BENCH_START_ATTEMPTS == 3

@@ -14,8 +14,9 @@ import pytest
 from drivers.sim.control_client import ControlClient
 from drivers.sim.launcher import launch_bench
 from procedures.runtime.progress import ProgressEvent
+from station.endpoints import Endpoints
 from station.station_file import load_settings
-from station.uut import Endpoints, UutResult, UutRunner
+from station.uut import UutResult, UutRunner
 
 DATA = Path(__file__).resolve().parent / "data"
 SHORT = DATA / "short.yaml"

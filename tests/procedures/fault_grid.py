@@ -30,8 +30,9 @@ from drivers.sim.launcher import BenchStartError, launch_bench
 from procedures.engine.safe_state import SafeStatePolicy
 from procedures.runtime.progress import ProgressEvent
 from procedures.runtime.record import RAW_DATA_FILE, Verdict, read_record
+from station.endpoints import Endpoints
 from station.station_file import load_settings
-from station.uut import Endpoints, UutRunner
+from station.uut import UutRunner
 
 GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"
 # On a scaled clock (`speed`, the benchmark's option) a wall hiccup of milliseconds is seconds

@@ -24,7 +24,7 @@ from procedures.loading.config import load_procedure, load_product, product_for_
 from procedures.runtime.record import Outcome, Verdict, read_record
 from reports.cert_inputs import load_inputs
 from reports.cert_remeasured import remeasured
-from station.uut import run_simulated
+from station.sim_run import run_simulated
 
 ROOT = Path(__file__).resolve().parents[2]
 GYR130 = ROOT / "config" / "products" / "gyr130.yaml"

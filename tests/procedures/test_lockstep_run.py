@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from procedures.runtime.record import Verdict, read_record
-from station.uut import run_simulated
+from station.sim_run import run_simulated
 
 LOCKSTEP_PROC = Path(__file__).resolve().parent / "data" / "lockstep.yaml"
 HOG = (

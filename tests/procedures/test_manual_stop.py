@@ -16,8 +16,9 @@ from drivers.sim.launcher import launch_bench
 from procedures.runtime.record import Verdict
 from procedures.steps.manual_stop import ManualStop, prompt_text
 from procedures.steps.registry import step_type
+from station.endpoints import Endpoints
 from station.station_file import load_settings
-from station.uut import Endpoints, UutRunner
+from station.uut import UutRunner
 
 REPO = Path(__file__).resolve().parents[2]
 PROCEDURE = REPO / "tests" / "procedures" / "data" / "manual_short.yaml"

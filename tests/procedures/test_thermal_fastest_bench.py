@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from procedures.runtime.record import Verdict, read_record
-from station.uut import run_simulated
+from station.sim_run import run_simulated
 
 PROC = Path(__file__).resolve().parent / "data" / "thermal_fastest.yaml"
 

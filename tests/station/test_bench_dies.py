@@ -18,8 +18,9 @@ import pytest
 
 from drivers.sim.launcher import launch_bench
 from procedures.runtime.record import Verdict, read_record
+from station.endpoints import Endpoints
 from station.station_file import load_settings
-from station.uut import Endpoints, UutRunner
+from station.uut import UutRunner
 
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,8 +10,8 @@ import pytest
 
 from common.yaml_input import ConfigError
 from station import instruments as roles
+from station.endpoints import Endpoints
 from station.station_file import load_settings
-from station.uut import Endpoints
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -13,9 +13,11 @@ from common.clock import ScaledClock
 from drivers.fixture_protocol import OUTPUT_RATES_HZ
 from drivers.protocols import InstrumentIdentity
 from station.errors import UserError
+from station.link_speed import link_speed_problem
+from station.open_bench import open_bench, open_part_link
 from station.settings import LoadedSettings
 from station.station_file import load_settings
-from station.uut import UutRunner, link_speed_problem
+from station.uut import UutRunner
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"
@@ -127,7 +129,7 @@ def test_configured_fixture_baud_reaches_every_part_link(
     monkeypatch.setattr("drivers.chamber.ModbusChamber.connect", lambda *a, **k: _Instrument())
     monkeypatch.setattr("drivers.supply.ScpiSupply.open", lambda *a, **k: _Instrument())
     settings = _settings(tmp_path, 230_400)
-    bench = uut.open_bench(settings, [1], None, needs_table=False)
+    bench = open_bench(settings, [1], None, needs_table=False)
     bench.close()
     assert opened == [("/dev/fixture1", 230_400)]
     # the presence check of the sockets that were not scanned opens them at that rate too
@@ -149,7 +151,7 @@ def test_real_link_opens_at_the_configured_baud(tmp_path: Path) -> None:
             "station: {id: LINK-TEST}\ninstruments:\n"
             f"  fixture: {{ports: {{1: {os.ttyname(slave)}}}, baud: 460800}}\n"
         )
-        link = uut.open_part_link(load_settings(path), 1, os.ttyname(slave), ScaledClock(1.0), 5.0)
+        link = open_part_link(load_settings(path), 1, os.ttyname(slave), ScaledClock(1.0), 5.0)
         try:
             assert link._port.baudrate == 460_800  # type: ignore[attr-defined]
         finally:

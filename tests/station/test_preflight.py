@@ -268,10 +268,10 @@ def test_start_on_the_operator_screen_refuses_a_part_heated_past_its_maximum(
 ) -> None:
     """The operator screen's START runs the same pre-flight: refused, nothing written."""
     from drivers.sim.launcher import launch_bench
+    from station.endpoints import Endpoints
     from station.errors import UserError
     from station.station_file import load_settings
     from station.ui.runner_adapter import EngineRunner, StartRequest
-    from station.uut import Endpoints
 
     proc = _procedure(tmp_path, "temperatures_c: [25.0, 35.0]", "temperatures_c: [25, 40, 100]")
     out = tmp_path / "out"

@@ -47,7 +47,7 @@ def test_progress_event_orientation_defaults_to_none() -> None:
 
 
 def test_link_speed_counts_three_axis_frames() -> None:
-    from station.uut import link_speed_problem
+    from station.link_speed import link_speed_problem
 
     assert link_speed_problem(200, 115_200) is None
     assert link_speed_problem(200, 115_200, axes=3) is None  # 80,000 baud

@@ -11,9 +11,10 @@ import pytest
 from drivers.sim.launcher import launch_bench
 from procedures.runtime.progress import ProgressEvent
 from procedures.runtime.record import Verdict, read_record
+from station.endpoints import Endpoints
 from station.errors import UserError
 from station.station_file import load_settings
-from station.uut import Endpoints, UutRunner
+from station.uut import UutRunner
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"

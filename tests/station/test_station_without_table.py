@@ -9,9 +9,9 @@ from typing import Any
 from procedures.loading.config import load_procedure, load_product
 from procedures.runtime.run_parts import Bench
 from station import instruments as roles
+from station.endpoints import Endpoints
 from station.preflight import instrument_problems
 from station.station_file import load_settings
-from station.uut import Endpoints
 
 ROOT = Path(__file__).resolve().parents[2]
 MANUAL = ROOT / "config" / "station-manual.yaml"

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from procedures.runtime.progress import ProgressEvent
-from station.uut import run_simulated
+from station.sim_run import run_simulated
 
 ROOT = Path(__file__).resolve().parents[2]
 PROCEDURE = ROOT / "tests/data/eol-three-axis-short.yaml"

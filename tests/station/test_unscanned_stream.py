@@ -13,8 +13,9 @@ from drivers.part_link import SerialPartLink
 from drivers.scpi import open_serial
 from drivers.sim.launcher import launch_bench
 from procedures.runtime.record import Verdict
+from station.endpoints import Endpoints
 from station.station_file import load_settings
-from station.uut import Endpoints, UutRunner
+from station.uut import UutRunner
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]

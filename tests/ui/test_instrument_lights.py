@@ -6,10 +6,10 @@ import time
 from collections.abc import Callable
 
 from drivers.sim.launcher import launch_bench
+from station.endpoints import Endpoints
 from station.station_file import load_settings
 from station.ui.instruments import InstrumentLight
 from station.ui.runner_adapter import EngineRunner
-from station.uut import Endpoints
 
 
 def _by_name(lights: list[InstrumentLight]) -> dict[str, InstrumentLight]:

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT))
 
 from procedures.runtime.record import RunRecord, read_record  # noqa: E402
-from station.uut import run_simulated  # noqa: E402
+from station.sim_run import run_simulated  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 SHIPPED = [ROOT / "config/procedures/eol-rate-table.yaml",
