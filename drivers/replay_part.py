@@ -44,7 +44,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.clock import Clock, ScaledClock
 from drivers.errors import ConnectionLost, PartSilent
-from drivers.fixture_protocol import OUTPUT_RATES_HZ, ReplyError, SampleStatus
+from drivers.fixture_protocol import OUTPUT_RATES_HZ, ReplyError
 from drivers.part_codes import CodeFormat
 from drivers.part_link import FixtureRefused
 from drivers.protocols import (
@@ -53,6 +53,7 @@ from drivers.protocols import (
     LinkStats,
     SafeReadback,
     SampleBlock,
+    SampleStatus,
 )
 from drivers.replay_source import Recording, RecordingError, load_recording
 

@@ -27,8 +27,9 @@ from numpy.typing import NDArray
 from common.csv_rows import CsvInputError, csv_rows, shown
 from common.h5_input import H5InputError, one_line, open_h5
 from drivers.errors import ConnectionLost
-from drivers.fixture_protocol import SEQ_MODULO, SampleStatus
+from drivers.fixture_protocol import SEQ_MODULO
 from drivers.part_codes import CodeFormat
+from drivers.protocols import SampleStatus
 
 RAW_FORMAT = "gyrocal-raw/1"  # procedures.runtime.rawdata.FORMAT (a test keeps the two equal)
 RAW_DATA_FILE = "raw.h5"

@@ -246,12 +246,11 @@ def conditions(inputs: CertificateInputs) -> list[Flowable]:
              "Supply measured (V)", "Supply current (A)", "Time to stability (s)", "Stable"]
     rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
     for c in rec.conditions:
-        extra = c.model_extra or {}
-        measured = extra.get("supply_measured_v")
+        measured = c.supply_measured_v
         # numbers as plain strings: never broken inside (table_fit sizes their columns)
         rows.append([_p(c.name), fmt(c.temperature_c), fmt(c.die_temperature_c),
                      fmt(c.supply_v),
-                     fmt(float(measured)) if isinstance(measured, int | float) else "-",
+                     fmt(measured) if measured is not None else "-",
                      fmt(c.supply_current_a), fmt(c.time_to_stability_s),
                      fmt(c.stable) if c.stable is not None else "-"])
     t = fitted_table(rows, CONTENT_WIDTH, grid_style(), repeatRows=1)
@@ -378,17 +377,13 @@ _HIGHER_COEFFS = {
 def calibration_terms(cal: Calibration) -> list[tuple[str, str, str, str, Coefficient]]:
     """(key, label, units, register, coefficient) of every term written to the part: the
     six first-order ones and whichever higher-order ones the record holds."""
-    extra = cal.model_extra or {}
     out = []
     for key, label, units, register in _COEFFS:
         out.append((key, label, units, register, getattr(cal, key)))
         for hkey, hlabel, hunits, hregister in _HIGHER_COEFFS.get(key, []):
-            raw = extra.get(hkey)
-            try:
-                coeff = Coefficient.model_validate(raw)
-            except ValueError:
-                continue  # absent (a first-order fit) or malformed: not a programmed term
-            out.append((hkey, hlabel, hunits, hregister, coeff))
+            coeff = getattr(cal, hkey)
+            if coeff is not None:  # None: a first-order fit, not a programmed term
+                out.append((hkey, hlabel, hunits, hregister, coeff))
     return out
 
 

@@ -65,7 +65,7 @@ def scan_all(page, n: int) -> None:  # noqa: ANN001
 
 
 def fake_shots(browser, tmp: Path, out: Path) -> None:  # noqa: ANN001
-    from station.ui.runner_adapter import InstrumentLight
+    from station.ui.instruments import InstrumentLight
 
     shots = (
         (8, "en-US", "operator-eight-running", "operator-eight-verdicts"),

@@ -102,3 +102,38 @@ def cycles(g: dict[str, set[str]]) -> list[frozenset[str]]:
                 if len(comp) > 1:
                     found.append(frozenset(comp))
     return found
+
+
+def _defined(tree: ast.Module) -> set[str]:
+    """The names a module binds itself: its classes, functions and assignments, at top level
+    or inside a top-level `if`/`try` (an optional dependency's fallback)."""
+    names: set[str] = set()
+    for top in tree.body:
+        for node in ast.walk(top) if isinstance(top, ast.If | ast.Try) else [top]:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                names.add(node.name)
+            elif isinstance(node, ast.Assign | ast.AnnAssign | ast.AugAssign):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                names.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+    return names
+
+
+def reexports_used(root: Path, packages: Iterable[str], readers: Iterable[Path]) -> list[str]:
+    """`from M import name` in `readers` where M is a product module that does not define
+    `name` itself (nor has a submodule of that name): a name reached through a re-export.
+    Each as 'file:line: M.name'."""
+    mods = modules(root, packages)
+    defined: dict[str, set[str]] = {}
+    found: list[str] = []
+    for path in readers:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.ImportFrom) or node.level or node.module not in mods:
+                continue
+            if node.module not in defined:
+                defined[node.module] = _defined(ast.parse(mods[node.module].read_text("utf-8")))
+            for alias in node.names:
+                if alias.name not in defined[node.module] and \
+                        f"{node.module}.{alias.name}" not in mods:
+                    found.append(f"{path.relative_to(root)}:{node.lineno}: "
+                                 f"{node.module}.{alias.name}")
+    return found

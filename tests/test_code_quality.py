@@ -102,6 +102,16 @@ LONG_FUNCTION_LINES = 80  # a function this long or longer does more than one th
 KNOWN_LONG: set[str] = set()
 
 
+def test_every_name_is_imported_from_the_module_that_defines_it() -> None:
+    """One import path per name: no module re-exports another's names (issue 27)."""
+    from tests.import_graph import reexports_used
+
+    readers = [p for d in (*PACKAGES, "tests", "benchmarks", "scripts")
+               for p in (ROOT / d).rglob("*.py")]
+    found = reexports_used(ROOT, PACKAGES, readers)
+    assert not found, "import these from the module that defines them:\n" + "\n".join(found)
+
+
 def _long_functions() -> dict[str, int]:
     """file:function -> its length in lines (def to last line, decorators excluded) for every
     function of LONG_FUNCTION_LINES or more in the packages and the benchmarks."""

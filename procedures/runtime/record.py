@@ -148,6 +148,27 @@ class Calibration(_Model):
     interaction_check: dict[str, float] | None = None  # the spare degree of freedom of the 2x2
     readback_ok: bool | None = None
     readback: dict[str, float] | None = None
+    # beyond first order in temperature (the `fit` step's `order: 2` or `3`); absent otherwise
+    bias_temp_coeff2_dps_per_c2: Coefficient | None = None
+    bias_temp_coeff3_dps_per_c3: Coefficient | None = None
+    scale_temp_coeff2_per_c2: Coefficient | None = None
+    scale_temp_coeff3_per_c3: Coefficient | None = None
+
+    @model_serializer(mode="wrap")
+    def _as_written(self, handler: SerializerFunctionWrapHandler) -> Any:
+        """A first-order fit's record has no higher-order keys (as format 1 wrote it)."""
+        data = handler(self)
+        if not isinstance(data, dict):
+            return data
+        return {k: v for k, v in data.items() if not (k in HIGHER_ORDER_TERMS and v is None)}
+
+
+HIGHER_ORDER_TERMS = (
+    "bias_temp_coeff2_dps_per_c2",
+    "bias_temp_coeff3_dps_per_c3",
+    "scale_temp_coeff2_per_c2",
+    "scale_temp_coeff3_per_c3",
+)
 
 
 class ArrayValue(_Model):
@@ -192,6 +213,20 @@ def three_axis_block(record: RunRecord) -> CalibrationThreeAxis | None:
     return record.calibration_three_axis
 
 
+def _higher_order_ok(cal: dict[str, Any]) -> dict[str, Any]:
+    """A format-1 calibration without the higher-order terms that do not parse (the
+    certificate showed them as not programmed)."""
+    out = dict(cal)
+    for key in HIGHER_ORDER_TERMS:
+        if key in out:
+            try:
+                Coefficient.model_validate(out[key])
+            except ValueError:
+                log.warning("format-1 record: calibration.%s does not parse; dropped", key)
+                out.pop(key)
+    return out
+
+
 def _three_axis_ok(block: Any) -> bool:
     try:
         CalibrationThreeAxis.model_validate(block)
@@ -215,6 +250,7 @@ class ConditionRecord(_Model):
     scale_stop: float | None = None
     scale_stop_uncertainty: float | None = None
     supply_current_a: float | None = None
+    supply_measured_v: float | None = None  # what the supply read back at this condition
 
 
 class Event(_Model):
@@ -294,6 +330,8 @@ class RunRecord(_Model):
         block = data.get("calibration_three_axis")
         if block is not None and not _three_axis_ok(block):
             data.pop("calibration_three_axis")
+        if isinstance(data.get("calibration"), dict):
+            data["calibration"] = _higher_order_ok(data["calibration"])
         return data
 
 

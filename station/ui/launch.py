@@ -20,13 +20,14 @@ from station.certify import recovered_run_sealer
 from station.errors import UserError
 from station.station_file import load_settings
 from station.ui import catalog
-from station.ui.app import Security, create_app
+from station.ui.app import create_app
 from station.ui.auth import Operator, OperatorBook, check_hash_format
 from station.ui.connections import ConnectionLimits
 from station.ui.controller import Controller
 from station.ui.guard import LOOPBACK_HOSTS, allowed_hosts
 from station.ui.history import History
 from station.ui.hub import Hub
+from station.ui.requests import Security
 from station.ui.runner_adapter import EngineRunner, engine_available
 from station.ui.server import Tls
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.fixture_protocol import SampleStatus
+from drivers.protocols import SampleStatus
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.stop_method import StopMethodSettings, analyze_stop_method
 from tests.analysis.synth import article_record, raised_cosine

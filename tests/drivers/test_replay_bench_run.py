@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.fixture_protocol import SampleStatus
 from drivers.part_codes import ADIS16130
-from drivers.protocols import CalibrationRegisters
+from drivers.protocols import CalibrationRegisters, SampleStatus
 from drivers.replay_part import RecordingEnded, factory
 from procedures.runtime.rawdata import read_raw
 from procedures.runtime.record import Verdict, read_record

@@ -17,8 +17,8 @@ from drivers.errors import ConnectionLost, PartSilent
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.part_link import FixtureRefused
 from drivers.protocols import CalibrationRegisters, PartLink
-from drivers.replay_part import RecordingEnded, RecordingError, ReplayPartLink, factory
-from drivers.replay_source import RAW_FORMAT
+from drivers.replay_part import RecordingEnded, ReplayPartLink, factory
+from drivers.replay_source import RAW_FORMAT, RecordingError
 from procedures.runtime.rawdata import FORMAT, RawDataWriter
 from procedures.runtime.streams import PartStream
 

@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from reports.lot_stats import MIN_CPK_N
 from station.db.connect import dispose_all
-from station.line.spc import MIN_CPK_N, capability
+from station.line.spc import capability
 from station.results_db import ResultsDB
 from tests.linedb.linekit import line_app, line_client, line_runs
 

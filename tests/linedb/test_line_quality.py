@@ -13,8 +13,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from procedures.runtime.record import RunRecord
+from reports.lot_stats import MIN_CPK_N
 from station.db.connect import dispose_all
-from station.line.spc import MIN_CPK_N, capability
+from station.line.spc import capability
 from station.results_db import ResultsDB
 from tests.linedb.linekit import START, line_app, line_client, line_record, line_runs
 from tests.reports.synth_run import LIMITS

@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
+from reports.lot_stats import MIN_CPK_N
 from station.db.connect import dispose_all
-from station.line.spc import MIN_CPK_N
 from station.results_db import ResultsDB
 from station.ui.headless import wait_js
 from station.ui.server import serve_in_thread

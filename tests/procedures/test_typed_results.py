@@ -53,7 +53,7 @@ def settings(tmp_path_factory: pytest.TempPathFactory) -> LoadedSettings:
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory: pytest.TempPathFactory, settings: LoadedSettings) -> Path:
     """The demo's run (the full rate-table procedure, SIM-0001, lockstep), sealed."""
-    from station.uut import run_simulated
+    from station.sim_run import run_simulated
 
     result, _ = run_simulated(
         [{"socket": 1, "serial": "SIM-0001"}],
@@ -213,3 +213,33 @@ def _models_in(annotation: Any) -> set[type]:
     for arg in get_args(annotation):
         out |= _models_in(arg)
     return out
+
+
+def test_the_measured_supply_and_higher_order_terms_are_declared_fields() -> None:
+    """The certificate's "Supply measured" column and its higher-order coefficient rows read
+    declared fields, not undeclared extras: the first-order demo record keeps its JSON (no
+    higher-order keys), a second-order calibration shows its terms, and a malformed term in
+    a format-1 record is dropped instead of refusing the record."""
+    from reports.cert_sections import calibration_terms
+
+    raw = json.loads(DEMO_FORMAT_1.read_text(encoding="utf-8"))
+    rec = RunRecord.model_validate(raw)
+    assert rec.conditions[0].supply_measured_v == raw["conditions"][0]["supply_measured_v"]
+    assert not rec.conditions[0].model_extra and not rec.calibration.model_extra  # type: ignore[union-attr]
+    assert rec.model_dump(mode="json")["calibration"] == raw["calibration"]
+    assert [t[0] for t in calibration_terms(rec.calibration)].count("scale") == 1  # type: ignore[arg-type]
+
+    term = {"value": 1.5e-5, "uncertainty_k2": 2e-6}
+    second = {**raw["calibration"], "bias_temp_coeff2_dps_per_c2": term}
+    rec2 = RunRecord.model_validate({**raw, "format": RECORD_FORMAT, "calibration": second})
+    assert rec2.calibration is not None
+    assert rec2.calibration.bias_temp_coeff2_dps_per_c2 is not None
+    keys = [t[0] for t in calibration_terms(rec2.calibration)]
+    assert keys.index("bias_temp_coeff2_dps_per_c2") == keys.index("bias_temp_coeff_dps_per_c") + 1
+    assert rec2.model_dump(mode="json")["calibration"] == second
+
+    broken = {**raw["calibration"], "scale_temp_coeff2_per_c2": {"value": "x"}}
+    rec1 = RunRecord.model_validate({**raw, "calibration": broken})  # format 1: dropped
+    assert rec1.calibration is not None and rec1.calibration.scale_temp_coeff2_per_c2 is None
+    with pytest.raises(ValidationError, match="scale_temp_coeff2_per_c2"):
+        RunRecord.model_validate({**raw, "format": RECORD_FORMAT, "calibration": broken})

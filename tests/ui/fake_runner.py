@@ -25,14 +25,8 @@ from procedures.runtime.record import (
 )
 from station.errors import UserError
 from station.ui.history import result_from_record
-from station.ui.runner_adapter import (
-    Choice,
-    EventSink,
-    InstrumentLight,
-    ProductChoice,
-    StartRequest,
-    StationInfo,
-)
+from station.ui.instruments import InstrumentLight
+from station.ui.runner_adapter import Choice, EventSink, ProductChoice, StartRequest, StationInfo
 
 # (step type name, condition), as the engine names them
 STEPS = [

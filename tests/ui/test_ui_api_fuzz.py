@@ -18,10 +18,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from starlette.testclient import TestClient
 
-from station.ui.app import Security, create_app
+from station.ui.app import create_app
 from station.ui.controller import Controller
 from station.ui.history import History
 from station.ui.hub import Hub
+from station.ui.requests import Security
 from tests.ui.conftest import _HASH
 from tests.ui.fake_runner import FakeRunner
 

@@ -13,11 +13,12 @@ from fastapi.testclient import TestClient
 
 from station.certify import finish_run_folder
 from station.station_file import load_settings
-from station.ui.app import Security, create_app
+from station.ui.app import create_app
 from station.ui.auth import Operator, OperatorBook, hash_pin
 from station.ui.controller import Controller
 from station.ui.history import History
 from station.ui.hub import Hub
+from station.ui.requests import Security
 from tests.reports.synth_run import Part, make_run
 from tests.reports.test_signing import station_file
 from tests.ui.fake_runner import FakeRunner

@@ -16,12 +16,13 @@ import httpx
 import pytest
 from starlette.testclient import TestClient
 
-from station.ui.app import Security, create_app
+from station.ui.app import create_app
 from station.ui.auth import Operator, OperatorBook, hash_badge, hash_pin
 from station.ui.controller import Controller
 from station.ui.guard import allowed_hosts
 from station.ui.history import History
 from station.ui.hub import Hub
+from station.ui.requests import Security
 from station.ui.server import Tls, serve_in_thread
 from tests.ui.conftest import _HASH, ENGINEER_PASSWORD
 from tests.ui.fake_runner import FakeRunner

@@ -19,11 +19,12 @@ pytest.importorskip(
 )
 from playwright.sync_api import Page, expect  # noqa: E402
 
-from station.ui.app import Security, create_app  # noqa: E402
+from station.ui.app import create_app  # noqa: E402
 from station.ui.auth import Operator, OperatorBook, hash_badge, hash_pin  # noqa: E402
 from station.ui.controller import Controller  # noqa: E402
 from station.ui.history import History  # noqa: E402
 from station.ui.hub import Hub  # noqa: E402
+from station.ui.requests import Security  # noqa: E402
 from station.ui.server import BackgroundServer, serve_in_thread  # noqa: E402
 from tests.ui.conftest import _HASH  # noqa: E402
 from tests.ui.fake_runner import FakeRunner  # noqa: E402
