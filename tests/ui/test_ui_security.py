@@ -293,7 +293,7 @@ def test_state_never_publishes_the_bench_control_endpoint(tmp_path: Path) -> Non
     class Control:
         endpoint = "127.0.0.1:47123"
 
-    settings = __import__("station.settings", fromlist=["load_settings"]).load_settings()
+    settings = __import__("station.station_file", fromlist=["load_settings"]).load_settings()
     runner = EngineRunner(settings, out=tmp_path, control=Control())
     assert "47123" not in repr(runner.info)
 
