@@ -119,9 +119,10 @@ def load(url: str, n_runs: int, keep_measurements: int, seed: int = 1) -> dict[s
     t = time.perf_counter()
     engine = sa.create_engine(url)
     with engine.begin() as sacon:
-        rollups.add_all(sacon)
+        rollups.add_hourly(sacon)
         old = sa.Table("old_measurements", sa.MetaData(), autoload_with=sacon)
         rollups.add_measurements(sacon, old)
+        rollups.fill_coarse(sacon)
         sacon.exec_driver_sql("DROP TABLE old_measurements")
     with engine.connect() as sacon:
         sacon.execution_options(isolation_level="AUTOCOMMIT").exec_driver_sql("VACUUM ANALYZE")

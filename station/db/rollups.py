@@ -14,20 +14,26 @@ Per key, rollup_runs counts runs by verdict, and the yields' units: finished fir
 rollup_measurements sums each measurement of those first tests: n, sum, sum of squares,
 below/above its limits, and its extremes and widest limits. The extremes and the limits only
 ever widen: a run leaving the rollup (a retest found to be earlier) does not narrow them.
+
+The same counts and sums are kept at coarser grains (schema.RUN_ROLLUPS and
+MEASUREMENT_ROLLUPS: per day and station, per day and lot, per hour and product...), by the
+same statements grouped by each table's own key, in the same transaction. A filled hourly
+rollup gives the coarser ones directly (`fill_coarse`: the backfill).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from typing import Any
 
 import sqlalchemy as sa
 from sqlalchemy.dialects import postgresql, sqlite
 
 from station.db.schema import (
+    MEASUREMENT_ROLLUPS,
     MEASUREMENT_SUMS,
-    ROLLUP_KEY,
     RUN_COUNTS,
+    RUN_ROLLUPS,
     measurements,
     rollup_measurements,
     rollup_runs,
@@ -35,7 +41,9 @@ from station.db.schema import (
 )
 
 _CHUNK = 500
-HOUR = sa.func.substr(runs.c.started_utc, 1, 13)  # YYYY-MM-DDTHH: text order is time order
+# the time keys' text widths: YYYY-MM-DDTHH and YYYY-MM-DD (text order is time order)
+TIME_KEYS = {"hour_utc": 13, "day_utc": 10}
+_FINEST = (rollup_runs, rollup_measurements)
 
 
 def subtract(con: sa.Connection, serials: Iterable[str]) -> None:
@@ -48,27 +56,56 @@ def add(con: sa.Connection, serials: Iterable[str]) -> None:
     _apply(con, sorted(set(serials)), 1)
 
 
-def add_all(con: sa.Connection) -> None:
-    """Count every run into empty rollups (the migration's backfill)."""
-    con.execute(_upsert(con, rollup_runs, _run_counts(1, ())))
+def add_hourly(con: sa.Connection) -> None:
+    """Count every run into the empty hourly rollups (migration 0006's backfill)."""
+    con.execute(_upsert(con, rollup_runs, _run_counts(rollup_runs, 1, ())))
     add_measurements(con, measurements)
 
 
 def add_measurements(con: sa.Connection, values: sa.Table) -> None:
     """Sum the first tests' values in a table shaped like measurements (the measurements
-    themselves, or a staging table of values no longer kept) into the rollups."""
-    con.execute(_upsert(con, rollup_measurements, _measurement_sums(1, (), values)))
+    themselves, or a staging table of values no longer kept) into the hourly rollup."""
+    con.execute(_upsert(con, rollup_measurements,
+                        _measurement_sums(rollup_measurements, 1, (), values)))
+
+
+def fill_coarse(con: sa.Connection, names: Collection[str] | None = None) -> None:
+    """Fill the empty coarser rollups (those named, or all) from the hourly ones (migration
+    0007's backfill: far fewer rows to read than the runs)."""
+    for table in RUN_ROLLUPS + MEASUREMENT_ROLLUPS:
+        if table not in _FINEST and (names is None or table.name in names):
+            con.execute(_upsert(con, table, _from_hourly(table)))
+
+
+def add_all(con: sa.Connection) -> None:
+    """Count every run into every empty rollup."""
+    add_hourly(con)
+    fill_coarse(con)
 
 
 def _apply(con: sa.Connection, serials: Sequence[str], sign: int) -> None:
     for i in range(0, len(serials), _CHUNK):
         where = [runs.c.serial.in_(serials[i : i + _CHUNK])]
-        con.execute(_upsert(con, rollup_runs, _run_counts(sign, where)))
-        con.execute(_upsert(con, rollup_measurements, _measurement_sums(sign, where)))
+        for table in RUN_ROLLUPS:
+            con.execute(_upsert(con, table, _run_counts(table, sign, where)))
+        for table in MEASUREMENT_ROLLUPS:
+            con.execute(_upsert(con, table, _measurement_sums(table, sign, where)))
 
 
-def _keys() -> list[sa.ColumnElement[Any]]:
-    return [HOUR.label("hour_utc"), *[runs.c[k] for k in ROLLUP_KEY[1:]]]
+def grain(table: sa.Table) -> list[str]:
+    """A rollup table's key: its time key, then its dimensions (not the measurement's name
+    and condition)."""
+    return [c.name for c in table.primary_key.columns if c.name not in ("name", "condition")]
+
+
+def _time(started: sa.ColumnElement[str], name: str) -> sa.ColumnElement[Any]:
+    return sa.func.substr(started, 1, TIME_KEYS[name]).label(name)
+
+
+def _keys(table: sa.Table, source: sa.Table = runs) -> list[sa.ColumnElement[Any]]:
+    """The table's key computed from a row of the source (the runs, or the hourly rollup)."""
+    time = source.c.started_utc if source is runs else source.c.hour_utc
+    return [_time(time, k) if k in TIME_KEYS else source.c[k] for k in grain(table)]
 
 
 def _first_test() -> sa.ColumnElement[bool]:
@@ -79,7 +116,8 @@ def _count(sign: int, cond: sa.ColumnElement[bool], value: Any = 1) -> Any:
     return sign * sa.func.sum(sa.case((cond, value), else_=0))
 
 
-def _run_counts(sign: int, where: Sequence[sa.ColumnElement[bool]]) -> sa.Select[Any]:
+def _run_counts(table: sa.Table, sign: int, where: Sequence[sa.ColumnElement[bool]]
+                ) -> sa.Select[Any]:
     v, first = runs.c.verdict, _first_test()
     counts = [
         sign * sa.func.count(),
@@ -88,15 +126,15 @@ def _run_counts(sign: int, where: Sequence[sa.ColumnElement[bool]]) -> sa.Select
         _count(sign, sa.and_(first, v == "PASS")),
         _count(sign, sa.and_(first, runs.c.unit_verdict == "PASS")),
     ]
-    keys = _keys()
+    keys = _keys(table)
     return (sa.select(*keys, *[c.label(n) for c, n in zip(counts, RUN_COUNTS, strict=True)])
             .where(*where).group_by(*keys).order_by(*keys))
 
 
-def _measurement_sums(sign: int, where: Sequence[sa.ColumnElement[bool]],
+def _measurement_sums(table: sa.Table, sign: int, where: Sequence[sa.ColumnElement[bool]],
                       values: sa.Table = measurements) -> sa.Select[Any]:
     m = values.c
-    keys = [*_keys(), m.name, sa.func.coalesce(m.condition, "").label("condition")]
+    keys = [*_keys(table), m.name, sa.func.coalesce(m.condition, "").label("condition")]
     return (
         sa.select(
             *keys, sa.func.max(m.units).label("units"),
@@ -111,6 +149,22 @@ def _measurement_sums(sign: int, where: Sequence[sa.ColumnElement[bool]],
         .where(_first_test(), m.value.is_not(None), *where)
         .group_by(*keys).order_by(*keys)  # rows locked in one order by every writer
     )
+
+
+def _from_hourly(table: sa.Table) -> sa.Select[Any]:
+    """The coarser table's rows summed from the hourly rollup of the same kind."""
+    if table in RUN_ROLLUPS:
+        h = rollup_runs.c
+        keys = _keys(table, rollup_runs)
+        return (sa.select(*keys, *[sa.func.sum(h[c]).label(c) for c in RUN_COUNTS])
+                .group_by(*keys).order_by(*keys))
+    h = rollup_measurements.c
+    keys = [*_keys(table, rollup_measurements), h.name, h.condition]
+    values = [sa.func.sum(h[c]).label(c) for c in MEASUREMENT_SUMS]
+    values += [sa.func.max(h.units).label("units"),
+               sa.func.min(h.vmin).label("vmin"), sa.func.max(h.vmax).label("vmax"),
+               sa.func.min(h.low).label("low"), sa.func.max(h.high).label("high")]
+    return sa.select(*keys, *values).group_by(*keys).order_by(*keys)
 
 
 def _upsert(con: sa.Connection, table: sa.Table, select: sa.Select[Any]) -> sa.Insert:

@@ -6,13 +6,15 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from datetime import timedelta
+from itertools import zip_longest
 from pathlib import Path
 
 import pytest
 import sqlalchemy as sa
 
 from station.db.connect import dispose_all, engine_for
-from station.db.schema import outbox
+from station.db.rollups import grain
+from station.db.schema import MEASUREMENT_ROLLUPS, RUN_ROLLUPS, outbox, rollup_measurements
 from station.db.sync import Sync
 from station.db.yields import GROUPS, yields_by
 from station.line import queries
@@ -41,11 +43,17 @@ def central(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
 
 
 def _compare(url: str) -> int:
+    """Every grain's rollups equal the direct computation; the runs counted."""
+    grains = zip_longest(RUN_ROLLUPS, MEASUREMENT_ROLLUPS, fillvalue=rollup_measurements)
     with engine_for(url).connect() as con:
-        direct, kept = direct_rollups(con), kept_rollups(con)
-    assert kept[0] == direct[0]
-    assert kept[1] == direct[1]
-    return sum(c[0] for c in direct[0].values())
+        for run_table, measurement_table in grains:
+            direct = direct_rollups(con, grain(run_table), grain(measurement_table))
+            kept = kept_rollups(con, run_table, measurement_table)
+            assert kept[0] == direct[0], run_table.name
+            assert kept[1] == direct[1], measurement_table.name
+            assert kept[0], run_table.name
+        counts = direct_rollups(con)[0]
+    return sum(c[0] for c in counts.values())
 
 
 def test_rollups_follow_each_batch_and_a_resend(central: str, tmp_path: Path) -> None:
