@@ -245,6 +245,7 @@ def dashboard(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
 REQUEST_TARGET_S = 0.3
 DASHBOARD_PATHS = ("/api/stations", "/api/yields", "/api/capability", "/api/runs",
                    "/api/chart?coefficient=bias_dps", "/api/yields?since=2025-01-20",
+                   "/api/stations?since=2025-01-20", "/api/capability?since=2025-01-20",
                    "/api/capability?lot=LOT-000100", "/api/runs?lot=LOT-000100",
                    "/api/chart?coefficient=scale&station=EOL-03")
 

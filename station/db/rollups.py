@@ -179,8 +179,8 @@ def _upsert(con: sa.Connection, table: sa.Table, select: sa.Select[Any]) -> sa.I
         col = table.c[name]
         if col.primary_key:
             continue
-        if name in RUN_COUNTS or name in MEASUREMENT_SUMS:
-            sets[name] = col + new[name]
+        if name in (RUN_COUNTS if table in RUN_ROLLUPS else MEASUREMENT_SUMS):
+            sets[name] = col + new[name]  # not a measurement's units (text): replaced
         elif name in ("vmin", "low"):
             sets[name] = _widest(col, new[name], lower=True)
         elif name in ("vmax", "high"):

@@ -5,6 +5,7 @@ and the migration fills them in for a database that had runs before."""
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import asdict
 from datetime import timedelta
 from itertools import zip_longest
 from pathlib import Path
@@ -14,10 +15,16 @@ import sqlalchemy as sa
 
 from station.db.connect import dispose_all, engine_for
 from station.db.rollups import grain
-from station.db.schema import MEASUREMENT_ROLLUPS, RUN_ROLLUPS, outbox, rollup_measurements
+from station.db.schema import (
+    MEASUREMENT_ROLLUPS,
+    RUN_ROLLUPS,
+    outbox,
+    rollup_measurements,
+    rollup_runs,
+)
 from station.db.sync import Sync
-from station.db.yields import GROUPS, yields_by
-from station.line import queries
+from station.db.yields import DEFAULT_SHIFT_STARTS_H, GROUPS, yields_by
+from station.line import queries, rolled
 from station.line.queries import Filters
 from station.results_db import ResultsDB
 from tests.linedb.linekit import START, line_record, line_runs
@@ -167,3 +174,38 @@ def test_yields_from_the_rollups_equal_a_count_over_the_runs(central: str,
         left_out = queries.yield_tables(con, Filters())["all"][0]["units"]
         both = queries.yield_tables(con, Filters(include_simulated=True))["all"][0]["units"]
     assert both - left_out == len(sims)
+
+
+def test_yields_over_whole_days_read_the_daily_rollups_and_equal_the_hourly(
+        central: str, tmp_path: Path) -> None:
+    """A range of whole days reads the daily rollups (an hour filter the hourly ones), and
+    every yield table equals the answer read from the hourly rollup alone."""
+    work = line_runs(400, ["EOL-A", "EOL-B", "EOL-C"], seed=29, root=Path("/runs"))
+    local = ResultsDB(tmp_path / "local.sqlite")
+    local.add_records([(r.folder, r.record) for r in work])
+    Sync(str(local.path), central, batch=BATCH).push_once()
+    days = [Filters(since="2026-11-02"), Filters(since="2026-11-03", until="2026-11-04"),
+            Filters(since="2026-11-02", lot="LOT-003"), Filters(since="2026-11-02T17:00Z"),
+            Filters(since="2026-11-02", product="ADIS16130-EOL", station="EOL-B")]
+    with engine_for(central).connect() as con:
+        for flt in days:
+            sel = flt.selection(con)
+            got = rolled.yield_tables(con, sel, DEFAULT_SHIFT_STARTS_H)
+            assert got == rolled.yield_tables(con, sel, DEFAULT_SHIFT_STARTS_H, (rollup_runs,))
+            assert got["all"] and got["shift"] and got["lot"]
+        whole = Filters(since="2026-11-02").selection(con)
+        assert rolled.pick(whole, RUN_ROLLUPS, ["lot"])[0].name == "rollup_runs_day_lot"
+        assert rolled.pick(whole, RUN_ROLLUPS, ["station_id"])[0].name == (
+            "rollup_runs_day_station")
+        hours = Filters(since="2026-11-02T17:00Z").selection(con)
+        assert rolled.pick(hours, RUN_ROLLUPS, ["lot"])[0] is rollup_runs
+        assert rolled.pick(whole, MEASUREMENT_ROLLUPS, [])[0].name == (
+            "rollup_measurements_day_product")
+        daily = rolled.capabilities(con, whole, 0.95)
+        hourly = rolled.capabilities(con, whole, 0.95, (rollup_measurements,))
+    assert [c[:3] for c in daily] == [c[:3] for c in hourly] and daily
+    for (*_, a), (*_, b) in zip(daily, hourly, strict=True):
+        for field, value in asdict(a).items():  # sums in another order: the last bits
+            other = asdict(b)[field]
+            assert value == (pytest.approx(other, rel=1e-9, nan_ok=True)
+                             if isinstance(other, float) else other), field
