@@ -23,6 +23,7 @@ rollup gives the coarser ones directly (`fill_coarse`: the backfill).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Collection, Iterable, Sequence
 from typing import Any
 
@@ -58,14 +59,14 @@ def add(con: sa.Connection, serials: Iterable[str]) -> None:
 
 def add_hourly(con: sa.Connection) -> None:
     """Count every run into the empty hourly rollups (migration 0006's backfill)."""
-    con.execute(_upsert(con, rollup_runs, _run_counts(rollup_runs, 1, ())))
+    con.execute(_upsert(con.dialect.name, rollup_runs, _run_counts(rollup_runs, 1, ())))
     add_measurements(con, measurements)
 
 
 def add_measurements(con: sa.Connection, values: sa.Table) -> None:
     """Sum the first tests' values in a table shaped like measurements (the measurements
     themselves, or a staging table of values no longer kept) into the hourly rollup."""
-    con.execute(_upsert(con, rollup_measurements,
+    con.execute(_upsert(con.dialect.name, rollup_measurements,
                         _measurement_sums(rollup_measurements, 1, (), values)))
 
 
@@ -74,7 +75,8 @@ def fill_coarse(con: sa.Connection, names: Collection[str] | None = None) -> Non
     0007's backfill: far fewer rows to read than the runs)."""
     for table in RUN_ROLLUPS + MEASUREMENT_ROLLUPS:
         if table not in _FINEST and (names is None or table.name in names):
-            con.execute(_upsert(con, table, _from_hourly(table)))
+            hourly = rollup_runs if table in RUN_ROLLUPS else rollup_measurements
+            con.execute(_upsert(con.dialect.name, table, _rolled_up(table, hourly)))
 
 
 def add_all(con: sa.Connection) -> None:
@@ -84,12 +86,35 @@ def add_all(con: sa.Connection) -> None:
 
 
 def _apply(con: sa.Connection, serials: Sequence[str], sign: int) -> None:
+    statements = _per_serials(con.dialect.name, sign)
     for i in range(0, len(serials), _CHUNK):
-        where = [runs.c.serial.in_(serials[i : i + _CHUNK])]
-        for table in RUN_ROLLUPS:
-            con.execute(_upsert(con, table, _run_counts(table, sign, where)))
-        for table in MEASUREMENT_ROLLUPS:
-            con.execute(_upsert(con, table, _measurement_sums(table, sign, where)))
+        for stmt in statements:
+            con.execute(stmt, {"serials": serials[i : i + _CHUNK]})
+
+
+@functools.cache
+def _per_serials(dialect: str, sign: int) -> tuple[sa.Executable, ...]:
+    """The statements counting the runs of some serials into every rollup (built once: the
+    sync runs them for every 500 serials). PostgreSQL: one per kind (runs, measurements),
+    the change to the hourly rollup computed once and summed into each grain; elsewhere one
+    per rollup, each from the runs."""
+    where = [runs.c.serial.in_(sa.bindparam("serials", expanding=True))]
+    if dialect == "postgresql":
+        return (_cascade(RUN_ROLLUPS, _run_counts(rollup_runs, sign, where)),
+                _cascade(MEASUREMENT_ROLLUPS,
+                         _measurement_sums(rollup_measurements, sign, where)))
+    return (*[_upsert(dialect, t, _run_counts(t, sign, where)) for t in RUN_ROLLUPS],
+            *[_upsert(dialect, t, _measurement_sums(t, sign, where))
+              for t in MEASUREMENT_ROLLUPS])
+
+
+def _cascade(tables: Sequence[sa.Table], hourly: sa.Select[Any]) -> sa.Select[Any]:
+    """One statement: the hourly rows `hourly` selects (a WITH query), summed into each of
+    the tables by data-modifying WITH queries (PostgreSQL)."""
+    change = hourly.cte("change")
+    into = [_upsert("postgresql", t, _rolled_up(t, change)).cte(f"into_{t.name}")
+            for t in tables]
+    return sa.select(sa.func.count()).select_from(change).add_cte(*into)
 
 
 def grain(table: sa.Table) -> list[str]:
@@ -102,7 +127,7 @@ def _time(started: sa.ColumnElement[str], name: str) -> sa.ColumnElement[Any]:
     return sa.func.substr(started, 1, TIME_KEYS[name]).label(name)
 
 
-def _keys(table: sa.Table, source: sa.Table = runs) -> list[sa.ColumnElement[Any]]:
+def _keys(table: sa.Table, source: sa.FromClause = runs) -> list[sa.ColumnElement[Any]]:
     """The table's key computed from a row of the source (the runs, or the hourly rollup)."""
     time = source.c.started_utc if source is runs else source.c.hour_utc
     return [_time(time, k) if k in TIME_KEYS else source.c[k] for k in grain(table)]
@@ -151,26 +176,26 @@ def _measurement_sums(table: sa.Table, sign: int, where: Sequence[sa.ColumnEleme
     )
 
 
-def _from_hourly(table: sa.Table) -> sa.Select[Any]:
-    """The coarser table's rows summed from the hourly rollup of the same kind."""
+def _rolled_up(table: sa.Table, source: sa.FromClause) -> sa.Select[Any]:
+    """The table's rows summed from rows keyed like the hourly rollup of its kind (that
+    rollup itself, or the change a batch makes to it)."""
+    h = source.c
+    keys = _keys(table, source)
     if table in RUN_ROLLUPS:
-        h = rollup_runs.c
-        keys = _keys(table, rollup_runs)
-        return (sa.select(*keys, *[sa.func.sum(h[c]).label(c) for c in RUN_COUNTS])
-                .group_by(*keys).order_by(*keys))
-    h = rollup_measurements.c
-    keys = [*_keys(table, rollup_measurements), h.name, h.condition]
-    values = [sa.func.sum(h[c]).label(c) for c in MEASUREMENT_SUMS]
-    values += [sa.func.max(h.units).label("units"),
-               sa.func.min(h.vmin).label("vmin"), sa.func.max(h.vmax).label("vmax"),
-               sa.func.min(h.low).label("low"), sa.func.max(h.high).label("high")]
+        values = [sa.func.sum(h[c]).label(c) for c in RUN_COUNTS]
+    else:
+        keys += [h.name, h.condition]
+        values = [sa.func.sum(h[c]).label(c) for c in MEASUREMENT_SUMS]
+        values += [sa.func.max(h.units).label("units"),
+                   sa.func.min(h.vmin).label("vmin"), sa.func.max(h.vmax).label("vmax"),
+                   sa.func.min(h.low).label("low"), sa.func.max(h.high).label("high")]
     return sa.select(*keys, *values).group_by(*keys).order_by(*keys)
 
 
-def _upsert(con: sa.Connection, table: sa.Table, select: sa.Select[Any]) -> sa.Insert:
+def _upsert(dialect_name: str, table: sa.Table, select: sa.Select[Any]) -> sa.Insert:
     """INSERT the select's rows; a key already there gets them added (counts and sums) or
     widened (extremes and limits)."""
-    dialect: Any = postgresql if con.dialect.name == "postgresql" else sqlite
+    dialect: Any = postgresql if dialect_name == "postgresql" else sqlite
     names = [c.name for c in select.selected_columns]
     stmt = dialect.insert(table).from_select(names, select)
     new = stmt.excluded
