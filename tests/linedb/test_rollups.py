@@ -14,7 +14,7 @@ import pytest
 import sqlalchemy as sa
 
 from station.db.connect import dispose_all, engine_for
-from station.db.rollups import grain
+from station.db.rollups import add_hourly, grain
 from station.db.schema import (
     MEASUREMENT_ROLLUPS,
     RUN_ROLLUPS,
@@ -101,21 +101,28 @@ def _at_revision(url: str, revision: str) -> None:
     engine.dispose()
 
 
-def test_migration_fills_the_rollups_from_existing_runs(central: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("revision", ["0005", "0006"])
+def test_migration_fills_the_rollups_from_existing_runs(central: str, tmp_path: Path,
+                                                        revision: str) -> None:
+    """From schema 5 (no rollups: 0006 fills the hourly ones from the runs, 0007 the coarser
+    ones from those) and from schema 6 (hourly rollups kept: 0007 fills the coarser)."""
     work = line_runs(120, ["EOL-A", "EOL-B"], seed=5, root=Path("/runs"))
     made = ResultsDB(tmp_path / "made.sqlite")  # the runs as the code of schema 5 wrote them
     made.add_records([(r.folder, r.record) for r in work])
     with made.engine.connect() as con:
         tables = {t: [dict(r) for r in con.execute(sa.text(f"SELECT * FROM {t}")).mappings()]
                   for t in ("runs", "measurements")}
-    _at_revision(central, "0005")
+    _at_revision(central, revision)
     old = sa.create_engine(central)
     with old.begin() as con:
         for table, rows in tables.items():
             names = list(rows[0])
             con.execute(sa.text(f"INSERT INTO {table} ({', '.join(names)}) VALUES "
                                 f"({', '.join(':' + n for n in names)})"), rows)
-        assert not sa.inspect(con).has_table("rollup_runs")
+        assert sa.inspect(con).has_table("rollup_runs") == (revision == "0006")
+        assert not sa.inspect(con).has_table("rollup_runs_day_lot")
+        if revision == "0006":
+            add_hourly(con)  # what the sync of schema 6 kept
     old.dispose()
     assert _compare(central) == len(work)  # engine_for upgrades to head first
     with engine_for(central).connect() as con, made.engine.connect() as mine:
