@@ -155,7 +155,9 @@ def _grouped_each(con: sa.Connection, table: sa.Table, names: Sequence[str],
             out["all"] = {"all": [int(v) for v in total]} if total[0] else {}
             continue
         col = _column(table, name)
-        rows = con.execute(sa.select(col, *_unit_sums(table)).where(*where).group_by(col))
+        query = sa.select(col, *_unit_sums(table)).where(*where).group_by(col)
+        rows = (con.execute(query) if name == "hour"  # every hour: the shifts add them up
+                else _largest(con, query.add_columns(_rank(table, None, sa.false()))))
         out[name] = {str(k): [int(v) for v in vals] for k, *vals in rows}
     return out
 
@@ -165,11 +167,13 @@ def _grouped_once(con: sa.Connection, table: sa.Table, names: Sequence[str],
     dims = [n for n in names if n != "all"]
     cols = [_column(table, n) for n in dims]
     sets = sa.func.grouping_sets(*[sa.tuple_(c) for c in cols], sa.text("()"))
-    query = (sa.select(*cols, sa.func.grouping(*cols).label("g"), *_unit_sums(table))
+    g = sa.func.grouping(*cols)
+    bits = len(cols)
+    hours = (1 << bits) - 1 - (1 << (bits - 1 - dims.index("hour"))) if "hour" in dims else -1
+    query = (sa.select(*cols, g.label("g"), *_unit_sums(table), _rank(table, g, g == hours))
              .where(*where).group_by(sets))
     out: Sums = {name: {} for name in names}
-    bits = len(cols)
-    for row in con.execute(query):
+    for row in _largest(con, query):
         keys, g, vals = row[:bits], row[bits], [int(v or 0) for v in row[bits + 1:]]
         if g == (1 << bits) - 1:  # the empty set: every unit (none when nothing matched)
             if "all" in out:
@@ -178,6 +182,22 @@ def _grouped_once(con: sa.Connection, table: sa.Table, names: Sequence[str],
         i = next(i for i in range(bits) if not g & (1 << (bits - 1 - i)))
         out[dims[i]][str(keys[i])] = vals
     return out
+
+
+def _rank(table: sa.Table, partition: Any, every: Any) -> sa.ColumnElement[Any]:
+    """A group's rank by units, largest first (ties share it): the groups ranked within
+    YIELD_ROWS are the largest YIELD_ROWS and every group tied with the last of them (all
+    of them where `every`: the hours, which the shifts add up)."""
+    units = sa.case((every, 0), else_=sa.func.sum(table.c.units))
+    return sa.func.rank().over(partition_by=partition, order_by=units.desc()).label("rank")
+
+
+def _largest(con: sa.Connection, query: sa.Select[Any]) -> list[Any]:
+    """The query's rows ranked within YIELD_ROWS (its last column, the rank, left off): a
+    year's thousands of lots are not sent to Python to keep a hundred."""
+    ranked = query.subquery()
+    return [row[:-1] for row in con.execute(
+        sa.select(ranked).where(ranked.c["rank"] <= YIELD_ROWS))]
 
 
 def capabilities(con: sa.Connection, sel: Selection, confidence: float,
