@@ -55,7 +55,13 @@ sys.path.insert(0, str(ROOT))
 import sqlalchemy as sa  # noqa: E402
 
 from station.db.connect import engine_for  # noqa: E402
-from station.db.schema import CAL_KEYS, measurements, runs  # noqa: E402
+from station.db.schema import (  # noqa: E402
+    CAL_KEYS,
+    MEASUREMENT_ROLLUPS,
+    RUN_ROLLUPS,
+    measurements,
+    runs,
+)
 from station.db.sync import Sync, SyncThread  # noqa: E402
 from station.results_db import ResultsDB  # noqa: E402
 from station.ui.server import serve_in_thread  # noqa: E402
@@ -245,6 +251,7 @@ def dashboard(args: argparse.Namespace, tmp: Path) -> dict[str, float]:
 REQUEST_TARGET_S = 0.3
 DASHBOARD_PATHS = ("/api/stations", "/api/yields", "/api/capability", "/api/runs",
                    "/api/chart?coefficient=bias_dps", "/api/yields?since=2025-01-20",
+                   "/api/stations?since=2025-01-20", "/api/capability?since=2025-01-20",
                    "/api/capability?lot=LOT-000100", "/api/runs?lot=LOT-000100",
                    "/api/chart?coefficient=scale&station=EOL-03")
 
@@ -261,7 +268,8 @@ def bench_copy(url: str, n_runs: int, keep: int, repeat: int) -> dict[str, Any]:
     with engine.connect() as con:
         out["database_bytes"] = int(con.scalar(sa.text(
             "SELECT pg_database_size(current_database())")) or 0)
-        out["rollup_rows"] = int(con.scalar(sa.text("SELECT count(*) FROM rollup_runs")) or 0)
+        out["rollup_rows"] = {t.name: int(con.scalar(sa.select(sa.func.count()).select_from(t))
+                                          or 0) for t in (*RUN_ROLLUPS, *MEASUREMENT_ROLLUPS)}
     print(f"loaded {n_runs} runs in {out['load_s']:.0f} s, "
           f"{out['database_bytes'] / 1e9:.2f} GB", file=sys.stderr)
     out["requests"] = _request_times(engine, repeat)

@@ -7,6 +7,8 @@ SQLite and PostgreSQL alike.
 
 from __future__ import annotations
 
+from typing import Any
+
 import sqlalchemy as sa
 
 CAL_KEYS = (
@@ -128,34 +130,53 @@ ROLLUP_KEY = ("hour_utc", "station_id", "product", "lot", "work_order", "simulat
 RUN_COUNTS = ("runs", "passed", "failed", "errored", "aborted", "running",
               "units", "unit_tests", "first_pass", "final_pass")
 
-rollup_runs = sa.Table(
-    "rollup_runs",
-    metadata,
-    *[sa.Column(k, sa.Integer if k == "simulated" else sa.Text, primary_key=True)
-      for k in ROLLUP_KEY],
-    *[sa.Column(c, sa.Integer, nullable=False, server_default="0") for c in RUN_COUNTS],
-)
+
+def _key_columns(keys: tuple[str, ...]) -> list[sa.Column[Any]]:
+    return [sa.Column(k, sa.Integer if k == "simulated" else sa.Text, primary_key=True)
+            for k in keys]
+
+
+def _run_rollup(name: str, keys: tuple[str, ...]) -> sa.Table:
+    return sa.Table(
+        name, metadata, *_key_columns(keys),
+        *[sa.Column(c, sa.Integer, nullable=False, server_default="0") for c in RUN_COUNTS],
+    )
+
+
+rollup_runs = _run_rollup("rollup_runs", ROLLUP_KEY)
 
 # Each measurement (name, condition "" when none) of the first tests in a rollup_runs key:
 # count, sum and sum of squares (mean and sd), extremes, the widest limits judged against and
 # how many values fell below / above them (Cpk and its fallout).
 MEASUREMENT_SUMS = ("n", "total", "total_sq", "below", "above")
 MEASUREMENT_BOUNDS = ("vmin", "vmax", "low", "high")
-rollup_measurements = sa.Table(
-    "rollup_measurements",
-    metadata,
-    *[sa.Column(k, sa.Integer if k == "simulated" else sa.Text, primary_key=True)
-      for k in ROLLUP_KEY],
-    sa.Column("name", sa.Text, primary_key=True),
-    sa.Column("condition", sa.Text, primary_key=True),
-    sa.Column("units", sa.Text, nullable=False, server_default=""),
-    sa.Column("n", sa.Integer, nullable=False, server_default="0"),
-    sa.Column("total", sa.Double, nullable=False, server_default="0"),
-    sa.Column("total_sq", sa.Double, nullable=False, server_default="0"),
-    sa.Column("below", sa.Integer, nullable=False, server_default="0"),
-    sa.Column("above", sa.Integer, nullable=False, server_default="0"),
-    sa.Column("vmin", sa.Double),
-    sa.Column("vmax", sa.Double),
-    sa.Column("low", sa.Double),
-    sa.Column("high", sa.Double),
-)
+
+
+def _measurement_rollup(name: str, keys: tuple[str, ...]) -> sa.Table:
+    return sa.Table(
+        name, metadata, *_key_columns(keys),
+        sa.Column("name", sa.Text, primary_key=True),
+        sa.Column("condition", sa.Text, primary_key=True),
+        sa.Column("units", sa.Text, nullable=False, server_default=""),
+        *[sa.Column(c, sa.Double if c.startswith("total") else sa.Integer, nullable=False,
+                    server_default="0") for c in MEASUREMENT_SUMS],
+        *[sa.Column(c, sa.Double) for c in MEASUREMENT_BOUNDS],
+    )
+
+
+rollup_measurements = _measurement_rollup("rollup_measurements", ROLLUP_KEY)
+
+# Schema 7 (migration 0007): the same counts and sums at coarser grains, kept in the same
+# transaction, so a long range reads days instead of hours. Each grain is named by its key:
+# day_utc (`YYYY-MM-DD`) or hour_utc, then the dimensions it keeps. The yield tables need the
+# station per day, the lot and work order per day, and the hour (the shift) per product.
+ROLLUP_GRAINS = {
+    "rollup_runs_day_station": ("day_utc", "station_id", "product", "simulated"),
+    "rollup_runs_day_lot": ("day_utc", "lot", "work_order", "product", "simulated"),
+    "rollup_runs_hour_product": ("hour_utc", "product", "simulated"),
+}
+MEASUREMENT_GRAINS = {"rollup_measurements_day_product": ("day_utc", "product", "simulated")}
+# Every rollup table, coarsest first: a query reads the first that answers it
+RUN_ROLLUPS = (*[_run_rollup(n, k) for n, k in ROLLUP_GRAINS.items()], rollup_runs)
+MEASUREMENT_ROLLUPS = (*[_measurement_rollup(n, k) for n, k in MEASUREMENT_GRAINS.items()],
+                       rollup_measurements)

@@ -58,18 +58,13 @@ class Filters:
             c.append(runs.c.lot == self.lot)
         return c
 
-    def rollup_clauses(self, table: sa.Table = rollup_runs) -> list[sa.ColumnElement[bool]]:
-        """The selection on a rollup table (whole hours), simulated runs left out unless
-        included."""
-        return rolled.clauses(table, self.since, self.until, self.product, self.station,
-                              self.lot, self.include_simulated)
-
-    def rollup_days(self, con: sa.Connection, table: sa.Table = rollup_runs,
-                    days: int = rolled.YIELD_DAYS) -> list[sa.ColumnElement[bool]]:
-        """The selection, limited to the latest `days` days with runs when no start is
-        given."""
-        where = self.rollup_clauses(table)
-        return where + rolled.latest_days(con, table, where, self.since, days)
+    def selection(self, con: sa.Connection, days: int = rolled.YIELD_DAYS,
+                  table: sa.Table = rollup_runs) -> rolled.Selection:
+        """The selection on the rollups, limited to the latest `days` days with runs (in
+        this hourly rollup) when no start is given."""
+        sel = rolled.Selection(self.since, self.until, self.product, self.station, self.lot,
+                               self.include_simulated)
+        return rolled.latest_days(con, sel, days, table)
 
 
 def station_states(con: sa.Connection, offline_after_s: float, now: datetime | None = None,
@@ -80,7 +75,7 @@ def station_states(con: sa.Connection, offline_after_s: float, now: datetime | N
     now = now or datetime.now(UTC)
     real = simulated_clauses(include_simulated)
     beats = {r.station_id: r for r in con.execute(sa.select(station_table))}
-    seen = Filters(include_simulated=True).rollup_days(con)
+    seen = Filters(include_simulated=True).selection(con)
     ids = set(beats) | rolled.stations_seen(con, seen)
     out = []
     for sid in sorted(ids):
@@ -117,7 +112,7 @@ def _state(beat: Any, recent: Sequence[Any], now: datetime, offline_after_s: flo
 
 def yield_tables(con: sa.Connection, flt: Filters,
                  shift_starts_h: Sequence[int] = DEFAULT_SHIFT_STARTS_H) -> dict[str, Any]:
-    tables = rolled.yield_tables(con, flt.rollup_days(con), shift_starts_h)
+    tables = rolled.yield_tables(con, flt.selection(con), shift_starts_h)
     return {group: _yield_json(rows) for group, rows in tables.items()}
 
 
@@ -133,9 +128,9 @@ def capabilities(con: sa.Connection, flt: Filters, confidence: float = 0.95
     """Cpk of every limited measurement (per name and condition) over the first tests of the
     selected days (the latest CPK_DAYS without a start), with Bissell's interval, from the
     rollups' sums."""
-    where = flt.rollup_days(con, rollup_measurements, rolled.CPK_DAYS)
+    sel = flt.selection(con, rolled.CPK_DAYS, rollup_measurements)
     return [{"name": name, "condition": condition, "units": units, **asdict(cap)}
-            for name, condition, units, cap in rolled.capabilities(con, where, confidence)]
+            for name, condition, units, cap in rolled.capabilities(con, sel, confidence)]
 
 
 @dataclass(frozen=True)
@@ -218,14 +213,14 @@ def simulated_left_out(con: sa.Connection, flt: Filters) -> int:
     if flt.include_simulated:
         return 0
     every = Filters(**{**asdict(flt), "include_simulated": True})
-    return rolled.simulated_runs(con, every.rollup_days(con))
+    return rolled.simulated_runs(con, every.selection(con))
 
 
 def choices(con: sa.Connection, flt: Filters) -> dict[str, list[str]]:
     """Products, stations and lots to filter by: those of the selected days (from the
     rollups)."""
     days = Filters(since=flt.since, until=flt.until, include_simulated=True)
-    return rolled.choices(con, days.rollup_days(con))
+    return rolled.choices(con, days.selection(con))
 
 
 def run_folder(con: sa.Connection, run_id: str) -> str | None:

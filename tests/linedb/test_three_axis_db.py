@@ -51,7 +51,7 @@ def _schema3_file(path: Path) -> None:
 def test_schema3_database_upgrades_with_its_runs_kept(tmp_path: Path) -> None:
     path = tmp_path / "results.sqlite"
     _schema3_file(path)
-    assert HEAD_REVISION == "0006"
+    assert HEAD_REVISION == "0007"
     con = sqlite3.connect(path)
     assert "calibration_elements" not in {
         r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}

@@ -62,9 +62,9 @@ def upgrade() -> None:
     op.create_index("outbox_queue", "outbox", ["queued_utc", "run_id"],
                     postgresql_where=sa.text("sent_version < version"),
                     sqlite_where=sa.text("sent_version < version"))
-    from station.db.rollups import add_all
+    from station.db.rollups import add_hourly
 
-    add_all(op.get_bind())
+    add_hourly(op.get_bind())
 
 
 def downgrade() -> None:
