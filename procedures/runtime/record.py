@@ -153,6 +153,7 @@ class Calibration(_Model):
     bias_temp_coeff3_dps_per_c3: Coefficient | None = None
     scale_temp_coeff2_per_c2: Coefficient | None = None
     scale_temp_coeff3_per_c3: Coefficient | None = None
+    fit_order: int | None = None  # 2 or 3 above first order; absent for a first-order fit
 
     @model_serializer(mode="wrap")
     def _as_written(self, handler: SerializerFunctionWrapHandler) -> Any:
@@ -160,7 +161,8 @@ class Calibration(_Model):
         data = handler(self)
         if not isinstance(data, dict):
             return data
-        return {k: v for k, v in data.items() if not (k in HIGHER_ORDER_TERMS and v is None)}
+        drop = (*HIGHER_ORDER_TERMS, "fit_order")
+        return {k: v for k, v in data.items() if not (k in drop and v is None)}
 
 
 HIGHER_ORDER_TERMS = (

@@ -66,16 +66,18 @@ def test_turn_on_warm_up_and_second_order_fit_on_the_bench(tmp_path: Path) -> No
 
     # second-order fit: the curvature is found, programmed and read back
     cal = rec.calibration
-    assert cal is not None and cal.model_extra is not None
-    assert cal.model_extra["fit_order"] == 2
-    b2 = cal.model_extra["bias_temp_coeff2_dps_per_c2"]
-    assert abs(b2["value"] - PART["bias_temp_coeff2_dps_per_c2"]) <= 1.5 * b2["uncertainty_k2"]
-    assert abs(b2["value"]) > b2["uncertainty_k2"]  # resolved, not noise
-    s2 = cal.model_extra["scale_temp_coeff2_per_c2"]
-    assert abs(s2["value"] - PART["scale_temp_coeff2_per_c2"]) <= 1.5 * s2["uncertainty_k2"]
+    assert cal is not None and not cal.model_extra  # every key a declared field
+    assert cal.fit_order == 2
+    b2 = cal.bias_temp_coeff2_dps_per_c2
+    assert b2 is not None
+    assert abs(b2.value - PART["bias_temp_coeff2_dps_per_c2"]) <= 1.5 * b2.uncertainty_k2
+    assert abs(b2.value) > b2.uncertainty_k2  # resolved, not noise
+    s2 = cal.scale_temp_coeff2_per_c2
+    assert s2 is not None
+    assert abs(s2.value - PART["scale_temp_coeff2_per_c2"]) <= 1.5 * s2.uncertainty_k2
     assert cal.readback_ok and cal.readback is not None
     assert cal.readback["bias_tc2_dps_per_c2"] == truth["calibration"]["bias_tc2_dps_per_c2"]
-    assert math.isclose(truth["calibration"]["bias_tc2_dps_per_c2"], b2["value"], rel_tol=1e-6)
+    assert math.isclose(truth["calibration"]["bias_tc2_dps_per_c2"], b2.value, rel_tol=1e-6)
     assert rec.analysis.temperature_fit is not None
     assert len(rec.analysis.temperature_fit.points) == 6
     assert rec.verification is not None and rec.verification.max_error_pct is not None
