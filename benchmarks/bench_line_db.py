@@ -167,18 +167,7 @@ def bench_dashboard(path: Path, browser: bool) -> dict[str, float]:
                                               "since": "2026-02-10"}).raise_for_status()
             out["api_yields_last_days_s"] = time.perf_counter() - t
         if browser:
-            from station.ui.headless import chromium, wait_js
-
-            with chromium() as b:
-                page = b.new_page()
-                sign_in_page(page, server.url)  # the session cookie stays for the loads below
-                loads = []
-                for _ in range(3):
-                    t = time.perf_counter()
-                    page.goto(server.url)
-                    wait_js(page, "document.body.dataset.loaded === '1'", timeout_s=60)
-                    loads.append(time.perf_counter() - t)
-                out["browser_page_s"] = statistics.median(loads)
+            out["browser_page_s"] = _median_page_load(server.url, loads=3)
     finally:
         server.stop()
     return out
@@ -299,23 +288,28 @@ def _request_times(engine: Any, repeat: int) -> dict[str, dict[str, float]]:
     return out
 
 
-def _page_times(engine: Any) -> float:
+def _median_page_load(url: str, loads: int) -> float:
+    """The dashboard drawn in chromium, signed in: the median of `loads` page loads (s)."""
     from station.ui.headless import chromium, wait_js
 
+    with chromium() as b:
+        page = b.new_page()
+        sign_in_page(page, url)  # the session cookie stays for the loads below
+        times = []
+        for _ in range(loads):
+            t = time.perf_counter()
+            page.goto(url)
+            wait_js(page, "document.body.dataset.loaded === '1'", timeout_s=60)
+            times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def _page_times(engine: Any) -> float:
     server = serve_in_thread(line_app(engine))
     try:
-        with chromium() as b:
-            page = b.new_page()
-            sign_in_page(page, server.url)
-            loads = []
-            for _ in range(5):
-                t = time.perf_counter()
-                page.goto(server.url)
-                wait_js(page, "document.body.dataset.loaded === '1'", timeout_s=60)
-                loads.append(time.perf_counter() - t)
+        return _median_page_load(server.url, loads=5)
     finally:
         server.stop()
-    return statistics.median(loads)
 
 
 def copy_main(args: argparse.Namespace) -> int:
