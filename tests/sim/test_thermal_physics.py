@@ -190,3 +190,26 @@ def test_the_bench_draws_from_the_products_typical_spreads() -> None:
     sim = ThermalPhysicsConfig().model_dump()
     for key, value in product.thermal_typical.model_dump().items():
         assert sim[key] == value, key
+
+
+def test_a_three_axis_part_follows_its_lagging_element_on_every_axis() -> None:
+    from drivers.sim.config import ThreeAxisSpec
+    from drivers.sim.gyro3 import PartModel3, resolve_three_axis
+
+    coeff = (B_T, -B_T, 2 * B_T)
+    three = ThreeAxisSpec(bias_dps=(0.0, 0.0, 0.0), bias_temp_coeff_dps_per_c=coeff,
+                          accel_noise_mps2=0.0)
+    spec = PartSpec(socket=1, serial="IMU-THERM", three_axis=three, **QUIET)
+    thermal = ThermalPhysicsConfig(**{"mode": "honest", **NONE, "element_tau_s": 20.0})
+    physics = PartPhysicsConfig(die_tau_s=1e-3, self_heat_c_per_w=0.0, thermal=thermal)
+    part = PartModel3(resolve_part(spec), resolve_three_axis("IMU-THERM", three), physics,
+                      seed=0, t_s=0.0, air_c=25.0)
+    _drive(part, 0.0, 1.0, lambda t: 35.0)
+    part.step(400.0, 399.0, 35.0, 5.0)
+    t = np.array([21.0, 121.0])
+    raw, sensor = part.raw_output3(t, np.zeros((2, 3)), np.zeros((2, 3)), 5.0, DT)
+    assert sensor == pytest.approx([35.0, 35.0], abs=1e-9)
+    element = part.element_temp_at(t)[1]
+    assert 35.0 - element[0] == pytest.approx((35.0 - element[1]) * np.exp(100.0 / 20.0))
+    for axis in range(3):  # each axis's bias follows the element, not the sensor
+        assert raw[:, axis] == pytest.approx(coeff[axis] * (element - 25.0), abs=1e-9)
