@@ -124,7 +124,8 @@ def _settled_bias(part: PartModel, path: list[float]) -> float:
 
 
 def test_heating_and_cooling_to_one_temperature_differ_by_the_hysteresis() -> None:
-    spread = {"hysteresis_dps": 0.02, "hysteresis_sigma_dps": 0.005, "hysteresis_width_c": 1.0}
+    spread: dict[str, Any] = {"hysteresis_dps": 0.02, "hysteresis_sigma_dps": 0.005,
+                              "hysteresis_width_c": 1.0}
     heated = _part(**spread)
     h = heated.truth()["thermal"]["hysteresis_dps"]
     assert h != 0.02 and h > 0
