@@ -190,7 +190,7 @@ class PartModel:
         sensor = self.die_temp_at(t_s)
         if self.element is None:
             return sensor, sensor, np.zeros_like(sensor)
-        element, bias = self.element.at(t_s)
+        element, bias = self.element.at(t_s, sensor)
         return sensor, element, bias
 
     # ------------------------------------------------------------ output

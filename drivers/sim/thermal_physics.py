@@ -108,22 +108,29 @@ class ElementThermal:
         self._play_c = min(max(self._play_c, e1 - w), e1 + w)
         self._state = (self._state[1], (e1 - self._play_c) / w)
 
-    def at(self, t_s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """(element temperature C, thermal bias deg/s) at sample times `t_s`."""
-        element = np.asarray(self._element_from(t_s), dtype=np.float64)
+    def at(self, t_s: FloatArray, sensor: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(element temperature C, thermal bias deg/s) at sample times `t_s`, where the
+        sensor reads `sensor` (the part's `die_temp_at(t_s)`, linear over the step). With
+        E = exp(-(t - t0) / tau): element = sensor - r tau + c E, c = e0 - d0 + r tau, and
+        its rate (sensor - element) / tau = r - c E / tau: one exponential per sample."""
         dr = self.draws
-        bias = np.zeros_like(element)
-        if dr.gradient_dps_per_c_per_min:
-            if dr.element_tau_s > 0:
-                sensor = self._sensor[0] + self._slope() * np.maximum(t_s - self._t[0], 0.0)
-                rate = (sensor - element) / dr.element_tau_s
-            else:
-                rate = np.full_like(element, self._slope())
-            bias = bias + dr.gradient_dps_per_c_per_min * 60.0 * rate
+        tau, r = dr.element_tau_s, self._slope()
+        t0 = self._t[0]
+        if tau > 0:
+            c = self._element[0] - self._sensor[0] + r * tau
+            decay = np.exp(np.minimum(t0 - t_s, 0.0) / tau)
+            element = sensor + (c * decay - r * tau)
+            bias = (60.0 * dr.gradient_dps_per_c_per_min) * (r - (c / tau) * decay)
+        else:
+            element = sensor
+            bias = np.full_like(sensor, 60.0 * dr.gradient_dps_per_c_per_min * r)
         if dr.hysteresis_dps:
-            (t0, t1), (s0, s1) = self._t, self._state
-            f = np.clip((t_s - t0) / (t1 - t0), 0.0, 1.0) if t1 > t0 else 1.0
-            bias = bias + 0.5 * dr.hysteresis_dps * (s0 + (s1 - s0) * f)
+            (_, t1), (s0, s1) = self._t, self._state
+            half = 0.5 * dr.hysteresis_dps
+            if t1 > t0 and s1 != s0:  # linear between the step's ends, held beyond them
+                bias = bias + np.interp(t_s, (t0, t1), (half * s0, half * s1))
+            else:
+                bias = bias + half * s1
         return element, bias
 
     def truth(self) -> dict[str, Any]:
