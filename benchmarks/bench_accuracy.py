@@ -133,7 +133,73 @@ def print_condition_ratios(per_part: list[dict[str, list[float]]]) -> None:
             print(f"{what}: rms {rms:.2f} over {len(v)} (1 = as stated), |.| > 3: {beyond}")
 
 
-def main() -> int:
+def part_row(rec: Any, tr: dict[str, float]) -> dict[str, Any]:
+    """One part's figures against its truth `tr` (the truth's `parameters`)."""
+    row: dict[str, Any] = {
+        "serial": rec.dut.serial, "verdict": str(rec.verdict), "z": {}, "res": None
+    }
+    if rec.calibration is not None:
+        for k in COEFFS:
+            c = getattr(rec.calibration, k)
+            row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
+    if rec.verification:
+        row["res"] = rec.verification.max_error_pct
+    row["cond"] = condition_ratios(rec, tr)
+    row["ppm"] = corrected_scale_ppm(rec, tr)
+    return row
+
+
+def print_rows(rows: list[dict[str, Any]]) -> str:
+    """The per-part table; returns its header (for the rule under the table)."""
+    head = (
+        f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS)
+        + "  resid%  scale ppm"
+    )
+    print(
+        "\n|fit - truth| / U(k=2) per coefficient (<= 1: covered), "
+        "residual scale error after correction"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        zs = " ".join(f"{r['z'][k]:6.2f}" if k in r["z"] else f"{'-':>6}" for k in COEFFS)
+        res = f"{r['res']:.4f}" if r["res"] is not None else "-"
+        ppm = f"{r['ppm']:9.1f}" if r["ppm"] is not None else f"{'-':>9}"
+        print(f"{r['serial']:<10} {r['verdict']:<7} {zs}  {res:>6}  {ppm}")
+    return head
+
+
+def print_coverage(fitted: list[dict[str, Any]]) -> None:
+    total = covered = 0
+    for k in COEFFS:
+        zs = [r["z"][k] for r in fitted]
+        c = sum(z <= 1.0 for z in zs)
+        total += len(zs)
+        covered += c
+        print(f"coverage {SHORT[k]}: {c}/{len(zs)} = {100 * c / max(len(zs), 1):.0f} %")
+    print(
+        f"coverage all coefficients: {covered}/{total} = {100 * covered / max(total, 1):.1f} % "
+        f"(target 93 to 97 %: k = 2 intervals neither too narrow nor too wide)"
+    )
+
+
+def print_scale(rows: list[dict[str, Any]]) -> None:
+    res = [r["res"] for r in rows if r["res"] is not None]
+    if res:
+        print(
+            f"residual scale error after correction: max {max(res):.4f} %, "
+            f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %"
+        )
+    ppms = sorted(r["ppm"] for r in rows if r["ppm"] is not None)
+    if ppms:
+        print(
+            f"corrected scale vs the element's truth: max {ppms[-1]:.1f} ppm, median "
+            f"{ppms[len(ppms) // 2]:.1f} ppm, {sum(x <= 100 for x in ppms)}/{len(ppms)} "
+            "within 100 ppm"
+        )
+
+
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", type=int, default=24)
     ap.add_argument("--sockets", type=int, default=8)
@@ -144,7 +210,11 @@ def main() -> int:
                     help="override the procedure's chamber.strategy (in a copy)")
     ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
                     help="the simulated parts' thermal physics (default: the sim config's)")
-    args = ap.parse_args()
+    return ap.parse_args()
+
+
+def main() -> int:
+    args = parse_args()
     sim_config = (
         {"part_physics": {"thermal": {"mode": args.thermal_physics}}}
         if args.thermal_physics
@@ -163,62 +233,14 @@ def main() -> int:
             parts, procedure_path=procedure, out=out, speed=args.speed, sim_config=sim_config
         )
         for s in sorted(result.folders):
-            rec = read_record(result.folders[s])
-            tr = truth["sockets"][str(s)]["parameters"]
-            row: dict[str, Any] = {
-                "serial": rec.dut.serial, "verdict": str(rec.verdict), "z": {}, "res": None
-            }
-            if rec.calibration is not None:
-                for k in COEFFS:
-                    c = getattr(rec.calibration, k)
-                    row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
-            if rec.verification:
-                row["res"] = rec.verification.max_error_pct
-            row["cond"] = condition_ratios(rec, tr)
-            row["ppm"] = corrected_scale_ppm(rec, tr)
-            rows.append(row)
+            rows.append(part_row(read_record(result.folders[s]),
+                                 truth["sockets"][str(s)]["parameters"]))
         print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)
-    head = (
-        f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS)
-        + "  resid%  scale ppm"
-    )
-    print(
-        "\n|fit - truth| / U(k=2) per coefficient (<= 1: covered), "
-        "residual scale error after correction"
-    )
-    print(head)
-    print("-" * len(head))
-    for r in rows:
-        zs = " ".join(f"{r['z'][k]:6.2f}" if k in r["z"] else f"{'-':>6}" for k in COEFFS)
-        res = f"{r['res']:.4f}" if r["res"] is not None else "-"
-        ppm = f"{r['ppm']:9.1f}" if r["ppm"] is not None else f"{'-':>9}"
-        print(f"{r['serial']:<10} {r['verdict']:<7} {zs}  {res:>6}  {ppm}")
+    head = print_rows(rows)
     fitted = [r for r in rows if r["z"]]
     print("-" * len(head))
-    total = covered = 0
-    for k in COEFFS:
-        zs = [r["z"][k] for r in fitted]
-        c = sum(z <= 1.0 for z in zs)
-        total += len(zs)
-        covered += c
-        print(f"coverage {SHORT[k]}: {c}/{len(zs)} = {100 * c / max(len(zs), 1):.0f} %")
-    print(
-        f"coverage all coefficients: {covered}/{total} = {100 * covered / max(total, 1):.1f} % "
-        f"(target 93 to 97 %: k = 2 intervals neither too narrow nor too wide)"
-    )
-    res = [r["res"] for r in rows if r["res"] is not None]
-    if res:
-        print(
-            f"residual scale error after correction: max {max(res):.4f} %, "
-            f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %"
-        )
-    ppms = sorted(r["ppm"] for r in rows if r["ppm"] is not None)
-    if ppms:
-        print(
-            f"corrected scale vs the element's truth: max {ppms[-1]:.1f} ppm, median "
-            f"{ppms[len(ppms) // 2]:.1f} ppm, {sum(x <= 100 for x in ppms)}/{len(ppms)} "
-            "within 100 ppm"
-        )
+    print_coverage(fitted)
+    print_scale(rows)
     print_condition_ratios([r["cond"] for r in rows])
     print(
         f"parts {len(rows)}, fitted {len(fitted)}, verdicts "
