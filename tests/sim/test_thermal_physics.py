@@ -214,3 +214,19 @@ def test_a_three_axis_part_follows_its_lagging_element_on_every_axis() -> None:
     assert 35.0 - element[0] == pytest.approx((35.0 - element[1]) * np.exp(100.0 / 20.0))
     for axis in range(3):  # each axis's bias follows the element, not the sensor
         assert raw[:, axis] == pytest.approx(coeff[axis] * (element - 25.0), abs=1e-9)
+
+
+def test_the_control_channels_truth_lists_the_draws() -> None:
+    from drivers.sim.launcher import launch_bench
+
+    config = {"parts": [{"socket": 1, "serial": "SIM-0001"}, {"socket": 2, "serial": "SIM-0002"}],
+              "part_physics": {"thermal": {"mode": "honest"}}}
+    with launch_bench(config=config, lockstep=True) as bench:
+        truth = bench.control.truth()
+    assert truth["thermal_physics"]["mode"] == "honest"
+    local = _world("honest", seed=0).truth()
+    for sock in ("1", "2"):
+        wire, here = truth["sockets"][sock], local["sockets"][sock]
+        assert wire["air_offset_c"] == here["air_offset_c"]
+        for key in ("element_tau_s", "gradient_dps_per_c_per_min", "hysteresis_dps"):
+            assert wire["thermal"][key] == here["thermal"][key] != 0.0
