@@ -23,6 +23,7 @@ advances at the world's steps and is interpolated linearly between them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -87,14 +88,14 @@ class ElementThermal:
         (t0, t1), (d0, d1) = self._t, self._sensor
         return (d1 - d0) / (t1 - t0) if t1 > t0 else 0.0
 
-    def _element_from(self, t_s: FloatArray | float) -> Any:
+    def _element_at(self, t_s: float) -> float:
         """The element's temperature at `t_s` from the start of the latest step."""
         tau = self.draws.element_tau_s
         t0, d0, e0, r = self._t[0], self._sensor[0], self._element[0], self._slope()
-        dt = np.maximum(np.asarray(t_s, dtype=np.float64) - t0, 0.0)
+        dt = max(t_s - t0, 0.0)
         if tau <= 0:
             return d0 + r * dt
-        return d0 + r * dt - r * tau + (e0 - d0 + r * tau) * np.exp(-dt / tau)
+        return d0 + r * dt - r * tau + (e0 - d0 + r * tau) * math.exp(-dt / tau)
 
     def step(self, t_s: float, sensor_c: float) -> None:
         """The world stepped to `t_s` where the sensor reads `sensor_c` (no noise)."""
@@ -102,7 +103,7 @@ class ElementThermal:
             return
         self._t, self._sensor = (self._t[1], t_s), (self._sensor[1], sensor_c)
         self._element = (self._element[1], self._element[1])  # base of the new step
-        e1 = float(self._element_from(t_s))
+        e1 = self._element_at(t_s)
         self._element = (self._element[0], e1)
         w = self.draws.hysteresis_width_c
         self._play_c = min(max(self._play_c, e1 - w), e1 + w)
