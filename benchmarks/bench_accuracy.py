@@ -8,6 +8,13 @@ stop-vs-table E_n (1 when the stated uncertainties are the scatter).
 
     python3 benchmarks/bench_accuracy.py [--parts 24] [--sockets 8] [--speed X]
                                          [--procedure config/procedures/eol-rate-table.yaml]
+                                         [--strategy setpoint|fastest]
+                                         [--thermal-physics honest|ideal]
+
+`--thermal-physics` sets the simulated parts' thermal physics (docs/simulated-bench.md;
+default: the sim config's); the truth's coefficients are the sensing element's. The
+corrected-scale error is, per part, the largest |fitted scale law / true scale law - 1| in
+ppm over the part's conditions, both laws at the condition's temperature and supply.
 """
 
 from __future__ import annotations
@@ -22,6 +29,8 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+import yaml  # noqa: E402
 
 from procedures.runtime.record import read_record  # noqa: E402
 from station.sim_run import run_simulated  # noqa: E402
@@ -74,6 +83,41 @@ def condition_ratios(rec: Any, tr: dict[str, float]) -> dict[str, list[float]]:
     return out
 
 
+def scale_law(c: dict[str, float], dt: float, dv: float) -> float:
+    """scale (1 + sT dT + sV dV) with coefficients `c` (truth or fit)."""
+    return c["scale"] * (
+        1.0 + c["scale_temp_coeff_per_c"] * dt + c["scale_supply_coeff_per_v"] * dv
+    )
+
+
+def corrected_scale_ppm(rec: Any, tr: dict[str, float]) -> float | None:
+    """Largest |fitted scale law / true scale law - 1| over the part's conditions, ppm."""
+    cal, fit = rec.calibration, rec.analysis.fit
+    if cal is None or fit is None:
+        return None
+    fitted = {k: getattr(cal, k).value for k in COEFFS}
+    worst = 0.0
+    for c in fit.model_dump(mode="json")["conditions"]:
+        dt = c["scale_temp_c"] - cal.reference_temperature_c
+        dv = c["supply_v"] - cal.reference_supply_v
+        err = scale_law(fitted, dt, dv) / scale_law(tr, dt, dv) - 1.0
+        worst = max(worst, abs(err) * 1e6)
+    return worst
+
+
+def with_strategy(proc_path: Path, strategy: str | None, out: Path) -> Path:
+    """The procedure, or a copy with chamber.strategy set (its product path made absolute)."""
+    if strategy is None:
+        return proc_path
+    data = yaml.safe_load(proc_path.read_text())
+    data.setdefault("chamber", {})["strategy"] = strategy
+    if "product" in data:
+        data["product"] = str((proc_path.parent / data["product"]).resolve())
+    copy = out / f"{proc_path.stem}-{strategy}.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    return copy
+
+
 def print_condition_ratios(per_part: list[dict[str, list[float]]]) -> None:
     """RMS of each ratio over every part and condition: 1 when the stated uncertainty is
     the scatter (below 1: intervals too wide; above: too narrow)."""
@@ -89,40 +133,27 @@ def print_condition_ratios(per_part: list[dict[str, list[float]]]) -> None:
             print(f"{what}: rms {rms:.2f} over {len(v)} (1 = as stated), |.| > 3: {beyond}")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--parts", type=int, default=24)
-    ap.add_argument("--sockets", type=int, default=8)
-    ap.add_argument("--speed", type=float, default=None, help="scaled clock (default: lockstep)")
-    ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
-    ap.add_argument("--first-serial", type=int, default=5001)
-    args = ap.parse_args()
-    rows = []
-    out = Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
-    serial = args.first_serial
-    t0 = time.monotonic()
-    while len(rows) < args.parts:
-        n = min(args.sockets, args.parts - len(rows))
-        parts = [{"socket": s, "serial": f"SIM-{serial + s - 1:04d}"} for s in range(1, n + 1)]
-        serial += n
-        result, truth = run_simulated(
-            parts, procedure_path=Path(args.procedure), out=out, speed=args.speed
-        )
-        for s in sorted(result.folders):
-            rec = read_record(result.folders[s])
-            tr = truth["sockets"][str(s)]["parameters"]
-            row = {"serial": rec.dut.serial, "verdict": str(rec.verdict), "z": {}, "res": None}
-            if rec.calibration is not None:
-                for k in COEFFS:
-                    c = getattr(rec.calibration, k)
-                    row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
-            if rec.verification:
-                row["res"] = rec.verification.max_error_pct
-            row["cond"] = condition_ratios(rec, tr)
-            rows.append(row)
-        print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)
+def part_row(rec: Any, tr: dict[str, float]) -> dict[str, Any]:
+    """One part's figures against its truth `tr` (the truth's `parameters`)."""
+    row: dict[str, Any] = {
+        "serial": rec.dut.serial, "verdict": str(rec.verdict), "z": {}, "res": None
+    }
+    if rec.calibration is not None:
+        for k in COEFFS:
+            c = getattr(rec.calibration, k)
+            row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
+    if rec.verification:
+        row["res"] = rec.verification.max_error_pct
+    row["cond"] = condition_ratios(rec, tr)
+    row["ppm"] = corrected_scale_ppm(rec, tr)
+    return row
+
+
+def print_rows(rows: list[dict[str, Any]]) -> str:
+    """The per-part table; returns its header (for the rule under the table)."""
     head = (
-        f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS) + "  resid%"
+        f"{'serial':<10} {'verdict':<7} " + " ".join(f"{SHORT[k]:>6}" for k in COEFFS)
+        + "  resid%  scale ppm"
     )
     print(
         "\n|fit - truth| / U(k=2) per coefficient (<= 1: covered), "
@@ -133,9 +164,12 @@ def main() -> int:
     for r in rows:
         zs = " ".join(f"{r['z'][k]:6.2f}" if k in r["z"] else f"{'-':>6}" for k in COEFFS)
         res = f"{r['res']:.4f}" if r["res"] is not None else "-"
-        print(f"{r['serial']:<10} {r['verdict']:<7} {zs}  {res}")
-    fitted = [r for r in rows if r["z"]]
-    print("-" * len(head))
+        ppm = f"{r['ppm']:9.1f}" if r["ppm"] is not None else f"{'-':>9}"
+        print(f"{r['serial']:<10} {r['verdict']:<7} {zs}  {res:>6}  {ppm}")
+    return head
+
+
+def print_coverage(fitted: list[dict[str, Any]]) -> None:
     total = covered = 0
     for k in COEFFS:
         zs = [r["z"][k] for r in fitted]
@@ -147,12 +181,66 @@ def main() -> int:
         f"coverage all coefficients: {covered}/{total} = {100 * covered / max(total, 1):.1f} % "
         f"(target 93 to 97 %: k = 2 intervals neither too narrow nor too wide)"
     )
+
+
+def print_scale(rows: list[dict[str, Any]]) -> None:
     res = [r["res"] for r in rows if r["res"] is not None]
     if res:
         print(
             f"residual scale error after correction: max {max(res):.4f} %, "
             f"{sum(x < 0.05 for x in res)}/{len(res)} below 0.05 %"
         )
+    ppms = sorted(r["ppm"] for r in rows if r["ppm"] is not None)
+    if ppms:
+        print(
+            f"corrected scale vs the element's truth: max {ppms[-1]:.1f} ppm, median "
+            f"{ppms[len(ppms) // 2]:.1f} ppm, {sum(x <= 100 for x in ppms)}/{len(ppms)} "
+            "within 100 ppm"
+        )
+
+
+def parse_args() -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--parts", type=int, default=24)
+    ap.add_argument("--sockets", type=int, default=8)
+    ap.add_argument("--speed", type=float, default=None, help="scaled clock (default: lockstep)")
+    ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
+    ap.add_argument("--first-serial", type=int, default=5001)
+    ap.add_argument("--strategy", choices=["setpoint", "fastest"], default=None,
+                    help="override the procedure's chamber.strategy (in a copy)")
+    ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
+                    help="the simulated parts' thermal physics (default: the sim config's)")
+    return ap.parse_args()
+
+
+def main() -> int:
+    args = parse_args()
+    sim_config = (
+        {"part_physics": {"thermal": {"mode": args.thermal_physics}}}
+        if args.thermal_physics
+        else None
+    )
+    rows: list[dict[str, Any]] = []
+    out = Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
+    serial = args.first_serial
+    procedure = with_strategy(Path(args.procedure), args.strategy, out)
+    t0 = time.monotonic()
+    while len(rows) < args.parts:
+        n = min(args.sockets, args.parts - len(rows))
+        parts = [{"socket": s, "serial": f"SIM-{serial + s - 1:04d}"} for s in range(1, n + 1)]
+        serial += n
+        result, truth = run_simulated(
+            parts, procedure_path=procedure, out=out, speed=args.speed, sim_config=sim_config
+        )
+        for s in sorted(result.folders):
+            rows.append(part_row(read_record(result.folders[s]),
+                                 truth["sockets"][str(s)]["parameters"]))
+        print(f"  ... {len(rows)} parts done ({time.monotonic() - t0:.0f} s wall)", flush=True)
+    head = print_rows(rows)
+    fitted = [r for r in rows if r["z"]]
+    print("-" * len(head))
+    print_coverage(fitted)
+    print_scale(rows)
     print_condition_ratios([r["cond"] for r in rows])
     print(
         f"parts {len(rows)}, fitted {len(fitted)}, verdicts "

@@ -27,10 +27,12 @@ def run_simulated(
     settings: LoadedSettings | None = None,
     certificate: bool = False,
     on_progress: Callable[[ProgressEvent], None] | None = None,
+    sim_config: dict[str, Any] | None = None,
 ) -> tuple[UutResult, dict[str, Any]]:
     """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
     entries); returns the result and the bench's truth at the end (for benchmarks and tests).
-    Without `speed` the bench runs in lockstep (station time is physics time)."""
+    Without `speed` the bench runs in lockstep (station time is physics time); `sim_config`
+    adds sim config keys besides the parts (e.g. `part_physics: {thermal: {mode: ideal}}`)."""
     from drivers.sim.launcher import launch_bench
     from station.station_file import load_settings
 
@@ -42,7 +44,10 @@ def run_simulated(
     )
     warm.start()
     with launch_bench(
-        config={"parts": parts}, speed=speed, sockets=sockets, lockstep=speed is None
+        config={**(sim_config or {}), "parts": parts},
+        speed=speed,
+        sockets=sockets,
+        lockstep=speed is None,
     ) as bench:
         warm.join()
         runner = UutRunner(

@@ -254,6 +254,40 @@ class FixtureConfig(_Model):
     )
 
 
+class ThermalPhysicsConfig(_Model):
+    """The honest thermal physics of the parts (issue 28, drivers/sim/thermal_physics.py):
+    the typical values and spreads (1 sigma) each part's draws come from. `mode: ideal` turns
+    all four effects off (the part's bias and scale follow its own sensor's temperature);
+    a spread of 0 gives every part the typical value, a typical value of 0 turns one off.
+    The defaults are the GYR-130 product's `thermal_typical` (config/products/gyr130.yaml)."""
+
+    mode: Literal["honest", "ideal"] = Field(
+        "ideal", description="honest: the four effects act; ideal: none does"
+    )
+    element_tau_s: float = Field(
+        default=20.0, ge=0.0, le=3600.0,
+        description="the sensing element's lag behind the on-chip temperature sensor, s",
+    )
+    element_tau_sigma_s: float = Field(default=5.0, ge=0.0, le=3600.0)
+    gradient_sigma_dps_per_c_per_min: float = Field(
+        default=0.004, ge=0.0, le=10.0,
+        description="bias per rate of die temperature change, (deg/s)/(C/min), drawn N(0, sigma)",
+    )
+    hysteresis_dps: float = Field(
+        default=0.01, ge=0.0, le=10.0,
+        description="bias difference between heating and cooling (+-h/2), deg/s",
+    )
+    hysteresis_sigma_dps: float = Field(default=0.004, ge=0.0, le=10.0)
+    hysteresis_width_c: float = Field(
+        default=1.0, gt=0.0, le=50.0,
+        description="half-width of the play operator: a reversal of 2x this switches fully, C",
+    )
+    socket_air_sigma_c: float = Field(
+        default=0.2, ge=0.0, le=10.0,
+        description="chamber air at a fixture position minus the chamber's, drawn N(0, sigma), C",
+    )
+
+
 class PartPhysicsConfig(_Model):
     """Thermal and electrical behaviour shared by all parts."""
 
@@ -263,6 +297,11 @@ class PartPhysicsConfig(_Model):
     brownout_v: float = Field(default=4.0, gt=0.0, le=MAX_SUPPLY_V)
     supply_low_v: float = Field(default=4.5, gt=0.0, le=MAX_SUPPLY_V)
     temp_noise_c: float = Field(default=0.02, ge=0.0, le=10.0)
+    thermal: ThermalPhysicsConfig = Field(
+        default_factory=ThermalPhysicsConfig,
+        description="the honest thermal physics: element lag, gradient bias, hysteresis, "
+        "socket-to-socket air (mode: ideal turns them off)",
+    )
 
 
 # the instrument family each twin serves by default (today's instruments)

@@ -72,6 +72,7 @@ class FixtureSocket:
         self.stop_angle_deg = stop_angle_deg
         self.stop_angle_u_deg = stop_angle_u_deg
         self.clock_offset_s = clock_offset_s
+        self.air_offset_c = 0.0  # this position's air minus the chamber's (honest physics)
         self.part: PartModel | None = None
         self.odr_hz = 200
         self.streaming = False
@@ -340,6 +341,7 @@ class FixtureSocket:
             "bytes_corrupted": self.bytes_corrupted,
             "stop_angle_deg": self.stop_angle_deg,
             "fixture_clock_offset_s": self.clock_offset_s,  # fixture time = world time + this
+            "air_offset_c": self.air_offset_c,  # this socket's air = the chamber's + this
             "hand": self.hand.truth(self.world.now_s()),
             "faults": {
                 "absent": self.absent,

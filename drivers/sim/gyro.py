@@ -31,6 +31,7 @@ from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
 from drivers.sim.generic_terms import PartInputs, build_terms, total_dps
 from drivers.sim.population import PartParams, serial_seed
+from drivers.sim.thermal_physics import ElementThermal, draw_thermal
 
 FloatArray = NDArray[np.float64]
 T_REF_C = 25.0
@@ -101,6 +102,9 @@ class PartModel:
         self.heat_c = 0.0  # self-heating rise
         self._hist_t = [t_s, t_s]
         self._hist_die = [air_c, air_c]
+        # the sensing element behind the sensor (drivers/sim/thermal_physics.py); None: ideal
+        draws = draw_thermal(params.serial, physics.thermal)
+        self.element = None if draws.ideal else ElementThermal(draws, t_s, air_c)
         self.powered = False
         self.power_on_s: float | None = None
         self.shorted = False
@@ -159,6 +163,8 @@ class PartModel:
             self.heat_c += (target - self.heat_c) * kh
             self._hist_t = [self._hist_t[1], t_s]
             self._hist_die = [self._hist_die[1], self.die_temp_c()]
+            if self.element is not None:
+                self.element.step(t_s, self.die_temp_c())
 
     def _turn_on(self) -> None:
         """A new turn-on bias offset (IEEE 1431 turn-on to turn-on repeatability)."""
@@ -177,6 +183,15 @@ class PartModel:
         if t1 <= t0:
             return np.full_like(t_s, d1)
         return d0 + (d1 - d0) * np.clip((t_s - t0) / (t1 - t0), 0.0, None)
+
+    def element_temp_at(self, t_s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(sensor C, sensing element C, thermal bias deg/s) at sample times `t_s`: the
+        element is the sensor and the bias 0 for an ideal part."""
+        sensor = self.die_temp_at(t_s)
+        if self.element is None:
+            return sensor, sensor, np.zeros_like(sensor)
+        element, bias = self.element.at(t_s, sensor)
+        return sensor, element, bias
 
     # ------------------------------------------------------------ output
 
@@ -231,8 +246,8 @@ class PartModel:
     ) -> tuple[FloatArray, FloatArray]:
         """(raw output deg/s, die temperature C) at sample times `t_s` spaced `dt_s`."""
         p = self.params
-        die = self.die_temp_at(t_s)
-        d_t = die - T_REF_C
+        die, element, thermal_bias = self.element_temp_at(t_s)
+        d_t = element - T_REF_C  # the element's temperature acts; the sensor's is reported
         d_v = supply_v - V_REF_V
         w = rate_dps
         scale = p.scale * (1.0 + p.scale_temp_coeff_per_c * d_t + p.scale_supply_coeff_per_v * d_v)
@@ -248,6 +263,8 @@ class PartModel:
             y = y + p.bias_temp_coeff2_dps_per_c2 * d_t**2 + p.bias_temp_coeff3_dps_per_c3 * d_t**3
         if self.turn_on_bias_dps:
             y = y + self.turn_on_bias_dps
+        if self.element is not None:
+            y = y + thermal_bias
         if self._k2:
             y = y + self._k2 * w * w
         if self._k3:
@@ -259,7 +276,7 @@ class PartModel:
             amp, tau = self._warmup
             y = y + amp * np.exp(-np.maximum(t_s - self.power_on_s, 0.0) / tau)
         if self._generic:
-            y = y + self._generic_dps(t_s, w, angle_deg, die, d_v)
+            y = y + self._generic_dps(t_s, w, angle_deg, element, d_v)
         if self._lag_tau is not None:
             y = self._lag(y, t_s, dt_s, self._lag_tau)
         return y + self._noise(len(t_s), dt_s), die
@@ -299,6 +316,7 @@ class PartModel:
             "serial": self.params.serial,
             "parameters": self.params.as_dict(),
             "die_temp_c": self.die_temp_c(),
+            "thermal": None if self.element is None else self.element.truth(),
             "self_heating_c": self.heat_c,
             "powered": self.powered,
             "power_on_s": self.power_on_s,

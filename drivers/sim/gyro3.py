@@ -171,8 +171,8 @@ class PartModel3(PartModel):
     ) -> tuple[FloatArray, FloatArray]:
         """(raw gyro output (n, 3) deg/s, die temperature (n,) C) at sample times `t_s`."""
         th = self.three
-        die = self.die_temp_at(t_s)
-        d_t = (die - T_REF_C)[:, None]
+        die, element, thermal_bias = self.element_temp_at(t_s)
+        d_t = (element - T_REF_C)[:, None]  # the element's temperature acts
         d_v = supply_v - V_REF_V
         scale = 1.0 + np.asarray(th.scale_temp_coeff_per_c) * d_t + np.asarray(
             th.scale_supply_coeff_per_v) * d_v
@@ -180,6 +180,8 @@ class PartModel3(PartModel):
                 + np.asarray(th.bias_supply_coeff_dps_per_v) * d_v)
         if self.turn_on_bias_dps:
             bias = bias + self.turn_on_bias_dps
+        if self.element is not None:  # the same thermal bias on each axis (a simplification)
+            bias = bias + thermal_bias[:, None]
         raw = (rate_xyz_dps * scale) @ self._m_inv.T + bias
         raw = raw + accel_xyz_mps2 @ np.asarray(th.g_sensitivity_dps_per_mps2).T
         return raw + self._noise3(len(t_s), dt_s), die

@@ -24,6 +24,7 @@ from drivers.sim.gyro3 import PartModel3, resolve_three_axis
 from drivers.sim.population import resolve_part
 from drivers.sim.supply import SupplyModel
 from drivers.sim.table import TableModel
+from drivers.sim.thermal_physics import socket_air_offset_c
 
 SAFE_CHAMBER_RANGE_C = (10.0, 40.0)
 
@@ -55,6 +56,10 @@ class World:
                 )
             self.sockets[s] = FixtureSocket(
                 self, s, angle, fx.stop_angle_uncertainty_deg, fx.clock_offset_s + 0.137 * s
+            )
+            # this fixture position's air (drivers/sim/thermal_physics.py): 0 when ideal
+            self.sockets[s].air_offset_c = socket_air_offset_c(
+                config.seed, s, config.part_physics.thermal
             )
         for spec in config.parts:
             self.load_part(spec)
@@ -90,7 +95,9 @@ class World:
         air = self.chamber.air_c
         for sock in self.sockets.values():
             if sock.part is not None:
-                sock.part.step(t, dt, air, supply_v if sock.part_present() else 0.0)
+                sock.part.step(
+                    t, dt, air + sock.air_offset_c, supply_v if sock.part_present() else 0.0
+                )
         self._last_t = t
         return t
 
@@ -155,13 +162,13 @@ class World:
         if spec.three_axis is None:
             sock.part = PartModel(
                 resolve_part(spec), self.config.part_physics, self.config.seed, t,
-                self.chamber.air_c,
+                self.chamber.air_c + sock.air_offset_c,
             )
         else:  # a three-axis part in its cube (drivers/sim/gyro3.py)
             three = resolve_three_axis(spec.serial, spec.three_axis)
             sock.part = PartModel3(
                 resolve_part(spec), three, self.config.part_physics, self.config.seed, t,
-                self.chamber.air_c,
+                self.chamber.air_c + sock.air_offset_c,
             )
         sock.streaming = False
         sock.absent = False
@@ -214,6 +221,7 @@ class World:
         return {
             "time_s": t,
             "speed": self.speed,
+            "thermal_physics": self.config.part_physics.thermal.model_dump(),
             "table": self.table.truth(t),
             "chamber": self.chamber.truth(),
             "supply": self.supply.truth(),

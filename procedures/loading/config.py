@@ -128,6 +128,28 @@ class Dispositions(StrictModel):
     ABORTED: str = Field("", max_length=200, description="e.g. 'Retest the part'")
 
 
+class ThermalTypical(StrictModel):
+    """The product's typical thermal behaviour between its temperature sensor and its
+    sensing element (issue 28; docs/simulated-bench.md): typical values and 1-sigma spreads.
+    Declared for the procedures that will judge a part's lag and hysteresis against them;
+    the simulated bench's defaults (config/sim part_physics.thermal) are these values."""
+
+    element_tau_s: float = Field(
+        ge=0, le=3600, description="the sensing element's lag behind the on-chip sensor, s"
+    )
+    element_tau_sigma_s: float = Field(ge=0, le=3600)
+    gradient_sigma_dps_per_c_per_min: float = Field(
+        ge=0, le=10, description="bias per rate of die temperature change, (deg/s)/(C/min), 1 sigma"
+    )
+    hysteresis_dps: float = Field(
+        ge=0, le=10, description="bias difference between heating and cooling, deg/s"
+    )
+    hysteresis_sigma_dps: float = Field(ge=0, le=10)
+    hysteresis_width_c: float = Field(
+        gt=0, le=50, description="half-width of the temperature reversal that switches it, C"
+    )
+
+
 class ProductConfig(StrictModel):
     """One product (part number): its range, nominal values, serial format and limits."""
 
@@ -216,6 +238,10 @@ class ProductConfig(StrictModel):
     )
     self_heating_tau_s: float = Field(
         90.0, gt=0, le=1e4, description="time constant of the self-heating, s"
+    )
+    thermal_typical: ThermalTypical | None = Field(
+        None, description="typical lag, gradient bias and hysteresis between the part's "
+        "temperature sensor and its sensing element, and their spreads (docs/simulated-bench.md)"
     )
     axes: Literal[1, 3] = Field(
         1,

@@ -44,6 +44,8 @@ def _world() -> World:
         {
             "parts": parts,
             "fixture": {"sockets": 8},
+            # the golden frames are the ideal bench's (before issue 28's thermal physics)
+            "part_physics": {"thermal": {"mode": "ideal"}},
             "table": {"bounce": {"amplitude_deg": 0.02, "frequency_hz": 8.0, "decay_s": 0.3}},
         }
     )

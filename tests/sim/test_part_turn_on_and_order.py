@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from drivers.protocols import CalibrationRegisters
-from drivers.sim.config import FixtureConfig, PartPhysicsConfig, PartSpec, SimConfig
+from drivers.sim.config import (
+    FixtureConfig,
+    PartPhysicsConfig,
+    PartSpec,
+    SimConfig,
+    ThermalPhysicsConfig,
+)
 from drivers.sim.gyro import PartModel
 from drivers.sim.population import resolve_part
 
@@ -22,7 +28,8 @@ HIGHER = {"bias_temp_coeff2_dps_per_c2": -2e-4, "bias_temp_coeff3_dps_per_c3": 3
 
 def _part(air_c: float = 25.0, **extra: float) -> PartModel:
     spec = PartSpec(socket=1, serial="SIM-TURN", **{**QUIET, **COEFFS, **extra})
-    return PartModel(resolve_part(spec), PartPhysicsConfig(), seed=0, t_s=0.0, air_c=air_c)
+    physics = PartPhysicsConfig(thermal=ThermalPhysicsConfig(mode="ideal"))  # exact bias
+    return PartModel(resolve_part(spec), physics, seed=0, t_s=0.0, air_c=air_c)
 
 
 def _static_bias(part: PartModel, t_s: float) -> float:

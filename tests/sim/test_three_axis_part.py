@@ -27,7 +27,9 @@ QUIET = {"arw_deg_per_sqrt_h": 0.0, "bias_instability_deg_per_h": 0.0,
 def _world(three_axis: dict | None = None, quiet: bool = True, **cfg: object) -> World:
     part = {"socket": 1, "serial": "IMU-0001", "three_axis": three_axis or {},
             **(QUIET if quiet else {})}
-    raw = {"parts": [part], "table": {"ripple_dps": 0.0}, **cfg}
+    # the ideal thermal physics (docs/simulated-bench.md): outputs exact to the model
+    raw = {"parts": [part], "table": {"ripple_dps": 0.0},
+           "part_physics": {"thermal": {"mode": "ideal"}}, **cfg}
     w = World(parse_sim_config(raw), speed=1.0, lockstep=True)
     for line in ("VOLT 5.0", "CURR 0.5", "OUTP ON"):
         w.supply.handle(line)
