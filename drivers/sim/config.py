@@ -262,7 +262,7 @@ class ThermalPhysicsConfig(_Model):
     The defaults are the GYR-130 product's `thermal_typical` (config/products/gyr130.yaml)."""
 
     mode: Literal["honest", "ideal"] = Field(
-        "ideal", description="honest: the four effects act; ideal: none does"
+        "honest", description="honest: the four effects act; ideal: none does"
     )
     element_tau_s: float = Field(
         default=20.0, ge=0.0, le=3600.0,
