@@ -23,6 +23,7 @@ The bench runs in lockstep (station time is physics time) unless --speed asks fo
 clock.
 
     python3 benchmarks/bench_cycle.py [--sockets 1 4 8] [--strategy setpoint fastest]
+                                      [--thermal-physics honest|ideal]
 """
 
 from __future__ import annotations
@@ -169,7 +170,13 @@ def main() -> int:
     )
     ap.add_argument("--speed", type=float, default=None, help="scaled clock (default: lockstep)")
     ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
+    ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
+                    help="the simulated parts' thermal physics (default: the sim config's)")
     args = ap.parse_args()
+    sim_extra = (
+        {"part_physics": {"thermal": {"mode": args.thermal_physics}}}
+        if args.thermal_physics else None
+    )
     out = Path(tempfile.mkdtemp(prefix="bench-cycle-"))
     rows = []
     for strategy in args.strategy:
@@ -179,7 +186,9 @@ def main() -> int:
                 {"socket": s, "serial": f"SIM-{7000 + 10 * n + s:04d}"} for s in range(1, n + 1)
             ]
             w0, c0 = time.monotonic(), cpu_s()
-            result, _ = run_simulated(parts, procedure_path=proc_path, out=out, speed=args.speed)
+            result, _ = run_simulated(
+                parts, procedure_path=proc_path, out=out, speed=args.speed, sim_config=sim_extra
+            )
             wall, cpu = time.monotonic() - w0, cpu_s() - c0
             recs = [read_record(result.folders[s]) for s in sorted(result.folders)]
             total = max(r.timings.get("total", 0.0) for r in recs)
@@ -202,7 +211,7 @@ def main() -> int:
         f"{'strategy':>8} {'sockets':>7} {'station':>8} {'thermal':>8} {'measure':>8} "
         f"{'bound':>7} {'(therm':>7} {'+ meas)':>7} {'ratio':>6} {'bound*':>7} {'ratio*':>6} "
         f"{'load':>6} {'ratio':>6} "
-        f"{'per part':>8} {'wall s':>7} {'cpu s':>6}  verdicts"
+        f"{'per part':>8} {'parts/h':>7} {'bound/h':>7} {'wall s':>7} {'cpu s':>6}  verdicts"
     )
     print(head)
     print("-" * len(head))
@@ -212,8 +221,10 @@ def main() -> int:
             f"{(total - thermal) / 60:8.1f} {bound / 60:7.1f} {(bound - floor) / 60:7.1f} "
             f"{floor / 60:7.1f} {total / bound:6.2f} {settled / 60:7.1f} {total / settled:6.2f} "
             f"{shared / 60:6.1f} {total / shared:6.2f} "
-            f"{total / n / 60:8.2f} {wall:7.1f} {cpu:6.0f}  {verdicts}"
+            f"{total / n / 60:8.2f} {3600 * n / total:7.1f} {3600 * n / shared:7.1f} "
+            f"{wall:7.1f} {cpu:6.0f}  {verdicts}"
         )
+    print("parts/h: sockets per station hour of the load; bound/h: the same at the load bound")
     print("bound: the stability criterion met for good (the reading may creep at up to the")
     print("slope limit); bound*: also within band/2 of its final value from then on;")
     print("load: the bound for every part at once under the one chamber they share (the part")
