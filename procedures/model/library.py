@@ -201,7 +201,7 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
         ok = True
         for tok, p in parsed:
             if (tok, p) not in verdict:
-                verdict[(tok, p)] = _spans(_factor_values(tok, traj), p)
+                verdict[(tok, p)] = _spans_factor(tok, p, traj)
             ok = ok and verdict[(tok, p)]
         if ok:
             out.append(e)
@@ -210,6 +210,20 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
 
 
 _last_spanned: list[tuple[Trajectory, tuple[str, ...], tuple[str, ...]]] = []
+
+
+DIRECTION_REACHED = 0.9  # |state| the temperature direction must reach on both sides
+
+
+def _spans_factor(tok: str, power: int, traj: Trajectory) -> bool:
+    """The data span the factor's power; the temperature direction only where the die was
+    both heated and cooled (its state reaching +-DIRECTION_REACHED): on a record only ever
+    heated it rises from 0 to +1 over the first degrees and stays there, which a warm-up
+    drift or the bias explain as well (a hysteresis is seen only from both sides)."""
+    x = _factor_values(tok, traj)
+    if tok == "dTdir" and not (x.max() >= DIRECTION_REACHED and x.min() <= -DIRECTION_REACHED):
+        return False
+    return _spans(x, power)
 
 
 def _spans(x: FloatArray, power: int) -> bool:
