@@ -14,7 +14,8 @@ chi^2 = 25). And the time the workflow takes on a full-length run.
 
 Library term kinds (effects outside the catalog, synth_gyro.BEYOND_CATALOG, RAMPED profile:
 SHORT with a 0.2 C/s chamber ramp; RAMPED3, plateaus at three temperatures, for the scale
-quadratic in temperature: synth_gyro.PROFILE_FOR_KIND; `first_order` on a realistic part):
+quadratic in temperature; RAMPED_UPDOWN, up to 55 C and back to 25 C, for the hysteresis:
+synth_gyro.PROFILE_FOR_KIND; `first_order` on a realistic part):
 "named" is a library term named first with the kind's base variables; its 5-sigma magnitude
 comes from the generator's own signature (the same seed with and without the effect).
 `--null-trials`: the false-alarm rate with the library on (anything named or not separable
@@ -193,7 +194,8 @@ def library_five_sigma(kind: str, seed: int) -> float:
 
 def library_table(kinds: list[str], trials: int) -> None:
     print(f"\nlibrary term kinds, {trials} trials per magnitude, RAMPED profile (RAMPED3, "
-          "plateaus at three temperatures, for scale_temperature_quadratic), first_order")
+          "plateaus at three temperatures, for scale_temperature_quadratic; RAMPED_UPDOWN "
+          "for bias_temperature_hysteresis), first_order")
     print(f"{'kind':28s} {'param':20s} {'95% named':>10s} {'5 sigma':>10s} {'ratio':>6s}")
     for kind in kinds:
         name, m0 = next(iter(BEYOND_CATALOG[kind][1].items()))
