@@ -9,11 +9,13 @@ chi^2 = 25). And the time the workflow takes on a full-length run.
     python3 benchmarks/bench_discrepancy.py [--trials 20] [--effects k2_quadratic,...]
                                             [--timing-only] [--run-folder DIR]
                                             [--library-kinds KIND,...] [--null-trials N]
+                                            [--null-profile RAMPED|RAMPED_UPDOWN]
                                             [--station-run] [--simulate] [--sim-speed X]
 
 Library term kinds (effects outside the catalog, synth_gyro.BEYOND_CATALOG, RAMPED profile:
 SHORT with a 0.2 C/s chamber ramp; RAMPED3, plateaus at three temperatures, for the scale
-quadratic in temperature: synth_gyro.PROFILE_FOR_KIND; `first_order` on a realistic part):
+quadratic in temperature; RAMPED_UPDOWN, up to 55 C and back to 25 C, for the hysteresis:
+synth_gyro.PROFILE_FOR_KIND; `first_order` on a realistic part):
 "named" is a library term named first with the kind's base variables; its 5-sigma magnitude
 comes from the generator's own signature (the same seed with and without the effect).
 `--null-trials`: the false-alarm rate with the library on (anything named or not separable
@@ -52,6 +54,7 @@ from synth_gyro import (  # noqa: E402
     FIRST_ORDER_REALISTIC,
     PROFILE_FOR_KIND,
     RAMPED,
+    RAMPED_UPDOWN,
     REALISTIC_EFFECTS,
     SHORT,
     Part,
@@ -191,7 +194,8 @@ def library_five_sigma(kind: str, seed: int) -> float:
 
 def library_table(kinds: list[str], trials: int) -> None:
     print(f"\nlibrary term kinds, {trials} trials per magnitude, RAMPED profile (RAMPED3, "
-          "plateaus at three temperatures, for scale_temperature_quadratic), first_order")
+          "plateaus at three temperatures, for scale_temperature_quadratic; RAMPED_UPDOWN "
+          "for bias_temperature_hysteresis), first_order")
     print(f"{'kind':28s} {'param':20s} {'95% named':>10s} {'5 sigma':>10s} {'ratio':>6s}")
     for kind in kinds:
         name, m0 = next(iter(BEYOND_CATALOG[kind][1].items()))
@@ -213,14 +217,19 @@ def library_table(kinds: list[str], trials: int) -> None:
               f"[{' '.join(log)}]", flush=True)
 
 
-def null_rate(trials: int) -> None:
+NULL_PROFILES = {"RAMPED": RAMPED, "RAMPED_UPDOWN": RAMPED_UPDOWN}
+
+
+def null_rate(trials: int, profile: str = "RAMPED") -> None:
+    """RAMPED_UPDOWN (up to the hot temperature and back): the temperature direction
+    (hysteresis terms) is among the candidates there."""
     alarms = []
     for seed in range(trials):
-        res = run_discrepancy(as_trajectory(generate(realistic_part(), 9000 + seed, RAMPED)),
-                              first_order_model())
+        traj = as_trajectory(generate(realistic_part(), 9000 + seed, NULL_PROFILES[profile]))
+        res = run_discrepancy(traj, first_order_model())
         if res.effects_added or res.not_separable:
             alarms.append((9000 + seed, res.effects_added))
-    print(f"false alarms with the library on (RAMPED, first_order, realistic part): "
+    print(f"false alarms with the library on ({profile}, first_order, realistic part): "
           f"{len(alarms)} of {trials} ({100 * len(alarms) / trials:.1f} %) {alarms}")
 
 
@@ -281,6 +290,7 @@ def main() -> None:
     ap.add_argument("--library-kinds", default="",
                     help=f"comma-separated, or 'all': {','.join(BEYOND_CATALOG)}")
     ap.add_argument("--null-trials", type=int, default=0)
+    ap.add_argument("--null-profile", choices=sorted(NULL_PROFILES), default="RAMPED")
     ap.add_argument("--station-run", action="store_true",
                     help="make a full run folder on the simulated bench (default procedure, "
                     "a population part with a bias at twice the table angle) and time the "
@@ -301,7 +311,7 @@ def main() -> None:
     if args.timing_only:
         return
     if args.null_trials:
-        null_rate(args.null_trials)
+        null_rate(args.null_trials, args.null_profile)
     if args.library_kinds:
         kinds = list(BEYOND_CATALOG) if args.library_kinds == "all" else \
             args.library_kinds.split(",")

@@ -11,7 +11,9 @@ parameters, so a learned model can be copied into a part entry as it is:
 
 The id spells the term: `lib_` + factors joined by `_`, each factor a token with an optional
 power 2 or 3; at most third order, each factor once. Tokens: `w` (rate, deg/s), `dT` (die
-temperature - 25 C), `dTdt` (d(die temperature)/dt, C/s), `dV` (supply - 5.0 V), `sgnw`
+temperature - 25 C), `dTdt` (d(die temperature)/dt, C/s), `dTdir` (the direction of the die
+temperature's history, -1 cooled .. +1 heated: the state of a play operator of half-width
+`DIRECTION_HALF_WIDTH_C` on the die temperature), `dV` (supply - 5.0 V), `sgnw`
 (sign of the rate), `absw` (|rate|), `exp<tau>s` (exp(-t/tau), t since power-on, tau 1 to
 100000 s). `lib_angleh<k>` (k 1 to 4) is `amplitude_dps * cos(k * angle - phase_deg)` of
 the table angle. The term is added to the part's deterministic output (before its sensor
@@ -36,7 +38,8 @@ FloatArray = NDArray[np.float64]
 PREFIX = "lib_"
 MAX_TERMS = 16  # generic terms one part may carry
 MAX_HARMONIC = 4
-_TOKEN = re.compile(r"^(?:(?P<f>dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
+DIRECTION_HALF_WIDTH_C = 1.0  # the play operator of `dTdir`
+_TOKEN = re.compile(r"^(?:(?P<f>dTdir|dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
 _HARMONIC = re.compile(r"^angleh(?P<k>[1-9])$")
 PRODUCT_PARAMS = frozenset({"coeff"})
 HARMONIC_PARAMS = frozenset({"amplitude_dps", "phase_deg"})
@@ -56,6 +59,7 @@ class PartInputs:
     temp_rate_c_per_s: float
     dsupply_v: float
     since_power_on_s: FloatArray
+    temp_direction: float = 0.0  # -1 cooled .. +1 heated (`dTdir`)
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,7 @@ def _factor(tok: str, x: PartInputs) -> FloatArray:
         "w": x.rate_dps,
         "dT": x.dtemp_c,
         "dTdt": np.full(n, x.temp_rate_c_per_s),
+        "dTdir": np.full(n, x.temp_direction),
         "dV": np.full(n, x.dsupply_v),
         "sgnw": np.sign(x.rate_dps),
         "absw": np.abs(x.rate_dps),
@@ -105,8 +110,8 @@ def parse_id(effect_id: str) -> tuple[tuple[tuple[str, int], ...], int]:
         m = _TOKEN.match(tok)
         if m is None:
             raise ValueError(
-                f"term {effect_id!r}: unknown factor {tok!r}; factors are w, dT, dTdt, dV, "
-                "sgnw, absw with an optional power 2 or 3, exp<tau>s, or a term angleh<k>"
+                f"term {effect_id!r}: unknown factor {tok!r}; factors are w, dT, dTdt, dTdir, "
+                "dV, sgnw, absw with an optional power 2 or 3, exp<tau>s, or a term angleh<k>"
             )
         if m["tau"] is not None:
             if not 1 <= int(m["tau"]) <= 100_000:

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
-from drivers.sim.generic_terms import PartInputs, build_terms, total_dps
+from drivers.sim.generic_terms import DIRECTION_HALF_WIDTH_C, PartInputs, build_terms, total_dps
 from drivers.sim.population import PartParams, serial_seed
 from drivers.sim.thermal_physics import ElementThermal, draw_thermal
 
@@ -102,6 +102,7 @@ class PartModel:
         self.heat_c = 0.0  # self-heating rise
         self._hist_t = [t_s, t_s]
         self._hist_die = [air_c, air_c]
+        self._play_c = air_c  # play operator on the die temperature (generic term dTdir)
         # the sensing element behind the sensor (drivers/sim/thermal_physics.py); None: ideal
         draws = draw_thermal(params.serial, physics.thermal)
         self.element = None if draws.ideal else ElementThermal(draws, t_s, air_c)
@@ -163,6 +164,9 @@ class PartModel:
             self.heat_c += (target - self.heat_c) * kh
             self._hist_t = [self._hist_t[1], t_s]
             self._hist_die = [self._hist_die[1], self.die_temp_c()]
+            half = DIRECTION_HALF_WIDTH_C
+            self._play_c = min(max(self._play_c, self._hist_die[1] - half),
+                               self._hist_die[1] + half)
             if self.element is not None:
                 self.element.step(t_s, self.die_temp_c())
 
@@ -341,5 +345,6 @@ class PartModel:
             temp_rate_c_per_s=(d1 - d0) / (t1 - t0) if t1 > t0 else 0.0,
             dsupply_v=d_v,
             since_power_on_s=since,
+            temp_direction=(d1 - self._play_c) / DIRECTION_HALF_WIDTH_C,
         )
         return total_dps(self._generic, inputs)

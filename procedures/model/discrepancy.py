@@ -7,8 +7,10 @@ alarm rate over all candidates of the iteration is held at `alpha` with Holm's s
 procedure. Among significant candidates the best is the one with the lowest BIC. If another
 significant candidate fits almost the same signature (whitened signature correlation above
 `SEPARABLE_CORRELATION`) and its BIC is within `SEPARABLE_DELTA_BIC`, the data cannot tell
-them apart: they are reported as not separable and neither is added (nor later a look-alike
-of theirs); the other effects are still named in turn. A term is named only when it shrinks
+them apart: if one of them is the main effect every other one descends from (lib_dTdt and
+lib_dTdt_dV), it is named (parsimony, marginality.parsimonious); otherwise they are reported
+as not separable and none is added (nor later a look-alike of theirs); the other effects are
+still named in turn. A term is named only when it shrinks
 the gap, and an interaction only once its main effects are in the model or shown not to
 explain the gap (marginality.py).
 """
@@ -299,12 +301,14 @@ def _judge(tests: list[CandidateTest], current: FitResult, blocks: Blocks,
 def _choose(
     fitter: Fitter, current: FitResult, tests: list[CandidateTest], blocks: Blocks,
     set_aside: Collection[str] = (),
-) -> tuple[CandidateTest, FitResult] | dict[str, Any] | None:
+) -> _Chosen | dict[str, Any] | None:
     """The effect to name (lowest BIC among those that may be named) and the model with it,
     every time constant refitted together; the not-separable report when a look-alike is
-    as good; None when nothing may be named. A candidate whose refit no longer shrinks the
-    gap is passed over for the next. Effects set aside (reported not separable earlier) are
-    not named, nor a candidate whose signature looks like one of theirs."""
+    as good and neither descends from the other (of a main effect and its interaction the
+    main effect is named: marginality.parsimonious); None when nothing may be named. A
+    candidate whose refit no longer shrinks the gap is passed over for the next. Effects
+    set aside (reported not separable earlier) are not named, nor a candidate whose
+    signature looks like one of theirs."""
     aside = [c.fit for c in tests if c.effect in set_aside and c.fit is not None]
     eligible = [
         c for c in tests
@@ -313,30 +317,64 @@ def _choose(
                 for a in aside)
     ]
     floor = floor_dps(fitter.noise.floor_per_block_dps(blocks), blocks.duration_s)
+    passed: set[str] = set()  # a main effect passed over takes its look-alikes with it
     for i, best in enumerate(eligible):
-        assert best.fit is not None
-        rivals = []
-        for other in eligible[i + 1:]:
-            assert other.fit is not None
-            corr = _signature_correlation(current, best.fit, other.fit)
-            if corr >= SEPARABLE_CORRELATION and other.bic - best.bic < SEPARABLE_DELTA_BIC:
-                rivals.append((other, corr))
+        if best.effect in passed:
+            continue
+        rivals = _look_alikes(current, best, eligible[i + 1:])
+        preferred_over: tuple[str, ...] = ()
         if rivals:
-            return {
-                "effects": [best.effect, *[r.effect for r, _ in rivals]],
-                "delta_bic": [round(r.bic - best.bic, 3) for r, _ in rivals],
-                "signature_correlation": [round(c, 4) for _, c in rivals],
-                "reason": (
-                    "each explains the gap about equally well with almost the same "
-                    "residual signature; the data (e.g. the rate set) cannot tell them "
-                    "apart, so none was added"
-                ),
-            }
+            group = [best, *[r for r, _ in rivals]]
+            main = marginality.parsimonious([c.effect for c in group])
+            if main is None:
+                return _not_separable(best, rivals)
+            preferred_over = tuple(c.effect for c in group if c.effect != main)
+            best = next(c for c in group if c.effect == main)
+        assert best.fit is not None
         new = fitter.fit(best.fit.model, local=True)  # every time constant refitted together
         if _shrinks(blocks, current.residual_dps, new.residual_dps, best.q, floor):
-            return best, new
+            return _Chosen(best, new, preferred_over)
         log.info("%s passed over: refitted, it does not shrink the gap", best.effect)
+        passed.update({best.effect, *preferred_over})
     return None
+
+
+@dataclass(frozen=True)
+class _Chosen:
+    """The candidate to name, the model with it refitted, and the look-alike interactions
+    it was named before (the marginality principle)."""
+
+    best: CandidateTest
+    new: FitResult
+    preferred_over: tuple[str, ...] = ()
+
+
+def _look_alikes(current: FitResult, best: CandidateTest, others: list[CandidateTest]
+                 ) -> list[tuple[CandidateTest, float]]:
+    """The candidates (after `best` in BIC order) with almost its signature (correlation at
+    least SEPARABLE_CORRELATION) and a BIC within SEPARABLE_DELTA_BIC of its own."""
+    assert best.fit is not None
+    rivals = []
+    for other in others:
+        assert other.fit is not None
+        corr = _signature_correlation(current, best.fit, other.fit)
+        if corr >= SEPARABLE_CORRELATION and other.bic - best.bic < SEPARABLE_DELTA_BIC:
+            rivals.append((other, corr))
+    return rivals
+
+
+def _not_separable(best: CandidateTest, rivals: list[tuple[CandidateTest, float]]
+                   ) -> dict[str, Any]:
+    return {
+        "effects": [best.effect, *[r.effect for r, _ in rivals]],
+        "delta_bic": [round(r.bic - best.bic, 3) for r, _ in rivals],
+        "signature_correlation": [round(c, 4) for _, c in rivals],
+        "reason": (
+            "each explains the gap about equally well with almost the same "
+            "residual signature; the data (e.g. the rate set) cannot tell them "
+            "apart, so none was added"
+        ),
+    }
 
 
 def _run(
@@ -393,8 +431,9 @@ def _search(
             continue
         if chosen is None:
             break
-        best, new = chosen
-        named = _iteration(fitter, _Naming(current, new, best, tests), alpha)
+        best, new = chosen.best, chosen.new
+        named = _iteration(fitter, _Naming(current, new, best, tests, chosen.preferred_over),
+                           alpha)
         found.iterations.append(named)
         log.info("named %s: gap %.4g -> %.4g", best.effect, named.gap_before_dps,
                  named.gap_after_dps)
@@ -420,6 +459,8 @@ class _Naming:
     new: FitResult
     best: CandidateTest
     tests: list[CandidateTest]
+    # look-alike interactions of `best` that fitted about as well (named: the main effect)
+    preferred_over: tuple[str, ...] = ()
 
 
 def _iteration(fitter: Fitter, naming: _Naming, alpha: float) -> Iteration:
@@ -452,8 +493,13 @@ def _evidence(fitter: Fitter, naming: _Naming, alpha: float) -> dict[str, Any]:
     zb, za = worst_z(summary_before), worst_z(summary_after)
     pattern = max(zb, key=lambda k: zb[k] - za[k])
     later = significant[significant.index(best) + 1:]  # those passed over are not rivals
+    later = [c for c in later if c.effect not in naming.preferred_over]
     runner = later[0] if later else None
+    parsimony = ({"preferred_over": list(naming.preferred_over),
+                  "rule": "marginality: of look-alikes, the main effect is named"}
+                 if naming.preferred_over else {})
     return {
+        **parsimony,
         "delta_chi2": round(best.delta_chi2, 3),
         "f_statistic": round(best.f_statistic, 3),
         "p_value": best.p_value,

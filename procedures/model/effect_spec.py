@@ -24,4 +24,6 @@ class EffectSpec:
 
 
 # Pinned vocabulary of the base variables a term may depend on (JSON `regressors`).
-REGRESSOR_VOCABULARY = ("rate", "temperature", "temperature_rate", "supply", "angle", "time")
+# Words keep their meaning; the vocabulary may grow (temperature_direction: issue 29).
+REGRESSOR_VOCABULARY = ("rate", "temperature", "temperature_rate", "supply", "angle", "time",
+                        "temperature_direction")

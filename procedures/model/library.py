@@ -8,6 +8,7 @@ variables (at most three, total degree at most three), or a pair of table-angle 
 | `w` | rate (deg/s) | rate |
 | `dT` | die temperature - 25 C | temperature |
 | `dTdt` | d(die temperature)/dt (C/s), smoothed over `DTDT_SMOOTH_S` | temperature_rate |
+| `dTdir` | play state of the die temperature, -1 cooled .. +1 heated | temperature_direction |
 | `dV` | supply - 5.0 V | supply |
 | `sgnw` | sign(rate) | rate |
 | `absw` | abs(rate) | rate |
@@ -19,6 +20,13 @@ the token (`lib_w_dT2` = w * dT^2, `lib_dTdt`, `lib_w_exp300s`, `lib_angleh2`), 
 file holding it needs nothing else to be read back (`spec()` parses the id). Terms equal to a
 catalog effect (dT, dV, w dT, w dV, w^2, w^3, |w|, exp(-t/tau), the first angle harmonic)
 are not in the library: the catalog effect keeps its id.
+
+`dTdir` is the direction of the die's temperature history (hysteresis between heating and
+cooling): a play (backlash) operator of half-width `PLAY_HALF_WIDTH_C` run over the
+smoothed die temperature in time order, its state (temperature - play) / half-width; it
+starts at 0 and reaches +1 after a rise of 2 half-widths (-1 after such a fall). It enters
+two terms: `lib_dTdir` (a bias that differs between heating and cooling, +-coeff) and
+`lib_w_dTdir` (the same for the scale factor).
 """
 
 from __future__ import annotations
@@ -40,6 +48,7 @@ PREFIX = "lib_"
 DTDT_SMOOTH_S = 10.0  # moving-average window of the die temperature before differencing
 EXP_TAUS_S = (30.0, 100.0, 300.0, 1000.0)  # time constants of the exponential terms
 MAX_HARMONIC = 4
+PLAY_HALF_WIDTH_C = 1.0  # half-width of the play operator of the temperature direction
 
 
 @dataclass(frozen=True)
@@ -52,12 +61,14 @@ class _Factor:
 FACTORS: dict[str, _Factor] = {
     "w": _Factor("rate", "rate", "deg/s"),
     "dTdt": _Factor("temperature_rate", "d(die temperature)/dt", "C/s"),
+    "dTdir": _Factor("temperature_direction",
+                     "direction of the die temperature (-1 cooled .. +1 heated)", ""),
     "dT": _Factor("temperature", "(die temperature - 25 C)", "C"),
     "dV": _Factor("supply", "(supply - 5.0 V)", "V"),
     "sgnw": _Factor("rate", "sign(rate)", ""),
     "absw": _Factor("rate", "|rate|", "deg/s"),
 }
-_TOKEN = re.compile(r"^(?:(?P<f>dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
+_TOKEN = re.compile(r"^(?:(?P<f>dTdir|dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
 _HARMONIC = re.compile(r"^angleh(?P<k>[1-9])$")
 # exponent tuples (w, dT, dTdt, dV) of the catalog's polynomial effects and the base scale
 _CATALOG_MONOMIALS = {(1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 0, 1), (1, 1, 0, 0), (1, 0, 0, 1),
@@ -154,7 +165,7 @@ def spec(effect_id: str) -> EffectSpec:
 def candidate_ids() -> tuple[str, ...]:
     """The library searched by the workflow: products of w, dT, dTdt, dV up to third order
     (the catalog's own left out), sign(w), |w| dT, rate x warm-up exponentials, angle
-    harmonics 2 to 4."""
+    harmonics 2 to 4, and the temperature direction (hysteresis) as a bias and a scale."""
     toks = ("w", "dT", "dTdt", "dV")
     out: list[str] = []
     for powers in itertools.product(range(4), repeat=4):
@@ -163,6 +174,7 @@ def candidate_ids() -> tuple[str, ...]:
         parts = [t + (str(p) if p > 1 else "") for t, p in zip(toks, powers, strict=True) if p]
         out.append(PREFIX + "_".join(parts))
     out += [PREFIX + "sgnw", PREFIX + "absw_dT", PREFIX + "absw_dV"]
+    out += [PREFIX + "dTdir", PREFIX + "w_dTdir"]
     out += [f"{PREFIX}w_exp{int(t)}s" for t in EXP_TAUS_S]
     out += [f"{PREFIX}angleh{k}" for k in range(2, MAX_HARMONIC + 1)]
     return tuple(out)
@@ -189,7 +201,7 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
         ok = True
         for tok, p in parsed:
             if (tok, p) not in verdict:
-                verdict[(tok, p)] = _spans(_factor_values(tok, traj), p)
+                verdict[(tok, p)] = _spans_factor(tok, p, traj)
             ok = ok and verdict[(tok, p)]
         if ok:
             out.append(e)
@@ -198,6 +210,20 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
 
 
 _last_spanned: list[tuple[Trajectory, tuple[str, ...], tuple[str, ...]]] = []
+
+
+DIRECTION_REACHED = 0.9  # |state| the temperature direction must reach on both sides
+
+
+def _spans_factor(tok: str, power: int, traj: Trajectory) -> bool:
+    """The data span the factor's power; the temperature direction only where the die was
+    both heated and cooled (its state reaching +-DIRECTION_REACHED): on a record only ever
+    heated it rises from 0 to +1 over the first degrees and stays there, which a warm-up
+    drift or the bias explain as well (a hysteresis is seen only from both sides)."""
+    x = _factor_values(tok, traj)
+    if tok == "dTdir" and not (x.max() >= DIRECTION_REACHED and x.min() <= -DIRECTION_REACHED):
+        return False
+    return _spans(x, power)
 
 
 def _spans(x: FloatArray, power: int) -> bool:
@@ -226,18 +252,49 @@ def temperature_rate_c_per_s(traj: Trajectory) -> FloatArray:
 
 
 def _temperature_rate(traj: Trajectory) -> FloatArray:
+    out = np.zeros(traj.n)
+    smooth = _smoothed_temperature(traj)
+    for a, b in contiguous_runs(traj.time_s):
+        if b - a >= 3:
+            out[a:b] = np.gradient(smooth[a:b], traj.time_s[a:b])
+    return out
+
+
+def _smoothed_temperature(traj: Trajectory) -> FloatArray:
+    """The die temperature, centred moving average over DTDT_SMOOTH_S within each
+    contiguous stretch of samples (stretches under 3 samples kept as they are)."""
     # scipy.ndimage (slow to import): loaded on first use
     from scipy.ndimage import uniform_filter1d
 
-    out = np.zeros(traj.n)
+    out = np.array(traj.temp_c, dtype=float)
     for a, b in contiguous_runs(traj.time_s):
         if b - a < 3:
             continue
-        t = traj.time_s[a:b]
-        dt = float(np.median(np.diff(t)))
+        dt = float(np.median(np.diff(traj.time_s[a:b])))
         width = max(int(round(DTDT_SMOOTH_S / dt)), 1)
-        smooth = uniform_filter1d(traj.temp_c[a:b], size=min(width, b - a), mode="nearest")
-        out[a:b] = np.gradient(smooth, t)
+        out[a:b] = uniform_filter1d(traj.temp_c[a:b], size=min(width, b - a), mode="nearest")
+    return out
+
+
+def temperature_direction(traj: Trajectory) -> FloatArray:
+    """The play-operator state of the smoothed die temperature, -1 (cooled) .. +1 (heated):
+    the play follows the temperature at PLAY_HALF_WIDTH_C behind it, in time order over the
+    whole record (gaps included: the part's thermal history goes on), starting at 0."""
+    return play_state(_smoothed_temperature(traj), PLAY_HALF_WIDTH_C)
+
+
+def play_state(temp_c: FloatArray, half_width_c: float) -> FloatArray:
+    """(temp - play) / half-width of a play (backlash) operator, play(0) = temp(0)."""
+    out = np.empty(temp_c.size)
+    if temp_c.size == 0:
+        return out
+    play = float(temp_c[0])
+    for i, t in enumerate(temp_c.tolist()):
+        if t - play > half_width_c:
+            play = t - half_width_c
+        elif play - t > half_width_c:
+            play = t + half_width_c
+        out[i] = (t - play) / half_width_c
     return out
 
 
@@ -260,6 +317,8 @@ def _compute_factor(tok: str, traj: Trajectory) -> FloatArray:
         return np.exp(-traj.time_since_power_on_s / float(tok[3:-1]))
     if tok == "dTdt":
         return temperature_rate_c_per_s(traj)
+    if tok == "dTdir":
+        return temperature_direction(traj)
     compute = {"w": lambda: w, "dT": lambda: traj.dtemp_c, "dV": lambda: traj.dsupply_v,
                "sgnw": lambda: np.sign(w), "absw": lambda: np.abs(w)}
     return compute[tok]()

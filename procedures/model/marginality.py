@@ -17,6 +17,12 @@ catalog's id where the catalog holds the term (w dT is scale_temperature, dT
 bias_temperature, w^2 k2_quadratic, |w| scale_asymmetry, exp(-t/tau) warmup_drift), the
 scale for w alone and the bias for a constant (always in the model), else the library id.
 A single factor (dT, dTdt, sign(w), w^2 over w) and the angle harmonics wait for nothing.
+
+The same principle settles look-alikes (`parsimonious`): where a term and an interaction
+descending from it explain the gap about equally well with almost the same signature (lib_dTdt
+and lib_dTdt_dV2 on a record whose temperature moves only at one supply), the main effect is
+named, the simpler explanation; terms of which none descends from the others stay not
+separable.
 """
 
 from __future__ import annotations
@@ -27,7 +33,8 @@ from functools import lru_cache
 from procedures.model import library
 
 IN_EVERY_MODEL = "scale"  # w alone: every model has a scale
-_TOKEN_ORDER = ("w", "dT", "dTdt", "dV", "sgnw", "absw")  # as library.candidate_ids spells ids
+# as library.candidate_ids spells ids
+_TOKEN_ORDER = ("w", "dT", "dTdt", "dV", "sgnw", "absw", "dTdir")
 # monomials the catalog holds, by their factors (token -> power)
 _CATALOG_TERMS: dict[frozenset[tuple[str, int]], str] = {
     frozenset({("w", 1)}): IN_EVERY_MODEL,
@@ -94,3 +101,28 @@ def waiting_for(
     was not testable here (the data or the model span it) and holds nothing back."""
     return tuple(m for m in main_effects(effect_id)
                  if m not in in_model and significant.get(m, False))
+
+
+@lru_cache(maxsize=1024)
+def ancestors(effect_id: str) -> frozenset[str]:
+    """Every term `effect_id` descends from through main effects (its main effects, theirs,
+    and so on): lib_dTdt_dV2 descends from lib_dTdt_dV, bias_supply, lib_dV2 and lib_dTdt."""
+    out: set[str] = set()
+    todo = list(main_effects(effect_id))
+    while todo:
+        term = todo.pop()
+        if term not in out:
+            out.add(term)
+            todo.extend(main_effects(term))
+    return frozenset(out)
+
+
+def parsimonious(look_alikes: Collection[str]) -> str | None:
+    """Of terms that explain the gap about equally well with almost the same signature, the
+    one to name by the marginality principle: the single term from which every other one
+    descends (lib_dTdt among lib_dTdt, lib_dTdt_dV, lib_dTdt_dV2). None when the look-alikes
+    are genuinely different terms (k2_quadratic and scale_asymmetry; lib_dTdt and
+    warmup_drift): more than one of them descends from none of the others."""
+    group = set(look_alikes)
+    roots = [e for e in look_alikes if not ancestors(e) & group]
+    return roots[0] if len(roots) == 1 else None

@@ -486,6 +486,9 @@ def _print_summary(
             f"(p_holm {it.evidence['p_holm']:.2g})"
         )
         say(f"  {it.formula} [depends on: {', '.join(it.regressors)}]")
+        if it.evidence.get("preferred_over"):
+            say(f"  named before its look-alike interaction(s) "
+                f"{', '.join(it.evidence['preferred_over'])}: the main effect (marginality)")
     for ns in result.not_separable:
         say(f"not separable: {' / '.join(ns['effects'])}: {ns['reason']}")
     if result.not_identifiable:

@@ -50,6 +50,10 @@ BEYOND_CATALOG: dict[str, tuple[frozenset[str], dict[str, float]]] = {
     "bias_rate_sign": (frozenset({"rate"}), {"c_dps": 0.04}),
     # scale (1 + c dT^2)
     "scale_temperature_quadratic": (frozenset({"rate", "temperature"}), {"c_per_c2": 2.0e-6}),
+    # bias +h/2 after heating, -h/2 after cooling: a play (backlash) operator of half-width
+    # 1 C on the die temperature, its state (die - play) / 1 C from -1 to +1
+    "bias_temperature_hysteresis": (frozenset({"temperature_direction"}),
+                                    {"h_dps": 0.02, "half_width_c": 1.0}),
 }
 
 FIRST_ORDER_EFFECTS = {
@@ -141,6 +145,17 @@ def _rate_program(p: Profile) -> list[tuple[str, float, float, float]]:
     return prog
 
 
+def _backlash(x: np.ndarray, half_width: float) -> np.ndarray:
+    """Direction of x's history, -1 .. +1: x minus a backlash that trails it by half_width."""
+    state = []
+    values = x.tolist()
+    trail = values[0]
+    for v in values:
+        trail = min(max(trail, v - half_width), v + half_width)
+        state.append((v - trail) / half_width)
+    return np.array(state)
+
+
 def _gauss_markov(rng: np.random.Generator, n: int, dt: float, sigma: float, tau: float):
     a = math.exp(-dt / tau)
     e = rng.normal(0.0, sigma * math.sqrt(1 - a * a), n)
@@ -223,6 +238,9 @@ def generate(part: Part, seed: int, profile: Profile | None = None) -> dict[str,
     if "bias_angle_2nd" in e:
         h = e["bias_angle_2nd"]
         y = y + h["amplitude_dps"] * np.cos(np.radians(2 * angle - h["phase_deg"]))
+    if "bias_temperature_hysteresis" in e:
+        hy = e["bias_temperature_hysteresis"]
+        y = y + 0.5 * hy["h_dps"] * _backlash(die, hy["half_width_c"])
     if "bias_rate_sign" in e:
         y = y + e["bias_rate_sign"]["c_dps"] * np.sign(w)
     if "warmup_drift" in e:
@@ -268,8 +286,14 @@ RAMPED = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0, stab
 # temperature is what tells a curvature in temperature from a slope.
 RAMPED3 = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0, stabilise_s=40.0,
                   rate_hz=50.0, thermal_ramp_c_per_s=0.2, temperatures_c=(25.0, 40.0, 55.0))
+# RAMPED up to the hot temperature and back down: the same temperature reached by heating
+# and by cooling, so a hysteresis between them shows.
+RAMPED_UPDOWN = Profile(rates_dps=(10, 50, 150, 250), plateau_s=4.0, static_s=8.0,
+                        stabilise_s=40.0, rate_hz=50.0, thermal_ramp_c_per_s=0.2,
+                        temperatures_c=(25.0, 55.0, 25.0))
 # the profile on which each kind outside the catalog is tested and benchmarked
 PROFILE_FOR_KIND: dict[str, Profile] = {
     **{kind: RAMPED for kind in BEYOND_CATALOG},
     "scale_temperature_quadratic": RAMPED3,
+    "bias_temperature_hysteresis": RAMPED_UPDOWN,
 }

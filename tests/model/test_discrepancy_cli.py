@@ -238,6 +238,29 @@ def test_console_says_not_identifiable_not_separable_and_the_notes(
     assert len(warn) == 1 and "against temperature_rate" in warn[0]
 
 
+def test_console_says_when_the_main_effect_was_named_before_its_look_alike(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    named = SimpleNamespace(
+        effect="lib_dTdt", gap_before_dps=0.02, gap_after_dps=0.01,
+        evidence={"p_holm": 1e-9, "preferred_over": ["lib_dTdt_dV"],
+                  "rule": "marginality: of look-alikes, the main effect is named"},
+        formula="bias proportional to d(die temperature)/dt: 0.5 deg/s per (C/s)",
+        regressors=("temperature_rate",),
+    )
+    result = SimpleNamespace(
+        notes=(), gap_initial_dps=0.02, noise_floor_dps=0.01, gap_final_dps=0.01,
+        iterations=[named], not_separable=(), not_identifiable=(),
+        unexplained_remains=False, unexplained_message="",
+    )
+    cli_discrepancy._print_summary(result, Path("o"), Path("o/d.json"),  # type: ignore[arg-type]
+                                   Path("o/model.yaml"), None, sys.stdout)
+    lines = capsys.readouterr().out.splitlines()
+    assert ("  named before its look-alike interaction(s) lib_dTdt_dV: the main effect "
+            "(marginality)") in lines
+    assert not any(ln.startswith("not separable") for ln in lines)
+
+
 def test_help_names_every_input_and_the_defaults(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit):
         cli.main(["discrepancy", "--help"])

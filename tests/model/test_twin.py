@@ -25,6 +25,7 @@ def test_part_entry_carries_every_term_the_bench_reads() -> None:
     effects["k2_quadratic"] = {"k2_per_dps": 2e-6}
     effects["lib_dTdt"] = {"coeff": 0.9}
     effects["lib_angleh2"] = {"amplitude_dps": 0.02, "phase_deg": 30.0}
+    effects["lib_dTdir"] = {"coeff": 0.005}  # hysteresis (temperature_direction)
     model = GyroModel(name="x", bias_dps=1.25, scale=1.03, effects=effects)
     entry = part_entry(model, "SIM-7", measured_arw_deg_per_sqrt_h=0.3, supply_current_a=0.02)
     part = parse_sim_config({"parts": [entry]}).parts[0]  # the bench accepts it as it is
@@ -36,6 +37,7 @@ def test_part_entry_carries_every_term_the_bench_reads() -> None:
         "k2_quadratic": {"k2_per_dps": 2e-6},
         "lib_dTdt": {"coeff": 0.9},
         "lib_angleh2": {"amplitude_dps": 0.02, "phase_deg": 30.0},
+        "lib_dTdir": {"coeff": 0.005},
     }
     assert part.arw_deg_per_sqrt_h == pytest.approx(0.003)  # quiet: 1 % of the measured
     assert part.bias_instability_deg_per_h == 0.0 and part.rrw_deg_per_h_per_sqrt_h == 0.0

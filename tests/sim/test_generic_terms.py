@@ -67,6 +67,29 @@ def test_temperature_rate_term_follows_the_die() -> None:
     assert y - y0 == pytest.approx(np.full(20, 0.9 * (d1 - d0) / 10.0), rel=1e-9)
 
 
+def test_temperature_direction_term_is_plus_after_heating_and_minus_after_cooling() -> None:
+    """lib_dTdir (the discrepancy vocabulary's temperature_direction): +coeff once the die has
+    risen 2 C (a play operator of half-width 1 C), -coeff once it has fallen 2 C."""
+    part = _part({"lib_dTdir": {"coeff": 0.01}}, air_c=25.0)
+    quiet = _part({}, air_c=25.0)
+    t = np.zeros(1)
+
+    def extra() -> float:
+        y, _ = part.raw_output_dps(t + part._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
+        y0, _ = quiet.raw_output_dps(t + quiet._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
+        return float((y - y0)[0])
+
+    assert extra() == pytest.approx(0.0, abs=1e-12)  # no history yet
+    for k in range(1, 400):  # chamber at 45 C: heated
+        for p in (part, quiet):
+            p.step(float(k), 1.0, 45.0, 5.0)
+    assert extra() == pytest.approx(0.01, rel=1e-9)
+    for k in range(400, 800):  # back to 25 C: cooled
+        for p in (part, quiet):
+            p.step(float(k), 1.0, 25.0, 5.0)
+    assert extra() == pytest.approx(-0.01, rel=1e-9)
+
+
 def test_parts_without_generic_terms_are_unchanged() -> None:
     w = np.array([-50.0, 0.0, 50.0])
     assert not _part({})._generic
