@@ -20,6 +20,7 @@ at once. A declared measurement a step never set is recorded NOT_MEASURED when t
 from __future__ import annotations
 
 import logging
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Protocol
@@ -81,6 +82,11 @@ class Step(Protocol):
 
     def cleanup(self, ctx: RunContext) -> None: ...
 
+    @property
+    def sockets(self) -> frozenset[int] | None: ...
+
+    def follow_up(self) -> Sequence[Step]: ...
+
 
 # ---------------------------------------------------------------- the engine
 
@@ -138,11 +144,14 @@ class Engine:
             step_name = ""
             try:
                 self._start_safe()
-                for step, estimate in zip(self.steps, estimates, strict=True):
-                    if not ctx.parts.alive():
-                        break
+                queue = deque(zip(self.steps, estimates, strict=True))
+                while queue and ctx.parts.alive():
+                    step, estimate = queue.popleft()
                     step_name = step.name
-                    self._run_step(step, estimate)
+                    with ctx.parts.only(step.sockets):
+                        self._run_step(step, estimate)
+                    # a step may ask for steps to run next (a condition measured again)
+                    queue.extendleft(reversed([(s, s.estimate_s(ctx)) for s in step.follow_up()]))
             except Aborted as exc:
                 run_error = (
                     (Verdict.ERROR, f"{exc} (in step {step_name})")
@@ -199,8 +208,13 @@ class Engine:
                     step.cleanup(ctx)
                 finally:
                     key = step.name + (f"[{step.condition}]" if step.condition else "")
+                    elapsed = ctx.wait.now_s() - t0
                     for part in ctx.parts:
-                        part.record.timings[key] = round(ctx.wait.now_s() - t0, 3)
+                        if step.sockets is None:
+                            part.record.timings[key] = round(elapsed, 3)
+                        elif part.socket in step.sockets:  # run again: adds to its time
+                            first = part.record.timings.get(key, 0.0)
+                            part.record.timings[key] = round(first + elapsed, 3)
                     ctx.progress.end()
                     ctx.wait.deadline_s = None
                     ctx.records.declared = None
