@@ -23,6 +23,10 @@ The bench runs in lockstep (station time is physics time) unless --speed asks fo
 clock.
 
     python3 benchmarks/bench_cycle.py [--sockets 1 4 8] [--strategy setpoint fastest]
+        [--option overlap_measurement supply_change_no_wait]
+
+--option turns the `thermal` step's faster options on in the copy (docs/procedures.md,
+"Faster procedure options"); `again` counts the conditions measured again over the load.
 """
 
 from __future__ import annotations
@@ -81,10 +85,28 @@ def measurement_floor_s(proc_path: Path, arw_deg_per_sqrt_h: float) -> float:
     return n_cond * per_cond + verify
 
 
-def with_strategy(proc_path: Path, strategy: str, out: Path) -> Path:
-    """A copy of the procedure with chamber.strategy set (its product path made absolute)."""
+OPTIONS = ("overlap_measurement", "supply_change_no_wait")
+
+
+def _set_thermal_options(steps: list[dict[str, object]], options: list[str]) -> None:
+    """Every `thermal` entry, also inside loops, with the options on."""
+    for entry in steps:
+        if entry.get("step") == "thermal":
+            entry.update({option: True for option in options})
+        inner = entry.get("steps")
+        if isinstance(inner, list):
+            _set_thermal_options(inner, options)
+
+
+def with_strategy(
+    proc_path: Path, strategy: str | None, out: Path, options: list[str] | None = None
+) -> Path:
+    """A copy of the procedure with chamber.strategy set (None: the procedure's) and the
+    thermal step's `options` on (its product path made absolute)."""
     data = yaml.safe_load(proc_path.read_text())
-    data.setdefault("chamber", {})["strategy"] = strategy
+    if strategy is not None:
+        data.setdefault("chamber", {})["strategy"] = strategy
+    _set_thermal_options(data.get("steps", []), options or [])
     if data.get("product"):
         data["product"] = str((proc_path.parent / data["product"]).resolve())
     copy = out / f"{proc_path.stem}-{strategy}.yaml"
@@ -169,11 +191,13 @@ def main() -> int:
     )
     ap.add_argument("--speed", type=float, default=None, help="scaled clock (default: lockstep)")
     ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
+    ap.add_argument("--option", nargs="*", choices=OPTIONS, default=[],
+                    help="the thermal step's faster options to turn on")
     args = ap.parse_args()
     out = Path(tempfile.mkdtemp(prefix="bench-cycle-"))
     rows = []
     for strategy in args.strategy:
-        proc_path = with_strategy(Path(args.procedure), strategy, out)
+        proc_path = with_strategy(Path(args.procedure), strategy, out, args.option)
         for n in args.sockets:
             parts = [
                 {"socket": s, "serial": f"SIM-{7000 + 10 * n + s:04d}"} for s in range(1, n + 1)
@@ -191,18 +215,21 @@ def main() -> int:
             bound = thermal_bound_s(proc_path, recs) + floor
             settled = thermal_bound_s(proc_path, recs, near_final=True) + floor
             shared = thermal_bound_s(proc_path, recs, load=True) + floor
-            verdicts = ",".join(str(r.verdict) for r in recs)
+            again = sum(len(r.analysis.measured_again) for r in recs)
+            verdicts = f"{again:5d}  " + ",".join(str(r.verdict) for r in recs)
             rows.append(
                 (strategy, n, total, thermal, bound, settled, shared, floor, wall, cpu, verdicts)
             )
             print(f"  ... {strategy}, {n} socket(s) done in {wall:.0f} s wall", flush=True)
     pace = "in lockstep" if args.speed is None else f"at {args.speed:g}x"
-    print(f"\nprocedure {Path(args.procedure).name}, bench {pace}; times in station minutes")
+    opts = ", ".join(args.option) or "none"
+    print(f"\nprocedure {Path(args.procedure).name}, bench {pace}, thermal options: {opts}; "
+          "times in station minutes")
     head = (
         f"{'strategy':>8} {'sockets':>7} {'station':>8} {'thermal':>8} {'measure':>8} "
         f"{'bound':>7} {'(therm':>7} {'+ meas)':>7} {'ratio':>6} {'bound*':>7} {'ratio*':>6} "
         f"{'load':>6} {'ratio':>6} "
-        f"{'per part':>8} {'wall s':>7} {'cpu s':>6}  verdicts"
+        f"{'per part':>8} {'parts/h':>7} {'wall s':>7} {'cpu s':>6} {'again':>5}  verdicts"
     )
     print(head)
     print("-" * len(head))
@@ -212,7 +239,7 @@ def main() -> int:
             f"{(total - thermal) / 60:8.1f} {bound / 60:7.1f} {(bound - floor) / 60:7.1f} "
             f"{floor / 60:7.1f} {total / bound:6.2f} {settled / 60:7.1f} {total / settled:6.2f} "
             f"{shared / 60:6.1f} {total / shared:6.2f} "
-            f"{total / n / 60:8.2f} {wall:7.1f} {cpu:6.0f}  {verdicts}"
+            f"{total / n / 60:8.2f} {3600 * n / total:7.1f} {wall:7.1f} {cpu:6.0f} {verdicts}"
         )
     print("bound: the stability criterion met for good (the reading may creep at up to the")
     print("slope limit); bound*: also within band/2 of its final value from then on;")
