@@ -343,11 +343,12 @@ class Stabilise(StepType[ThermalSettings]):
             ctx.wait.sleep(st.check_interval_s)
             air, volts, amps = ctx.instruments.log_environment()
             self._tick(ctx, air)
+            handover = self._may_hand_over(ctx)
             for part in ctx.parts.alive():
                 if part.socket in stable_at:
                     continue
                 v = verdicts[part.socket] = self._judge(ctx, part, window_start)
-                if v.stable:
+                if v.stable and handover:
                     stable_at[part.socket] = ctx.wait.clock.now_s()
             alive = ctx.parts.alive()
             if all(p.socket in stable_at for p in alive):
@@ -358,6 +359,14 @@ class Stabilise(StepType[ThermalSettings]):
                         self._drop_unstable(ctx, part, verdicts.get(part.socket))
                 ctx.parts.require()
                 return stable_at, verdicts, volts, amps
+
+    def _may_hand_over(self, ctx: RunContext) -> bool:
+        """overlap_measurement under `fastest`: not before the planned profile is at the
+        target for good (measuring ends the profile at once: a die entering stability while
+        the profile still shapes it would be moved by that)."""
+        if not self.settings.overlap_measurement or self._control is None:
+            return True
+        return self._control.at_target_for_good(ctx.wait.clock.now_s())
 
     def _judge(self, ctx: RunContext, part: Any, window_start: float) -> StabilityVerdict:
         st = self.settings

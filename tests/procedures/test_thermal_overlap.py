@@ -25,6 +25,8 @@ from procedures.loading.config import load_procedure
 from procedures.loading.plan import build_plan
 from procedures.runtime.record import RunRecord, Verdict, read_record
 from procedures.steps.thermal import ThermalSettings
+from reports.cert_inputs import load_inputs
+from reports.cert_remeasured import remeasured
 from station.sim_run import run_simulated
 
 PROC = Path(__file__).resolve().parent / "data" / "overlap_short.yaml"
@@ -45,9 +47,13 @@ def _procedure(tmp: Path, thermal: dict[str, Any], supplies: list[float] | None 
 
 
 def _run(proc: Path, out: Path) -> RunRecord:
+    return read_record(_run_folder(proc, out))
+
+
+def _run_folder(proc: Path, out: Path) -> Path:
     result, _ = run_simulated([{"socket": 1, "serial": "SIM-8301"}], procedure_path=proc,
                               out=out)
-    return read_record(result.folders[1])
+    return result.folders[1]
 
 
 def _measured_at(record: RunRecord, name: str, condition: str) -> int:
@@ -122,7 +128,8 @@ def test_a_window_that_fails_afterwards_is_measured_again(tmp_path: Path) -> Non
     # a band tighter than the slope limit over a window: the 20 s entry span passes while
     # the die still moves more than the band over 60 s; the judgement afterwards catches it
     tight = {"overlap_measurement": True, "slope_c_per_min": 0.3, "band_c": 0.1}
-    rec = _run(_procedure(tmp_path, tight), tmp_path / "tight")
+    folder = _run_folder(_procedure(tmp_path, tight), tmp_path / "tight")
+    rec = read_record(folder)
     assert rec.verdict == Verdict.PASS
     again = rec.analysis.measured_again
     assert [a.condition for a in again] == ["T25_V5"]
@@ -138,6 +145,8 @@ def test_a_window_that_fails_afterwards_is_measured_again(tmp_path: Path) -> Non
     assert stab.judged == "before" and stab.stable is True
     assert any("T25_V5 measured again" in e.message for e in rec.events)
     assert rec.analysis.stability["T25_V5.05"].judged == "after"
+    notes = [p.getPlainText() for p in remeasured(load_inputs(folder))]
+    assert len(notes) == 1 and notes[0].startswith("Measured again: T25_V5: the die was not")
 
 
 def test_no_wait_at_a_small_supply_change_takes_less_time(tmp_path: Path) -> None:
