@@ -171,19 +171,30 @@ def test_no_wait_is_refused_when_the_change_is_beyond_the_band(tmp_path: Path) -
 
 
 def test_a_mispredicted_supply_change_is_caught_and_measured_again(tmp_path: Path) -> None:
-    # the product file understates the part's self-heating (10 C/W, the part heats 40): the
-    # predicted change (0.1 C) meets the criterion, the real one (0.4 C) does not
+    # the product file understates the parts' self-heating (10 C/W, they heat 40): the
+    # predicted change (0.06 C for the load's mean power) meets the criterion; the real one
+    # of the part drawing 20 mA (0.4 C) does not, that of the part drawing 4 mA (0.08 C) does
     product = yaml.safe_load(GYR130.read_text())
     product["self_heating_c_per_w"] = 10
     product_path = tmp_path / "gyr130-understated.yaml"
     product_path.write_text(yaml.safe_dump(product))
     both = {"overlap_measurement": True, "supply_change_no_wait": True}
-    rec = _run(_procedure(tmp_path, both, supplies=[5.0, 5.25], product=product_path),
-               tmp_path / "mispredicted")
-    assert rec.verdict == Verdict.PASS
-    assert [a.condition for a in rec.analysis.measured_again] == ["T25_V5.25"]
-    first = rec.analysis.measured_again[0].first_stability
+    proc = _procedure(tmp_path, both, supplies=[5.0, 5.25], product=product_path)
+    parts = [{"socket": 1, "serial": "SIM-8301", "supply_current_a": 0.02},
+             {"socket": 2, "serial": "SIM-8302", "supply_current_a": 0.004}]
+    result, _ = run_simulated(parts, procedure_path=proc, out=tmp_path / "mispredicted")
+    hot, cool = (read_record(result.folders[s]) for s in (1, 2))
+    assert hot.verdict == cool.verdict == Verdict.PASS
+    # only the part whose window failed is measured again; the other keeps its first attempt
+    assert [a.condition for a in hot.analysis.measured_again] == ["T25_V5.25"]
+    assert cool.analysis.measured_again == []
+    first = hot.analysis.measured_again[0].first_stability
     assert first is not None and first.judged == "after" and first.stable is False
-    assert first.predicted_change_c == pytest.approx(0.1, abs=0.03)
-    assert _measured_at(rec, "raw_bias_dps", "T25_V5.25") == 1
-    assert rec.analysis.stability["T25_V5.25"].judged == "before"
+    assert first.predicted_change_c == pytest.approx(0.06, abs=0.02)
+    assert _measured_at(hot, "raw_bias_dps", "T25_V5.25") == 1
+    assert hot.analysis.stability["T25_V5.25"].judged == "before"
+    kept = cool.analysis.stability["T25_V5.25"]
+    assert kept.judged == "after" and kept.stable is True
+    assert _measured_at(cool, "raw_bias_dps", "T25_V5.25") == 1
+    # the part measured again spent longer on the condition's steps than the other
+    assert hot.timings["bias[T25_V5.25]"] > cool.timings["bias[T25_V5.25]"]
