@@ -82,10 +82,17 @@ class Step(Protocol):
 
     def cleanup(self, ctx: RunContext) -> None: ...
 
-    @property
-    def sockets(self) -> frozenset[int] | None: ...
 
-    def follow_up(self) -> Sequence[Step]: ...
+def sockets_of(step: Step) -> frozenset[int] | None:
+    """The sockets a step measures (`StepType.sockets`; None, or no such attribute: every
+    part still running)."""
+    return getattr(step, "sockets", None)
+
+
+def follow_ups(step: Step) -> Sequence[Step]:
+    """The steps a step asks to run next (`StepType.follow_up`; none without it)."""
+    follow_up = getattr(step, "follow_up", None)
+    return follow_up() if follow_up is not None else ()
 
 
 # ---------------------------------------------------------------- the engine
@@ -148,10 +155,10 @@ class Engine:
                 while queue and ctx.parts.alive():
                     step, estimate = queue.popleft()
                     step_name = step.name
-                    with ctx.parts.only(step.sockets):
+                    with ctx.parts.only(sockets_of(step)):
                         self._run_step(step, estimate)
                     # a step may ask for steps to run next (a condition measured again)
-                    queue.extendleft(reversed([(s, s.estimate_s(ctx)) for s in step.follow_up()]))
+                    queue.extendleft(reversed([(s, s.estimate_s(ctx)) for s in follow_ups(step)]))
             except Aborted as exc:
                 run_error = (
                     (Verdict.ERROR, f"{exc} (in step {step_name})")
@@ -208,11 +215,11 @@ class Engine:
                     step.cleanup(ctx)
                 finally:
                     key = step.name + (f"[{step.condition}]" if step.condition else "")
-                    elapsed = ctx.wait.now_s() - t0
+                    elapsed, only = ctx.wait.now_s() - t0, sockets_of(step)
                     for part in ctx.parts:
-                        if step.sockets is None:
+                        if only is None:
                             part.record.timings[key] = round(elapsed, 3)
-                        elif part.socket in step.sockets:  # run again: adds to its time
+                        elif part.socket in only:  # run again: adds to its time
                             first = part.record.timings.get(key, 0.0)
                             part.record.timings[key] = round(first + elapsed, 3)
                     ctx.progress.end()
