@@ -6,6 +6,11 @@ stable one), then judges every part on its own sensor: over the last `window_s`,
 a straight-line fit and the peak-to-peak of one-second means must both be small. The window
 must lie entirely after the condition was set. Measurement starts when every remaining part
 is stable; a part that never gets there is dropped when the stability timeout runs out.
+
+Two settings shorten the wait (docs/procedures.md, the faster options): `overlap_measurement`
+hands over once every die meets the criterion over a shorter span and has the full window
+judged after the measurement (procedures/steps/thermal_after.py); `supply_change_no_wait`
+measures at once at a supply change whose predicted self-heating change meets the criterion.
 """
 
 from __future__ import annotations
