@@ -162,16 +162,23 @@ class Stabilise(StepType[ThermalSettings]):
             chamber.set_setpoint(self.target.temperature_c)
         if not chamber.is_running():
             chamber.run()
-        power_old_w = 0.0 if self.place.previous is None else self._power_each_w(ctx)
+        # the supply's power before and after, read only where the prediction is asked for
+        predict = self.settings.supply_change_no_wait and self.place.previous is not None
+        power_old_w = self._power_each_w(ctx) if predict else 0.0
         ctx.instruments.set_supply_voltage(self.target.supply_v)
-        power_w = self._power_each_w(ctx)
+        if predict:
+            self._predict_changes(ctx, power_old_w, self._power_each_w(ctx))
+        self._no_wait = self._decide_no_wait(ctx)
+        self._mark_condition(ctx)
+
+    def _predict_changes(self, ctx: RunContext, power_old_w: float, power_w: float) -> None:
+        """Each part's self-heating change at the supply change (`setpoint`): its C/W (the
+        learned one, else the product's) times the change in the load's power per part."""
         c_per_w = ctx.product.self_heating_c_per_w
         for part in ctx.parts.alive():
             own = part.thermal.c_per_w_or(c_per_w)
             self._changes[part.socket] = (
                 float("nan") if own is None else own * (power_w - power_old_w))
-        self._no_wait = self._decide_no_wait(ctx)
-        self._mark_condition(ctx)
 
     @staticmethod
     def _power_each_w(ctx: RunContext) -> float:
