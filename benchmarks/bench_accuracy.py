@@ -10,6 +10,7 @@ stop-vs-table E_n (1 when the stated uncertainties are the scatter).
                                          [--procedure config/procedures/eol-rate-table.yaml]
                                          [--strategy setpoint|fastest]
                                          [--thermal-physics honest|ideal]
+                                         [--option overlap_measurement supply_change_no_wait]
 
 `--thermal-physics` sets the simulated parts' thermal physics (docs/simulated-bench.md;
 default: the sim config's); the truth's coefficients are the sensing element's. The
@@ -30,7 +31,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import yaml  # noqa: E402
+from bench_cycle import OPTIONS, with_strategy  # noqa: E402
 
 from procedures.runtime.record import read_record  # noqa: E402
 from station.sim_run import run_simulated  # noqa: E402
@@ -105,19 +106,6 @@ def corrected_scale_ppm(rec: Any, tr: dict[str, float]) -> float | None:
     return worst
 
 
-def with_strategy(proc_path: Path, strategy: str | None, out: Path) -> Path:
-    """The procedure, or a copy with chamber.strategy set (its product path made absolute)."""
-    if strategy is None:
-        return proc_path
-    data = yaml.safe_load(proc_path.read_text())
-    data.setdefault("chamber", {})["strategy"] = strategy
-    if "product" in data:
-        data["product"] = str((proc_path.parent / data["product"]).resolve())
-    copy = out / f"{proc_path.stem}-{strategy}.yaml"
-    copy.write_text(yaml.safe_dump(data, sort_keys=False))
-    return copy
-
-
 def print_condition_ratios(per_part: list[dict[str, list[float]]]) -> None:
     """RMS of each ratio over every part and condition: 1 when the stated uncertainty is
     the scatter (below 1: intervals too wide; above: too narrow)."""
@@ -146,6 +134,7 @@ def part_row(rec: Any, tr: dict[str, float]) -> dict[str, Any]:
         row["res"] = rec.verification.max_error_pct
     row["cond"] = condition_ratios(rec, tr)
     row["ppm"] = corrected_scale_ppm(rec, tr)
+    row["again"] = len(rec.analysis.measured_again)
     return row
 
 
@@ -208,6 +197,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--first-serial", type=int, default=5001)
     ap.add_argument("--strategy", choices=["setpoint", "fastest"], default=None,
                     help="override the procedure's chamber.strategy (in a copy)")
+    ap.add_argument("--option", nargs="*", choices=OPTIONS, default=[],
+                    help="the thermal step's faster options to turn on (in a copy)")
     ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
                     help="the simulated parts' thermal physics (default: the sim config's)")
     return ap.parse_args()
@@ -223,7 +214,9 @@ def main() -> int:
     rows: list[dict[str, Any]] = []
     out = Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
     serial = args.first_serial
-    procedure = with_strategy(Path(args.procedure), args.strategy, out)
+    procedure = Path(args.procedure)
+    if args.strategy is not None or args.option:
+        procedure = with_strategy(procedure, args.strategy, out, args.option)
     t0 = time.monotonic()
     while len(rows) < args.parts:
         n = min(args.sockets, args.parts - len(rows))
@@ -249,6 +242,8 @@ def main() -> int:
             for v in sorted({r["verdict"] for r in rows})
         )
     )
+    again = sum(r["again"] for r in rows)
+    print(f"conditions measured again (overlap_measurement): {again}")
     print(f"wall time {time.monotonic() - t0:.0f} s; run folders in {out}")
     return 0
 

@@ -24,6 +24,10 @@ clock.
 
     python3 benchmarks/bench_cycle.py [--sockets 1 4 8] [--strategy setpoint fastest]
                                       [--thermal-physics honest|ideal]
+                                      [--option overlap_measurement supply_change_no_wait]
+
+--option turns the `thermal` step's faster options on in the copy (docs/procedures.md,
+"Faster procedure options"); `again` counts the conditions measured again over the load.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -82,10 +87,28 @@ def measurement_floor_s(proc_path: Path, arw_deg_per_sqrt_h: float) -> float:
     return n_cond * per_cond + verify
 
 
-def with_strategy(proc_path: Path, strategy: str, out: Path) -> Path:
-    """A copy of the procedure with chamber.strategy set (its product path made absolute)."""
+OPTIONS = ("overlap_measurement", "supply_change_no_wait")
+
+
+def _set_thermal_options(steps: list[dict[str, object]], options: list[str]) -> None:
+    """Every `thermal` entry, also inside loops, with the options on."""
+    for entry in steps:
+        if entry.get("step") == "thermal":
+            entry.update({option: True for option in options})
+        inner = entry.get("steps")
+        if isinstance(inner, list):
+            _set_thermal_options(inner, options)
+
+
+def with_strategy(
+    proc_path: Path, strategy: str | None, out: Path, options: list[str] | None = None
+) -> Path:
+    """A copy of the procedure with chamber.strategy set (None: the procedure's) and the
+    thermal step's `options` on (its product path made absolute)."""
     data = yaml.safe_load(proc_path.read_text())
-    data.setdefault("chamber", {})["strategy"] = strategy
+    if strategy is not None:
+        data.setdefault("chamber", {})["strategy"] = strategy
+    _set_thermal_options(data.get("steps", []), options or [])
     if data.get("product"):
         data["product"] = str((proc_path.parent / data["product"]).resolve())
     copy = out / f"{proc_path.stem}-{strategy}.yaml"
@@ -162,7 +185,7 @@ def _temp_of(condition: str) -> float:
     return float(condition.split("_")[0].lstrip("T"))
 
 
-def main() -> int:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sockets", type=int, nargs="+", default=[1, 4, 8])
     ap.add_argument(
@@ -172,46 +195,46 @@ def main() -> int:
     ap.add_argument("--procedure", default=str(ROOT / "config/procedures/eol-rate-table.yaml"))
     ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
                     help="the simulated parts' thermal physics (default: the sim config's)")
-    args = ap.parse_args()
+    ap.add_argument("--option", nargs="*", choices=OPTIONS, default=[],
+                    help="the thermal step's faster options to turn on")
+    return ap.parse_args()
+
+
+def measure_load(
+    args: argparse.Namespace, strategy: str, proc_path: Path, n: int, out: Path
+) -> tuple[Any, ...]:
+    """One lockstep load of `n` sockets: its row of the table."""
     sim_extra = (
         {"part_physics": {"thermal": {"mode": args.thermal_physics}}}
         if args.thermal_physics else None
     )
-    out = Path(tempfile.mkdtemp(prefix="bench-cycle-"))
-    rows = []
-    for strategy in args.strategy:
-        proc_path = with_strategy(Path(args.procedure), strategy, out)
-        for n in args.sockets:
-            parts = [
-                {"socket": s, "serial": f"SIM-{7000 + 10 * n + s:04d}"} for s in range(1, n + 1)
-            ]
-            w0, c0 = time.monotonic(), cpu_s()
-            result, _ = run_simulated(
-                parts, procedure_path=proc_path, out=out, speed=args.speed, sim_config=sim_extra
-            )
-            wall, cpu = time.monotonic() - w0, cpu_s() - c0
-            recs = [read_record(result.folders[s]) for s in sorted(result.folders)]
-            total = max(r.timings.get("total", 0.0) for r in recs)
-            thermal = thermal_wait_s(recs[0])
-            arws = [r.analysis.allan.arw_deg_per_sqrt_h if r.analysis.allan else None
-                    for r in recs]
-            arw = max(a for a in arws if a) if any(arws) else 0.6
-            floor = measurement_floor_s(proc_path, arw)
-            bound = thermal_bound_s(proc_path, recs) + floor
-            settled = thermal_bound_s(proc_path, recs, near_final=True) + floor
-            shared = thermal_bound_s(proc_path, recs, load=True) + floor
-            verdicts = ",".join(str(r.verdict) for r in recs)
-            rows.append(
-                (strategy, n, total, thermal, bound, settled, shared, floor, wall, cpu, verdicts)
-            )
-            print(f"  ... {strategy}, {n} socket(s) done in {wall:.0f} s wall", flush=True)
-    pace = "in lockstep" if args.speed is None else f"at {args.speed:g}x"
-    print(f"\nprocedure {Path(args.procedure).name}, bench {pace}; times in station minutes")
+    parts = [{"socket": s, "serial": f"SIM-{7000 + 10 * n + s:04d}"} for s in range(1, n + 1)]
+    w0, c0 = time.monotonic(), cpu_s()
+    result, _ = run_simulated(
+        parts, procedure_path=proc_path, out=out, speed=args.speed, sim_config=sim_extra
+    )
+    wall, cpu = time.monotonic() - w0, cpu_s() - c0
+    recs = [read_record(result.folders[s]) for s in sorted(result.folders)]
+    total = max(r.timings.get("total", 0.0) for r in recs)
+    thermal = thermal_wait_s(recs[0])
+    arws = [r.analysis.allan.arw_deg_per_sqrt_h if r.analysis.allan else None for r in recs]
+    arw = max(a for a in arws if a) if any(arws) else 0.6
+    floor = measurement_floor_s(proc_path, arw)
+    bound = thermal_bound_s(proc_path, recs) + floor
+    settled = thermal_bound_s(proc_path, recs, near_final=True) + floor
+    shared = thermal_bound_s(proc_path, recs, load=True) + floor
+    again = sum(len(r.analysis.measured_again) for r in recs)
+    verdicts = f"{again:5d}  " + ",".join(str(r.verdict) for r in recs)
+    print(f"  ... {strategy}, {n} socket(s) done in {wall:.0f} s wall", flush=True)
+    return (strategy, n, total, thermal, bound, settled, shared, floor, wall, cpu, verdicts)
+
+
+def print_table(rows: list[tuple[Any, ...]]) -> None:
     head = (
         f"{'strategy':>8} {'sockets':>7} {'station':>8} {'thermal':>8} {'measure':>8} "
         f"{'bound':>7} {'(therm':>7} {'+ meas)':>7} {'ratio':>6} {'bound*':>7} {'ratio*':>6} "
-        f"{'load':>6} {'ratio':>6} "
-        f"{'per part':>8} {'parts/h':>7} {'bound/h':>7} {'wall s':>7} {'cpu s':>6}  verdicts"
+        f"{'load':>6} {'ratio':>6} {'per part':>8} {'parts/h':>7} {'bound/h':>7} "
+        f"{'wall s':>7} {'cpu s':>6} {'again':>5}  verdicts"
     )
     print(head)
     print("-" * len(head))
@@ -222,7 +245,7 @@ def main() -> int:
             f"{floor / 60:7.1f} {total / bound:6.2f} {settled / 60:7.1f} {total / settled:6.2f} "
             f"{shared / 60:6.1f} {total / shared:6.2f} "
             f"{total / n / 60:8.2f} {3600 * n / total:7.1f} {3600 * n / shared:7.1f} "
-            f"{wall:7.1f} {cpu:6.0f}  {verdicts}"
+            f"{wall:7.1f} {cpu:6.0f} {verdicts}"
         )
     print("parts/h: sockets per station hour of the load; bound/h: the same at the load bound")
     print("bound: the stability criterion met for good (the reading may creep at up to the")
@@ -231,6 +254,20 @@ def main() -> int:
     print("with the largest self-heating step alone governs `bound`)")
     print("cpu s: the station's and the bench's CPU time (in lockstep the two take turns, so on")
     print("an idle machine the wall time is about the cpu time; on a loaded one it is longer)")
+
+
+def main() -> int:
+    args = parse_args()
+    out = Path(tempfile.mkdtemp(prefix="bench-cycle-"))
+    rows = []
+    for strategy in args.strategy:
+        proc_path = with_strategy(Path(args.procedure), strategy, out, args.option)
+        rows += [measure_load(args, strategy, proc_path, n, out) for n in args.sockets]
+    pace = "in lockstep" if args.speed is None else f"at {args.speed:g}x"
+    opts = ", ".join(args.option) or "none"
+    print(f"\nprocedure {Path(args.procedure).name}, bench {pace}, thermal options: {opts}; "
+          "times in station minutes")
+    print_table(rows)
     print(f"run folders in {out}")
     return 0
 

@@ -20,6 +20,7 @@ at once. A declared measurement a step never set is recorded NOT_MEASURED when t
 from __future__ import annotations
 
 import logging
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Protocol
@@ -82,6 +83,18 @@ class Step(Protocol):
     def cleanup(self, ctx: RunContext) -> None: ...
 
 
+def sockets_of(step: Step) -> frozenset[int] | None:
+    """The sockets a step measures (`StepType.sockets`; None, or no such attribute: every
+    part still running)."""
+    return getattr(step, "sockets", None)
+
+
+def follow_ups(step: Step) -> Sequence[Step]:
+    """The steps a step asks to run next (`StepType.follow_up`; none without it)."""
+    follow_up = getattr(step, "follow_up", None)
+    return follow_up() if follow_up is not None else ()
+
+
 # ---------------------------------------------------------------- the engine
 
 
@@ -138,11 +151,14 @@ class Engine:
             step_name = ""
             try:
                 self._start_safe()
-                for step, estimate in zip(self.steps, estimates, strict=True):
-                    if not ctx.parts.alive():
-                        break
+                queue = deque(zip(self.steps, estimates, strict=True))
+                while queue and ctx.parts.alive():
+                    step, estimate = queue.popleft()
                     step_name = step.name
-                    self._run_step(step, estimate)
+                    with ctx.parts.only(sockets_of(step)):
+                        self._run_step(step, estimate)
+                    # a step may ask for steps to run next (a condition measured again)
+                    queue.extendleft(reversed([(s, s.estimate_s(ctx)) for s in follow_ups(step)]))
             except Aborted as exc:
                 run_error = (
                     (Verdict.ERROR, f"{exc} (in step {step_name})")
@@ -199,8 +215,13 @@ class Engine:
                     step.cleanup(ctx)
                 finally:
                     key = step.name + (f"[{step.condition}]" if step.condition else "")
+                    elapsed, only = ctx.wait.now_s() - t0, sockets_of(step)
                     for part in ctx.parts:
-                        part.record.timings[key] = round(ctx.wait.now_s() - t0, 3)
+                        if only is None:
+                            part.record.timings[key] = round(elapsed, 3)
+                        elif part.socket in only:  # run again: adds to its time
+                            first = part.record.timings.get(key, 0.0)
+                            part.record.timings[key] = round(first + elapsed, 3)
                     ctx.progress.end()
                     ctx.wait.deadline_s = None
                     ctx.records.declared = None

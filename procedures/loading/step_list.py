@@ -262,7 +262,8 @@ def expand(nodes: tuple[Node, ...], conditions: list[Condition],
         elif node.kind == "for_each":
             for i, cond in enumerate(conditions):
                 inner = Place(cond, i, conditions[i - 1] if i else None, base.repeat)
-                out.extend(expand(node.body, conditions, inner))
+                body = expand(node.body, conditions, inner)
+                out.extend(body + [s for step in body for s in step.after_condition(body)])
         else:
             for r in range(node.count):
                 inner = Place(base.condition, base.condition_index, base.previous, r)

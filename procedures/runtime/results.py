@@ -141,6 +141,37 @@ class StabilityResults(Section):
     predicted_settle_s: Num = None
     replans: int | None = None
     self_heating_c_per_w: Num = None
+    # how the window was judged: "before" the measurement (the default), "after" it
+    # (overlap_measurement: the window judged over the measurement), or "predicted" (no wait at
+    # a supply change whose predicted self-heating change meets the criterion)
+    judged: str | None = None
+    entry_s: Num = None  # overlap: the shorter span each die met the criterion over first
+    predicted_change_c: Num = None  # no wait: the part's predicted self-heating change
+    after_slope_c_per_min: Num = None  # overlap: the window judged after the measurement
+    after_band_c: Num = None
+    judged_until_station_s: Num = None  # overlap: the end of the span judged afterwards
+
+
+class FirstMeasurement(Section):
+    """A measurement of a first attempt, taken off the judged record (measured again)."""
+
+    name: str
+    condition: str | None = None
+    value: Num = None
+    outcome: str = ""
+    low: Num = None
+    high: Num = None
+
+
+class MeasuredAgainResults(Section):
+    """One entry of analysis.measured_again (step thermal, overlap_measurement): a
+    condition measured again because its stability window, judged after the measurement,
+    failed; the first attempt's stability and measurements as they were."""
+
+    condition: str
+    why: str = ""
+    first_stability: StabilityResults | None = None
+    first: list[FirstMeasurement] = Field(default_factory=list)
 
 
 class FitCondition(Section):
@@ -364,6 +395,7 @@ class Analysis(Section):
     rate_table: dict[str, RateTableResults] = Field(default_factory=dict)
     stop_method: dict[str, StopMethodResults] = Field(default_factory=dict)
     remeasured: list[RemeasuredResults] = Field(default_factory=list)
+    measured_again: list[MeasuredAgainResults] = Field(default_factory=list)
     warm_up: dict[str, WarmUpResults] = Field(default_factory=dict)
     turn_on_repeatability: dict[str, TurnOnResults] = Field(default_factory=dict)
     positions: dict[str, list[PositionWindow]] = Field(default_factory=dict)
@@ -393,7 +425,7 @@ class Analysis(Section):
 
 PER_CONDITION = ("stability", "rate_table", "stop_method", "warm_up", "turn_on_repeatability",
                  "positions")
-LISTS = ("remeasured", "three_axis_windows")
+LISTS = ("remeasured", "measured_again", "three_axis_windows")
 
 
 def analysis_from_format_1(raw: Any) -> Analysis:

@@ -17,7 +17,8 @@ import datetime as dt
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
@@ -159,9 +160,15 @@ class Records:
         self.failure: OSError | None = None
         # set by Parts: called with (part, reason) when a stop_part limit fails
         self.on_stop_part: Callable[[PartRun, str], None] | None = None
+        # the sockets the running step measures (None: every part; Parts.only)
+        self.focus: frozenset[int] | None = None
 
     def alive(self) -> list[PartRun]:
-        return [p for p in self._parts if p.alive]
+        return [p for p in self._parts if p.alive and self.focused(p)]
+
+    def focused(self, part: PartRun) -> bool:
+        """Is the part among those the running step measures (`Parts.only`)?"""
+        return self.focus is None or part.socket in self.focus
 
     def append_all(
         self, group: str, parts: list[PartRun] | None = None, **columns: ArrayLike
@@ -291,7 +298,18 @@ class Parts(list[PartRun]):
         records.on_stop_part = lambda part, reason: self.drop(part, Verdict.FAIL, reason)
 
     def alive(self) -> list[PartRun]:
-        return [p for p in self if p.alive]
+        """The parts still running (those the running step measures, `only`)."""
+        return [p for p in self if p.alive and self._records.focused(p)]
+
+    @contextmanager
+    def only(self, sockets: frozenset[int] | None) -> Iterator[None]:
+        """Within: `alive()` (and the events of `Records`) hold only these sockets' parts
+        (None: every part), for a step run again for some parts only."""
+        before, self._records.focus = self._records.focus, sockets
+        try:
+            yield
+        finally:
+            self._records.focus = before
 
     def drop(self, part: PartRun, verdict: Verdict, reason: str) -> None:
         """Take one part out of the run (the others go on)."""
@@ -340,7 +358,7 @@ class Parts(list[PartRun]):
         return self._records.failure
 
     def require(self) -> None:
-        if not self.alive():
+        if not any(p.alive for p in self):  # any part: those `only` leaves out go on
             raise NoPartsLeft("every part has dropped out of the run")
 
 

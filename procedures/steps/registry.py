@@ -127,6 +127,9 @@ class StepType(Generic[S]):
         self.settings: S = settings
         self.place = place or Place()
         self.policy = policy or StepPolicy()
+        # the sockets this instance measures (None: every part still running); a step run
+        # again for some parts only (procedures.steps.thermal_after) names them
+        self.sockets: frozenset[int] | None = None
 
     # the engine reads these three
     @property
@@ -151,6 +154,16 @@ class StepType(Generic[S]):
         """Does this instance run at its place? (False: left out of the plan, e.g. a step
         set to run at the first condition only)"""
         return True
+
+    def after_condition(self, body: list[StepType[Any]]) -> list[StepType[Any]]:
+        """Steps the plan adds after this condition's `body` (the steps of one pass of
+        `for_each: condition`, this one among them); none by default."""
+        return []
+
+    def follow_up(self) -> list[StepType[Any]]:
+        """Steps the engine runs next, once this instance has run (e.g. a condition's
+        measurement steps again for parts whose stability failed); none by default."""
+        return []
 
     def expected(self) -> list[Declared]:
         """The declared measurements this instance must set (override to narrow, e.g. only

@@ -6,25 +6,30 @@ stable one), then judges every part on its own sensor: over the last `window_s`,
 a straight-line fit and the peak-to-peak of one-second means must both be small. The window
 must lie entirely after the condition was set. Measurement starts when every remaining part
 is stable; a part that never gets there is dropped when the stability timeout runs out.
+
+Two settings shorten the wait (docs/procedures.md, the faster options): `overlap_measurement`
+hands over once every die meets the criterion over a shorter span and has the full window
+judged after the measurement (procedures/steps/thermal_after.py); `supply_change_no_wait`
+measures at once at a supply change whose predicted self-heating change meets the criterion.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from common.bounded import ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached
+from procedures.analysis.stability import StabilityVerdict, change_settles, judge_stability
 from procedures.runtime.record import Verdict
 from procedures.runtime.results import StabilityResults
 from procedures.runtime.run_context import RunContext
 from procedures.runtime.run_parts import ConditionResult
 from procedures.steps.registry import StepSettings, StepType
+from procedures.steps.thermal_after import JudgedAfter
 from procedures.steps.thermal_fastest import (
     control_settings,
     latest_reading_c,
@@ -43,49 +48,6 @@ from procedures.thermal.thermal_control import (
     heat_now_c,
 )
 from procedures.units import Seconds
-
-
-@dataclass(frozen=True)
-class StabilityVerdict:
-    stable: bool
-    slope_c_per_min: float
-    band_c: float
-    mean_c: float
-    span_s: float
-
-
-def judge_stability(
-    time_s: NDArray[np.float64],
-    temp_c: NDArray[np.float64],
-    window_s: float,
-    slope_c_per_min: float,
-    band_c: float,
-    target_c: float | None = None,
-    tolerance_c: float | None = None,
-) -> StabilityVerdict:
-    """Is the last `window_s` of a die temperature record stable? (needs a full window)."""
-    if time_s.size < 3 or time_s[-1] - time_s[0] < window_s * 0.98:
-        return StabilityVerdict(
-            False,
-            float("nan"),
-            float("nan"),
-            float("nan"),
-            float(time_s[-1] - time_s[0]) if time_s.size else 0.0,
-        )
-    sel = time_s >= time_s[-1] - window_s
-    t, y = time_s[sel], temp_c[sel]
-    slope = float(np.polyfit(t - t[0], y, 1)[0]) * 60.0
-    # peak-to-peak of 1 s means: the band is about drift, not sensor noise
-    bins = np.floor(t - t[0]).astype(np.int64)
-    counts = np.bincount(bins)
-    sums = np.bincount(bins, weights=y)
-    means = sums[counts > 0] / counts[counts > 0]
-    band = float(np.ptp(means))
-    mean = float(y.mean())
-    ok = abs(slope) <= slope_c_per_min and band <= band_c
-    if ok and target_c is not None and tolerance_c is not None:
-        ok = abs(mean - target_c) <= tolerance_c
-    return StabilityVerdict(ok, slope, band, mean, float(t[-1] - t[0]))
 
 
 class ThermalSettings(StepSettings):
@@ -108,6 +70,27 @@ class ThermalSettings(StepSettings):
     check_interval_s: float = Field(
         5.0, gt=0, le=ONE_HOUR_S, description="how often stability is evaluated"
     )
+    overlap_measurement: bool = Field(
+        False, description="measure as soon as every die meets the criterion over "
+        "`overlap_entry_s` (entering stability), then judge the full window over the "
+        "condition's measurements; a part whose window fails is measured again"
+    )
+    overlap_entry_s: Seconds = Field(
+        20.0, gt=0, description="with overlap_measurement: the shorter span over which each "
+        "die must meet the criterion before measurement starts (at most window_s)"
+    )
+    supply_change_no_wait: bool = Field(
+        False, description="at a supply change at the same temperature: no wait when every "
+        "part's predicted self-heating change meets the criterion (within band_c, its rate "
+        "within slope_c_per_min); else it waits as without"
+    )
+
+    @model_validator(mode="after")
+    def _entry_within_window(self) -> ThermalSettings:
+        if self.overlap_entry_s > self.window_s:
+            raise ValueError(f"overlap_entry_s ({self.overlap_entry_s:g} s) is longer than "
+                             f"window_s ({self.window_s:g} s): give at most the window")
+        return self
 
 
 def _heating_c(product: Any, supply_v: float) -> float:
@@ -115,6 +98,12 @@ def _heating_c(product: Any, supply_v: float) -> float:
     if not product.self_heating_c_per_w:
         return 0.0
     return steady_die_c(0.0, supply_v, product.typical_current_a, product.self_heating_c_per_w)
+
+
+def _load_size(ctx: RunContext) -> int:
+    """The parts the supply feeds: every one still running, also those a step run again
+    for some parts only leaves out (the supply's current is the load's)."""
+    return max(sum(1 for p in ctx.parts if p.alive), 1)
 
 
 class Stabilise(StepType[ThermalSettings]):
@@ -161,6 +150,9 @@ class Stabilise(StepType[ThermalSettings]):
 
     def setup(self, ctx: RunContext) -> None:
         self._control: FastestController | None = None
+        self._changes: dict[int, float] = {}  # each part's predicted self-heating change, C
+        self._no_wait = False
+        self.measured_from: dict[int, int] = {}  # each part's measurements before measuring
         if ctx.procedure.chamber.strategy == "fastest":
             self._setup_fastest(ctx)
             return
@@ -170,8 +162,49 @@ class Stabilise(StepType[ThermalSettings]):
             chamber.set_setpoint(self.target.temperature_c)
         if not chamber.is_running():
             chamber.run()
+        # the supply's power before and after, read only where the prediction is asked for
+        predict = self.settings.supply_change_no_wait and self.place.previous is not None
+        power_old_w = self._power_each_w(ctx) if predict else 0.0
         ctx.instruments.set_supply_voltage(self.target.supply_v)
+        if predict:
+            self._predict_changes(ctx, power_old_w, self._power_each_w(ctx))
+        self._no_wait = self._decide_no_wait(ctx)
         self._mark_condition(ctx)
+
+    def _predict_changes(self, ctx: RunContext, power_old_w: float, power_w: float) -> None:
+        """Each part's self-heating change at the supply change (`setpoint`): its C/W (the
+        learned one, else the product's) times the change in the load's power per part."""
+        c_per_w = ctx.product.self_heating_c_per_w
+        for part in ctx.parts.alive():
+            own = part.thermal.c_per_w_or(c_per_w)
+            self._changes[part.socket] = (
+                float("nan") if own is None else own * (power_w - power_old_w))
+
+    @staticmethod
+    def _power_each_w(ctx: RunContext) -> float:
+        """The load's mean power per part now, W (the supply's reading)."""
+        _, volts, amps = ctx.instruments.log_environment()
+        return volts * amps / _load_size(ctx)
+
+    def _decide_no_wait(self, ctx: RunContext) -> bool:
+        """supply_change_no_wait: at a supply change at the same temperature, is every
+        part's predicted self-heating change within the criterion (procedures.analysis
+        .stability.change_settles)? Otherwise the step waits as without the setting."""
+        st, prev = self.settings, self.place.previous
+        if not st.supply_change_no_wait or prev is None or not self._changes:
+            return False
+        if prev.temperature_c != self.target.temperature_c or prev.supply_v == self.target.supply_v:
+            return False
+        tau_s = ctx.product.self_heating_tau_s
+        settles = all(change_settles(c, tau_s, st.slope_c_per_min, st.band_c)
+                      for c in self._changes.values())
+        worst = max(abs(c) for c in self._changes.values())
+        ctx.records.event(
+            f"{self.condition}: supply change, predicted self-heating change up to {worst:.3f} C "
+            + ("meets the criterion: measured at once" if settles
+               else f"does not meet the criterion (band {st.band_c:g} C, slope "
+               f"{st.slope_c_per_min:g} C/min): waits for stability"))
+        return settles
 
     def _setup_fastest(self, ctx: RunContext) -> None:
         """The supply first (its self-heating step is part of the plan), then the plan."""
@@ -181,11 +214,11 @@ class Stabilise(StepType[ThermalSettings]):
         power_old_w = 0.0
         if self.place.previous is not None:  # the power each part drew before the change
             _, volts, amps = ctx.instruments.log_environment()
-            power_old_w = volts * amps / max(len(alive), 1)
+            power_old_w = volts * amps / _load_size(ctx)
         ctx.instruments.set_supply_voltage(self.target.supply_v)
         air_c, volts, amps = ctx.instruments.log_environment()
         self._mark_condition(ctx)
-        power_w = volts * amps / max(len(alive), 1)
+        power_w = volts * amps / _load_size(ctx)
         c_per_w = ctx.product.self_heating_c_per_w
         start: dict[int, tuple[float, float, float]] = {}
         for part in alive:
@@ -196,6 +229,12 @@ class Stabilise(StepType[ThermalSettings]):
             own_c_per_w = part.thermal.c_per_w_or(c_per_w)
             heat_final = heat_after_change(heat_now, power_old_w, power_w, own_c_per_w)
             start[part.socket] = (reading_c, heat_now, heat_final)
+            self._changes[part.socket] = heat_final - heat_now
+        self._no_wait = self._decide_no_wait(ctx)
+        if self._no_wait:  # the chamber stays at the target the last condition left it at
+            if not chamber.is_running():
+                chamber.run()
+            return
         self._control = FastestController(chamber, control_settings(ctx, self))
         try:
             self._control.start(ctx.wait.clock.now_s(), air_c, chamber.read_setpoint(), start)
@@ -247,6 +286,9 @@ class Stabilise(StepType[ThermalSettings]):
 
     def _main(self, ctx: RunContext) -> None:
         start = ctx.wait.clock.now_s()
+        if self._no_wait:
+            self._measure_at_once(ctx, start)
+            return
         # 1. the air first: a die that has not started to move is not stable
         self._wait_for_air(ctx, start)
         air_at = ctx.wait.clock.now_s()
@@ -257,13 +299,32 @@ class Stabilise(StepType[ThermalSettings]):
             self._control.finish()  # measure at the target, never at an overshoot
             self._remember_dies(ctx)
         end = ctx.wait.clock.now_s()
-        amps_each = amps / max(len(ctx.parts.alive()), 1)
+        amps_each = amps / _load_size(ctx)
         for part in ctx.parts.alive():
             self._record_stable(
                 ctx, part, verdicts[part.socket], (start, stable_at[part.socket], end),
                 volts, amps_each,
             )
-        ctx.records.event(f"{self.condition}: all parts thermally stable after {end - start:.0f} s")
+        self.measured_from = {p.socket: len(p.record.measurements) for p in ctx.parts.alive()}
+        if self.settings.overlap_measurement:
+            ctx.records.event(
+                f"{self.condition}: every die entering stability after {end - start:.0f} s "
+                f"(criterion met over {self.settings.overlap_entry_s:g} s): measuring, the "
+                f"{self.settings.window_s:g} s window is judged after the measurement")
+        else:
+            ctx.records.event(
+                f"{self.condition}: all parts thermally stable after {end - start:.0f} s")
+
+    def _measure_at_once(self, ctx: RunContext, start: float) -> None:
+        """No wait (supply_change_no_wait): every part recorded as predicted to settle within
+        the criterion; with overlap_measurement its window is judged after the measurement."""
+        _, volts, amps = ctx.instruments.log_environment()
+        amps_each = amps / _load_size(ctx)
+        for part in ctx.parts.alive():
+            reading = latest_reading_c(part, ctx.clock.now_s())
+            v = StabilityVerdict(True, float("nan"), float("nan"), reading, 0.0)
+            self._record_stable(ctx, part, v, (start, start, start), volts, amps_each)
+        self.measured_from = {p.socket: len(p.record.measurements) for p in ctx.parts.alive()}
 
     def _wait_for_air(self, ctx: RunContext, start: float) -> None:
         """Until the chamber air arrives (ChamberSetpointNotReached past its timeout)."""
@@ -294,11 +355,12 @@ class Stabilise(StepType[ThermalSettings]):
             ctx.wait.sleep(st.check_interval_s)
             air, volts, amps = ctx.instruments.log_environment()
             self._tick(ctx, air)
+            handover = self._may_hand_over(ctx)
             for part in ctx.parts.alive():
                 if part.socket in stable_at:
                     continue
                 v = verdicts[part.socket] = self._judge(ctx, part, window_start)
-                if v.stable:
+                if v.stable and handover:
                     stable_at[part.socket] = ctx.wait.clock.now_s()
             alive = ctx.parts.alive()
             if all(p.socket in stable_at for p in alive):
@@ -310,6 +372,14 @@ class Stabilise(StepType[ThermalSettings]):
                 ctx.parts.require()
                 return stable_at, verdicts, volts, amps
 
+    def _may_hand_over(self, ctx: RunContext) -> bool:
+        """overlap_measurement under `fastest`: not before the planned profile is at the
+        target for good (measuring ends the profile at once: a die entering stability while
+        the profile still shapes it would be moved by that)."""
+        if not self.settings.overlap_measurement or self._control is None:
+            return True
+        return self._control.at_target_for_good(ctx.wait.clock.now_s())
+
     def _judge(self, ctx: RunContext, part: Any, window_start: float) -> StabilityVerdict:
         st = self.settings
         assert part.stream is not None
@@ -317,10 +387,12 @@ class Stabilise(StepType[ThermalSettings]):
         # only the last window is judged: read no more (the run's raw file holds it)
         recent = part.stream.fixture_time(ctx.clock.now_s()) - 2.0 * st.window_s
         data = part.stream.window(max(f0, recent), np.inf)
+        # overlap_measurement: a shorter span first, the full window after the measurement
+        span_s = st.overlap_entry_s if st.overlap_measurement else st.window_s
         return judge_stability(
             data["time_s"],
             data["temp_c"],
-            st.window_s,
+            span_s,
             st.slope_c_per_min,
             st.band_c,
             self.target.temperature_c,
@@ -389,5 +461,22 @@ class Stabilise(StepType[ThermalSettings]):
             stable_at_fixture_s=part.stream.fixture_time(stable_s),
             condition_set_station_s=start,
             measurement_start_station_s=end,
+            judged=self._judged(),
+            entry_s=st.overlap_entry_s if st.overlap_measurement else None,
+            predicted_change_c=self._changes.get(part.socket) if self._no_wait else None,
             **control,
         )
+
+    def _judged(self) -> str:
+        """How this condition's window is judged (StabilityResults.judged)."""
+        if self.settings.overlap_measurement:
+            return "after"
+        return "predicted" if self._no_wait else "before"
+
+    def after_condition(self, body: list[StepType[Any]]) -> list[StepType[Any]]:
+        """overlap_measurement: the window judged after the condition's measurement steps
+        (those after this one in the condition's pass), which run again for a part whose
+        window fails (procedures.steps.thermal_after)."""
+        if not self.settings.overlap_measurement:
+            return []
+        return [JudgedAfter(self, body[body.index(self) + 1:])]

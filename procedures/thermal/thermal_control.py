@@ -332,6 +332,10 @@ class FastestController:
         self.replans += 1
         log.debug("thermal plan at %.0f s: %s", now_s, self.plan)
 
+    def at_target_for_good(self, now_s: float) -> bool:
+        """Is the plan's setpoint at the target from now on (no overshoot or profile left)?"""
+        return not self._in_overshoot(now_s)
+
     def _in_overshoot(self, now_s: float) -> bool:
         return self.plan is not None and now_s - self.plan_at_s < self.plan.hold_s
 

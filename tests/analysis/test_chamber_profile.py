@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from procedures.steps.thermal import judge_stability
+from procedures.analysis.stability import judge_stability
 from procedures.thermal.chamber_profile import (
     STEP_S,
     ProfilePlan,

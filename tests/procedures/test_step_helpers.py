@@ -9,10 +9,10 @@ import pytest
 
 from drivers.protocols import CalibrationRegisters
 from procedures.analysis.errors import AnalysisError
+from procedures.analysis.stability import judge_stability
 from procedures.runtime.run_parts import ConditionResult, StopScale
 from procedures.steps.fit import scale_estimate
 from procedures.steps.program import readback_differences
-from procedures.steps.thermal import judge_stability
 
 
 def _die(t: np.ndarray, tau_s: float, step_c: float = 20.0) -> np.ndarray:
