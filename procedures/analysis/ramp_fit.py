@@ -213,8 +213,11 @@ def fit_ramp(p: RampPlateaus, s: RampSettings) -> RampFit:
     vals, vcov = _to_coefficients(par, cov)
     tau, u_tau, bound = _tau(vals, vcov, s)
     lag = _lag_shift(x, p, par, bound, guess)
-    coeffs = FirstOrderCoefficients(*(float(v) for v in vals[:6]), s.reference_temperature_c,
-                                    s.reference_supply_v)
+    coeffs = FirstOrderCoefficients(
+        **{n: float(vals[i]) for i, n in enumerate(COEFFICIENT_NAMES)},
+        reference_temperature_c=s.reference_temperature_c,
+        reference_supply_v=s.reference_supply_v,
+    )
     tau_for_gradient = 0.0 if math.isnan(tau) else tau
     return RampFit(
         coefficients=coeffs,
