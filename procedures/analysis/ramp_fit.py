@@ -15,8 +15,10 @@ temperature is about T - tau Tdot: the scale's rate term is k = -s0 sT tau, whic
 part's lag; the bias's rate term g mixes the gradient bias with the lag (bT tau), a nuisance
 here. `play` is the hysteresis state, +1 after heating and -1 after cooling, from a play
 (backlash) operator of half-width w on the sensor's temperature. One weighted least-squares
-fit over every plateau; the covariance is rescaled by the residual scatter when that is
-larger than the stated uncertainties.
+fit over every plateau, generalised: the plateaus share the part's bias wander (its bias
+instability and rate random walk, procedures/analysis/bias_wander.py) as much as they are
+close in time; the covariance is rescaled by the residual scatter when that is larger than
+the stated uncertainties.
 
 The rate term corrects the lag to first order. What it leaves, tau^2 Tddot in the element's
 temperature, is projected onto the coefficients at the largest lag the data allow (tau + 2 u,
@@ -33,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from procedures.analysis.bias_wander import window_mean_covariance
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.temp_supply_fit import (
     COEFFICIENT_NAMES,
@@ -81,6 +84,10 @@ class RampSettings:
     hysteresis_width_c: float = 1.0  # the play operator's half-width w
     max_tau_s: float = 40.0  # refuse a lag beyond this (95 % confident)
     tau_bound_s: float = 35.0  # the lag assumed where the scale cannot tell it
+    # the bias wander shared between plateaus (procedures/analysis/bias_wander.py)
+    bias_instability_dps: float = 0.0
+    rrw_dps_per_sqrt_s: float = 0.0
+    plateau_s: float = 6.0  # each plateau's averaging time (its window about time_s)
 
 
 @dataclass(frozen=True)
@@ -145,11 +152,27 @@ def _check_design(p: RampPlateaus) -> None:
         )
 
 
-def _solve(x: F64, p: RampPlateaus, scale_guess: float) -> tuple[F64, F64, F64, float]:
-    """Parameters, covariance (rescaled by the scatter when larger), residuals, chi2/dof."""
-    u = np.sqrt(p.u_out_dps**2 + (scale_guess * p.u_ref_dps) ** 2)
+def noise_covariance(p: RampPlateaus, s: RampSettings, scale_guess: float) -> F64:
+    """Each plateau's own noise and the reference's, plus the bias wander the plateaus
+    share (close in time: most of it), so that the fit neither averages the wander away
+    nor understates the bias terms' uncertainty."""
+    white = p.u_out_dps**2 + (scale_guess * p.u_ref_dps) ** 2
+    cov = np.diag(white)
+    if s.bias_instability_dps > 0 or s.rrw_dps_per_sqrt_s > 0:
+        half = 0.5 * s.plateau_s
+        cov = cov + window_mean_covariance(p.time_s - half, p.time_s + half,
+                                           s.bias_instability_dps, s.rrw_dps_per_sqrt_s)
+    return np.asarray(cov, dtype=np.float64)
+
+
+def _solve(x: F64, p: RampPlateaus, cov_y: F64) -> tuple[F64, F64, F64, float]:
+    """Generalised least squares under `cov_y`: parameters, covariance (rescaled by the
+    scatter when larger), residuals, chi2/dof."""
+    chol = np.linalg.cholesky(cov_y)
+    xw = np.linalg.solve(chol, x)
+    yw = np.linalg.solve(chol, p.out_dps)
     par, cov, chi2 = weighted_lsq(
-        x, p.out_dps, u, 1e14,
+        xw, yw, np.ones_like(yw), 1e14,
         "the ramp's plateaus do not separate temperature, supply and rate: widen the span, "
         "alternate the supply, use rates of both signs",
     )
@@ -171,15 +194,14 @@ def _to_coefficients(par: F64, cov: F64) -> tuple[F64, F64]:
     return vals, j @ cov @ j.T
 
 
-def _lag_shift(x: F64, p: RampPlateaus, par: F64, tau_s: float, scale_guess: float) -> F64:
+def _lag_shift(x: F64, p: RampPlateaus, par: F64, tau_s: float, cov_y: F64) -> F64:
     """The coefficients' shift from what the rate term leaves: the element at T - tau Tdot
     + tau^2 Tddot, the gradient on the element's rate Tdot - tau Tddot."""
     tdd = second_derivative(p.time_s, p.tdot_c_per_s)
     bt, g, a = float(par[1]), float(par[3]), float(par[6])
     missing = (bt + a * p.ref_dps) * tau_s**2 * tdd + g * tau_s * tdd
-    u = np.sqrt(p.u_out_dps**2 + (scale_guess * p.u_ref_dps) ** 2)
-    w = 1.0 / u**2
-    shift = np.linalg.solve(x.T @ (x * w[:, None]), x.T @ (w * missing))
+    w = np.linalg.inv(cov_y)
+    shift = np.linalg.solve(x.T @ w @ x, x.T @ (w @ missing))
     vals, _ = _to_coefficients(par + shift, np.zeros((9, 9)))
     base, _ = _to_coefficients(par, np.zeros((9, 9)))
     return np.abs(vals[:6] - base[:6])
@@ -207,12 +229,13 @@ def fit_ramp(p: RampPlateaus, s: RampSettings) -> RampFit:
     play = play_state(p.temp_c, s.hysteresis_width_c)
     x = design(p, s, play)
     guess = float(np.median(np.abs(p.out_dps) / np.maximum(np.abs(p.ref_dps), 1e-9)))
-    par, cov, resid, red = _solve(x, p, guess)
+    cov_y = noise_covariance(p, s, guess)
+    par, cov, resid, red = _solve(x, p, cov_y)
     if par[5] <= 0:
         raise AnalysisError("the fitted scale is not positive: check the part's orientation")
     vals, vcov = _to_coefficients(par, cov)
     tau, u_tau, bound = _tau(vals, vcov, s)
-    lag = _lag_shift(x, p, par, bound, guess)
+    lag = _lag_shift(x, p, par, bound, cov_y)
     coeffs = FirstOrderCoefficients(
         **{n: float(vals[i]) for i, n in enumerate(COEFFICIENT_NAMES)},
         reference_temperature_c=s.reference_temperature_c,
