@@ -94,6 +94,7 @@ class RampSettings:
 class RampFit:
     coefficients: FirstOrderCoefficients
     u_k1: dict[str, float]  # statistical, per COEFFICIENT_NAMES
+    covariance: F64  # statistical, over COEFFICIENT_NAMES (k=1)
     lag_error: dict[str, float]  # |shift| from the uncorrected tau^2 Tddot, per name
     tau_s: float  # the element's lag (nan where the scale cannot tell it)
     u_tau_s: float
@@ -108,6 +109,22 @@ class RampFit:
     def uncertainty_k2(self, name: str) -> float:
         """2 u plus the lag-correction error (a bound, added linearly)."""
         return 2.0 * self.u_k1[name] + self.lag_error[name]
+
+
+def law_uncertainties(fit: RampFit, temp_c: float, supply_v: float) -> tuple[float, float]:
+    """k=1 uncertainties of the fitted bias and scale laws at (temp_c, supply_v): the
+    coefficients' covariance through the laws, plus half the lag-correction error."""
+    co = fit.coefficients
+    dt = temp_c - co.reference_temperature_c
+    dv = supply_v - co.reference_supply_v
+    jb = np.array([1.0, dt, dv, 0.0, 0.0, 0.0])
+    js = np.array([0.0, 0.0, 0.0, 1.0 + co.scale_temp_coeff_per_c * dt
+                   + co.scale_supply_coeff_per_v * dv, co.scale * dt, co.scale * dv])
+    lag = np.array([fit.lag_error[n] for n in COEFFICIENT_NAMES])
+    out = []
+    for j in (jb, js):
+        out.append(math.sqrt(float(j @ fit.covariance @ j)) + 0.5 * float(np.abs(j) @ lag))
+    return out[0], out[1]
 
 
 def play_state(temp_c: F64, width_c: float) -> F64:
@@ -245,6 +262,7 @@ def fit_ramp(p: RampPlateaus, s: RampSettings) -> RampFit:
     return RampFit(
         coefficients=coeffs,
         u_k1={n: math.sqrt(float(vcov[i, i])) for i, n in enumerate(COEFFICIENT_NAMES)},
+        covariance=np.asarray(vcov[:6, :6], dtype=np.float64),
         lag_error={n: float(lag[i]) for i, n in enumerate(COEFFICIENT_NAMES)},
         tau_s=tau,
         u_tau_s=u_tau,

@@ -17,6 +17,7 @@ from procedures.analysis.ramp_fit import (
     RampLagTooLarge,
     RampPlateaus,
     fit_ramp,
+    law_uncertainties,
 )
 from procedures.analysis.ramp_fit import RampSettings as FitSettings
 from procedures.analysis.temp_supply_fit import COEFFICIENT_NAMES, FirstOrderCoefficients
@@ -147,15 +148,14 @@ def _calibration(fit: RampFit) -> Calibration:
 
 def _corners(ctx: RunContext, fit: RampFit) -> FitResults:
     """analysis.fit: the fitted laws at the span's corners (what the certificate and the
-    accuracy benchmark read per condition), their u the coefficients' (k=1)."""
+    accuracy benchmark read per condition), with their k=1 uncertainties."""
     co = fit.coefficients
     rows = []
     for temp in sorted(set(ctx.procedure.conditions.temperatures_c)):
         for volts in ctx.procedure.conditions.supplies_v:
+            u_bias, u_scale = law_uncertainties(fit, temp, volts)
             rows.append(FitCondition(
                 name=f"ramp@T{temp:g}_V{volts:g}", bias_temp_c=temp, scale_temp_c=temp,
                 supply_v=volts, bias_dps=float(co.bias_at(temp, volts)),
-                u_bias_dps=fit.uncertainty_k2("bias_dps") / 2,
-                scale=float(co.scale_at(temp, volts)),
-                u_scale=fit.uncertainty_k2("scale") / 2))
+                u_bias_dps=u_bias, scale=float(co.scale_at(temp, volts)), u_scale=u_scale))
     return FitResults(source="ramp", conditions=rows)
