@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from procedures.analysis.bias_wander import window_mean_covariance
+from procedures.analysis.element_lag import element_at_windows
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.temp_supply_fit import (
     COEFFICIENT_NAMES,
@@ -46,6 +47,7 @@ from procedures.analysis.temp_supply_fit import (
 F64 = NDArray[np.float64]
 PARAMS = ("b0", "bT", "bV", "g", "half_h", "s0", "a", "c", "k")
 MIN_PLATEAUS = 12
+MAX_PASSES = 6
 TAU_SIGNIFICANCE = 3.0  # sT must be this many u from 0 for the scale to tell the lag
 
 
@@ -78,6 +80,14 @@ class RampPlateaus:
 
 
 @dataclass(frozen=True)
+class TemperatureTrack:
+    """The sensor's temperature through the ramp (e.g. 1 s means), for the element's."""
+
+    time_s: F64
+    temp_c: F64
+
+
+@dataclass(frozen=True)
 class RampSettings:
     reference_temperature_c: float
     reference_supply_v: float
@@ -88,6 +98,7 @@ class RampSettings:
     bias_instability_dps: float = 0.0
     rrw_dps_per_sqrt_s: float = 0.0
     plateau_s: float = 6.0  # each plateau's averaging time (its window about time_s)
+    tau_prior_s: float = 20.0  # the product's typical lag (the filter's where not told)
 
 
 @dataclass(frozen=True)
@@ -224,12 +235,15 @@ def _lag_shift(x: F64, p: RampPlateaus, par: F64, tau_s: float, cov_y: F64) -> F
     return np.abs(vals[:6] - base[:6])
 
 
-def _tau(vals: F64, cov: F64, s: RampSettings) -> tuple[float, float, float]:
-    """(tau, u_tau, the bound the lag error is computed at); RampLagTooLarge beyond max."""
+def _tau(vals: F64, cov: F64, s: RampSettings, filtered_s: float
+         ) -> tuple[float, float, float]:
+    """(tau, u_tau, the lag the lag error is computed at); RampLagTooLarge beyond max.
+    `filtered_s`: the lag the temperatures were already carried through; the rate term
+    gives the rest."""
     st, u_st = float(vals[4]), math.sqrt(float(cov[4, 4]))
     if abs(st) < TAU_SIGNIFICANCE * u_st:
-        return math.nan, math.nan, s.tau_bound_s
-    tau, u_tau = float(vals[6]), math.sqrt(float(cov[6, 6]))
+        return math.nan, math.nan, max(s.tau_bound_s, filtered_s)
+    tau, u_tau = filtered_s + float(vals[6]), math.sqrt(float(cov[6, 6]))
     if tau - 2.0 * u_tau > s.max_tau_s:
         raise RampLagTooLarge(
             f"the sensing element lags the temperature sensor by {tau:.0f} +/- "
@@ -240,37 +254,85 @@ def _tau(vals: F64, cov: F64, s: RampSettings) -> tuple[float, float, float]:
     return tau, u_tau, max(tau + 2.0 * u_tau, 0.0)
 
 
-def fit_ramp(p: RampPlateaus, s: RampSettings) -> RampFit:
-    """The first-order calibration from a ramp's plateaus (see the module docstring)."""
-    _check_design(p)
-    play = play_state(p.temp_c, s.hysteresis_width_c)
-    x = design(p, s, play)
-    guess = float(np.median(np.abs(p.out_dps) / np.maximum(np.abs(p.ref_dps), 1e-9)))
-    cov_y = noise_covariance(p, s, guess)
-    par, cov, resid, red = _solve(x, p, cov_y)
+def on_element(p: RampPlateaus, track: TemperatureTrack, tau_s: float, half_s: float
+               ) -> RampPlateaus:
+    """The plateaus with the element's temperature and rate (lag tau) for the sensor's."""
+    temps, rates = element_at_windows(track.time_s, track.temp_c, tau_s, p.time_s, half_s)
+    return RampPlateaus(p.time_s, p.ref_dps, p.u_ref_dps, p.out_dps, p.u_out_dps, temps,
+                        rates, p.supply_v)
+
+
+@dataclass(frozen=True)
+class _Pass:
+    q: RampPlateaus
+    play: F64
+    x: F64
+    par: F64
+    cov: F64
+    resid: F64
+    red: float
+    vals: F64
+    vcov: F64
+
+
+def _one_pass(p: RampPlateaus, s: RampSettings, track: TemperatureTrack | None,
+              filtered_s: float, cov_y: F64) -> _Pass:
+    q = p if track is None else on_element(p, track, filtered_s, 0.5 * s.plateau_s)
+    play = play_state(q.temp_c, s.hysteresis_width_c)
+    x = design(q, s, play)
+    par, cov, resid, red = _solve(x, q, cov_y)
     if par[5] <= 0:
         raise AnalysisError("the fitted scale is not positive: check the part's orientation")
     vals, vcov = _to_coefficients(par, cov)
-    tau, u_tau, bound = _tau(vals, vcov, s)
-    lag = _lag_shift(x, p, par, bound, cov_y)
+    return _Pass(q, play, x, par, cov, resid, red, vals, vcov)
+
+
+def _iterate(p: RampPlateaus, s: RampSettings, track: TemperatureTrack | None,
+             cov_y: F64) -> tuple[_Pass, float]:
+    """With a track: carry the temperatures through the lag the rate term tells, until
+    it tells no more (at most MAX_PASSES); returns the last pass and the lag filtered."""
+    filtered = 0.0
+    fit = _one_pass(p, s, None, 0.0, cov_y)
+    if track is None:
+        return fit, filtered
+    for _ in range(MAX_PASSES):
+        tau, _, _ = _tau(fit.vals, fit.vcov, s, filtered)
+        nxt = s.tau_prior_s if math.isnan(tau) else min(max(tau, 0.0), 3.0 * s.max_tau_s)
+        if abs(nxt - filtered) < 0.05:
+            break
+        filtered = nxt
+        fit = _one_pass(p, s, track, filtered, cov_y)
+    return fit, filtered
+
+
+def fit_ramp(p: RampPlateaus, s: RampSettings, track: TemperatureTrack | None = None
+             ) -> RampFit:
+    """The first-order calibration from a ramp's plateaus (see the module docstring);
+    with the sensor's `track`, the temperatures are carried through the part's own lag."""
+    _check_design(p)
+    guess = float(np.median(np.abs(p.out_dps) / np.maximum(np.abs(p.ref_dps), 1e-9)))
+    cov_y = noise_covariance(p, s, guess)
+    f, filtered = _iterate(p, s, track, cov_y)
+    tau, u_tau, bound = _tau(f.vals, f.vcov, s, filtered)
+    lag = _lag_shift(f.x, f.q, f.par, abs(bound - filtered), cov_y)
     coeffs = FirstOrderCoefficients(
-        **{n: float(vals[i]) for i, n in enumerate(COEFFICIENT_NAMES)},
+        **{n: float(f.vals[i]) for i, n in enumerate(COEFFICIENT_NAMES)},
         reference_temperature_c=s.reference_temperature_c,
         reference_supply_v=s.reference_supply_v,
     )
-    tau_for_gradient = 0.0 if math.isnan(tau) else tau
+    rest = 0.0 if math.isnan(tau) else tau - filtered
     return RampFit(
         coefficients=coeffs,
-        u_k1={n: math.sqrt(float(vcov[i, i])) for i, n in enumerate(COEFFICIENT_NAMES)},
-        covariance=np.asarray(vcov[:6, :6], dtype=np.float64),
+        u_k1={n: math.sqrt(float(f.vcov[i, i])) for i, n in enumerate(COEFFICIENT_NAMES)},
+        covariance=np.asarray(f.vcov[:6, :6], dtype=np.float64),
         lag_error={n: float(lag[i]) for i, n in enumerate(COEFFICIENT_NAMES)},
         tau_s=tau,
         u_tau_s=u_tau,
         tau_bound_s=bound,
-        gradient_dps_per_c_per_min=(float(par[3]) + float(par[1]) * tau_for_gradient) / 60.0,
-        hysteresis_dps=2.0 * float(par[4]),
-        u_hysteresis_dps=2.0 * math.sqrt(float(cov[4, 4])),
-        chi2_per_dof=red,
-        residual_dps=resid,
-        play=play,
+        gradient_dps_per_c_per_min=(float(f.par[3]) + float(f.par[1]) * rest) / 60.0,
+        hysteresis_dps=2.0 * float(f.par[4]),
+        u_hysteresis_dps=2.0 * math.sqrt(float(f.cov[4, 4])),
+        chi2_per_dof=f.red,
+        residual_dps=f.resid,
+        play=f.play,
     )

@@ -86,13 +86,14 @@ class RampSettings(StepSettings):
     )
 
 
-def _typical_bounds(product: Any, limit: float | None) -> tuple[float, float, float]:
-    """(refusal limit, the lag assumed where the data cannot tell it, hysteresis width)."""
+def _typical_bounds(product: Any, limit: float | None) -> tuple[float, float, float, float]:
+    """(refusal limit, the lag assumed where the data cannot tell it, hysteresis width,
+    the typical lag) from the product's thermal_typical."""
     typ = product.thermal_typical
     if typ is None:
-        return (limit or 60.0), (limit or 60.0), 1.0
+        return (limit or 60.0), (limit or 60.0), 1.0, 0.0
     tau, sigma = typ.element_tau_s, typ.element_tau_sigma_s
-    return (limit or tau + 4 * sigma), tau + 3 * sigma, typ.hysteresis_width_c
+    return (limit or tau + 4 * sigma), tau + 3 * sigma, typ.hysteresis_width_c, tau
 
 
 class RampCalibration(StepType[RampSettings]):
@@ -141,13 +142,13 @@ class RampCalibration(StepType[RampSettings]):
         logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
         turned_at = self._ramp(ctx, logs)
         low, high = self._span(ctx)
-        limit, bound, width = _typical_bounds(ctx.product, self.settings.max_element_tau_s)
+        bounds = _typical_bounds(ctx.product, self.settings.max_element_tau_s)
         for part in ctx.parts.alive():
             results = RampResults(low_c=low, high_c=high, turned_at_station_s=turned_at,
-                                  max_element_tau_s=limit)
+                                  max_element_tau_s=bounds[0])
             ctx.parts.per_part(part, partial(
                 fit_and_record, ctx, log=logs[part.socket], results=results,
-                bounds=(limit, bound, width)))
+                bounds=bounds))
 
     def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog]) -> float | None:
         """Heat, turn, cool, turn to the end setpoint, until the dies are near rest; the

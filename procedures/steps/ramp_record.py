@@ -16,6 +16,7 @@ from procedures.analysis.ramp_fit import (
     RampFit,
     RampLagTooLarge,
     RampPlateaus,
+    TemperatureTrack,
     fit_ramp,
     law_uncertainties,
 )
@@ -38,6 +39,7 @@ class PlateauLog:
     rows: list[tuple[float, float, float, float, float, float, float, bool]] = field(
         default_factory=list)  # t, ref, u_ref, out, u_out, temp, supply, heating
     dwell_s: float = 6.0
+    track: list[tuple[float, float]] = field(default_factory=list)  # the sensor, 1 s means
 
     def add(self, ctx: RunContext, part: PartRun, *, p: Plateau, supply_v: float,
             heating: bool, dwell_s: float) -> None:
@@ -51,8 +53,22 @@ class PlateauLog:
                             ref_rate_dps=p.ref_dps, ref_angle_deg=p.angle_deg,
                             supply_v=supply_v)
         self.dwell_s = dwell_s
+        self._track(data["time_s"], data["temp_c"])
         self.rows.append((0.5 * (t0 + t1), p.ref_dps, p.u_ref_dps, wm.mean_dps,
                           wm.u_mean_dps, float(np.mean(data["temp_c"])), supply_v, heating))
+
+    def _track(self, time_s: Any, temp_c: Any) -> None:
+        t = np.asarray(time_s, dtype=np.float64)
+        bins = np.floor(t - t[0]).astype(np.int64)
+        counts = np.bincount(bins)
+        keep = counts > 0
+        times = np.bincount(bins, weights=t)[keep] / counts[keep]
+        temps = np.bincount(bins, weights=np.asarray(temp_c, dtype=np.float64))[keep]
+        self.track.extend(zip(times.tolist(), (temps / counts[keep]).tolist(), strict=True))
+
+    def temperature_track(self) -> TemperatureTrack:
+        arr = np.array(self.track, dtype=np.float64)
+        return TemperatureTrack(time_s=arr[:, 0], temp_c=arr[:, 1])
 
     def plateaus(self) -> RampPlateaus:
         if len(self.rows) < 3:
@@ -73,10 +89,10 @@ class RampProgrammable:
 
 
 def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: RampResults,
-                   bounds: tuple[float, float, float]) -> None:
+                   bounds: tuple[float, float, float, float]) -> None:
     """Fit one part's ramp and record it; a part whose lag the ramp cannot correct leaves
     the run FAIL, one the fit cannot use ERROR, each with the reason."""
-    limit, tau_bound, width = bounds
+    limit, tau_bound, width, tau_prior = bounds
     t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
     try:
         plateaus = log.plateaus()
@@ -85,7 +101,7 @@ def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: 
             t0, v0, width, limit, tau_bound,
             bias_instability_dps=ctx.product.bias_instability_deg_per_h / 3600.0,
             rrw_dps_per_sqrt_s=ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 3600.0 / 60.0,
-            plateau_s=log.dwell_s))
+            plateau_s=log.dwell_s, tau_prior_s=tau_prior), log.temperature_track())
     except RampLagTooLarge as exc:
         part.record.analysis.ramp = results.model_copy(update={"refused": str(exc)})
         ctx.parts.drop(part, Verdict.FAIL, f"ramp calibration: {exc}")

@@ -11,6 +11,7 @@ from procedures.analysis.ramp_fit import (
     RampLagTooLarge,
     RampPlateaus,
     RampSettings,
+    TemperatureTrack,
     fit_ramp,
     play_state,
 )
@@ -42,6 +43,12 @@ def element_path(t: np.ndarray, sensor: np.ndarray, tau: float) -> np.ndarray:
         x += (s - x) * (1 - np.exp(-dt / tau))
         e[i] = x
     return e
+
+
+def track() -> TemperatureTrack:
+    """The sensor's temperature at 1 s, as the step keeps it."""
+    t = np.arange(0.0, 1150.0, 0.1)
+    return TemperatureTrack(time_s=t[::10], temp_c=sensor_path(t)[::10])
 
 
 def synthetic(tau: float, seed: int = 1, noise_dps: float = 0.004,
@@ -99,9 +106,22 @@ def test_recovers_the_coefficients_and_the_lag_within_u(seed: int) -> None:
     assert abs(fit.hysteresis_dps - 0.01) <= fit.u_hysteresis_dps + 0.003
 
 
-def test_a_lag_far_beyond_the_typical_is_refused() -> None:
+@pytest.mark.parametrize("seed", [2, 3, 4])
+def test_with_the_track_the_temperatures_follow_the_parts_own_lag(seed: int) -> None:
+    fit = fit_ramp(synthetic(tau=20.0, seed=seed), SETTINGS, track())
+    for short, name in NAMES.items():
+        got = getattr(fit.coefficients, name)
+        assert abs(got - TRUTH[short]) <= fit.uncertainty_k2(name), (short, got)
+    assert abs(fit.tau_s - 20.0) <= 2 * fit.u_tau_s + 0.5
+    # carried through the lag, the first-order correction leaves (almost) nothing
+    assert fit.lag_error["scale_temp_coeff_per_c"] < 0.2 * fit.u_k1["scale_temp_coeff_per_c"]
+    assert fit.gradient_dps_per_c_per_min == pytest.approx(0.004 / 60 * 60, abs=0.002)
+
+
+@pytest.mark.parametrize("with_track", [False, True])
+def test_a_lag_far_beyond_the_typical_is_refused(with_track: bool) -> None:
     with pytest.raises(RampLagTooLarge, match="lags the temperature sensor"):
-        fit_ramp(synthetic(tau=120.0), SETTINGS)
+        fit_ramp(synthetic(tau=120.0), SETTINGS, track() if with_track else None)
 
 
 def test_a_lag_near_the_limit_widens_u_and_stays_covered() -> None:
