@@ -3,7 +3,8 @@
 Exact for a sensor temperature that changes linearly between its samples (first-order hold):
 e(t1) = d1 - r tau + (e0 - d0 + r tau) exp(-(t1 - t0) / tau), r the slope between the two
 samples (docs/simulated-bench.md gives the same closed form for the bench's parts). The
-element's rate is (d - e) / tau. The track starts settled (e = d at its first sample).
+element's rate is (d - e) / tau. The track starts on a steady ramp: the element tau times
+the sensor's first rate (over its first START_S) behind it.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
+START_S = 10.0
 
 
 def element_track(time_s: F64, sensor_c: F64, tau_s: float) -> F64:
@@ -19,7 +21,10 @@ def element_track(time_s: F64, sensor_c: F64, tau_s: float) -> F64:
     if tau_s <= 0 or time_s.size < 2:
         return sensor_c.copy()
     out = np.empty_like(sensor_c)
-    e = float(sensor_c[0])
+    first = time_s <= time_s[0] + START_S
+    slope = float(np.polyfit(time_s[first] - time_s[0], sensor_c[first], 1)[0]) \
+        if np.count_nonzero(first) >= 3 else 0.0
+    e = float(sensor_c[0]) - tau_s * slope
     out[0] = e
     for i in range(1, time_s.size):
         dt = float(time_s[i] - time_s[i - 1])

@@ -138,10 +138,11 @@ def law_uncertainties(fit: RampFit, temp_c: float, supply_v: float) -> tuple[flo
     return out[0], out[1]
 
 
-def play_state(temp_c: F64, width_c: float) -> F64:
+def play_state(temp_c: F64, width_c: float, start: float = 0.0) -> F64:
     """Hysteresis state in [-1, 1] from a play operator of half-width `width_c`: +1 once
-    heated by 2 w since the last reversal, -1 once cooled by 2 w; 0 at the first sample."""
-    y = float(temp_c[0])
+    heated by 2 w since the last reversal, -1 once cooled by 2 w; `start` at the first
+    sample (the ramp's first plateau follows the self-heating rise since power-on: +1)."""
+    y = float(temp_c[0]) - start * width_c
     out = np.empty_like(temp_c)
     for i, t in enumerate(temp_c):
         y = min(max(y, float(t) - width_c), float(t) + width_c)
@@ -278,7 +279,7 @@ class _Pass:
 def _one_pass(p: RampPlateaus, s: RampSettings, track: TemperatureTrack | None,
               filtered_s: float, cov_y: F64) -> _Pass:
     q = p if track is None else on_element(p, track, filtered_s, 0.5 * s.plateau_s)
-    play = play_state(q.temp_c, s.hysteresis_width_c)
+    play = play_state(q.temp_c, s.hysteresis_width_c, float(np.sign(q.tdot_c_per_s[0])))
     x = design(q, s, play)
     par, cov, resid, red = _solve(x, q, cov_y)
     if par[5] <= 0:

@@ -58,7 +58,7 @@ def synthetic(tau: float, seed: int = 1, noise_dps: float = 0.004,
     sensor = sensor_path(t)
     elem = element_path(t, sensor, tau)
     erate = np.gradient(elem, t)
-    hyst = play_state(elem, 1.0)
+    hyst = play_state(elem, 1.0, start=1.0)  # heated since power-on, as on the station
     rows: dict[str, list[float]] = {k: [] for k in (
         "time_s", "ref_dps", "u_ref_dps", "out_dps", "u_out_dps", "temp_c", "tdot_c_per_s",
         "supply_v")}
