@@ -205,6 +205,7 @@ class RampResults(Section):
     die_min_c: Num = None
     die_max_c: Num = None
     turned_at_station_s: Num = None  # the chamber turned from heating to cooling
+    end_turn_station_s: Num = None  # turned to the end setpoint (then: the dies to rest)
     duration_s: Num = None
     element_tau_s: Num = None  # the element's lag behind the sensor (null: not told)
     u_element_tau_s: Num = None

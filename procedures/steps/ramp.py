@@ -140,11 +140,13 @@ class RampCalibration(StepType[RampSettings]):
     def main(self, ctx: RunContext) -> None:
         ctx.instruments.need_table().enable()
         logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
+        self._end_turn: float | None = None
         turned_at = self._ramp(ctx, logs)
         low, high = self._span(ctx)
         bounds = _typical_bounds(ctx.product, self.settings.max_element_tau_s)
         for part in ctx.parts.alive():
             results = RampResults(low_c=low, high_c=high, turned_at_station_s=turned_at,
+                                  end_turn_station_s=self._end_turn,
                                   max_element_tau_s=bounds[0])
             ctx.parts.per_part(part, partial(
                 fit_and_record, ctx, log=logs[part.socket], results=results,
@@ -198,6 +200,7 @@ class RampCalibration(StepType[RampSettings]):
             return "cooling"
         if phase == "cooling" and self._should_turn(ctx, False, self._end_c(ctx)):
             self._set_towards(ctx, self._end_c(ctx))
+            self._end_turn = ctx.wait.clock.now_s()
             return "settling"
         if phase == "settling" and self._dies_at_rest(ctx):
             return "done"
