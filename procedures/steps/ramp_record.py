@@ -138,7 +138,8 @@ def _plateaus_into(results: RampResults, p: RampPlateaus, log: PlateauLog) -> No
 
 
 def _with_fit(results: RampResults, fit: RampFit) -> RampResults:
-    return results.model_copy(update=dict(
+    """The fit's findings into the section (a value the fit could not give is left out)."""
+    return _set(results, dict(
         element_tau_s=_num(fit.tau_s),
         u_element_tau_s=_num(fit.u_tau_s),
         tau_bound_s=fit.tau_bound_s,
@@ -149,6 +150,11 @@ def _with_fit(results: RampResults, fit: RampFit) -> RampResults:
         lag_error_k2=dict(fit.lag_error),
         residual_dps=[float(x) for x in fit.residual_dps],
     ))
+
+
+def _set(results: RampResults, values: dict[str, Any]) -> RampResults:
+    """`results` with `values` set, those that are None left out of the record."""
+    return results.model_copy(update={k: v for k, v in values.items() if v is not None})
 
 
 def _calibration(fit: RampFit) -> Calibration:
