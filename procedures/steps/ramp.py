@@ -18,6 +18,7 @@ allows, and the step ends with the chamber going back to `end_setpoint_c`.
 
 from __future__ import annotations
 
+import logging
 from functools import partial
 from typing import Any
 
@@ -25,7 +26,7 @@ import numpy as np
 from pydantic import Field
 
 from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
-from drivers.errors import ChamberSetpointNotReached
+from drivers.errors import ChamberSetpointNotReached, InstrumentError
 from procedures.runtime.results import RampResults
 from procedures.runtime.run_context import RunContext
 from procedures.steps.fit import COEFF_UNITS
@@ -40,6 +41,8 @@ from procedures.thermal.ramp_turn import (
     ramped_setpoint,
 )
 from procedures.units import Rate, Seconds
+
+log = logging.getLogger(__name__)
 
 RATE_WINDOW_S = 20.0  # a die's rate for the turn: a line over its last 20 s
 
@@ -142,7 +145,11 @@ class RampCalibration(StepType[RampSettings]):
         ctx.instruments.need_table().enable()
         logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
         self._end_turn: float | None = None
-        turned_at = self._ramp(ctx, logs)
+        try:
+            turned_at = self._ramp(ctx, logs)
+        except BaseException:
+            self._leave_at_end(ctx)  # never left heading for an overshoot
+            raise
         low, high = self._span(ctx)
         bounds = _typical_bounds(ctx.product, self.settings.max_element_tau_s)
         for part in ctx.parts.alive():
@@ -194,6 +201,14 @@ class RampCalibration(StepType[RampSettings]):
         table.set_rate(0.0, st.accel_dps2)
         table.wait_at_rate(st.at_rate_timeout_s)
         return turned_at
+
+    def _leave_at_end(self, ctx: RunContext) -> None:
+        """The chamber to the end setpoint on any way out of the ramp; a failure here is
+        logged, not raised over the error that ended the step (the safe state follows)."""
+        try:
+            ctx.instruments.chamber.set_setpoint(self._end_c(ctx))
+        except InstrumentError as exc:
+            log.error("could not send the chamber to %.1f C: %s", self._end_c(ctx), exc)
 
     def _next_phase(self, ctx: RunContext, phase: str, low_sp: float) -> str:
         if phase == "heating" and self._should_turn(ctx, True, low_sp):
