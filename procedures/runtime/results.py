@@ -227,6 +227,38 @@ class TemperatureFitResults(Section):
     points: list[TemperaturePoint] = Field(default_factory=list)
 
 
+class RampResults(Section):
+    """analysis.ramp (step ramp_calibration): the ramp's plateaus and what the fit learned
+    of the part's thermal behaviour (procedures/analysis/ramp_fit.py); k=1 unless named."""
+
+    low_c: float
+    high_c: float
+    die_min_c: Num = None
+    die_max_c: Num = None
+    turned_at_station_s: Num = None  # the chamber turned from heating to cooling
+    end_turn_station_s: Num = None  # turned to the end setpoint (then: the dies to rest)
+    duration_s: Num = None
+    element_tau_s: Num = None  # the element's lag behind the sensor (null: not told)
+    u_element_tau_s: Num = None
+    tau_bound_s: Num = None  # the lag the lag-correction error is computed at
+    max_element_tau_s: Num = None  # refused beyond
+    gradient_dps_per_c_per_min: Num = None
+    hysteresis_dps: Num = None
+    u_hysteresis_dps: Num = None
+    chi2_per_dof: Num = None
+    lag_error_k2: dict[str, float] = Field(default_factory=dict)  # added to each U
+    refused: str | None = None
+    time_s: Nums = Field(default_factory=list)  # plateau mid-times, station s
+    rate_in_dps: Nums = Field(default_factory=list)
+    rate_out_dps: Nums = Field(default_factory=list)
+    u_rate_out_dps: Nums = Field(default_factory=list)
+    die_temp_c: Nums = Field(default_factory=list)
+    die_rate_c_per_min: Nums = Field(default_factory=list)
+    supply_v: Nums = Field(default_factory=list)
+    heating: list[bool] = Field(default_factory=list)  # the chamber's half
+    residual_dps: Nums = Field(default_factory=list)
+
+
 class ProgrammingResults(Section):
     """analysis.programming (steps program, program_three_axis)."""
 
@@ -401,6 +433,7 @@ class Analysis(Section):
     positions: dict[str, list[PositionWindow]] = Field(default_factory=dict)
     three_axis_windows: list[ThreeAxisWindow] | None = None
     fit: FitResults | None = None
+    ramp: RampResults | None = None
     temperature_fit: TemperatureFitResults | None = None
     programming: ProgrammingResults | None = None
     marginal_measurements: list[str] | None = None

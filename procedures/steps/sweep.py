@@ -34,6 +34,34 @@ class Plateau:
     angle_deg: float
 
 
+def measure_plateau(
+    ctx: RunContext, rate: float, dwell_s: float, settle_s: float, accel_dps2: float,
+    timeout_s: float,
+) -> Plateau:
+    """The table to `rate`, settled, then one plateau: its reference rate from two encoder
+    snapshots around the dwell."""
+    table = ctx.instruments.need_table()
+    ctx.wait.check()
+    table.set_rate(rate, accel_dps2)
+    table.wait_at_rate(timeout_s)
+    ctx.wait.sleep(settle_s)
+    t0, s0 = ctx.instruments.snapshot()
+    ctx.wait.sleep(dwell_s)
+    t1, s1 = ctx.instruments.snapshot()
+    c0 = s0.encoder_counts_unwrapped or s0.encoder_counts
+    c1 = s1.encoder_counts_unwrapped or s1.encoder_counts
+    ref = reference_rate_from_encoder(
+        [c0, c1],
+        [s0.controller_time_s, s1.controller_time_s],
+        table.counts_per_rev(),
+        time_resolution_s=max(
+            s0.controller_time_resolution_s, s1.controller_time_resolution_s
+        ),
+        counts_modulo=1 << 62 if s0.encoder_counts_unwrapped else 1 << 32,
+    )
+    return Plateau(rate, t0, t1, ref.rate_dps, ref.u_rate_dps, ref.angle_deg)
+
+
 def run_plateaus(
     ctx: RunContext,
     rates: list[float],
@@ -44,28 +72,8 @@ def run_plateaus(
 ) -> list[Plateau]:
     """Drive the table through `rates`; each plateau's reference from two encoder snapshots."""
     table = ctx.instruments.need_table()
-    cpr = table.counts_per_rev()
-    out: list[Plateau] = []
-    for rate in rates:
-        ctx.wait.check()
-        table.set_rate(rate, accel_dps2)
-        table.wait_at_rate(timeout_s)
-        ctx.wait.sleep(settle_s)
-        t0, s0 = ctx.instruments.snapshot()
-        ctx.wait.sleep(dwell_s)
-        t1, s1 = ctx.instruments.snapshot()
-        c0 = s0.encoder_counts_unwrapped or s0.encoder_counts
-        c1 = s1.encoder_counts_unwrapped or s1.encoder_counts
-        ref = reference_rate_from_encoder(
-            [c0, c1],
-            [s0.controller_time_s, s1.controller_time_s],
-            cpr,
-            time_resolution_s=max(
-                s0.controller_time_resolution_s, s1.controller_time_resolution_s
-            ),
-            counts_modulo=1 << 62 if s0.encoder_counts_unwrapped else 1 << 32,
-        )
-        out.append(Plateau(rate, t0, t1, ref.rate_dps, ref.u_rate_dps, ref.angle_deg))
+    out = [measure_plateau(ctx, rate, dwell_s, settle_s, accel_dps2, timeout_s)
+           for rate in rates]
     table.set_rate(0.0, accel_dps2)
     table.wait_at_rate(timeout_s)
     return out

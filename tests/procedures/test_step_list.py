@@ -131,7 +131,7 @@ def test_a_step_needs_what_an_earlier_step_provides(tmp_path: Path) -> None:
                              {"step": "fit", "source": "stop_method"}])
     msg = _error(path)
     assert f"{path}:{_line(path, 'step: program')}: steps.1: step program needs fit from an " \
-        "earlier step (fit)" in msg
+        "earlier step (fit, ramp_calibration)" in msg
 
 
 def _check(tmp_path: Path, path: Path, product_text: str) -> list[str]:

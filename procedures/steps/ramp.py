@@ -1,0 +1,272 @@
+"""Ramp calibration: bias and scale measured while the chamber heats and then cools the parts.
+
+Instead of waiting at stable temperatures (the `thermal` step at each condition), the chamber
+ramps the dies up across the procedure's temperature span and back down (Niu et al. 2013),
+and meanwhile the rate table cycles through the rate set without stopping, the supply
+alternating between the procedure's levels each sweep. Every plateau is kept with the part's
+mean output, its own sensor's temperature and (afterwards) the temperature's rate of change;
+procedures/steps/ramp_record.py fits them (procedures/analysis/ramp_fit.py) into the same
+calibration the `fit` step produces, so `program` and `verify` follow unchanged.
+
+The chamber is driven at its ramp rate towards an overshoot (the hottest setpoint the chamber
+and the product allow, `max_setpoint_c`) and turned when every die's predicted peak reaches
+the span's top (procedures/thermal/ramp_turn.py), then driven down towards `min_setpoint_c`
+and turned back to the end setpoint when every die's predicted trough reaches the span's
+bottom. The dies therefore cover the span both ways with the highest rates the chamber
+allows, and the step ends with the chamber going back to `end_setpoint_c`.
+"""
+
+from __future__ import annotations
+
+import logging
+from functools import partial
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
+from drivers.errors import ChamberSetpointNotReached, InstrumentError
+from procedures.runtime.results import RampResults
+from procedures.runtime.run_context import RunContext
+from procedures.steps.fit import COEFF_UNITS
+from procedures.steps.ramp_record import PlateauLog, fit_and_record
+from procedures.steps.registry import Declared, Provided, StepSettings, StepType
+from procedures.steps.sweep import measure_plateau
+from procedures.steps.thermal_fastest import latest_reading_c
+from procedures.thermal.ramp_turn import (
+    RampModel,
+    RampState,
+    extreme_after_turn,
+    ramped_setpoint,
+)
+from procedures.units import Rate, Seconds
+
+log = logging.getLogger(__name__)
+
+RATE_WINDOW_S = 20.0  # a die's rate for the turn: a line over its last 20 s
+
+
+class RampSettings(StepSettings):
+    rates_dps: list[Rate] = Field(
+        min_length=2, max_length=MAX_LIST,
+        description="rate set the table cycles through while the dies move, deg/s (both "
+        "signs)",
+    )
+    plateau_dwell_s: Seconds = Field(6.0, gt=0, description="averaging time on each plateau")
+    settle_s: float = Field(0.5, ge=0, le=ONE_HOUR_S, description="wait after at-rate")
+    accel_dps2: float = Field(
+        200.0, gt=0, le=MAX_ACCEL_DPS2, description="table acceleration, deg/s^2"
+    )
+    at_rate_timeout_s: Seconds = Field(30.0, gt=0, description="time allowed to reach a rate")
+    max_setpoint_c: float | None = Field(
+        None, ge=-100, le=200, description="hottest setpoint while heating (the overshoot); "
+        "default: the product's max_part_temperature_c within the chamber's limits",
+    )
+    min_setpoint_c: float | None = Field(
+        None, ge=-100, le=200, description="coldest setpoint while cooling; default: the "
+        "product's min_part_temperature_c within the chamber's limits",
+    )
+    end_setpoint_c: float | None = Field(
+        None, ge=-100, le=200,
+        description="setpoint after the ramp; default: the chamber's safe_temp_c",
+    )
+    max_element_tau_s: float | None = Field(
+        None, gt=0, le=3600, description="a part whose element lags its sensor beyond this "
+        "(95 % confident) is refused; default: the product's thermal_typical element_tau_s "
+        "+ 4 sigma (else 60 s)",
+    )
+    end_rate_c_per_min: float = Field(
+        0.5, gt=0, le=100, description="after the turn at the bottom the table goes on "
+        "cycling until every die's rate is within this (verify then sees a die near rest)",
+    )
+    skip_s: Seconds = Field(
+        30.0, ge=0, description="plateaus this soon after the step starts are not fitted "
+        "(the die's self-heating after power-on bends its temperature fastest)",
+    )
+    max_duration_s: Seconds = Field(
+        3600.0, gt=0, description="the ramp must be done within this (else ERROR)"
+    )
+
+
+def _typical_bounds(product: Any, limit: float | None) -> tuple[float, float, float, float]:
+    """(refusal limit, the lag assumed where the data cannot tell it, hysteresis width,
+    the typical lag) from the product's thermal_typical."""
+    typ = product.thermal_typical
+    if typ is None:
+        return (limit or 60.0), (limit or 60.0), 1.0, 0.0
+    tau, sigma = typ.element_tau_s, typ.element_tau_sigma_s
+    return (limit or tau + 4 * sigma), tau + 3 * sigma, typ.hysteresis_width_c, tau
+
+
+class RampCalibration(StepType[RampSettings]):
+    """Bias and scale over a heating-and-cooling chamber ramp, the rate table cycling and
+    the supply alternating; fitted with the die's rate of change for the gradient and the
+    lag (per part), into the first-order calibration."""
+
+    type_name = "ramp_calibration"
+    Settings = RampSettings
+    uses_table = True
+    provides = frozenset({Provided.FIT})
+    Results = RampResults
+
+    @classmethod
+    def measurements(cls, settings: Any) -> list[Declared]:
+        return [Declared(name, units, "first-order coefficient (ramp)")
+                for name, units in COEFF_UNITS.items()]
+
+    def estimate_s(self, ctx: RunContext) -> float:
+        # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)
+        span = self._span(ctx)
+        return 60.0 * (span[1] - span[0]) * 4.8 / max(ctx.procedure.chamber.ramp_c_per_min, 1.0)
+
+    def _span(self, ctx: RunContext) -> tuple[float, float]:
+        temps = ctx.procedure.conditions.temperatures_c
+        return float(min(temps)), float(max(temps))
+
+    def _setpoint_limits(self, ctx: RunContext) -> tuple[float, float]:
+        st, product = self.settings, ctx.product
+        low, high = ctx.instruments.chamber.setpoint_limits()
+        if product.max_part_temperature_c is not None:
+            high = min(high, product.max_part_temperature_c)
+        if product.min_part_temperature_c is not None:
+            low = max(low, product.min_part_temperature_c)
+        if st.max_setpoint_c is not None:
+            high = min(high, st.max_setpoint_c)
+        if st.min_setpoint_c is not None:
+            low = max(low, st.min_setpoint_c)
+        return low, high
+
+    def _end_c(self, ctx: RunContext) -> float:
+        end_c = self.settings.end_setpoint_c
+        return ctx.procedure.chamber.safe_temp_c if end_c is None else end_c
+
+    def main(self, ctx: RunContext) -> None:
+        ctx.instruments.need_table().enable()
+        logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
+        self._end_turn: float | None = None
+        try:
+            turned_at = self._ramp(ctx, logs)
+        except BaseException:
+            self._leave_at_end(ctx)  # never left heading for an overshoot
+            raise
+        low, high = self._span(ctx)
+        bounds = _typical_bounds(ctx.product, self.settings.max_element_tau_s)
+        for part in ctx.parts.alive():
+            given = dict(turned_at_station_s=turned_at, end_turn_station_s=self._end_turn)
+            results = RampResults(low_c=low, high_c=high, max_element_tau_s=bounds[0],
+                                  **{k: v for k, v in given.items() if v is not None})
+            ctx.parts.per_part(part, partial(
+                fit_and_record, ctx, log=logs[part.socket], results=results,
+                bounds=bounds))
+
+    def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog]) -> float | None:
+        """Heat, turn, cool, turn to the end setpoint, until the dies are near rest; the
+        table cycling and the supply alternating all along; returns when the chamber
+        turned from heating to cooling (station s)."""
+        st, cfg = self.settings, ctx.procedure.chamber
+        chamber = ctx.instruments.chamber
+        low_sp, high_sp = self._setpoint_limits(ctx)
+        start = ctx.wait.clock.now_s()
+        self._turn = (start, chamber.read_temperature(), high_sp)  # since, from, towards
+        chamber.set_ramp_rate(cfg.ramp_c_per_min)
+        chamber.set_setpoint(high_sp)
+        if not chamber.is_running():
+            chamber.run()
+        phase, turned_at, sweep = "heating", None, 0
+        supplies = list(ctx.procedure.conditions.supplies_v)
+        while phase != "done":
+            ctx.instruments.set_supply_voltage(supplies[sweep % len(supplies)])
+            volts = ctx.instruments.log_supply()[0]
+            for rate in st.rates_dps:
+                plateau = measure_plateau(ctx, rate, st.plateau_dwell_s, st.settle_s,
+                                          st.accel_dps2, st.at_rate_timeout_s)
+                if plateau.t0_s - start >= st.skip_s:
+                    for part in ctx.parts.alive():
+                        ctx.parts.per_part(part, partial(
+                            logs[part.socket].add, ctx, p=plateau, supply_v=volts,
+                            heating=phase == "heating", dwell_s=st.plateau_dwell_s))
+                phase = self._next_phase(ctx, phase, low_sp)
+                if phase == "cooling" and turned_at is None:
+                    turned_at = ctx.wait.clock.now_s()
+                if phase == "done":
+                    break
+            sweep += 1
+            if ctx.wait.clock.now_s() - start > st.max_duration_s:
+                raise ChamberSetpointNotReached(
+                    f"the ramp did not cover {self._span(ctx)} C both ways within "
+                    f"{st.max_duration_s:g} s: check the chamber, or widen max_setpoint_c / "
+                    "min_setpoint_c", instrument="chamber")
+        table = ctx.instruments.need_table()
+        table.set_rate(0.0, st.accel_dps2)
+        table.wait_at_rate(st.at_rate_timeout_s)
+        return turned_at
+
+    def _leave_at_end(self, ctx: RunContext) -> None:
+        """The chamber to the end setpoint on any way out of the ramp; a failure here is
+        logged, not raised over the error that ended the step (the safe state follows)."""
+        try:
+            ctx.instruments.chamber.set_setpoint(self._end_c(ctx))
+        except InstrumentError as exc:
+            log.error("could not send the chamber to %.1f C: %s", self._end_c(ctx), exc)
+
+    def _next_phase(self, ctx: RunContext, phase: str, low_sp: float) -> str:
+        if phase == "heating" and self._should_turn(ctx, True, low_sp):
+            self._set_towards(ctx, low_sp)
+            return "cooling"
+        if phase == "cooling" and self._should_turn(ctx, False, self._end_c(ctx)):
+            self._set_towards(ctx, self._end_c(ctx))
+            self._end_turn = ctx.wait.clock.now_s()
+            return "settling"
+        if phase == "settling" and self._dies_at_rest(ctx):
+            return "done"
+        return phase
+
+    def _set_towards(self, ctx: RunContext, target_c: float) -> None:
+        now = ctx.wait.clock.now_s()
+        self._turn = (now, self._setpoint_now(ctx, now), target_c)
+        ctx.instruments.chamber.set_setpoint(target_c)
+
+    def _setpoint_now(self, ctx: RunContext, now: float) -> float:
+        since, start_c, target_c = self._turn
+        return ramped_setpoint(start_c, target_c, ctx.procedure.chamber.ramp_c_per_min,
+                               now - since)
+
+    def _dies_at_rest(self, ctx: RunContext) -> bool:
+        now = ctx.wait.clock.now_s()
+        limit = self.settings.end_rate_c_per_min / 60.0
+        return all(abs(_die_now(p, now)[1]) <= limit for p in ctx.parts.alive())
+
+    def _should_turn(self, ctx: RunContext, heating: bool, towards_c: float) -> bool:
+        """Heating: every die's predicted peak, were the setpoint to turn towards
+        `towards_c` now, at the span's top or beyond; cooling: every die's predicted trough
+        at its bottom or below (each die's now and rate from its own sensor)."""
+        air_c, _, _ = ctx.instruments.log_environment()
+        now = ctx.wait.clock.now_s()
+        low, high = self._span(ctx)
+        cfg = ctx.procedure.chamber
+        model = RampModel(cfg.ramp_c_per_min, cfg.air_tau_s, ctx.product.die_tau_s)
+        sp = self._setpoint_now(ctx, now)
+        for part in ctx.parts.alive():
+            die_c, rate = _die_now(part, now)
+            if not np.isfinite(die_c):
+                continue
+            state = RampState(sp, air_c, die_c, rate)
+            if heating and (rate <= 0 or extreme_after_turn(state, towards_c, model) < high):
+                return False
+            if not heating and (rate >= 0 or extreme_after_turn(state, towards_c, model) > low):
+                return False
+        return True
+
+
+def _die_now(part: Any, station_now_s: float) -> tuple[float, float]:
+    """A part's die temperature now and its rate (C/s), a line over its last samples."""
+    if part.stream is None:
+        return float("nan"), 0.0
+    end = part.stream.fixture_time(station_now_s)
+    data = part.stream.window(end - RATE_WINDOW_S, np.inf)
+    t, y = data["time_s"], data["temp_c"]
+    if t.size < 10:
+        return latest_reading_c(part, station_now_s), 0.0
+    slope, icpt = np.polyfit(t - t[-1], y, 1)
+    return float(icpt), float(slope)
