@@ -10,6 +10,7 @@ stop-vs-table E_n (1 when the stated uncertainties are the scatter).
                                          [--procedure config/procedures/eol-rate-table.yaml]
                                          [--strategy setpoint|fastest]
                                          [--thermal-physics honest|ideal]
+                                         [--revisit-c 3]
 
 `--thermal-physics` sets the simulated parts' thermal physics (docs/simulated-bench.md;
 default: the sim config's); the truth's coefficients are the sensing element's. The
@@ -73,7 +74,9 @@ def condition_ratios(rec: Any, tr: dict[str, float]) -> dict[str, list[float]]:
             + tr["scale_temp_coeff_per_c"] * (c["scale_temp_c"] - t0)
             + tr["scale_supply_coeff_per_v"] * dv
         )
-        out["bias"].append((c["bias_dps"] - bias) / c["u_bias_dps"])
+        # the bias as fitted (hysteresis-corrected) with its correction's u, when it has one
+        u_bias = math.hypot(c["u_bias_dps"], c.get("u_hysteresis_correction_dps", 0.0))
+        out["bias"].append((c["bias_dps"] - bias) / u_bias)
         out["scale"].append((c["scale"] - scale) / c["u_scale"])
     out["en"] = [
         m.value
@@ -105,15 +108,20 @@ def corrected_scale_ppm(rec: Any, tr: dict[str, float]) -> float | None:
     return worst
 
 
-def with_strategy(proc_path: Path, strategy: str | None, out: Path) -> Path:
-    """The procedure, or a copy with chamber.strategy set (its product path made absolute)."""
-    if strategy is None:
+def with_strategy(proc_path: Path, strategy: str | None, out: Path,
+                  revisit_c: float | None = None) -> Path:
+    """The procedure, or a copy with chamber.strategy and/or conditions.revisit_c set (its
+    product path made absolute)."""
+    if strategy is None and revisit_c is None:
         return proc_path
     data = yaml.safe_load(proc_path.read_text())
-    data.setdefault("chamber", {})["strategy"] = strategy
+    if strategy is not None:
+        data.setdefault("chamber", {})["strategy"] = strategy
+    if revisit_c is not None:
+        data["conditions"]["revisit_c"] = revisit_c
     if "product" in data:
         data["product"] = str((proc_path.parent / data["product"]).resolve())
-    copy = out / f"{proc_path.stem}-{strategy}.yaml"
+    copy = out / f"{proc_path.stem}-{strategy or 'own'}-{revisit_c}.yaml"
     copy.write_text(yaml.safe_dump(data, sort_keys=False))
     return copy
 
@@ -142,6 +150,8 @@ def part_row(rec: Any, tr: dict[str, float]) -> dict[str, Any]:
         for k in COEFFS:
             c = getattr(rec.calibration, k)
             row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
+        row["b0"] = (rec.calibration.bias_dps.value - tr["bias_dps"],
+                     rec.calibration.bias_dps.uncertainty_k2)
     if rec.verification:
         row["res"] = rec.verification.max_error_pct
     row["cond"] = condition_ratios(rec, tr)
@@ -183,6 +193,15 @@ def print_coverage(fitted: list[dict[str, Any]]) -> None:
     )
 
 
+def print_b0(fitted: list[dict[str, Any]]) -> None:
+    """The b0 error's mean (a hysteresis left in b0 shows as a mean near h/2) and U."""
+    errs = [r["b0"][0] for r in fitted]
+    us = sorted(r["b0"][1] for r in fitted)
+    if errs:
+        print(f"b0 error: mean {sum(errs) / len(errs):+.4f} deg/s, median U (k=2) "
+              f"{us[len(us) // 2]:.4f} deg/s")
+
+
 def print_scale(rows: list[dict[str, Any]]) -> None:
     res = [r["res"] for r in rows if r["res"] is not None]
     if res:
@@ -208,6 +227,9 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--first-serial", type=int, default=5001)
     ap.add_argument("--strategy", choices=["setpoint", "fastest"], default=None,
                     help="override the procedure's chamber.strategy (in a copy)")
+    ap.add_argument("--revisit-c", type=float, default=None,
+                    help="set the procedure's conditions.revisit_c (in a copy): one more "
+                    "condition reached from the other side of the hysteresis")
     ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
                     help="the simulated parts' thermal physics (default: the sim config's)")
     return ap.parse_args()
@@ -223,7 +245,7 @@ def main() -> int:
     rows: list[dict[str, Any]] = []
     out = Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
     serial = args.first_serial
-    procedure = with_strategy(Path(args.procedure), args.strategy, out)
+    procedure = with_strategy(Path(args.procedure), args.strategy, out, args.revisit_c)
     t0 = time.monotonic()
     while len(rows) < args.parts:
         n = min(args.sockets, args.parts - len(rows))
@@ -240,6 +262,7 @@ def main() -> int:
     fitted = [r for r in rows if r["z"]]
     print("-" * len(head))
     print_coverage(fitted)
+    print_b0(fitted)
     print_scale(rows)
     print_condition_ratios([r["cond"] for r in rows])
     print(

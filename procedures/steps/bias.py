@@ -162,7 +162,9 @@ class Bias(StepType[BiasSettings]):
         part.noise = noise.with_floor(b_dps, rrw)
         u_wander = self._wander_dps(t0, t1, b_dps, rrw)
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
-        res.note_temperature("bias", data["temp_c"])
+        res.note_temperature("bias", data["temp_c"], data["time_s"])
+        play = None if part.stream is None else part.stream.hysteresis
+        res.hysteresis_state = None if play is None else play.state
         ctx.records.measure(
             part,
             "raw_bias_dps",
