@@ -10,10 +10,12 @@ stop-vs-table E_n (1 when the stated uncertainties are the scatter).
                                          [--procedure config/procedures/eol-rate-table.yaml]
                                          [--strategy setpoint|fastest]
                                          [--thermal-physics honest|ideal]
-                                         [--revisit-c 3]
+                                         [--revisit-c 3] [--keep-declared]
 
 `--thermal-physics` sets the simulated parts' thermal physics (docs/simulated-bench.md;
-default: the sim config's); the truth's coefficients are the sensing element's. The
+default: the sim config's); the truth's coefficients are the sensing element's. With `ideal`
+the product runs without its `thermal_typical` (its parts have no lag or hysteresis to
+correct), unless `--keep-declared`. The
 corrected-scale error is, per part, the largest |fitted scale law / true scale law - 1| in
 ppm over the part's conditions, both laws at the condition's temperature and supply.
 """
@@ -109,10 +111,11 @@ def corrected_scale_ppm(rec: Any, tr: dict[str, float]) -> float | None:
 
 
 def with_strategy(proc_path: Path, strategy: str | None, out: Path,
-                  revisit_c: float | None = None) -> Path:
+                  revisit_c: float | None = None, undeclared: bool = False) -> Path:
     """The procedure, or a copy with chamber.strategy and/or conditions.revisit_c set (its
-    product path made absolute)."""
-    if strategy is None and revisit_c is None:
+    product path made absolute); `undeclared`: its product a copy without thermal_typical
+    (for parts without the honest physics: the declaration describes the parts)."""
+    if strategy is None and revisit_c is None and not undeclared:
         return proc_path
     data = yaml.safe_load(proc_path.read_text())
     if strategy is not None:
@@ -121,7 +124,13 @@ def with_strategy(proc_path: Path, strategy: str | None, out: Path,
         data["conditions"]["revisit_c"] = revisit_c
     if "product" in data:
         data["product"] = str((proc_path.parent / data["product"]).resolve())
-    copy = out / f"{proc_path.stem}-{strategy or 'own'}-{revisit_c}.yaml"
+        if undeclared:
+            product = yaml.safe_load(Path(data["product"]).read_text())
+            product.pop("thermal_typical", None)
+            copy_product = out / f"{Path(data['product']).stem}-undeclared.yaml"
+            copy_product.write_text(yaml.safe_dump(product, sort_keys=False))
+            data["product"] = str(copy_product)
+    copy = out / f"{proc_path.stem}-{strategy or 'own'}-{revisit_c}-{undeclared}.yaml"
     copy.write_text(yaml.safe_dump(data, sort_keys=False))
     return copy
 
@@ -230,6 +239,9 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--revisit-c", type=float, default=None,
                     help="set the procedure's conditions.revisit_c (in a copy): one more "
                     "condition reached from the other side of the hysteresis")
+    ap.add_argument("--keep-declared", action="store_true",
+                    help="with --thermal-physics ideal, keep the product's thermal_typical "
+                    "(default: left out, as the parts have none of it)")
     ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
                     help="the simulated parts' thermal physics (default: the sim config's)")
     return ap.parse_args()
@@ -245,7 +257,11 @@ def main() -> int:
     rows: list[dict[str, Any]] = []
     out = Path(tempfile.mkdtemp(prefix="bench-accuracy-"))
     serial = args.first_serial
-    procedure = with_strategy(Path(args.procedure), args.strategy, out, args.revisit_c)
+    undeclared = args.thermal_physics == "ideal" and not args.keep_declared
+    procedure = with_strategy(Path(args.procedure), args.strategy, out, args.revisit_c,
+                              undeclared)
+    if undeclared:
+        print("parts without the honest physics: the product's thermal_typical left out")
     t0 = time.monotonic()
     while len(rows) < args.parts:
         n = min(args.sockets, args.parts - len(rows))
