@@ -25,13 +25,16 @@ SETS = {
     ),
 }
 
-# The modbus-servo rate table on this test's short procedure (4 s plateaus) gives per-condition
-# rate-table scales up to 3.9 x their stated u from the truth, mostly high, on the ideal bench
-# as on the honest one; the acutrol table, with the very same die temperatures (the chamber
-# family does not matter: espec-p300 and watlow-f4t give them to 0.001 C), stays within 1 u.
-# 12 s plateaus halve it. The station's scale uncertainty with this table on short plateaus
-# misses a term (an open station problem, docs/simulated-bench.md); until it is found, this
-# set's scale coefficients are held to 1.6 U, not to the coverage of a right U.
+# The modbus-servo rate table on this test's short procedure (4 s plateaus, the die still moving
+# at up to 0.3 C/min) gives per-condition rate-table scales up to 3.9 x their stated u from the
+# truth, on the ideal bench as on the honest one. The acutrol table measures the same scales
+# (within 14 ppm) with the very same die temperatures (the chamber family does not matter:
+# espec-p300 and watlow-f4t give them to 0.001 C), but states its reference at 0.01 % of rate
+# (u of a condition's scale 62 ppm against the servo's 18 ppm from its encoder alone): an error
+# of up to about 70 ppm common to both hides under the acutrol's u. The scale budget misses a
+# term on short plateaus (open: docs/simulated-bench.md, "The servo+espec+rigol family set");
+# until it is found, this set's scale coefficients are held to 1.6 U, not to the coverage of a
+# right U.
 SCALE_U_UNDERSTATED = {"servo+espec+rigol"}
 
 
