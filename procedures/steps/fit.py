@@ -131,7 +131,7 @@ class Fit(StepType[FitSettings]):
         part.record.analysis.fit = FitResults(
             source=source,
             conditions=[
-                _fit_condition(r.name, b, sc, hyst.corrections.get(r.name))
+                fit_point(r.name, b, sc, hyst.corrections.get(r.name))
                 for r, b, sc in zip(
                     part.conditions.values(), by_kind["bias"], by_kind["scale"], strict=True
                 )
@@ -253,7 +253,7 @@ def corrected(by_kind: dict[str, list[ConditionMeasurement]], part: PartRun,
     return out
 
 
-def _fit_condition(name: str, b: ConditionMeasurement, sc: ConditionMeasurement,
+def fit_point(name: str, b: ConditionMeasurement, sc: ConditionMeasurement,
                    corr: HysteresisCorrection | None) -> FitCondition:
     """One point the calibration was fitted to: its bias as fitted (the hysteresis
     correction applied), the correction and the state it came from when there is one."""
