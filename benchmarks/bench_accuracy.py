@@ -11,9 +11,12 @@ stop-vs-table E_n (1 when the stated uncertainties are the scatter).
                                          [--strategy setpoint|fastest]
                                          [--thermal-physics honest|ideal]
                                          [--option overlap_measurement supply_change_no_wait]
+                                         [--revisit-c 3] [--keep-declared]
 
 `--thermal-physics` sets the simulated parts' thermal physics (docs/simulated-bench.md;
-default: the sim config's); the truth's coefficients are the sensing element's. The
+default: the sim config's); the truth's coefficients are the sensing element's. With `ideal`
+the product runs without its `thermal_typical` (its parts have no lag or hysteresis to
+correct), unless `--keep-declared`. The
 corrected-scale error is, per part, the largest |fitted scale law / true scale law - 1| in
 ppm over the part's conditions, both laws at the condition's temperature and supply.
 """
@@ -31,6 +34,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import yaml  # noqa: E402
 from bench_cycle import OPTIONS, with_strategy  # noqa: E402
 
 from procedures.runtime.record import read_record  # noqa: E402
@@ -74,7 +78,9 @@ def condition_ratios(rec: Any, tr: dict[str, float]) -> dict[str, list[float]]:
             + tr["scale_temp_coeff_per_c"] * (c["scale_temp_c"] - t0)
             + tr["scale_supply_coeff_per_v"] * dv
         )
-        out["bias"].append((c["bias_dps"] - bias) / c["u_bias_dps"])
+        # the bias as fitted (hysteresis-corrected) with its correction's u, when it has one
+        u_bias = math.hypot(c["u_bias_dps"], c.get("u_hysteresis_correction_dps", 0.0))
+        out["bias"].append((c["bias_dps"] - bias) / u_bias)
         out["scale"].append((c["scale"] - scale) / c["u_scale"])
     out["en"] = [
         m.value
@@ -106,6 +112,29 @@ def corrected_scale_ppm(rec: Any, tr: dict[str, float]) -> float | None:
     return worst
 
 
+def with_declaration(proc_path: Path, out: Path, revisit_c: float | None = None,
+                     undeclared: bool = False) -> Path:
+    """The procedure, or a copy with conditions.revisit_c set (its product path made
+    absolute); `undeclared`: its product a copy without thermal_typical (for parts without
+    the honest physics: the declaration describes the parts)."""
+    if revisit_c is None and not undeclared:
+        return proc_path
+    data = yaml.safe_load(proc_path.read_text())
+    if revisit_c is not None:
+        data["conditions"]["revisit_c"] = revisit_c
+    if "product" in data:
+        data["product"] = str((proc_path.parent / data["product"]).resolve())
+        if undeclared:
+            product = yaml.safe_load(Path(data["product"]).read_text())
+            product.pop("thermal_typical", None)
+            copy_product = out / f"{Path(data['product']).stem}-undeclared.yaml"
+            copy_product.write_text(yaml.safe_dump(product, sort_keys=False))
+            data["product"] = str(copy_product)
+    copy = out / f"{proc_path.stem}-declared-{revisit_c}-{undeclared}.yaml"
+    copy.write_text(yaml.safe_dump(data, sort_keys=False))
+    return copy
+
+
 def print_condition_ratios(per_part: list[dict[str, list[float]]]) -> None:
     """RMS of each ratio over every part and condition: 1 when the stated uncertainty is
     the scatter (below 1: intervals too wide; above: too narrow)."""
@@ -130,6 +159,8 @@ def part_row(rec: Any, tr: dict[str, float]) -> dict[str, Any]:
         for k in COEFFS:
             c = getattr(rec.calibration, k)
             row["z"][k] = abs(c.value - tr[k]) / c.uncertainty_k2
+        row["b0"] = (rec.calibration.bias_dps.value - tr["bias_dps"],
+                     rec.calibration.bias_dps.uncertainty_k2)
     if rec.verification:
         row["res"] = rec.verification.max_error_pct
     row["cond"] = condition_ratios(rec, tr)
@@ -172,6 +203,15 @@ def print_coverage(fitted: list[dict[str, Any]]) -> None:
     )
 
 
+def print_b0(fitted: list[dict[str, Any]]) -> None:
+    """The b0 error's mean (a hysteresis left in b0 shows as a mean near h/2) and U."""
+    errs = [r["b0"][0] for r in fitted]
+    us = sorted(r["b0"][1] for r in fitted)
+    if errs:
+        print(f"b0 error: mean {sum(errs) / len(errs):+.4f} deg/s, median U (k=2) "
+              f"{us[len(us) // 2]:.4f} deg/s")
+
+
 def print_scale(rows: list[dict[str, Any]]) -> None:
     res = [r["res"] for r in rows if r["res"] is not None]
     if res:
@@ -199,6 +239,12 @@ def parse_args() -> argparse.Namespace:
                     help="override the procedure's chamber.strategy (in a copy)")
     ap.add_argument("--option", nargs="*", choices=OPTIONS, default=[],
                     help="the thermal step's faster options to turn on (in a copy)")
+    ap.add_argument("--revisit-c", type=float, default=None,
+                    help="set the procedure's conditions.revisit_c (in a copy): one more "
+                    "condition reached from the other side of the hysteresis")
+    ap.add_argument("--keep-declared", action="store_true",
+                    help="with --thermal-physics ideal, keep the product's thermal_typical "
+                    "(default: left out, as the parts have none of it)")
     ap.add_argument("--thermal-physics", choices=["honest", "ideal"], default=None,
                     help="the simulated parts' thermal physics (default: the sim config's)")
     return ap.parse_args()
@@ -217,6 +263,10 @@ def main() -> int:
     procedure = Path(args.procedure)
     if args.strategy is not None or args.option:
         procedure = with_strategy(procedure, args.strategy, out, args.option)
+    undeclared = args.thermal_physics == "ideal" and not args.keep_declared
+    procedure = with_declaration(procedure, out, args.revisit_c, undeclared)
+    if undeclared:
+        print("parts without the honest physics: the product's thermal_typical left out")
     t0 = time.monotonic()
     while len(rows) < args.parts:
         n = min(args.sockets, args.parts - len(rows))
@@ -233,6 +283,7 @@ def main() -> int:
     fitted = [r for r in rows if r["z"]]
     print("-" * len(head))
     print_coverage(fitted)
+    print_b0(fitted)
     print_scale(rows)
     print_condition_ratios([r["cond"] for r in rows])
     print(

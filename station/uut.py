@@ -31,6 +31,7 @@ from common.clock import ScaledClock
 from common.yaml_input import ConfigError
 from drivers.errors import InstrumentError
 from drivers.protocols import PartLink, StreamReadsBackSafe
+from procedures.analysis.hysteresis import PlayOperator
 from procedures.engine.engine import Engine
 from procedures.engine.safe_state import SafeSettingsError, SafeStatePolicy, check_safe_temperature
 from procedures.loading.config import (
@@ -501,6 +502,9 @@ class UutRunner:
                 part.writer,
                 silent_floor_s(self.procedure.stream.silent_timeout_s, bench.clock),
             )
+            typical = self.product.thermal_typical
+            if typical is not None:
+                part.stream.hysteresis = PlayOperator(typical.hysteresis_width_c)
         overdue = [i.role for i in opened.instruments if i.calibration_overdue]
         ctx = RunContext(bench, self.procedure, self.product, parts, self.progress)
         with self._lock:

@@ -4,7 +4,11 @@
     scale(T, V) = s0 (1 + sT (T - T0) + sV (V - V0))
 
 Weighted least squares with each condition's own uncertainty (known, not rescaled by the
-scatter), so the covariance of the coefficients is the propagated measurement uncertainty.
+scatter), so the covariance of the coefficients is the propagated measurement uncertainty. A
+bias may carry a component common to every condition of the part (`u_bias_common_dps`: the
+hysteresis correction's, procedures.analysis.hysteresis, the same unknown at each condition):
+the bias fit then weighs with the full covariance diag(u^2) + c c^T (generalised least
+squares), so that component reaches the coefficients as the correlated error it is.
 The scale model is fitted in its linear form s0 + a dT + c dV and carried to sT = a / s0,
 sV = c / s0 through the Jacobian. A 2 x 2 design has one spare degree of freedom: it is
 reported as the interaction term (the T x V coefficient of the saturated model) with its
@@ -36,6 +40,9 @@ class ConditionMeasurement:
     u_bias_dps: float
     scale: float
     u_scale: float
+    # k=1, fully correlated between the conditions (signed: it may act with opposite sign
+    # at a condition reached from the other side); 0 for none
+    u_bias_common_dps: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -154,28 +161,34 @@ def weighted_lsq(
     u: NDArray[np.float64],
     max_condition: float,
     refusal: str,
+    common: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """Weighted least squares of `y` (standard uncertainties `u`) on the design's columns:
     the parameters, their covariance and chi-square; AnalysisError(`refusal`) when the
     normal matrix's condition number exceeds `max_condition` (the conditions cannot tell
-    the columns apart)."""
-    w = 1.0 / u**2
-    a = design.T @ (design * w[:, None])
+    the columns apart). `common`: a k=1 error shared by every row (signed per row), making
+    the rows' covariance diag(u^2) + common common^T (generalised least squares)."""
+    rows_cov = np.diag(u**2)
+    if common is not None:
+        rows_cov = rows_cov + np.outer(common, common)
+    w_mat = np.linalg.inv(rows_cov)
+    a = design.T @ w_mat @ design
     if np.linalg.cond(a) > max_condition:
         raise AnalysisError(refusal)
     cov = np.asarray(np.linalg.inv(a), dtype=np.float64)
-    p = cov @ (design.T @ (w * y))
+    p = cov @ (design.T @ (w_mat @ y))
     r = y - design @ p
-    return p, cov, float(np.sum(r**2 * w))
+    return p, cov, float(r @ w_mat @ r)
 
 
 def _wls(
-    design: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.float64]
+    design: NDArray[np.float64], y: NDArray[np.float64], u: NDArray[np.float64],
+    common: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     return weighted_lsq(
         design, y, u, 1e12,
         "the conditions do not separate temperature from supply: measure at two "
-        "temperatures and two supply levels (a 2 x 2 design)",
+        "temperatures and two supply levels (a 2 x 2 design)", common,
     )
 
 
@@ -209,7 +222,8 @@ def fit_temp_supply(
     dv = arr[:, 1] - reference_supply_v
     design = np.column_stack([np.ones_like(dt), dt, dv])
 
-    pb, cov_b, chi2_b = _wls(design, arr[:, 2], arr[:, 3])
+    common = np.array([c.u_bias_common_dps for c in conditions], dtype=np.float64)
+    pb, cov_b, chi2_b = _wls(design, arr[:, 2], arr[:, 3], common)
     q, cov_q, chi2_s = _wls(design, arr[:, 4], arr[:, 5])
     s0 = float(q[0])
     jac = np.array(
@@ -231,7 +245,7 @@ def fit_temp_supply(
     if dof >= 1:
         full = np.column_stack([design, dt * dv])
         try:
-            pbi, cov_bi, _ = _wls(full, arr[:, 2], arr[:, 3])
+            pbi, cov_bi, _ = _wls(full, arr[:, 2], arr[:, 3], common)
             psi, cov_si, _ = _wls(full, arr[:, 4], arr[:, 5])
         except AnalysisError:
             pass  # the design cannot separate an interaction (e.g. three levels on a line)

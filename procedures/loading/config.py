@@ -47,7 +47,7 @@ from procedures.loading.step_list import (
     measurement_problems,
     parse_steps,
 )
-from procedures.runtime.conditions import Condition, plan_conditions
+from procedures.runtime.conditions import Condition, plan_conditions, with_revisit
 from procedures.runtime.limits import LIMIT_NAMES, Limit, Limits
 from procedures.steps.registry import StepType
 from procedures.units import ChamberTemp, Seconds, StrictModel, Volts
@@ -329,6 +329,14 @@ class ConditionsConfig(StrictModel):
         description="min_transitions: both supplies at one temperature, start at the "
         "temperature the chamber is nearest to; as_listed: temperatures in file order",
     )
+    revisit_c: float | None = Field(
+        None, ge=1, le=20,
+        description="optional: one more condition after the plan, this far from the last "
+        "temperature against the way it was reached (below it after heating), at the last "
+        "supply: the part's bias from the other side of its hysteresis, so that the fit "
+        "measures the part's own (at least twice the product's thermal_typical."
+        "hysteresis_width_c; docs/simulated-bench.md)",
+    )
 
     @field_validator("supplies_v")
     @classmethod
@@ -432,9 +440,10 @@ class ProcedureConfig(StrictModel):
 
     def planned_conditions(self, start_temp_c: float | None = None) -> list[Condition]:
         cond = self.conditions
-        return plan_conditions(
+        plan = plan_conditions(
             cond.temperatures_c, cond.supplies_v, order=cond.order, start_temp_c=start_temp_c
         )
+        return with_revisit(plan, cond.revisit_c, start_temp_c)
 
     def plan(self, start_temp_c: float | None = None) -> list[StepType[Any]]:
         """The step instances in run order, loops unrolled."""

@@ -45,6 +45,23 @@ def plan_conditions(
     return plan
 
 
+def with_revisit(
+    plan: list[Condition], reversal_c: float | None, start_temp_c: float | None = None
+) -> list[Condition]:
+    """The plan and, with `reversal_c`, one more condition at the last one's supply,
+    `reversal_c` from its temperature against the way the plan reached it (below it after
+    heating): a bias reached from the other side of the part's hysteresis
+    (procedures.analysis.hysteresis), so that the fit measures the part's own."""
+    if reversal_c is None or not plan:
+        return plan
+    last = plan[-1]
+    before = [c.temperature_c for c in plan if c.temperature_c != last.temperature_c]
+    came_from = before[-1] if before else start_temp_c
+    heated = came_from is None or came_from <= last.temperature_c
+    temp = last.temperature_c - reversal_c if heated else last.temperature_c + reversal_c
+    return [*plan, Condition(temp, last.supply_v)]
+
+
 def chamber_transitions(plan: list[Condition], start_temp_c: float | None = None) -> int:
     """How many times the chamber setpoint changes along `plan` (including the first move)."""
     count = 0

@@ -179,10 +179,27 @@ class FitCondition(Section):
     bias_temp_c: Num = None
     scale_temp_c: Num = None
     supply_v: Num = None
-    bias_dps: Num = None
-    u_bias_dps: Num = None
+    bias_dps: Num = None  # as fitted: the measured bias plus the hysteresis correction
+    u_bias_dps: Num = None  # the measurement's own (k=1)
     scale: Num = None
     u_scale: Num = None
+    # only when the product declares its hysteresis (procedures.analysis.hysteresis):
+    # the state the bias was measured in (+1 heated .. -1 cooled), the correction added to
+    # it and the correction's k=1 uncertainty (correlated between the conditions)
+    hysteresis_state: Num = None
+    hysteresis_correction_dps: Num = None
+    u_hysteresis_correction_dps: Num = None
+
+
+class HysteresisResults(Section):
+    """analysis.fit.hysteresis: the part's own hysteresis, fitted when its conditions reach
+    both sides (procedures.analysis.hysteresis.own_hysteresis), against the product's."""
+
+    hysteresis_dps: Num = None
+    u_hysteresis_dps: Num = None  # k=1
+    typical_dps: Num = None
+    normalised: Num = None  # (own - typical) / sqrt(u^2 + sigma^2)
+    beyond_typical: bool | None = None  # |normalised| > 3: outside the declared spread
 
 
 class FitResults(Section):
@@ -191,6 +208,7 @@ class FitResults(Section):
     source: str = ""
     order: int | None = None  # only above first order
     conditions: list[FitCondition] = Field(default_factory=list)
+    hysteresis: HysteresisResults | None = None  # only with a revisit (both sides)
 
 
 class FitCoefficient(Section):

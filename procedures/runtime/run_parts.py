@@ -88,9 +88,16 @@ class ConditionResult:
     # die temperature over the measurement windows: the bias and the scale are each paired
     # with the temperature of their own windows (the die may still creep within a condition)
     temp_sums: dict[str, tuple[float, int]] = field(default_factory=dict)
+    # per kind: the sum of each timed window's die slope (C/s) x its samples, and those samples
+    slope_sums: dict[str, tuple[float, int]] = field(default_factory=dict)
+    # the hysteresis state when the bias was measured (+1 reached by heating, -1 by cooling;
+    # None: the product declares no hysteresis; procedures.analysis.hysteresis)
+    hysteresis_state: float | None = None
 
-    def note_temperature(self, kind: str, temp_c: Any) -> None:
-        """Add a window's die temperatures to `kind` ("bias" or "scale")."""
+    def note_temperature(self, kind: str, temp_c: Any, time_s: Any = None) -> None:
+        """Add a window's die temperatures to `kind` ("bias" or "scale"); with the window's
+        sample times, its slope too (the sensing element lags the sensor by the slope x its
+        lag: `temperature_for`)."""
         arr = np.asarray(temp_c, dtype=np.float64)
         if arr.size:
             total, n = self.temp_sums.get(kind, (0.0, 0))
@@ -98,12 +105,24 @@ class ConditionResult:
             all_sum = sum(v[0] for v in self.temp_sums.values())
             all_n = sum(v[1] for v in self.temp_sums.values())
             self.die_temperature_c = all_sum / all_n
+        t = None if time_s is None else np.asarray(time_s, dtype=np.float64)
+        if t is not None and arr.size >= 3 and t.size == arr.size and np.ptp(t) > 0:
+            slope = float(np.polyfit(t - t[0], arr, 1)[0])
+            total, n = self.slope_sums.get(kind, (0.0, 0))
+            self.slope_sums[kind] = (total + slope * arr.size, n + int(arr.size))
 
-    def temperature_for(self, kind: str) -> float | None:
-        if kind in self.temp_sums:
-            total, n = self.temp_sums[kind]
-            return total / n
-        return self.die_temperature_c
+    def temperature_for(self, kind: str, lag_s: float = 0.0) -> float | None:
+        """The die temperature of `kind`'s windows; with `lag_s`, carried to where a sensing
+        element lagging the sensor by `lag_s` (first order) is: less the slope x lag."""
+        if kind not in self.temp_sums:
+            return self.die_temperature_c
+        total, n = self.temp_sums[kind]
+        return total / n - lag_s * self.slope_for(kind)
+
+    def slope_for(self, kind: str) -> float:
+        """The die's mean slope over `kind`'s timed windows, C/s (0 when none was timed)."""
+        total, n = self.slope_sums.get(kind, (0.0, 0))
+        return total / n if n else 0.0
 
     stop: StopScale | None = None
 

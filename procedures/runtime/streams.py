@@ -31,6 +31,7 @@ from drivers.errors import InstrumentError, PartSilent
 from drivers.fixture_protocol import SEQ_MODULO
 from drivers.part_codes import ADIS16130, CodeFormat
 from drivers.protocols import PartLink, SampleBlock
+from procedures.analysis.hysteresis import PlayOperator
 from procedures.runtime.rawdata import RawDataWriter
 from procedures.runtime.record import StorageError
 
@@ -170,6 +171,9 @@ class PartStream:
         self._wrap_s = 0.0
         self.last_seq: int | None = None  # of the newest frame in (lockstep catch-up)
         self._has_xyz = False  # three-axis frames seen: windows carry XYZ_COLUMNS
+        # the part's hysteresis state from every die reading since power-on (set when the
+        # product declares its hysteresis; procedures.analysis.hysteresis)
+        self.hysteresis: PlayOperator | None = None
 
     # ------------------------------------------------------------ control (main thread)
 
@@ -260,6 +264,8 @@ class PartStream:
             ),
         }
         cols["station_time_s"] = cols["time_s"] + self.offset_s
+        if self.hysteresis is not None:
+            self.hysteresis.follow(cols["temp_c"])
         xyz = self._xyz_columns(block, n)
         self._data.append({**cols, **{c: xyz[c] for c in XYZ_COLUMNS if c in xyz}})
         self._pending.append({**cols, **xyz})

@@ -60,6 +60,16 @@ NOISE = (
 )
 
 
+def _hysteresis_state(part: PartRun) -> float | None:
+    """The part's hysteresis state now (its stream follows it from power-on; None when the
+    product declares no hysteresis), read under the stream's lock."""
+    stream = part.stream
+    if stream is None or stream.hysteresis is None:
+        return None
+    with stream.lock:
+        return stream.hysteresis.state
+
+
 class Bias(StepType[BiasSettings]):
     """Bias at rest (inside for_each: condition); the Allan deviation where `allan` says."""
 
@@ -162,7 +172,8 @@ class Bias(StepType[BiasSettings]):
         part.noise = noise.with_floor(b_dps, rrw)
         u_wander = self._wander_dps(t0, t1, b_dps, rrw)
         res.bias_dps, res.u_bias_dps = est.bias_dps, math.hypot(est.u_bias_dps, u_wander)
-        res.note_temperature("bias", data["temp_c"])
+        res.note_temperature("bias", data["temp_c"], data["time_s"])
+        res.hysteresis_state = _hysteresis_state(part)
         ctx.records.measure(
             part,
             "raw_bias_dps",

@@ -209,4 +209,4 @@ class CubeFaces(StepType[CubeFacesSettings]):
             ctx.records.segment(part, "static" if p.ref_dps == 0 else "plateau", len(out) - 1,
                                 start_s, end_s, ref_rate_dps=p.ref_dps,
                                 temp_setpoint_c=res.temperature_c, supply_v=res.supply_v)
-            res.note_temperature("scale", data["temp_c"])
+            res.note_temperature("scale", data["temp_c"], data["time_s"])

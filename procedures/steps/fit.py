@@ -9,6 +9,14 @@ from typing import Any, Literal
 from pydantic import Field
 
 from procedures.analysis.errors import AnalysisError
+from procedures.analysis.hysteresis import (
+    HysteresisCorrection,
+    OwnHysteresis,
+    both_sides,
+    correction,
+    own_correction,
+    own_hysteresis,
+)
 from procedures.analysis.temp_supply_fit import (
     ConditionMeasurement,
     FirstOrderCoefficients,
@@ -16,7 +24,7 @@ from procedures.analysis.temp_supply_fit import (
     fit_temp_supply,
 )
 from procedures.runtime.record import Calibration, Verdict
-from procedures.runtime.results import FitCondition, FitResults
+from procedures.runtime.results import FitCondition, FitResults, HysteresisResults
 from procedures.runtime.run_context import RunContext
 from procedures.runtime.run_parts import ConditionResult, PartRun, condition_record
 from procedures.steps.fit_order import (
@@ -83,7 +91,9 @@ class Fit(StepType[FitSettings]):
     def measurements(cls, settings: Any) -> list[Declared]:
         return [Declared(name, units, "first-order coefficient")
                 for name, units in COEFF_UNITS.items()] + declared_beyond_first_order(
-                    settings.order)
+                    settings.order) + [
+            Declared("hysteresis_dps", "deg/s", "the part's own hysteresis (a revisit's "
+                     "conditions reach both sides)", informational=True, optional=True)]
 
     def main(self, ctx: RunContext) -> None:
         ctx.parts.each(lambda part: self._fit(ctx, part))
@@ -91,10 +101,15 @@ class Fit(StepType[FitSettings]):
     def _fit(self, ctx: RunContext, part: PartRun) -> None:
         source = self.settings.source
         try:
-            by_kind = fit_inputs(part, source)
             t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
+            typical = ctx.product.thermal_typical
+            raw = fit_inputs(part, source, 0.0 if typical is None else typical.element_tau_s)
+            hyst = hysteresis_corrections(ctx, part, raw["bias"], (t0, v0))
+            by_kind = corrected(raw, part, hyst.corrections)
             if self.settings.order > 1:
-                fit_beyond_first_order(ctx, part, self.settings.order, by_kind, t0, v0, source)
+                fit_beyond_first_order(ctx, part, self.settings.order,
+                                       corrected(raw, part, hyst.corrections, folded=True),
+                                       t0, v0, source)
                 return
             # bias paired with the die temperature of its own windows, scale with its own
             fit_b = fit_temp_supply(by_kind["bias"], t0, v0)
@@ -116,21 +131,14 @@ class Fit(StepType[FitSettings]):
         part.record.analysis.fit = FitResults(
             source=source,
             conditions=[
-                FitCondition(
-                    name=r.name,
-                    bias_temp_c=b.temp_c,
-                    scale_temp_c=sc.temp_c,
-                    supply_v=b.supply_v,
-                    bias_dps=b.bias_dps,
-                    u_bias_dps=b.u_bias_dps,
-                    scale=b.scale,
-                    u_scale=b.u_scale,
-                )
+                fit_point(r.name, b, sc, hyst.corrections.get(r.name))
                 for r, b, sc in zip(
                     part.conditions.values(), by_kind["bias"], by_kind["scale"], strict=True
                 )
             ],
         )
+        if hyst.own is not None:
+            record_own_hysteresis(ctx, part, hyst.own)
         for name, units in COEFF_UNITS.items():
             fit = fit_b if name.startswith("bias") else fit_s
             ctx.records.measure(
@@ -143,9 +151,62 @@ class Fit(StepType[FitSettings]):
             )
 
 
-def fit_inputs(part: PartRun, source: str) -> dict[str, list[ConditionMeasurement]]:
-    """Each condition's bias and scale with the die temperature of its own windows; raises
-    AnalysisError naming what a condition lacks."""
+@dataclass(frozen=True)
+class Hysteresis:
+    """Each condition's hysteresis correction (by name) and, from conditions reached from
+    both sides, the part's own hysteresis (None: the product's typical value was used)."""
+
+    corrections: dict[str, HysteresisCorrection]
+    own: OwnHysteresis | None = None
+
+
+def hysteresis_corrections(ctx: RunContext, part: PartRun, raw: list[ConditionMeasurement],
+                           reference: tuple[float, float]) -> Hysteresis:
+    """The corrections from the state each bias was measured in: with the part's own h when
+    the conditions reach both sides (a revisit), else with the product's declared typical
+    h and spread; none when the product declares none (or the states were not followed)."""
+    typical = ctx.product.thermal_typical
+    states = [res.hysteresis_state for res in part.conditions.values()]
+    if typical is None or any(s is None for s in states):
+        return Hysteresis({})
+    known = [float(s) for s in states if s is not None]
+    names = list(part.conditions)
+    if not both_sides(known):
+        return Hysteresis({n: correction(s, typical.hysteresis_dps, typical.hysteresis_sigma_dps)
+                           for n, s in zip(names, known, strict=True)})
+    own = own_hysteresis(raw, known, (typical.hysteresis_dps, typical.hysteresis_sigma_dps),
+                         reference)
+    return Hysteresis({n: own_correction(s, own) for n, s in zip(names, known, strict=True)},
+                      own)
+
+
+def record_own_hysteresis(ctx: RunContext, part: PartRun, own: OwnHysteresis) -> None:
+    """The part's own hysteresis on the record; beyond the product's declared spread, a
+    warning the run's events and the record's analysis.fit.hysteresis both carry."""
+    ctx.records.measure(part, "hysteresis_dps", own.hysteresis_dps, units="deg/s",
+                        uncertainty_k2=2 * own.u_hysteresis_dps,
+                        description="bias after heating minus after cooling (own)")
+    fit = part.record.analysis.fit
+    if fit is not None:
+        fit.hysteresis = HysteresisResults(
+            hysteresis_dps=own.hysteresis_dps, u_hysteresis_dps=own.u_hysteresis_dps,
+            typical_dps=own.typical_dps, normalised=own.normalised,
+            beyond_typical=own.beyond_typical,
+        )
+    if own.beyond_typical:
+        ctx.records.event(
+            f"socket {part.socket}: hysteresis {own.hysteresis_dps:+.4f} deg/s is "
+            f"{own.normalised:+.1f} sigma from the product's typical {own.typical_dps:g}: "
+            "fitted from the part's own data (its coefficients hold), but outside the "
+            "declared spread (product thermal_typical)", level="WARNING", parts=[part])
+
+
+def fit_inputs(part: PartRun, source: str, lag_s: float = 0.0
+               ) -> dict[str, list[ConditionMeasurement]]:
+    """Each condition's bias and scale with the die temperature of its own windows, carried
+    to the sensing element's by the product's typical lag `lag_s` (the element trails the
+    sensor by slope x lag while the die still creeps); raises AnalysisError naming what a
+    condition lacks."""
     by_kind: dict[str, list[ConditionMeasurement]] = {"bias": [], "scale": []}
     for res in part.conditions.values():
         if res.bias_dps is None or res.u_bias_dps is None:
@@ -153,7 +214,7 @@ def fit_inputs(part: PartRun, source: str) -> dict[str, list[ConditionMeasuremen
         scale, u_scale = scale_estimate(source, res)
         supply = res.supply_measured_v if res.supply_measured_v else res.supply_v
         for kind, cond_list in by_kind.items():
-            temp = res.temperature_for(kind)
+            temp = res.temperature_for(kind, lag_s)
             if temp is None:
                 raise AnalysisError(f"{res.name}: no die temperature recorded")
             cond_list.append(
@@ -167,6 +228,45 @@ def fit_inputs(part: PartRun, source: str) -> dict[str, list[ConditionMeasuremen
                 )
             )
     return by_kind
+
+
+def corrected(by_kind: dict[str, list[ConditionMeasurement]], part: PartRun,
+              corrections: dict[str, HysteresisCorrection], folded: bool = False
+              ) -> dict[str, list[ConditionMeasurement]]:
+    """The biases carried to the hysteresis midline, each with the correction's error as
+    common to the conditions (temp_supply_fit), or `folded` into its own u (for the fits
+    above first order, which weigh the conditions as independent)."""
+    out: dict[str, list[ConditionMeasurement]] = {}
+    for kind, conds in by_kind.items():
+        out[kind] = []
+        for name, c in zip(part.conditions, conds, strict=True):
+            corr = corrections.get(name)
+            if corr is None:
+                out[kind].append(c)
+            elif folded:
+                out[kind].append(replace(
+                    c, bias_dps=c.bias_dps + corr.correction_dps,
+                    u_bias_dps=math.hypot(c.u_bias_dps, corr.u_correction_dps)))
+            else:
+                out[kind].append(replace(c, bias_dps=c.bias_dps + corr.correction_dps,
+                                         u_bias_common_dps=corr.u_common_dps))
+    return out
+
+
+def fit_point(name: str, b: ConditionMeasurement, sc: ConditionMeasurement,
+                   corr: HysteresisCorrection | None) -> FitCondition:
+    """One point the calibration was fitted to: its bias as fitted (the hysteresis
+    correction applied), the correction and the state it came from when there is one."""
+    extra: dict[str, float] = {} if corr is None else {
+        "hysteresis_state": corr.state,
+        "hysteresis_correction_dps": corr.correction_dps,
+        "u_hysteresis_correction_dps": corr.u_correction_dps,
+    }
+    return FitCondition(
+        name=name, bias_temp_c=b.temp_c, scale_temp_c=sc.temp_c, supply_v=b.supply_v,
+        bias_dps=b.bias_dps, u_bias_dps=b.u_bias_dps, scale=b.scale, u_scale=b.u_scale,
+        **extra,
+    )
 
 
 def _calibration(fit_b: TempSupplyFit, fit_s: TempSupplyFit) -> Calibration:

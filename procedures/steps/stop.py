@@ -255,7 +255,7 @@ class StopMethod(StepType[Any]):
         except AnalysisError as exc:
             ctx.parts.drop(part, Verdict.ERROR, f"stop method at {self.condition}: {exc}")
             return
-        res.note_temperature("scale", data["temp_c"])
+        res.note_temperature("scale", data["temp_c"], data["time_s"])
         res.stop = StopScale(scale, u_scale, result.bias_dps, ref, u_ref)
         self._segments(ctx, part, res, result, ref)
         part.record.analysis.stop_method[self.condition] = StopMethodResults(

@@ -152,7 +152,7 @@ class RateSweep(StepType[RateTableSettings]):
             ):
                 return
             wm = window_mean(data["rate_dps"], fs, noise)
-            res.note_temperature("scale", data["temp_c"])
+            res.note_temperature("scale", data["temp_c"], data["time_s"])
             ref.append(p.ref_dps)
             u_ref.append(p.u_ref_dps)
             out.append(wm.mean_dps)
