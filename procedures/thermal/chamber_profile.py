@@ -44,7 +44,12 @@ log = logging.getLogger(__name__)
 STEP_S = 10.0  # the grid: the ramp rate is constant over a step
 MAX_PLAN_STEPS = 480  # 80 min of horizon: the linear programme's size (and time) grows with it
 SOLVERS = ("highs", "highs-ipm")  # HiGHS's simplex, then its interior point where it stalls
-SOLVE_TIME_LIMIT_S = 5.0  # the simplex can stall on a degenerate programme: then the next
+# The simplex can stall on a degenerate programme: then the next solver. The limit is in
+# iterations, not seconds, so a lockstep run plans the same on a loaded machine as on an idle
+# one (a load of 8 with `fastest` needs at most about 1,800; a time limit made the plans, and
+# so the station minutes, depend on the machine's load); the time limit is a last resort.
+SOLVE_MAX_ITERATIONS = 20_000
+SOLVE_TIME_LIMIT_S = 30.0
 UNDECIDED = (1, 4)  # linprog's status: iteration or time limit reached; numerical trouble
 PLAN_MARGIN = 0.85  # the plan meets slope and band limits this much tighter than the step judges
 
@@ -304,7 +309,8 @@ def _solve(
         "A_eq": a_eq.tocsr(), "b_eq": b_eq, "bounds": _bounds(p, lay, end),
     }
     for method in SOLVERS:
-        res = linprog(**problem, method=method, options={"time_limit": SOLVE_TIME_LIMIT_S})
+        limits = {"maxiter": SOLVE_MAX_ITERATIONS, "time_limit": SOLVE_TIME_LIMIT_S}
+        res = linprog(**problem, method=method, options=limits)
         if res.status not in UNDECIDED:
             return np.asarray(res.x) if res.status == 0 else None
     log.warning("chamber profile: no solver decided the linear programme (%s): taken as "

@@ -162,7 +162,7 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
     monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
 ) -> None:
     """HiGHS's simplex can stall on a degenerate programme (seen on a load's bound): the
-    solve is time-limited and the interior point method decides; when neither does, the
+    solve is limited (in iterations, then time) and the interior point method decides; when neither does, the
     programme counts as infeasible (the station falls back), with a warning."""
     from scipy.optimize import OptimizeResult
 
@@ -176,6 +176,7 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
     def stalling(*a: Any, method: str, options: dict[str, float], **k: Any) -> Any:
         methods.append(method)
         assert options["time_limit"] == cp.SOLVE_TIME_LIMIT_S
+        assert options["maxiter"] == cp.SOLVE_MAX_ITERATIONS  # lockstep: the same plan at any load
         if method == "highs":
             return OptimizeResult(status=1, x=None, message="Time limit reached")
         return real(*a, method=method, options=options, **k)
