@@ -57,6 +57,7 @@ from procedures.thermal.chamber_strategy import (  # noqa: E402
     ThermalLimits,
     ThermalModel,
 )
+from procedures.thermal.ramp_turn import RampModel, ramp_bound_s  # noqa: E402
 from station.sim_run import run_simulated  # noqa: E402
 
 
@@ -180,6 +181,22 @@ def thermal_bound_s(
     return total
 
 
+def ramp_thermal_bound_s(proc_path: Path) -> float:
+    """A ramp procedure's thermal bound: the soonest the die covers its span both ways on this
+    chamber (procedures.thermal.ramp_turn.ramp_bound_s), with the product's die lag and the
+    step's setpoint limits (default: the product's part temperature limits)."""
+    proc, _ = load_procedure(proc_path)
+    product, _ = load_product((proc_path.parent / str(proc.product)).resolve())
+    ramp = proc.settings_of("ramp_calibration")
+    temps = proc.conditions.temperatures_c
+    model = RampModel(proc.chamber.ramp_c_per_min, proc.chamber.air_tau_s, product.die_tau_s)
+    low = ramp.min_setpoint_c if ramp.min_setpoint_c is not None else (
+        product.min_part_temperature_c if product.min_part_temperature_c is not None else -40.0)
+    high = ramp.max_setpoint_c if ramp.max_setpoint_c is not None else (
+        product.max_part_temperature_c or 125.0)
+    return ramp_bound_s(model, min(temps), max(temps), (low, high))
+
+
 def _temp_of(condition: str) -> float:
     """T45_V5.25 -> 45.0"""
     return float(condition.split("_")[0].lstrip("T"))
@@ -220,9 +237,12 @@ def measure_load(
     arws = [r.analysis.allan.arw_deg_per_sqrt_h if r.analysis.allan else None for r in recs]
     arw = max(a for a in arws if a) if any(arws) else 0.6
     floor = measurement_floor_s(proc_path, arw)
-    bound = thermal_bound_s(proc_path, recs) + floor
-    settled = thermal_bound_s(proc_path, recs, near_final=True) + floor
-    shared = thermal_bound_s(proc_path, recs, load=True) + floor
+    if load_procedure(proc_path)[0].settings_of("ramp_calibration") is not None:
+        bound = settled = shared = ramp_thermal_bound_s(proc_path) + floor
+    else:
+        bound = thermal_bound_s(proc_path, recs) + floor
+        settled = thermal_bound_s(proc_path, recs, near_final=True) + floor
+        shared = thermal_bound_s(proc_path, recs, load=True) + floor
     again = sum(len(r.analysis.measured_again) for r in recs)
     verdicts = f"{again:5d}  " + ",".join(str(r.verdict) for r in recs)
     print(f"  ... {strategy}, {n} socket(s) done in {wall:.0f} s wall", flush=True)
@@ -251,7 +271,9 @@ def print_table(rows: list[tuple[Any, ...]]) -> None:
     print("bound: the stability criterion met for good (the reading may creep at up to the")
     print("slope limit); bound*: also within band/2 of its final value from then on;")
     print("load: the bound for every part at once under the one chamber they share (the part")
-    print("with the largest self-heating step alone governs `bound`)")
+    print("with the largest self-heating step alone governs `bound`); a ramp procedure's")
+    print("bound: the die over its span up and back down at the chamber's fastest (its rest")
+    print("after the ramp not included) + the verification dwells")
     print("cpu s: the station's and the bench's CPU time (in lockstep the two take turns, so on")
     print("an idle machine the wall time is about the cpu time; on a loaded one it is longer)")
 

@@ -61,3 +61,33 @@ def extreme_after_turn(
             break
         extreme = max(extreme, die) if rising else min(extreme, die)
     return extreme
+
+
+def ramp_bound_s(
+    model: RampModel, bottom_c: float, top_c: float, setpoints_c: tuple[float, float],
+    dt_s: float = 1.0,
+) -> float:
+    """The physics bound of a heating-and-cooling ramp on this chamber (station s): a die at
+    rest at `bottom_c` (the air there too), the setpoint driven at the ramp rate to the
+    hottest allowed setpoint, turned the moment the die's predicted peak reaches `top_c`,
+    driven to the coldest, until the die is back down at `bottom_c`. No profile within the
+    ramp rate and the setpoint limits covers the span both ways sooner (the turn is the latest
+    that still reaches the top; the way down is at full rate). Coming to rest at the bottom
+    (for what follows the ramp) is not included: it only adds."""
+    low_sp, high_sp = setpoints_c
+    sp = air = die = bottom_c
+    k_air = 1.0 - math.exp(-dt_s / model.air_tau_s)
+    k_die = 1.0 - math.exp(-dt_s / model.die_tau_s)
+    step_c = model.ramp_c_per_min / 60.0 * dt_s
+    target, t, rate = high_sp, 0.0, 0.0
+    while t < 4 * 3600.0:
+        if target == high_sp:
+            peak = extreme_after_turn(RampState(sp, air, die, rate), low_sp, model, dt_s=2.0)
+            target = low_sp if peak >= top_c else high_sp
+        sp += max(-step_c, min(step_c, target - sp))
+        air += (sp - air) * k_air
+        change = (air - die) * k_die
+        die, rate, t = die + change, change / dt_s, t + dt_s
+        if target == low_sp and die <= bottom_c:
+            return t
+    return math.inf

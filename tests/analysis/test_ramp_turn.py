@@ -11,6 +11,7 @@ from procedures.thermal.ramp_turn import (
     RampModel,
     RampState,
     extreme_after_turn,
+    ramp_bound_s,
     ramped_setpoint,
 )
 
@@ -59,3 +60,19 @@ def test_a_ramped_setpoint_moves_at_the_rate_and_stops_at_its_target() -> None:
     assert ramped_setpoint(25.0, 85.0, 5.0, 60.0) == pytest.approx(30.0)
     assert ramped_setpoint(25.0, 27.0, 5.0, 600.0) == 27.0
     assert ramped_setpoint(60.0, -40.0, 5.0, 120.0) == pytest.approx(50.0)
+
+
+def test_the_ramp_bound_is_set_by_the_chamber_and_the_span() -> None:
+    """The soonest a die covers the span both ways: never sooner than the air could ramp
+    there and back, shorter on a faster chamber or a narrower span, longer with a slower die,
+    and out of reach when the hottest setpoint allowed cannot bring the die to the top."""
+    chamber = RampModel(ramp_c_per_min=5.0, air_tau_s=60.0, die_tau_s=300.0)
+    limits = (-40.0, 85.0)
+    base = ramp_bound_s(chamber, 25.0, 45.0, limits)
+    assert base >= 2 * 20.0 / 5.0 * 60.0
+    faster = RampModel(ramp_c_per_min=10.0, air_tau_s=60.0, die_tau_s=300.0)
+    assert ramp_bound_s(faster, 25.0, 45.0, limits) < base
+    assert ramp_bound_s(chamber, 25.0, 37.0, limits) < base
+    slower_die = RampModel(ramp_c_per_min=5.0, air_tau_s=60.0, die_tau_s=600.0)
+    assert ramp_bound_s(slower_die, 25.0, 45.0, limits) > base
+    assert math.isinf(ramp_bound_s(chamber, 25.0, 45.0, (-40.0, 40.0)))
