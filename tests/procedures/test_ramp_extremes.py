@@ -62,12 +62,25 @@ def test_parts_with_4x_the_typical_hysteresis_are_within_u(tmp_path: Path) -> No
     part's own h, so the bias stays within U (b0 strictly) and h is measured."""
     runs = _runs(tmp_path, 4, HYSTERESIS_4X)
     _judge(_within_u(runs))
+    flagged = 0
     for rec, truth in runs:
         assert z_scores(rec, truth["parameters"])["bias_dps"] <= 1.0
         ramp = rec.analysis.ramp
         assert ramp is not None and ramp.hysteresis_dps is not None
         assert ramp.u_hysteresis_dps is not None
         assert abs(ramp.hysteresis_dps - 0.04) <= 3 * ramp.u_hysteresis_dps, ramp.hysteresis_dps
+        assert any(m.name == "hysteresis_dps" for m in rec.measurements)
+        if _hysteresis_flagged(rec):
+            flagged += 1
+            assert any("hysteresis" in e.message and e.level == "WARNING" for e in rec.events)
+    # 0.04 against 0.01 +- 0.004 with u(h) about 0.007: most parts stand out
+    assert flagged >= 2, flagged
+
+
+def _hysteresis_flagged(rec: RunRecord) -> bool:
+    fit = rec.analysis.fit
+    assert fit is not None and fit.hysteresis is not None
+    return bool(fit.hysteresis.beyond_typical)
 
 
 @pytest.mark.slow
@@ -110,6 +123,7 @@ def test_the_ramp_with_the_honest_physics_off_is_within_u(tmp_path: Path) -> Non
         ramp = rec.analysis.ramp
         assert ramp is not None and ramp.element_tau_s is not None
         assert abs(ramp.element_tau_s) <= 2 * (ramp.u_element_tau_s or 0.0) + 1.0
+        assert not _hysteresis_flagged(rec)  # h 0 is within the declared 0.01 +- 0.004 + u
 
 
 # when to abort: the chamber heading for the overshoot (85 C) some 3 min into the ramp, or
