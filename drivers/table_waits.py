@@ -55,7 +55,9 @@ class TableWaits:
         if status.enabled and not status.fault and status.moving:
             self._demand_stop()
             try:
-                self._wait(lambda s: not s.moving, timeout_s, "stop")
+                # even after an abort: the drive is disabled at rest, never while it turns
+                # (on a lockstep bench no time passes but the station's own waits)
+                self._wait(lambda s: not s.moving, timeout_s, "stop", through_abort=True)
             except InstrumentError as exc:  # a fault stops the table anyway
                 log.warning("while stopping the rate table: %s", exc)
         self.disable()
@@ -108,12 +110,14 @@ class TableWaits:
         return status
 
     def _wait(
-        self, done: Callable[[TableStatus], bool], timeout_s: float, what: str
+        self, done: Callable[[TableStatus], bool], timeout_s: float, what: str,
+        *, through_abort: bool = False,
     ) -> TableStatus:
         deadline = self._clock.now_s() + timeout_s
         while True:
             status = self.check()
-            if done(status) or getattr(self._clock, "interrupted", False):
+            interrupted = getattr(self._clock, "interrupted", False) and not through_abort
+            if done(status) or interrupted:
                 # interrupted: the run was asked to stop (an abort, a signal); its next check
                 # ends the step, and the safe-state pass stops the table, not the end of a move
                 return status

@@ -113,7 +113,9 @@ class RampCalibration(StepType[RampSettings]):
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
         return [Declared(name, units, "first-order coefficient (ramp)")
-                for name, units in COEFF_UNITS.items()]
+                for name, units in COEFF_UNITS.items()] + [
+            Declared("hysteresis_dps", "deg/s", "the part's own hysteresis (the ramp's "
+                     "heating and cooling halves)", informational=True, optional=True)]
 
     def estimate_s(self, ctx: RunContext) -> float:
         # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)

@@ -12,6 +12,7 @@ import numpy as np
 
 from procedures.analysis.bias import window_mean
 from procedures.analysis.errors import AnalysisError
+from procedures.analysis.hysteresis import OwnHysteresis
 from procedures.analysis.ramp_fit import (
     RampFit,
     RampLagTooLarge,
@@ -27,7 +28,7 @@ from procedures.runtime.results import FitCondition, FitResults, RampResults
 from procedures.runtime.run_context import RunContext
 from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
-from procedures.steps.fit import COEFF_UNITS
+from procedures.steps.fit import COEFF_UNITS, record_own_hysteresis
 from procedures.steps.sweep import Plateau
 
 
@@ -114,10 +115,25 @@ def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: 
     part.record.calibration = _calibration(fit)
     part.record.analysis.ramp = _with_fit(results, fit)
     part.record.analysis.fit = _corners(ctx, fit)
+    _own_hysteresis(ctx, part, fit)
     for name, units in COEFF_UNITS.items():
         ctx.records.measure(part, name, getattr(fit.coefficients, name), units=units,
                             uncertainty_k2=fit.uncertainty_k2(name),
                             description="first-order coefficient (ramp)")
+
+
+def _own_hysteresis(ctx: RunContext, part: PartRun, fit: RampFit) -> None:
+    """The part's own hysteresis (the ramp's play regressor) against the product's declared
+    spread, as the `fit` step records it: beyond it, a WARNING and
+    analysis.fit.hysteresis.beyond_typical (the coefficients hold; the part's bias in use
+    will move by +-h/2 between heating and cooling)."""
+    typ = ctx.product.thermal_typical
+    h, u = fit.hysteresis_dps, fit.u_hysteresis_dps
+    if typ is None or not (math.isfinite(h) and math.isfinite(u)):
+        return
+    spread = math.hypot(u, typ.hysteresis_sigma_dps)
+    normalised = (h - typ.hysteresis_dps) / spread if spread > 0 else 0.0
+    record_own_hysteresis(ctx, part, OwnHysteresis(h, u, typ.hysteresis_dps, normalised))
 
 
 def _num(x: float) -> float | None:

@@ -202,6 +202,25 @@ def test_a_wait_ends_at_once_when_the_clock_is_interrupted():
     finish(server, table)
 
 
+def test_safe_state_waits_for_rest_before_disabling_even_when_interrupted():
+    """After an abort the safe state still halts the table and waits for it to be at rest
+    before the drive is disabled (a lockstep bench passes no time but the station's waits:
+    disabled at once, the table was left turning and the safe state failed)."""
+    clock = ManualClock()
+    halt = int(Control.ENABLE | Control.HALT)
+    server, table = make([
+        status_read(bits=READY_ENABLED | Status.MOVING, rate_mdps=20_000),
+        Pair(write_pdu(0, halt), write_pdu(0, halt)),
+        status_read(bits=READY_ENABLED | Status.MOVING, rate_mdps=5_000),
+        status_read(),
+        Pair(write_pdu(0, 0), write_pdu(0, 0)),
+    ], clock=clock)
+    clock.interrupted = True  # type: ignore[attr-defined]
+    table.safe_state()
+    assert clock.now_s() == 0.125  # one poll while it came to rest
+    finish(server, table)
+
+
 def test_refused_command_raises_instrument_error_naming_the_values():
     server, table = make([
         Pair(read_pdu(1, 9), read_reply(cmd_regs())),
