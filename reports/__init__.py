@@ -4,6 +4,9 @@
     cert_inputs.py    loading record.json and raw.h5, every defect becomes a stated problem
     cert_sections.py  header, traceability, conditions, results, calibration tables
     cert_plots.py     stop method, rate table, Allan deviation, stabilisation plots
+    cert_ramp.py      a ramp calibration's test conditions (span each way, supplies, lag)
+    cert_ramp_chart.py the ramp's chart: die temperature over the ramp, residual per plateau
+    cert_figures.py   which plots a certificate shows: those of the steps its plan names
     cert_standards.py decision rule, reference standards and ambient conditions
     record_keys.py    typed accessors of record.analysis for the plots (the sections are the
                       models of procedures/runtime/results.py)

@@ -6,6 +6,9 @@
 - Allan deviation with the fitted noise terms (angle random walk, bias instability);
 - the part's own temperature during stabilisation with the stability criterion.
 
+reports/cert_figures.py chooses which of them a certificate shows (with the ramp's,
+reports/cert_ramp_chart.py).
+
 Any plot whose data is missing is replaced by a box saying what is missing (the sections
 read are procedures/runtime/results.py's models); none of these functions raises on bad data.
 """
@@ -22,7 +25,6 @@ from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Table, TableStyle
 
 from procedures.runtime.rawdata import RawData
-from procedures.runtime.record import three_axis_block
 from procedures.runtime.results import Analysis
 from reports import record_keys
 from reports.cert_inputs import CertificateInputs
@@ -59,7 +61,7 @@ def _window(raw: RawData, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray,
     return t[sel], s["rate_dps"][sel], s["temp_c"][sel]
 
 
-def _safe(title: str, width: float, height: float, build: Callable[[], list[Flowable]]
+def safe_plot(title: str, width: float, height: float, build: Callable[[], list[Flowable]]
           ) -> list[Flowable]:
     try:
         return build()
@@ -95,7 +97,7 @@ def stop_method(inputs: CertificateInputs) -> list[Flowable]:
             out.append(Paragraph(f"{len(conds) - 4} more conditions not drawn.", NOTE))
         return out
 
-    return story + _safe(title, FULL_W, 52 * mm, build)
+    return story + safe_plot(title, FULL_W, 52 * mm, build)
 
 
 def _stop_chart(raw: RawData, cond: str, summary: record_keys.StopSummary | None) -> Flowable:
@@ -213,7 +215,7 @@ def rate_table(inputs: CertificateInputs) -> list[Flowable]:
                "'rate_table')" if points[0].from_raw else ""
         return [grid, Paragraph(escape("; ".join(lines) + note), NOTE)]
 
-    return story + _safe("Rate table", FULL_W, 60 * mm, build)
+    return story + safe_plot("Rate table", FULL_W, 60 * mm, build)
 
 
 def allan(inputs: CertificateInputs) -> list[Flowable]:
@@ -255,7 +257,7 @@ def allan(inputs: CertificateInputs) -> list[Flowable]:
                     "deg/h/sqrt(h)."
         return [chart.drawing(), Paragraph(escape(text), NOTE)]
 
-    return story + _safe("Allan deviation", FULL_W, 50 * mm, build)
+    return story + safe_plot("Allan deviation", FULL_W, 50 * mm, build)
 
 
 def stabilisation(inputs: CertificateInputs) -> list[Flowable]:
@@ -306,23 +308,7 @@ def stabilisation(inputs: CertificateInputs) -> list[Flowable]:
                    "times to stability from record.conditions are marked."))
         return [grid, Paragraph(escape(note), NOTE)]
 
-    return story + _safe("Thermal stabilisation", FULL_W, 60 * mm, build)
+    return story + safe_plot("Thermal stabilisation", FULL_W, 60 * mm, build)
 
 
-def _heading_with_first(items: list[Flowable]) -> list[Flowable]:
-    """Never leave a section heading alone at the foot of a page."""
-    return [KeepTogether(items[:3])] + items[3:] if len(items) > 1 else items
-
-
-def all_plots(inputs: CertificateInputs) -> list[Flowable]:
-    story: list[Flowable] = []
-    sections: tuple[Callable[[CertificateInputs], list[Flowable]], ...] = (
-        stop_method, rate_table, allan, stabilisation)
-    if inputs.record is not None and three_axis_block(inputs.record) is not None:
-        sections = (stabilisation,)  # a cube procedure has no stop, rate-table or noise record
-    for section in sections:
-        story += _heading_with_first(section(inputs))
-    return story
-
-
-__all__ = ["all_plots", "Drawing"]
+__all__ = ["Drawing", "allan", "rate_table", "safe_plot", "stabilisation", "stop_method"]

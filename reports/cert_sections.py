@@ -18,7 +18,7 @@ from reportlab.lib.units import mm
 from reportlab.platypus import Flowable, KeepTogether, Paragraph, Spacer, Table, TableStyle
 
 from procedures.runtime.record import Calibration, Coefficient, Measurement, Outcome, RunRecord
-from reports import cert_three_axis, record_keys
+from reports import cert_ramp, cert_three_axis, record_keys
 from reports.cert_inputs import CertificateInputs
 from reports.cert_safe_state import safe_state_box
 from reports.pdfdoc import parse_utc
@@ -147,11 +147,12 @@ def summary_text(rec: RunRecord) -> str:
     temps = sorted({c.temperature_c for c in rec.conditions})
     volts = sorted({c.supply_v for c in rec.conditions})
     proc = rec.procedure.name or rec.procedure.path
+    where = (f" at {len(rec.conditions)} conditions ("
+             + "/".join(fmt(t) for t in temps) + " C, " + "/".join(fmt(v) for v in volts)
+             + " V)" if rec.conditions
+             else cert_ramp.summary(rec) or ", no condition recorded")
     how = (f"Tested with procedure {proc}" + (f" v{rec.procedure.version}"
-                                               if rec.procedure.version else "")
-           + (f" at {len(rec.conditions)} conditions ("
-              + "/".join(fmt(t) for t in temps) + " C, " + "/".join(fmt(v) for v in volts)
-              + " V)" if rec.conditions else ", no condition recorded"))
+                                               if rec.procedure.version else "") + where)
     counts = {o: sum(m.outcome == o for m in rec.measurements) for o in Outcome}
     out = (f"{len(rec.measurements)} measurements: {counts[Outcome.FAIL]} failed, "
            f"{counts[Outcome.MARGINAL]} marginal, {counts[Outcome.NOT_MEASURED]} not measured")
@@ -240,8 +241,9 @@ def traceability(inputs: CertificateInputs) -> list[Flowable]:
 def conditions(inputs: CertificateInputs) -> list[Flowable]:
     rec = inputs.record
     story: list[Flowable] = [Paragraph("Test conditions", H2)]
+    ramp = cert_ramp.ramp_conditions(rec) if rec is not None else []
     if rec is None or not rec.conditions:
-        return story + [Paragraph("No conditions recorded.", NOTE)]
+        return story + (ramp or [Paragraph("No conditions recorded.", NOTE)])
     heads = ["Condition", "Chamber set (C)", "Die temp (C)", "Supply set (V)",
              "Supply measured (V)", "Supply current (A)", "Time to stability (s)", "Stable"]
     rows: list[list[str | Paragraph]] = [[_p(h) for h in heads]]
@@ -275,7 +277,7 @@ def conditions(inputs: CertificateInputs) -> list[Flowable]:
         joined = "; ".join(f"{', '.join(names)}: {text}" for text, names in by_text.items())
         story.append(Paragraph("Stability criterion (judged on the part's own temperature "
                                "sensor): " + escape(joined), NOTE))
-    return story
+    return story + ramp
 
 
 def margin(m: Measurement) -> tuple[float | None, str]:

@@ -10,7 +10,8 @@ Page one: verdict banner, failing measurements or the reason, overdue-instrument
 identity (certificate number, product, serial, times UTC and station local, station,
 operator, software). Then traceability, decision rule / reference standards / ambient
 (reports/cert_standards.py), conditions, results, calibration with uncertainties and
-verification, and the plots (see reports/cert_plots.py; the analysis sections read are the
+verification, and the plots of the steps the procedure planned (reports/cert_figures.py,
+reports/cert_plots.py, reports/cert_ramp_chart.py; the analysis sections read are the
 typed models of procedures/runtime/results.py).
 
 This module renders only; station/certify.py numbers, signs (PAdES) and seals the folder.
@@ -29,7 +30,7 @@ from reportlab.platypus import Flowable, KeepTogether, Spacer
 
 from procedures.runtime.record import CERTIFICATE_FILE
 from reports import (
-    cert_plots,
+    cert_figures,
     cert_remeasured,
     cert_sections,
     cert_standards,
@@ -69,7 +70,7 @@ def build_story(inputs: CertificateInputs) -> list[Flowable]:
     story += three_axis or cert_sections.calibration(inputs)
     story += cert_temperature_fit.temperature_fit(inputs)
     if inputs.record is not None:
-        story += cert_plots.all_plots(inputs)
+        story += cert_figures.all_plots(inputs)
     story += [Spacer(1, 8), KeepTogether([cert_sections.sign_off(inputs.approvals),
                                           Spacer(1, 4),
                                           cert_sections.generated_note(inputs, when)])]

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from procedures.runtime.results import (
     Analysis,
+    RampResults,
     StabilityResults,
     StopMethodResults,
     StopMove,
@@ -103,6 +104,53 @@ def rate_table(analysis: Analysis) -> list[RatePoints]:
                 f"{key}: rate_in_dps, rate_out_dps, residual_dps differ in length")
         out.append(RatePoints(cond, rin, rout, resid, _finite(d.scale), _finite(d.bias_dps)))
     return out
+
+
+@dataclass(frozen=True)
+class RampPoints:
+    """The ramp's fitted plateaus (fixture time, the die's own sensor), each with whether the
+    die was heating (`die_heating`) and, when the fit gave them, its residual; plateaus with
+    a null time or temperature are left out."""
+
+    time_s: list[float]
+    die_temp_c: list[float]
+    heating: list[bool]
+    residual_dps: list[float | None]  # all None when the fit gave no residuals
+    supply_v: list[float | None]
+
+
+def die_heating(r: RampResults) -> list[bool]:
+    """Per plateau: was the die heating? The sign of its own rate where the record has it
+    (the die goes on heating a while after the chamber turns), else the chamber's half."""
+    n = len(r.time_s)
+    rates = r.die_rate_c_per_min if len(r.die_rate_c_per_min) == n else [None] * n
+    halves = r.heating if len(r.heating) == n else [False] * n
+    return [h if rate is None or not math.isfinite(rate) else rate > 0
+            for rate, h in zip(rates, halves, strict=True)]
+
+
+def ramp(analysis: Analysis) -> RampPoints:
+    r = analysis.ramp
+    if r is None:
+        raise MissingAnalysisError(
+            "record.analysis has no 'ramp' (the step ramp_calibration left no section)")
+    n = len(r.time_s)
+    if len(r.die_temp_c) != n or len(r.heating) != n:
+        raise MissingAnalysisError(
+            f"analysis.ramp: time_s ({n}), die_temp_c ({len(r.die_temp_c)}) and heating "
+            f"({len(r.heating)}) differ in length")
+    resid = r.residual_dps if len(r.residual_dps) == n else [None] * n
+    heating = die_heating(r)
+    volts = r.supply_v if len(r.supply_v) == n else [None] * n
+    keep = [i for i in range(n) if _finite(r.time_s[i]) is not None
+            and _finite(r.die_temp_c[i]) is not None]
+    if len(keep) < 2:
+        raise MissingAnalysisError(f"analysis.ramp holds {len(keep)} usable plateaus")
+    return RampPoints(time_s=[float(r.time_s[i] or 0.0) for i in keep],
+                      die_temp_c=[float(r.die_temp_c[i] or 0.0) for i in keep],
+                      heating=[heating[i] for i in keep],
+                      residual_dps=[_finite(resid[i]) for i in keep],
+                      supply_v=[_finite(volts[i]) for i in keep])
 
 
 @dataclass(frozen=True)

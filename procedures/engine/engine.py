@@ -140,7 +140,8 @@ class Engine:
         ctx.progress.total_estimate_s = max(sum(estimates), 1.0)
         for part in ctx.parts:
             part.record.analysis.plan = PlanResults(
-                estimated_station_s=ctx.progress.total_estimate_s
+                estimated_station_s=ctx.progress.total_estimate_s,
+                steps=list(dict.fromkeys(step.name for step in self.steps)),
             )
         ctx.records.save_all()
         run_error: tuple[Verdict, str] | None = None

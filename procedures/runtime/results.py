@@ -272,7 +272,8 @@ class RampResults(Section):
     u_rate_out_dps: Nums = Field(default_factory=list)
     die_temp_c: Nums = Field(default_factory=list)
     die_rate_c_per_min: Nums = Field(default_factory=list)
-    supply_v: Nums = Field(default_factory=list)
+    supply_v: Nums = Field(default_factory=list)  # measured at each plateau's sweep
+    supplies_v: Nums = Field(default_factory=list)  # the levels set, alternated each sweep
     heating: list[bool] = Field(default_factory=list)  # the chamber's half
     residual_dps: Nums = Field(default_factory=list)
 
@@ -375,7 +376,10 @@ class ThreeAxisWindow(Section):
 
 
 class PlanResults(Section):
+    """analysis.plan (the engine): what the run was planned to do."""
+
     estimated_station_s: Num = None
+    steps: list[str] = Field(default_factory=list)  # the step types planned, in first order
 
 
 class InstrumentSafeResults(Section):

@@ -157,6 +157,7 @@ class RampCalibration(StepType[RampSettings]):
         for part in ctx.parts.alive():
             given = dict(turned_at_station_s=turned_at, end_turn_station_s=self._end_turn)
             results = RampResults(low_c=low, high_c=high, max_element_tau_s=bounds[0],
+                                  supplies_v=list(ctx.procedure.conditions.supplies_v),
                                   **{k: v for k, v in given.items() if v is not None})
             ctx.parts.per_part(part, partial(
                 fit_and_record, ctx, log=logs[part.socket], results=results,
