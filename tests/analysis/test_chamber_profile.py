@@ -162,8 +162,9 @@ def test_a_stalled_solver_hands_over_and_an_undecided_programme_is_not_taken_as_
     monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
 ) -> None:
     """HiGHS's simplex can stall on a degenerate programme (seen on a load's bound): the
-    solve is limited (in iterations, then time) and the interior point method decides; when neither does, the
-    programme counts as infeasible (the station falls back), with a warning."""
+    solve is limited (in iterations, then time) and the interior point method decides; when
+    neither does, the programme counts as infeasible (the station falls back), with a
+    warning."""
     from scipy.optimize import OptimizeResult
 
     import procedures.thermal.chamber_profile as cp
