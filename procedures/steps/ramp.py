@@ -27,10 +27,13 @@ from pydantic import Field
 
 from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached, InstrumentError
+from procedures.runtime.conditions import Condition
 from procedures.runtime.results import RampResults
 from procedures.runtime.run_context import RunContext
+from procedures.steps.bias import NOISE
 from procedures.steps.fit import COEFF_UNITS
-from procedures.steps.ramp_record import PlateauLog, fit_and_record
+from procedures.steps.ramp_record import RAW, PlateauLog, fit_and_record
+from procedures.steps.ramp_static import record_static_noise, static_dwell
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import measure_plateau
 from procedures.steps.thermal_fastest import latest_reading_c
@@ -87,6 +90,11 @@ class RampSettings(StepSettings):
     max_duration_s: Seconds = Field(
         3600.0, gt=0, description="the ramp must be done within this (else ERROR)"
     )
+    static_s: float = Field(
+        60.0, ge=0, le=ONE_HOUR_S, description="static dwell at the ramp's start (table at "
+        "rest, the chamber already heating): noise_arw_deg_per_sqrt_h and "
+        "bias_instability_deg_per_h from its Allan deviation; 0: none (noise not measured)",
+    )
 
 
 def _typical_bounds(product: Any, limit: float | None) -> tuple[float, float, float, float]:
@@ -112,13 +120,15 @@ class RampCalibration(StepType[RampSettings]):
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
-        return [Declared(name, units, "first-order coefficient (ramp)")
-                for name, units in COEFF_UNITS.items()]
+        coeffs = [Declared(name, units, "first-order coefficient (ramp)")
+                  for name, units in COEFF_UNITS.items()]
+        return [*coeffs, *RAW, *(NOISE if settings.static_s > 0 else ())]
 
     def estimate_s(self, ctx: RunContext) -> float:
         # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)
         span = self._span(ctx)
-        return 60.0 * (span[1] - span[0]) * 4.8 / max(ctx.procedure.chamber.ramp_c_per_min, 1.0)
+        ramp = 60.0 * (span[1] - span[0]) * 4.8 / max(ctx.procedure.chamber.ramp_c_per_min, 1.0)
+        return ramp + self.settings.static_s
 
     def _span(self, ctx: RunContext) -> tuple[float, float]:
         temps = ctx.procedure.conditions.temperatures_c
@@ -146,7 +156,9 @@ class RampCalibration(StepType[RampSettings]):
         logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
         self._end_turn: float | None = None
         try:
-            turned_at = self._ramp(ctx, logs)
+            start = self._start_chamber(ctx)
+            self._static(ctx)
+            turned_at = self._ramp(ctx, logs, start)
         except BaseException:
             self._leave_at_end(ctx)  # never left heading for an overshoot
             raise
@@ -160,19 +172,43 @@ class RampCalibration(StepType[RampSettings]):
                 fit_and_record, ctx, log=logs[part.socket], results=results,
                 bounds=bounds))
 
-    def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog]) -> float | None:
-        """Heat, turn, cool, turn to the end setpoint, until the dies are near rest; the
-        table cycling and the supply alternating all along; returns when the chamber
-        turned from heating to cooling (station s)."""
-        st, cfg = self.settings, ctx.procedure.chamber
+    def _start_chamber(self, ctx: RunContext) -> float:
+        """The chamber heading for the overshoot at its ramp rate; when (station s)."""
         chamber = ctx.instruments.chamber
-        low_sp, high_sp = self._setpoint_limits(ctx)
+        high_sp = self._setpoint_limits(ctx)[1]
         start = ctx.wait.clock.now_s()
         self._turn = (start, chamber.read_temperature(), high_sp)  # since, from, towards
-        chamber.set_ramp_rate(cfg.ramp_c_per_min)
+        chamber.set_ramp_rate(ctx.procedure.chamber.ramp_c_per_min)
         chamber.set_setpoint(high_sp)
         if not chamber.is_running():
             chamber.run()
+        return start
+
+    def _static(self, ctx: RunContext) -> None:
+        """The static dwell (procedures/steps/ramp_static.py) while the chamber starts
+        heating: each part's noise from it."""
+        st = self.settings
+        if st.static_s <= 0:
+            return
+        t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
+        label = self._static_condition(ctx)
+        ctx.parts.each(lambda part: record_static_noise(ctx, part, t0, t1, label))
+
+    def _static_condition(self, ctx: RunContext) -> str:
+        """The condition the static dwell is nearest: the span's bottom, at the procedure's
+        supply nearest the one applied."""
+        volts = ctx.instruments.log_supply()[0]
+        supplies = ctx.procedure.conditions.supplies_v
+        nearest = min(supplies, key=lambda v: abs(v - volts))
+        return Condition(self._span(ctx)[0], float(nearest)).name
+
+    def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog], start: float
+              ) -> float | None:
+        """Heat, turn, cool, turn to the end setpoint, until the dies are near rest; the
+        table cycling and the supply alternating all along; returns when the chamber
+        turned from heating to cooling (station s)."""
+        st = self.settings
+        low_sp = self._setpoint_limits(ctx)[0]
         phase, turned_at, sweep = "heating", None, 0
         supplies = list(ctx.procedure.conditions.supplies_v)
         while phase != "done":
