@@ -91,9 +91,14 @@ class RampSettings(StepSettings):
         3600.0, gt=0, description="the ramp must be done within this (else ERROR)"
     )
     static_s: float = Field(
-        60.0, ge=0, le=ONE_HOUR_S, description="static dwell at the ramp's start (table at "
-        "rest, the chamber already heating): noise_arw_deg_per_sqrt_h and "
-        "bias_instability_deg_per_h from its Allan deviation; 0: none (noise not measured)",
+        60.0, ge=0, le=ONE_HOUR_S, description="static dwell while the dies come to rest "
+        "after the turn at the bottom (table at rest; it takes the place of plateaus): "
+        "noise_arw_deg_per_sqrt_h and bias_instability_deg_per_h from its Allan "
+        "deviation; 0: none (noise not measured)",
+    )
+    static_below_c_per_min: float = Field(
+        1.0, gt=0, le=100, description="the static dwell starts once every die is slower "
+        "than this after the turn at the bottom (at least end_rate_c_per_min)",
     )
 
 
@@ -127,8 +132,7 @@ class RampCalibration(StepType[RampSettings]):
     def estimate_s(self, ctx: RunContext) -> float:
         # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)
         span = self._span(ctx)
-        ramp = 60.0 * (span[1] - span[0]) * 4.8 / max(ctx.procedure.chamber.ramp_c_per_min, 1.0)
-        return ramp + self.settings.static_s
+        return 60.0 * (span[1] - span[0]) * 4.8 / max(ctx.procedure.chamber.ramp_c_per_min, 1.0)
 
     def _span(self, ctx: RunContext) -> tuple[float, float]:
         temps = ctx.procedure.conditions.temperatures_c
@@ -157,7 +161,7 @@ class RampCalibration(StepType[RampSettings]):
         self._end_turn: float | None = None
         try:
             start = self._start_chamber(ctx)
-            self._static(ctx)
+            self._static_done = self.settings.static_s <= 0
             turned_at = self._ramp(ctx, logs, start)
         except BaseException:
             self._leave_at_end(ctx)  # never left heading for an overshoot
@@ -185,11 +189,10 @@ class RampCalibration(StepType[RampSettings]):
         return start
 
     def _static(self, ctx: RunContext) -> None:
-        """The static dwell (procedures/steps/ramp_static.py) while the chamber starts
-        heating: each part's noise from it."""
+        """The static dwell (procedures/steps/ramp_static.py) once the dies are slow enough
+        that they come to rest no sooner than it ends: each part's noise from it."""
         st = self.settings
-        if st.static_s <= 0:
-            return
+        self._static_done = True
         t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
         label = self._static_condition(ctx)
         ctx.parts.each(lambda part: record_static_noise(ctx, part, t0, t1, label))
@@ -254,7 +257,11 @@ class RampCalibration(StepType[RampSettings]):
             self._set_towards(ctx, self._end_c(ctx))
             self._end_turn = ctx.wait.clock.now_s()
             return "settling"
-        if phase == "settling" and self._dies_at_rest(ctx):
+        st = self.settings
+        if phase == "settling" and not self._static_done and self._dies_at_rest(
+                ctx, max(st.static_below_c_per_min / st.end_rate_c_per_min, 1.0)):
+            self._static(ctx)
+        if phase == "settling" and self._static_done and self._dies_at_rest(ctx):
             return "done"
         return phase
 
@@ -268,9 +275,10 @@ class RampCalibration(StepType[RampSettings]):
         return ramped_setpoint(start_c, target_c, ctx.procedure.chamber.ramp_c_per_min,
                                now - since)
 
-    def _dies_at_rest(self, ctx: RunContext) -> bool:
+    def _dies_at_rest(self, ctx: RunContext, factor: float = 1.0) -> bool:
+        """Every die's rate within `factor` x end_rate_c_per_min."""
         now = ctx.wait.clock.now_s()
-        limit = self.settings.end_rate_c_per_min / 60.0
+        limit = factor * self.settings.end_rate_c_per_min / 60.0
         return all(abs(_die_now(p, now)[1]) <= limit for p in ctx.parts.alive())
 
     def _should_turn(self, ctx: RunContext, heating: bool, towards_c: float) -> bool:

@@ -1,12 +1,14 @@
-"""The ramp step's static dwell: the table at rest for `static_s` at the ramp's start (the
-chamber already heating, the dies still near the span's bottom: the air lags the setpoint
-and the dies lag the air), the part's noise from its Allan deviation (procedures/analysis/
-allan.py), recorded as the `bias` step records it at eol-rate-table's first condition:
-analysis.allan, noise_arw_deg_per_sqrt_h and bias_instability_deg_per_h.
+"""The ramp step's static dwell: the table at rest for `static_s` while the dies come to rest
+after the turn at the bottom (near the span's bottom, every die slower than
+`static_below_c_per_min`: the dwell takes the place of plateaus the table would have cycled
+through until they are at rest, and costs the ramp little). The part's noise
+from its Allan deviation (procedures/analysis/allan.py), recorded as the `bias` step records
+it at eol-rate-table's first condition: analysis.allan, noise_arw_deg_per_sqrt_h and
+bias_instability_deg_per_h.
 
-The die moves meanwhile (its self-heating since power-on, the first of the ramp), and its
-bias with it; the part of the output that follows the die's own sensor linearly is taken out
-before the Allan deviation (a temperature drift is no noise of the part's)."""
+The die still moves a little meanwhile, and its bias with it; the part of the output that
+follows the die's own sensor linearly is taken out before the Allan deviation (a temperature
+drift is no noise of the part's)."""
 
 from __future__ import annotations
 
