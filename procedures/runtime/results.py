@@ -276,6 +276,11 @@ class RampResults(Section):
     supplies_v: Nums = Field(default_factory=list)  # the levels set, alternated each sweep
     heating: list[bool] = Field(default_factory=list)  # the chamber's half
     residual_dps: Nums = Field(default_factory=list)
+    # the rate set at the reference point (procedures/analysis/ramp_linearity.py)
+    nonlinearity_pct_fs: Num = None
+    asymmetry_ppm: Num = None
+    linearity_rate_in_dps: Nums = Field(default_factory=list)  # one per commanded rate
+    linearity_residual_dps: Nums = Field(default_factory=list)
 
 
 class ProgrammingResults(Section):

@@ -207,34 +207,41 @@ class Bias(StepType[BiasSettings]):
 
     def _record_allan(self, ctx: RunContext, part: PartRun, allan: AllanAnalysis,
                       record_s: float) -> None:
-        noise = allan.noise.model
-        arw = noise.arw_deg_per_sqrt_h
-        bi = noise.bias_instability_deg_per_h
-        part.record.analysis.allan = AllanResults(
-            condition=self.condition,
-            tau_s=[float(x) for x in allan.adev.tau_s],
-            adev_dps=[float(x) for x in allan.adev.adev_dps],
-            arw_deg_per_sqrt_h=arw,
-            bias_instability_deg_per_h=bi,
-            rate_random_walk_deg_per_h_per_sqrt_h=noise.rrw_deg_per_h_per_sqrt_h,
-            record_s=record_s,
-        )
+        record_allan(ctx, part, allan, record_s, self.condition)
+
+
+def record_allan(ctx: RunContext, part: PartRun, allan: AllanAnalysis, record_s: float,
+                 condition: str) -> None:
+    """analysis.allan and the noise measurements (NOISE) from a static record's Allan
+    deviation (this step's, or the ramp's static dwell)."""
+    noise = allan.noise.model
+    arw = noise.arw_deg_per_sqrt_h
+    bi = noise.bias_instability_deg_per_h
+    part.record.analysis.allan = AllanResults(
+        condition=condition,
+        tau_s=[float(x) for x in allan.adev.tau_s],
+        adev_dps=[float(x) for x in allan.adev.adev_dps],
+        arw_deg_per_sqrt_h=arw,
+        bias_instability_deg_per_h=bi,
+        rate_random_walk_deg_per_h_per_sqrt_h=noise.rrw_deg_per_h_per_sqrt_h,
+        record_s=record_s,
+    )
+    ctx.records.measure(
+        part,
+        "noise_arw_deg_per_sqrt_h",
+        arw if math.isfinite(arw) else None,
+        units="deg/sqrt(h)",
+        condition=condition,
+        uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
+        description="angle random walk from the Allan deviation",
+    )
+    if bi > 0 and np.isfinite(bi):
         ctx.records.measure(
             part,
-            "noise_arw_deg_per_sqrt_h",
-            arw if math.isfinite(arw) else None,
-            units="deg/sqrt(h)",
-            condition=self.condition,
-            uncertainty_k2=2 * allan.noise.u_arw_deg_per_sqrt_h,
-            description="angle random walk from the Allan deviation",
+            "bias_instability_deg_per_h",
+            bi,
+            units="deg/h",
+            condition=condition,
+            uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
+            description="bias instability (short record: indicative)",
         )
-        if bi > 0 and np.isfinite(bi):
-            ctx.records.measure(
-                part,
-                "bias_instability_deg_per_h",
-                bi,
-                units="deg/h",
-                condition=self.condition,
-                uncertainty_k2=2 * allan.noise.u_bias_instability_deg_per_h,
-                description="bias instability (short record: indicative)",
-            )

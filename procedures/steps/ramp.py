@@ -27,10 +27,13 @@ from pydantic import Field
 
 from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached, InstrumentError
+from procedures.runtime.conditions import Condition
 from procedures.runtime.results import RampResults
 from procedures.runtime.run_context import RunContext
+from procedures.steps.bias import NOISE
 from procedures.steps.fit import COEFF_UNITS
-from procedures.steps.ramp_record import PlateauLog, fit_and_record
+from procedures.steps.ramp_record import RAW, PlateauLog, fit_and_record
+from procedures.steps.ramp_static import record_static_noise, static_dwell
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import measure_plateau
 from procedures.steps.thermal_fastest import latest_reading_c
@@ -87,6 +90,16 @@ class RampSettings(StepSettings):
     max_duration_s: Seconds = Field(
         3600.0, gt=0, description="the ramp must be done within this (else ERROR)"
     )
+    static_s: float = Field(
+        60.0, ge=0, le=ONE_HOUR_S, description="static dwell while the dies come to rest "
+        "after the turn at the bottom (table at rest; it takes the place of plateaus): "
+        "noise_arw_deg_per_sqrt_h and bias_instability_deg_per_h from its Allan "
+        "deviation; 0: none (noise not measured)",
+    )
+    static_below_c_per_min: float = Field(
+        1.0, gt=0, le=100, description="the static dwell starts once every die is slower "
+        "than this after the turn at the bottom (at least end_rate_c_per_min)",
+    )
 
 
 def _typical_bounds(product: Any, limit: float | None) -> tuple[float, float, float, float]:
@@ -112,10 +125,11 @@ class RampCalibration(StepType[RampSettings]):
 
     @classmethod
     def measurements(cls, settings: Any) -> list[Declared]:
-        return [Declared(name, units, "first-order coefficient (ramp)")
-                for name, units in COEFF_UNITS.items()] + [
-            Declared("hysteresis_dps", "deg/s", "the part's own hysteresis (the ramp's "
-                     "heating and cooling halves)", informational=True, optional=True)]
+        coeffs = [Declared(name, units, "first-order coefficient (ramp)")
+                  for name, units in COEFF_UNITS.items()]
+        own_h = Declared("hysteresis_dps", "deg/s", "the part's own hysteresis (the ramp's "
+                         "heating and cooling halves)", informational=True, optional=True)
+        return [*coeffs, own_h, *RAW, *(NOISE if settings.static_s > 0 else ())]
 
     def estimate_s(self, ctx: RunContext) -> float:
         # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)
@@ -148,7 +162,9 @@ class RampCalibration(StepType[RampSettings]):
         logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
         self._end_turn: float | None = None
         try:
-            turned_at = self._ramp(ctx, logs)
+            start = self._start_chamber(ctx)
+            self._static_done = self.settings.static_s <= 0
+            turned_at = self._ramp(ctx, logs, start)
         except BaseException:
             self._leave_at_end(ctx)  # never left heading for an overshoot
             raise
@@ -163,19 +179,42 @@ class RampCalibration(StepType[RampSettings]):
                 fit_and_record, ctx, log=logs[part.socket], results=results,
                 bounds=bounds))
 
-    def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog]) -> float | None:
-        """Heat, turn, cool, turn to the end setpoint, until the dies are near rest; the
-        table cycling and the supply alternating all along; returns when the chamber
-        turned from heating to cooling (station s)."""
-        st, cfg = self.settings, ctx.procedure.chamber
+    def _start_chamber(self, ctx: RunContext) -> float:
+        """The chamber heading for the overshoot at its ramp rate; when (station s)."""
         chamber = ctx.instruments.chamber
-        low_sp, high_sp = self._setpoint_limits(ctx)
+        high_sp = self._setpoint_limits(ctx)[1]
         start = ctx.wait.clock.now_s()
         self._turn = (start, chamber.read_temperature(), high_sp)  # since, from, towards
-        chamber.set_ramp_rate(cfg.ramp_c_per_min)
+        chamber.set_ramp_rate(ctx.procedure.chamber.ramp_c_per_min)
         chamber.set_setpoint(high_sp)
         if not chamber.is_running():
             chamber.run()
+        return start
+
+    def _static(self, ctx: RunContext) -> None:
+        """The static dwell (procedures/steps/ramp_static.py) once the dies are slow enough
+        that they come to rest no sooner than it ends: each part's noise from it."""
+        st = self.settings
+        self._static_done = True
+        t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
+        label = self._static_condition(ctx)
+        ctx.parts.each(lambda part: record_static_noise(ctx, part, t0, t1, label))
+
+    def _static_condition(self, ctx: RunContext) -> str:
+        """The condition the static dwell is nearest: the span's bottom, at the procedure's
+        supply nearest the one applied."""
+        volts = ctx.instruments.log_supply()[0]
+        supplies = ctx.procedure.conditions.supplies_v
+        nearest = min(supplies, key=lambda v: abs(v - volts))
+        return Condition(self._span(ctx)[0], float(nearest)).name
+
+    def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog], start: float
+              ) -> float | None:
+        """Heat, turn, cool, turn to the end setpoint, until the dies are near rest; the
+        table cycling and the supply alternating all along; returns when the chamber
+        turned from heating to cooling (station s)."""
+        st = self.settings
+        low_sp = self._setpoint_limits(ctx)[0]
         phase, turned_at, sweep = "heating", None, 0
         supplies = list(ctx.procedure.conditions.supplies_v)
         while phase != "done":
@@ -221,7 +260,11 @@ class RampCalibration(StepType[RampSettings]):
             self._set_towards(ctx, self._end_c(ctx))
             self._end_turn = ctx.wait.clock.now_s()
             return "settling"
-        if phase == "settling" and self._dies_at_rest(ctx):
+        st = self.settings
+        if phase == "settling" and not self._static_done and self._dies_at_rest(
+                ctx, max(st.static_below_c_per_min / st.end_rate_c_per_min, 1.0)):
+            self._static(ctx)
+        if phase == "settling" and self._static_done and self._dies_at_rest(ctx):
             return "done"
         return phase
 
@@ -235,9 +278,10 @@ class RampCalibration(StepType[RampSettings]):
         return ramped_setpoint(start_c, target_c, ctx.procedure.chamber.ramp_c_per_min,
                                now - since)
 
-    def _dies_at_rest(self, ctx: RunContext) -> bool:
+    def _dies_at_rest(self, ctx: RunContext, factor: float = 1.0) -> bool:
+        """Every die's rate within `factor` x end_rate_c_per_min."""
         now = ctx.wait.clock.now_s()
-        limit = self.settings.end_rate_c_per_min / 60.0
+        limit = factor * self.settings.end_rate_c_per_min / 60.0
         return all(abs(_die_now(p, now)[1]) <= limit for p in ctx.parts.alive())
 
     def _should_turn(self, ctx: RunContext, heating: bool, towards_c: float) -> bool:

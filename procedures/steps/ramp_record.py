@@ -22,13 +22,16 @@ from procedures.analysis.ramp_fit import (
     law_uncertainties,
 )
 from procedures.analysis.ramp_fit import RampSettings as FitSettings
+from procedures.analysis.ramp_linearity import ramp_linearity
 from procedures.analysis.temp_supply_fit import COEFFICIENT_NAMES, FirstOrderCoefficients
+from procedures.runtime.conditions import plan_conditions
 from procedures.runtime.record import Calibration, Verdict
 from procedures.runtime.results import FitCondition, FitResults, RampResults
 from procedures.runtime.run_context import RunContext
 from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.fit import COEFF_UNITS, record_own_hysteresis
+from procedures.steps.registry import Declared
 from procedures.steps.sweep import Plateau
 
 
@@ -41,6 +44,7 @@ class PlateauLog:
         default_factory=list)  # t, ref, u_ref, out, u_out, temp, supply, heating
     dwell_s: float = 6.0
     track: list[tuple[float, float]] = field(default_factory=list)  # the sensor, 1 s means
+    commanded: list[float] = field(default_factory=list)  # each row's commanded rate
 
     def add(self, ctx: RunContext, part: PartRun, *, p: Plateau, supply_v: float,
             heating: bool, dwell_s: float) -> None:
@@ -57,6 +61,7 @@ class PlateauLog:
         self._track(data["time_s"], data["temp_c"])
         self.rows.append((0.5 * (t0 + t1), p.ref_dps, p.u_ref_dps, wm.mean_dps,
                           wm.u_mean_dps, float(np.mean(data["temp_c"])), supply_v, heating))
+        self.commanded.append(p.rate_cmd_dps)
 
     def _track(self, time_s: Any, temp_c: Any) -> None:
         t = np.asarray(time_s, dtype=np.float64)
@@ -120,6 +125,8 @@ def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: 
         ctx.records.measure(part, name, getattr(fit.coefficients, name), units=units,
                             uncertainty_k2=fit.uncertainty_k2(name),
                             description="first-order coefficient (ramp)")
+    record_raw(ctx, part, fit)
+    record_linearity(ctx, part, plateaus, log.commanded, fit)
 
 
 def _own_hysteresis(ctx: RunContext, part: PartRun, fit: RampFit) -> None:
@@ -197,3 +204,57 @@ def _corners(ctx: RunContext, fit: RampFit) -> FitResults:
                 supply_v=volts, bias_dps=float(co.bias_at(temp, volts)),
                 u_bias_dps=u_bias, scale=float(co.scale_at(temp, volts)), u_scale=u_scale))
     return FitResults(source="ramp", conditions=rows)
+
+
+RAW = (
+    Declared("raw_bias_dps", "deg/s", "uncalibrated bias at each condition (the ramp's "
+             "fitted law)", per_condition=True),
+    Declared("raw_scale_error", "1", "uncalibrated scale / nominal - 1 at each condition "
+             "(the ramp's fitted law)", per_condition=True),
+    Declared("nonlinearity_pct_fs", "% FS", "largest residual from the line (the ramp's "
+             "rates at the reference point)"),
+    Declared("asymmetry", "1", "(K+ - K-) / mean K (the ramp's rates at the reference "
+             "point)"),
+)
+
+
+def record_raw(ctx: RunContext, part: PartRun, fit: RampFit) -> None:
+    """raw_bias_dps and raw_scale_error at each of the procedure's conditions, as the
+    eol-rate-table's bias and rate_table steps set them there: here from the fitted laws,
+    with their uncertainties (law_uncertainties, k=1, doubled)."""
+    co, nominal = fit.coefficients, ctx.product.nominal_scale
+    for cond in plan_conditions(list(ctx.procedure.conditions.temperatures_c),
+                                list(ctx.procedure.conditions.supplies_v)):
+        temp, volts = cond.temperature_c, cond.supply_v
+        u_bias, u_scale = law_uncertainties(fit, temp, volts)
+        ctx.records.measure(part, "raw_bias_dps", float(co.bias_at(temp, volts)),
+                            units="deg/s", uncertainty_k2=2 * u_bias, condition=cond.name,
+                            description=RAW[0].description)
+        ctx.records.measure(part, "raw_scale_error",
+                            float(co.scale_at(temp, volts)) / nominal - 1.0, units="1",
+                            uncertainty_k2=2 * u_scale / nominal, condition=cond.name,
+                            description=RAW[1].description)
+
+
+def record_linearity(ctx: RunContext, part: PartRun, plateaus: RampPlateaus,
+                     commanded: list[float], fit: RampFit) -> None:
+    """nonlinearity_pct_fs and asymmetry from the ramp's rates carried to the reference
+    point (procedures/analysis/ramp_linearity.py), as rate_table.py defines them; the line
+    fit into analysis.ramp.linearity."""
+    try:
+        lin = ramp_linearity(plateaus, commanded, fit, ctx.product.range_dps)
+    except AnalysisError as exc:
+        ctx.parts.drop(part, Verdict.ERROR, f"ramp linearity: {exc}")
+        return
+    ctx.records.measure(part, "nonlinearity_pct_fs", lin.nonlinearity_pct_fs, units="% FS",
+                        uncertainty_k2=2 * lin.u_nonlinearity_pct_fs,
+                        description=RAW[2].description)
+    ctx.records.measure(part, "asymmetry", lin.asymmetry_ppm * 1e-6, units="1",
+                        uncertainty_k2=2 * lin.u_asymmetry_ppm * 1e-6,
+                        description=RAW[3].description)
+    ramp = part.record.analysis.ramp
+    if ramp is not None:
+        part.record.analysis.ramp = _set(ramp, dict(
+            nonlinearity_pct_fs=lin.nonlinearity_pct_fs, asymmetry_ppm=lin.asymmetry_ppm,
+            linearity_rate_in_dps=list(lin.input_rate_dps),
+            linearity_residual_dps=list(lin.residual_dps)))

@@ -12,6 +12,8 @@ from typing import Any
 import pytest
 
 from procedures.analysis.temp_supply_fit import COEFFICIENT_NAMES
+from procedures.loading.config import check_procedure_for_product, load_procedure, load_product
+from procedures.runtime.limits import LIMIT_NAMES
 from procedures.runtime.record import RunRecord, Verdict, read_record
 from station.sim_run import run_simulated
 
@@ -87,3 +89,86 @@ def test_a_part_whose_element_lags_far_beyond_the_typical_is_refused(tmp_path: P
         else:
             assert max(z_scores(rec, truth["parameters"]).values()) <= 1.0
     assert refused == len(runs)  # both parts tell their lag (|sT| well above its u)
+
+
+RATE_TABLE = ROOT / "config" / "procedures" / "eol-rate-table.yaml"
+PRODUCT = ROOT / "config" / "products" / "gyr130.yaml"
+# the six limits the ramp left unmeasured before it had a static dwell and the rate set's
+# line at the reference point
+ADDED = {"raw_bias_dps", "raw_scale_error", "noise_arw_deg_per_sqrt_h",
+         "bias_instability_deg_per_h", "nonlinearity_pct_fs", "asymmetry"}
+
+
+def limit_warnings(procedure: Path) -> list[str]:
+    proc, proc_file = load_procedure(procedure)
+    prod, prod_file = load_product(PRODUCT)
+    return check_procedure_for_product(proc, proc_file, prod, prod_file)
+
+
+def test_the_ramp_measures_every_product_limit_the_rate_table_measures() -> None:
+    assert limit_warnings(RATE_TABLE) == []
+    assert limit_warnings(RAMP) == []  # no "product limit ... is never measured"
+
+
+def law(params: dict[str, float], temp_c: float, supply_v: float) -> tuple[float, float]:
+    """The bench's true bias and scale at a die temperature and supply (reference 25 C, 5 V)."""
+    dt, dv = temp_c - 25.0, supply_v - 5.0
+    bias = (params["bias_dps"] + params["bias_temp_coeff_dps_per_c"] * dt
+            + params["bias_supply_coeff_dps_per_v"] * dv)
+    scale = params["scale"] * (1 + params["scale_temp_coeff_per_c"] * dt
+                               + params["scale_supply_coeff_per_v"] * dv)
+    return bias, scale
+
+
+def check_raw(rec: RunRecord, params: dict[str, float], nominal: float) -> None:
+    """raw_bias_dps and raw_scale_error at each of the procedure's four conditions, within
+    their U (plus a hair) of the bench's truth there."""
+    conds = {m.condition for m in rec.measurements if m.name == "raw_bias_dps"}
+    assert conds == {"T25_V4.75", "T25_V5.25", "T45_V4.75", "T45_V5.25"}  # as eol-rate-table
+    for m in rec.measurements:
+        if m.name not in ("raw_bias_dps", "raw_scale_error"):
+            continue
+        temp, volts = (float(x) for x in m.condition[1:].split("_V"))
+        bias, scale = law(params, temp, volts)
+        want = bias if m.name == "raw_bias_dps" else scale / nominal - 1.0
+        assert m.value is not None and m.uncertainty_k2 is not None
+        assert abs(m.value - want) <= m.uncertainty_k2 + 0.1 * abs(m.uncertainty_k2), m
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_the_ramp_judges_every_product_limit_against_the_truth(tmp_path: Path) -> None:
+    """Lockstep eol-ramp: each part's record holds a measurement for every product limit,
+    raw bias and scale at each condition within U of the bench's truth, the angle random
+    walk of the static dwell within its U (+10 %) of the bench's, a linear part's
+    nonlinearity and asymmetry within their U of zero and far inside their limits."""
+    limit_names = {k for k in LIMIT_NAMES
+                   if getattr(load_product(PRODUCT)[0].limits, k) is not None}
+    nominal = load_product(PRODUCT)[0].nominal_scale
+    for rec, truth in run(tmp_path, ["SIM-7001", "SIM-7002"]):
+        assert rec.verdict is Verdict.PASS, rec.reason
+        by_name = {m.name: m for m in rec.measurements}
+        assert limit_names <= set(by_name)  # none left unjudged by the procedure
+        assert all(by_name[n].value is not None for n in ADDED - {"bias_instability_deg_per_h"})
+        params = truth["parameters"]
+        check_raw(rec, params, nominal)
+        arw = by_name["noise_arw_deg_per_sqrt_h"]
+        assert arw.value is not None and arw.uncertainty_k2 is not None
+        assert abs(arw.value - params["arw_deg_per_sqrt_h"]) <= (
+            arw.uncertainty_k2 + 0.1 * params["arw_deg_per_sqrt_h"])
+        assert rec.analysis.allan is not None and rec.analysis.allan.record_s is not None
+        assert rec.analysis.allan.record_s >= 55.0  # the static dwell, 60 s
+        for name in ("nonlinearity_pct_fs", "asymmetry"):
+            m = by_name[name]
+            assert m.value is not None and m.uncertainty_k2 is not None
+            assert abs(m.value) <= m.uncertainty_k2 + 1e-3 * (name == "nonlinearity_pct_fs")
+            limit = 0.2 if name == "nonlinearity_pct_fs" else 0.005  # gyr130's
+            assert abs(m.value) < 0.1 * limit
+        # bias instability: measured where the 60 s record resolves it, as eol-rate-table's
+        # short record (never above the bench's by more than its U)
+        bi = by_name["bias_instability_deg_per_h"]
+        if bi.value is not None and bi.uncertainty_k2 is not None:
+            assert bi.value <= params["bias_instability_deg_per_h"] + bi.uncertainty_k2
+        ramp = rec.analysis.ramp
+        assert ramp is not None and ramp.nonlinearity_pct_fs is not None
+        assert len(ramp.linearity_rate_in_dps) == 8  # one point per commanded rate
