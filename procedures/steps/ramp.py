@@ -27,6 +27,7 @@ from pydantic import Field
 
 from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached, InstrumentError
+from procedures.analysis.allan import NoiseModel
 from procedures.runtime.conditions import Condition
 from procedures.runtime.results import RampResults
 from procedures.runtime.run_context import RunContext
@@ -179,6 +180,7 @@ class RampCalibration(StepType[RampSettings]):
         self._end_turn: float | None = None
         self._stops: dict[int, list[StopAtEnd]] = {}
         self._stops_done: set[str] = set()
+        self._noise: dict[int, NoiseModel] = {}  # each part's, from the static dwell
         try:
             start = self._start_chamber(ctx)
             self._static_done = self.settings.static_s <= 0
@@ -221,7 +223,13 @@ class RampCalibration(StepType[RampSettings]):
         self._static_done = True
         t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
         label = self._static_condition(ctx)
-        ctx.parts.each(lambda part: record_static_noise(ctx, part, t0, t1, label))
+
+        def noise_of(part: Any) -> None:
+            model = record_static_noise(ctx, part, t0, t1, label)
+            if model is not None:
+                self._noise[part.socket] = model
+
+        ctx.parts.each(noise_of)
 
     def _static_condition(self, ctx: RunContext) -> str:
         """The condition the static dwell is nearest: the span's bottom, at the procedure's
@@ -289,7 +297,7 @@ class RampCalibration(StepType[RampSettings]):
                 else self._static_done and all(abs(r) <= limit for r in rates))
         if slow:
             self._stops_done.add(end)
-            run_stop(ctx, sm, end, self._stops)
+            run_stop(ctx, sm, end, self._stops, self._noise)
 
     def _next_phase(self, ctx: RunContext, phase: str, low_sp: float) -> str:
         if phase == "heating" and self._should_turn(ctx, True, low_sp):

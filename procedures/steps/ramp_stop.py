@@ -25,6 +25,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from common.bounded import MAX_REPEATS
+from procedures.analysis.allan import NoiseModel
 from procedures.analysis.consistency import Consistency, normalised_difference
 from procedures.analysis.errors import AnalysisError
 from procedures.analysis.ramp_fit import RampFit, law_uncertainties
@@ -35,7 +36,13 @@ from procedures.runtime.run_context import RunContext
 from procedures.runtime.run_parts import PartRun
 from procedures.steps.base import check_window, samples_between
 from procedures.steps.registry import Declared, StepSettings
-from procedures.steps.stop import StopRecord, stop_moves, stop_result, stop_results
+from procedures.steps.stop import (
+    StopRecord,
+    stop_moves,
+    stop_noise_model,
+    stop_result,
+    stop_results,
+)
 
 End = Literal["top", "bottom"]
 ENDS: tuple[End, ...] = ("top", "bottom")
@@ -95,25 +102,32 @@ class StopAtEnd:
 
 
 def run_stop(ctx: RunContext, st: RampStopSettings, end: str,
-             logs: dict[int, list[StopAtEnd]]) -> None:
-    """The stop-method record at `end` for every part, each analysed at once."""
+             logs: dict[int, list[StopAtEnd]], noise: dict[int, NoiseModel]) -> None:
+    """The stop-method record at `end` for every part, each analysed at once (with its
+    noise model from the static dwell where it has one)."""
     rec = stop_moves(ctx, lambda: float(st.stop_angle_deg), move_time_s=st.move_time_s,
                      static_s=st.static_s, repeats=st.moves_per_direction,
                      timeout_s=st.move_timeout_s)
     volts = ctx.instruments.log_supply()[0]
     for part in ctx.parts.alive():
-        ctx.parts.per_part(part, lambda p: _analyse(ctx, p, st, rec, (end, volts), logs))
+        ctx.parts.per_part(part, lambda p: _analyse(ctx, p, st, rec, (end, volts), logs,
+                                                    noise.get(p.socket)))
 
 
 def _analyse(ctx: RunContext, part: PartRun, st: RampStopSettings, rec: StopRecord,
-             where: tuple[str, float], logs: dict[int, list[StopAtEnd]]) -> None:
+             where: tuple[str, float], logs: dict[int, list[StopAtEnd]],
+             noise: NoiseModel | None) -> None:
     end, volts = where
     data = samples_between(ctx, part, rec.t_start, rec.t_end)
     what = f"stop method at the ramp's {end}"
     if not check_window(ctx, part, data, what, st.static_s * (2 * st.moves_per_direction + 1)):
         return
     try:
-        result = stop_result(ctx, part, data, rec.encoder_angle_deg, rec.u_encoder_angle_deg)
+        ref = (rec.encoder_angle_deg, rec.u_encoder_angle_deg)
+        result = stop_result(ctx, part, data, *ref, noise=stop_noise_model(ctx, part))
+        if stop_noise_model(ctx, part) is None:  # the ramp sets none: floor the record's own
+            model = noise if noise is not None else result.bias.noise
+            result = stop_result(ctx, part, data, *ref, noise=_floored(ctx, model))
     except AnalysisError as exc:
         ctx.parts.drop(part, Verdict.ERROR, f"{what}: {exc}")
         return
@@ -123,6 +137,15 @@ def _analyse(ctx: RunContext, part: PartRun, st: RampStopSettings, rec: StopReco
     stop = StopAtEnd(end, result, float(temp.mean()), slope, volts, rec.t_start)
     logs.setdefault(part.socket, []).append(stop)
     _segments(ctx, part, stop)
+
+
+def _floored(ctx: RunContext, noise: NoiseModel) -> NoiseModel:
+    """A noise model (the static dwell's, or before it the record's own leading rest's)
+    with the product's typical bias instability and rate random walk as floors: the bias
+    wanders between the leading rest and the moves, which a few seconds of rest cannot
+    show (as `stop_noise_model` floors the bias step's model)."""
+    return noise.with_floor(ctx.product.bias_instability_deg_per_h / 3600.0,
+                            ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 216000.0)
 
 
 def _segments(ctx: RunContext, part: PartRun, stop: StopAtEnd) -> None:

@@ -136,9 +136,9 @@ def stop_moves(ctx: RunContext, far: Callable[[], float], *, move_time_s: float,
 
 
 def stop_result(ctx: RunContext, part: PartRun, data: dict[str, Any], ref: float,
-                u_ref: float) -> StopMethodResult:
-    """The stop-method analysis of one part's window against the reference angle; an
-    AnalysisError when no move gives a scale."""
+                u_ref: float, noise: NoiseModel | None = None) -> StopMethodResult:
+    """The stop-method analysis of one part's window against the reference angle, with
+    `noise` (default: `stop_noise_model`); an AnalysisError when no move gives a scale."""
     result = analyze_stop_method(
         data["time_s"],
         data["rate_dps"],
@@ -148,7 +148,7 @@ def stop_result(ctx: RunContext, part: PartRun, data: dict[str, Any], ref: float
         settings=StopMethodSettings(
             full_scale_dps=ctx.product.range_dps, trim_leading_motion=True
         ),
-        noise=stop_noise_model(ctx, part),
+        noise=noise or stop_noise_model(ctx, part),
     )
     if result.scale is None or result.u_scale is None:
         raise AnalysisError("no usable move: " + "; ".join(result.warnings))
