@@ -14,6 +14,10 @@ the span's top (procedures/thermal/ramp_turn.py), then driven down towards `min_
 and turned back to the end setpoint when every die's predicted trough reaches the span's
 bottom. The dies therefore cover the span both ways with the highest rates the chamber
 allows, and the step ends with the chamber going back to `end_setpoint_c`.
+
+With `stop_method` set, the table performs the article's stop method in place of plateaus
+near the top (the dies at their peak) and near the bottom (after the static dwell), and each
+record's scale is judged against the fitted scale law there (procedures/steps/ramp_stop.py).
 """
 
 from __future__ import annotations
