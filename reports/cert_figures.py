@@ -5,7 +5,8 @@ types the engine planned) is left out, and one line names what the procedure doe
 include; a section whose step was planned but left nothing keeps its "Not drawn"
 explanation (a real gap). A record without the planned steps (written before the engine
 recorded them) shows the four classic sections as it always did, and the ramp's when the
-record holds a ramp section.
+record holds a ramp section. The stop method's shows whenever the record holds stop-method
+records of a ramp (`analysis.ramp_stop`), whatever the plan.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ def planned_steps(rec: RunRecord) -> set[str] | None:
 
 def _wanted(rec: RunRecord, planned: set[str] | None, name: str, steps: frozenset[str]
             ) -> bool:
+    if name == "stop method" and rec.analysis.ramp_stop is not None:
+        return True  # the ramp carried stop-method records
     if planned is not None:
         return bool(planned & steps)
     if name == "ramp calibration":  # older records: the ramp's only when it left a section

@@ -95,9 +95,20 @@ def stop_method(inputs: CertificateInputs) -> list[Flowable]:
             out.append(_stop_chart(raw, cond, summaries.get(cond)))
         if len(conds) > 4:
             out.append(Paragraph(f"{len(conds) - 4} more conditions not drawn.", NOTE))
-        return out
+        return out + _ramp_stop_notes(rec.analysis if rec else None)
 
     return story + safe_plot(title, FULL_W, 52 * mm, build)
+
+
+def _ramp_stop_notes(analysis: Analysis | None) -> list[Flowable]:
+    """A line per ramp end: the stop scale against the ramp fit's law there."""
+    if analysis is None or analysis.ramp_stop is None:
+        return []
+    return [Paragraph(escape(
+        f"{e.label}: die {fmt(e.die_temp_c, 4)} C (element {fmt(e.element_temp_c, 4)} C), "
+        f"{fmt(e.supply_v, 4)} V: stop scale {fmt(e.stop.scale, 7)} (u {fmt(e.stop.u_scale, 2)})"
+        f", the ramp fit's law {fmt(e.ramp_scale, 7)} (u {fmt(e.u_ramp_scale, 2)}), E_n "
+        f"{fmt(e.normalised_difference, 3)}"), NOTE) for e in analysis.ramp_stop.ends]
 
 
 def _stop_chart(raw: RawData, cond: str, summary: record_keys.StopSummary | None) -> Flowable:

@@ -176,8 +176,11 @@ def _stop_summary(cond: str, d: StopMethodResults) -> StopSummary:
 
 
 def stop_method(analysis: Analysis) -> dict[str, StopSummary]:
-    """Per condition, sorted; empty when the record has no stop-method analysis."""
-    return {c: _stop_summary(c, analysis.stop_method[c]) for c in sorted(analysis.stop_method)}
+    """Per condition, sorted, then the ramp's records per end (ramp_top, ramp_bottom); empty
+    when the record has no stop-method analysis."""
+    out = {c: _stop_summary(c, analysis.stop_method[c]) for c in sorted(analysis.stop_method)}
+    ends = [] if analysis.ramp_stop is None else analysis.ramp_stop.ends
+    return out | {e.label: _stop_summary(e.label, e.stop) for e in ends}
 
 
 def stability(analysis: Analysis) -> dict[str, StabilityResults]:

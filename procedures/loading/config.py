@@ -519,9 +519,12 @@ def _in_file_order(lines: list[str]) -> list[str]:
 
 def consistency_judgements(procedure: ProcedureConfig) -> int:
     """How many stop-vs-table judgements the procedure can make on one part: one per
-    stop_method step it runs (each judges at its condition where a rate-table fit exists)."""
+    stop_method step it runs (each judges at its condition where a rate-table fit exists), and
+    one per end of the span where a ramp runs the stop method (against its fit)."""
     conditions = procedure.planned_conditions()
-    return sum(1 for step in expand(procedure.nodes, conditions) if step.type_name == "stop_method")
+    steps = expand(procedure.nodes, conditions)
+    return (sum(1 for step in steps if step.type_name == "stop_method")
+            + sum(int(getattr(step, "stop_judgements", lambda: 0)()) for step in steps))
 
 
 def product_for_procedure(product: ProductConfig, procedure: ProcedureConfig) -> ProductConfig:

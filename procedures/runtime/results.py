@@ -283,6 +283,29 @@ class RampResults(Section):
     linearity_residual_dps: Nums = Field(default_factory=list)
 
 
+class RampStopEnd(Section):
+    """One stop-method record at one end of the ramp (procedures/steps/ramp_stop.py) and its
+    comparison with the ramp fit's scale law there; k=1 unless named."""
+
+    label: str  # ramp_top | ramp_bottom: raw.h5 segments' condition, the measurement's
+    end: str  # top | bottom
+    station_s: Num = None  # the record's start
+    die_temp_c: Num = None  # the die's sensor, mean over the record
+    element_temp_c: Num = None  # the law is taken here: the die's less the lag x its rate
+    die_rate_c_per_min: Num = None
+    supply_v: Num = None
+    stop: StopMethodResults
+    ramp_scale: Num = None  # the fitted scale law at element_temp_c, supply_v
+    u_ramp_scale: Num = None
+    normalised_difference: Num = None  # (stop scale - ramp_scale) / combined u
+
+
+class RampStopResults(Section):
+    """analysis.ramp_stop (step ramp_calibration with stop_method): one entry per end."""
+
+    ends: list[RampStopEnd] = Field(default_factory=list)
+
+
 class ProgrammingResults(Section):
     """analysis.programming (steps program, program_three_axis)."""
 
@@ -461,6 +484,7 @@ class Analysis(Section):
     three_axis_windows: list[ThreeAxisWindow] | None = None
     fit: FitResults | None = None
     ramp: RampResults | None = None
+    ramp_stop: RampStopResults | None = None
     temperature_fit: TemperatureFitResults | None = None
     programming: ProgrammingResults | None = None
     marginal_measurements: list[str] | None = None

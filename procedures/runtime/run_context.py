@@ -188,11 +188,13 @@ class Records:
         ref_angle_deg: float = np.nan,
         temp_setpoint_c: float = np.nan,
         supply_v: float = np.nan,
+        condition: str | None = None,
     ) -> None:
-        """A window of the part's data (fixture time) with its reference, for raw.h5."""
+        """A window of the part's data (fixture time) with its reference, for raw.h5;
+        `condition`: its label when not the condition in progress."""
         part.rows.append(
             "segments",
-            condition=self._progress.condition,
+            condition=self._progress.condition if condition is None else condition,
             kind=kind,
             index=index,
             start_s=start_s,

@@ -14,6 +14,10 @@ the span's top (procedures/thermal/ramp_turn.py), then driven down towards `min_
 and turned back to the end setpoint when every die's predicted trough reaches the span's
 bottom. The dies therefore cover the span both ways with the highest rates the chamber
 allows, and the step ends with the chamber going back to `end_setpoint_c`.
+
+With `stop_method` set, the table performs the article's stop method in place of plateaus
+near the top (the dies at their peak) and near the bottom (after the static dwell), and each
+record's scale is judged against the fitted scale law there (procedures/steps/ramp_stop.py).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from pydantic import Field
 
 from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached, InstrumentError
+from procedures.analysis.allan import NoiseModel
 from procedures.runtime.conditions import Condition
 from procedures.runtime.results import RampResults
 from procedures.runtime.run_context import RunContext
@@ -34,6 +39,7 @@ from procedures.steps.bias import NOISE
 from procedures.steps.fit import COEFF_UNITS
 from procedures.steps.ramp_record import RAW, PlateauLog, fit_and_record
 from procedures.steps.ramp_static import record_static_noise, static_dwell
+from procedures.steps.ramp_stop import CONSISTENCY, RampStopSettings, StopAtEnd, judge, run_stop
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import measure_plateau
 from procedures.steps.thermal_fastest import latest_reading_c
@@ -100,6 +106,15 @@ class RampSettings(StepSettings):
         1.0, gt=0, le=100, description="the static dwell starts once every die is slower "
         "than this after the turn at the bottom (at least end_rate_c_per_min)",
     )
+    stop_method: RampStopSettings | None = Field(
+        None, description="the article's stop method at the ends of the span, in place of "
+        "plateaus (procedures/steps/ramp_stop.py): {stop_angle_deg: 90, move_time_s: 3.5, "
+        "static_s: 5, bias_window_s: 3, moves_per_direction: 1, ends: [top, bottom], "
+        "move_timeout_s: 60}; at the top once no die heats faster than "
+        "static_below_c_per_min, at the bottom after the static dwell once every die is "
+        "that slow; each record's scale against the fitted law there "
+        "(stop_table_consistency@ramp_<end>); none: not run",
+    )
 
 
 def _typical_bounds(product: Any, limit: float | None) -> tuple[float, float, float, float]:
@@ -129,7 +144,13 @@ class RampCalibration(StepType[RampSettings]):
                   for name, units in COEFF_UNITS.items()]
         own_h = Declared("hysteresis_dps", "deg/s", "the part's own hysteresis (the ramp's "
                          "heating and cooling halves)", informational=True, optional=True)
-        return [*coeffs, own_h, *RAW, *(NOISE if settings.static_s > 0 else ())]
+        stop = (CONSISTENCY,) if settings.stop_method is not None else ()
+        return [*coeffs, own_h, *RAW, *(NOISE if settings.static_s > 0 else ()), *stop]
+
+    def stop_judgements(self) -> int:
+        """How many stop-vs-fit judgements the step makes on one part (one per end)."""
+        sm = self.settings.stop_method
+        return 0 if sm is None else len(sm.ends)
 
     def estimate_s(self, ctx: RunContext) -> float:
         # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)
@@ -161,6 +182,9 @@ class RampCalibration(StepType[RampSettings]):
         ctx.instruments.need_table().enable()
         logs = {p.socket: PlateauLog() for p in ctx.parts.alive()}
         self._end_turn: float | None = None
+        self._stops: dict[int, list[StopAtEnd]] = {}
+        self._stops_done: set[str] = set()
+        self._noise: dict[int, NoiseModel] = {}  # each part's, from the static dwell
         try:
             start = self._start_chamber(ctx)
             self._static_done = self.settings.static_s <= 0
@@ -176,8 +200,13 @@ class RampCalibration(StepType[RampSettings]):
                                   supplies_v=list(ctx.procedure.conditions.supplies_v),
                                   **{k: v for k, v in given.items() if v is not None})
             ctx.parts.per_part(part, partial(
-                fit_and_record, ctx, log=logs[part.socket], results=results,
+                self._record_part, ctx, log=logs[part.socket], results=results,
                 bounds=bounds))
+
+    def _record_part(self, ctx: RunContext, part: Any, **kwargs: Any) -> None:
+        """One part's fit, then its stop-method records against the fit."""
+        fit = fit_and_record(ctx, part, **kwargs)
+        judge(ctx, part, fit, self._stops.get(part.socket, []))
 
     def _start_chamber(self, ctx: RunContext) -> float:
         """The chamber heading for the overshoot at its ramp rate; when (station s)."""
@@ -198,7 +227,13 @@ class RampCalibration(StepType[RampSettings]):
         self._static_done = True
         t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
         label = self._static_condition(ctx)
-        ctx.parts.each(lambda part: record_static_noise(ctx, part, t0, t1, label))
+
+        def noise_of(part: Any) -> None:
+            model = record_static_noise(ctx, part, t0, t1, label)
+            if model is not None:
+                self._noise[part.socket] = model
+
+        ctx.parts.each(noise_of)
 
     def _static_condition(self, ctx: RunContext) -> str:
         """The condition the static dwell is nearest: the span's bottom, at the procedure's
@@ -252,6 +287,22 @@ class RampCalibration(StepType[RampSettings]):
         except InstrumentError as exc:
             log.error("could not send the chamber to %.1f C: %s", self._end_c(ctx), exc)
 
+    def _stop_due(self, ctx: RunContext, phase: str) -> None:
+        """The stop-method record at an end when it is due: at the top once no die heats
+        faster than static_below_c_per_min, at the bottom after the static dwell once every
+        die is that slow."""
+        sm, st = self.settings.stop_method, self.settings
+        end = {"cooling": "top", "settling": "bottom"}.get(phase)
+        if sm is None or end is None or end not in sm.ends or end in self._stops_done:
+            return
+        now, limit = ctx.wait.clock.now_s(), st.static_below_c_per_min / 60.0
+        rates = [_die_now(p, now)[1] for p in ctx.parts.alive()]
+        slow = (all(r <= limit for r in rates) if end == "top"
+                else self._static_done and all(abs(r) <= limit for r in rates))
+        if slow:
+            self._stops_done.add(end)
+            run_stop(ctx, sm, end, self._stops, self._noise)
+
     def _next_phase(self, ctx: RunContext, phase: str, low_sp: float) -> str:
         if phase == "heating" and self._should_turn(ctx, True, low_sp):
             self._set_towards(ctx, low_sp)
@@ -264,6 +315,7 @@ class RampCalibration(StepType[RampSettings]):
         if phase == "settling" and not self._static_done and self._dies_at_rest(
                 ctx, max(st.static_below_c_per_min / st.end_rate_c_per_min, 1.0)):
             self._static(ctx)
+        self._stop_due(ctx, phase)
         if phase == "settling" and self._static_done and self._dies_at_rest(ctx):
             return "done"
         return phase

@@ -95,9 +95,9 @@ class RampProgrammable:
 
 
 def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: RampResults,
-                   bounds: tuple[float, float, float, float]) -> None:
+                   bounds: tuple[float, float, float, float]) -> RampFit | None:
     """Fit one part's ramp and record it; a part whose lag the ramp cannot correct leaves
-    the run FAIL, one the fit cannot use ERROR, each with the reason."""
+    the run FAIL, one the fit cannot use ERROR, each with the reason (None: no fit)."""
     limit, tau_bound, width, tau_prior = bounds
     t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
     try:
@@ -111,11 +111,11 @@ def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: 
     except RampLagTooLarge as exc:
         part.record.analysis.ramp = results.model_copy(update={"refused": str(exc)})
         ctx.parts.drop(part, Verdict.FAIL, f"ramp calibration: {exc}")
-        return
+        return None
     except AnalysisError as exc:
         part.record.analysis.ramp = results
         ctx.parts.drop(part, Verdict.ERROR, f"ramp calibration: {exc}")
-        return
+        return None
     part.fit = RampProgrammable(fit.coefficients)
     part.record.calibration = _calibration(fit)
     part.record.analysis.ramp = _with_fit(results, fit)
@@ -127,6 +127,7 @@ def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: 
                             description="first-order coefficient (ramp)")
     record_raw(ctx, part, fit)
     record_linearity(ctx, part, plateaus, log.commanded, fit)
+    return fit
 
 
 def _own_hysteresis(ctx: RunContext, part: PartRun, fit: RampFit) -> None:

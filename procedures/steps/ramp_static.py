@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from procedures.analysis.allan import analyze_allan
+from procedures.analysis.allan import NoiseModel, analyze_allan
 from procedures.analysis.errors import AnalysisError
 from procedures.runtime.record import Verdict
 from procedures.runtime.run_context import RunContext
@@ -54,18 +54,20 @@ def without_temperature(rate_dps: NDArray[Any], temp_c: NDArray[Any]) -> NDArray
 
 
 def record_static_noise(ctx: RunContext, part: PartRun, t0: float, t1: float,
-                        condition: str) -> None:
+                        condition: str) -> NoiseModel | None:
     """One part's static record: its Allan deviation, analysis.allan and the noise
-    measurements; a record the analysis cannot use leaves the part ERROR."""
+    measurements; a record the analysis cannot use leaves the part ERROR. Returns the
+    part's noise model (None: not measured)."""
     data = samples_between(ctx, part, t0, t1)
     if not check_window(ctx, part, data, "ramp static dwell", t1 - t0):
-        return
+        return None
     try:
         allan = analyze_allan(without_temperature(data["rate_dps"], data["temp_c"]),
                               sample_rate_hz(ctx))
     except AnalysisError as exc:
         ctx.parts.drop(part, Verdict.ERROR, f"ramp static dwell: {exc}")
-        return
+        return None
     t = data["time_s"]
     ctx.records.segment(part, "static", 0, float(t[0]), float(t[-1]), ref_rate_dps=0.0)
     record_allan(ctx, part, allan, float(t[-1] - t[0]), condition)
+    return allan.noise.model

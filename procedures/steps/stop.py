@@ -11,7 +11,8 @@ the leading rest and each move, and a few seconds of rest cannot show by how muc
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -86,6 +87,97 @@ def _take_back(part: PartRun, name: str, condition: str) -> RemeasuredFirst:
     return RemeasuredFirst(value=m.value, outcome=m.outcome.value, low=m.low, high=m.high,
                            scale_stop=None if stop is None else stop.scale,
                            u_scale_stop=None if stop is None else stop.u_scale)
+
+
+@dataclass(frozen=True)
+class StopRecord:
+    """The station times of a stop-method record and the encoder's travel over its moves."""
+
+    t_start: float
+    t_end: float
+    encoder_angle_deg: float
+    u_encoder_angle_deg: float  # k=1: each end quantised to one count, averaged over moves
+
+
+def stop_moves(ctx: RunContext, far: Callable[[], float], *, move_time_s: float,
+               static_s: float, repeats: int, timeout_s: float) -> StopRecord:
+    """The table to rest at the first stop of this turn, then rest, move to the second stop
+    (`far()` deg on), rest, move back, rest, `repeats` times (steps stop_method and
+    ramp_calibration)."""
+    table = ctx.instruments.need_table()
+    table.enable()
+    table.set_rate(0.0)
+    table.wait_at_rate(timeout_s)
+    # The stops sit at fixed table angles: go to the first stop of this turn rather than
+    # re-zeroing the encoder where the sweep happened to end, so every condition uses
+    # the same stops and table angles stay comparable across the whole run.
+    _, here = ctx.instruments.snapshot()
+    origin = 360.0 * round(here.position_deg / 360.0)
+    if abs(here.position_deg - origin) > AT_STOP_TOLERANCE_DEG:
+        table.move_to(origin, move_time_s=move_time_s)
+        table.wait_in_position(timeout_s)
+    t_start = ctx.wait.clock.now_s()
+    _, rest = ctx.instruments.snapshot()
+    positions = [rest.position_deg]
+    ctx.wait.sleep(static_s)
+    far_deg = far()
+    for _ in range(repeats):
+        for target in (origin + far_deg, origin):
+            table.move_to(target, move_time_s=move_time_s)
+            table.wait_in_position(timeout_s)
+            ctx.wait.sleep(static_s)
+            _, rest = ctx.instruments.snapshot()
+            positions.append(rest.position_deg)
+    t_end = ctx.wait.clock.now_s()
+    travel = np.abs(np.diff(positions))
+    count_deg = 360.0 / table.counts_per_rev()  # the table driver's encoder resolution
+    return StopRecord(t_start, t_end, float(travel.mean()),
+                      count_deg * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size))
+
+
+def stop_result(ctx: RunContext, part: PartRun, data: dict[str, Any], ref: float,
+                u_ref: float, noise: NoiseModel | None = None) -> StopMethodResult:
+    """The stop-method analysis of one part's window against the reference angle, with
+    `noise` (default: `stop_noise_model`); an AnalysisError when no move gives a scale."""
+    result = analyze_stop_method(
+        data["time_s"],
+        data["rate_dps"],
+        ref,
+        u_ref,
+        status=data["status"],
+        settings=StopMethodSettings(
+            full_scale_dps=ctx.product.range_dps, trim_leading_motion=True
+        ),
+        noise=noise or stop_noise_model(ctx, part),
+    )
+    if result.scale is None or result.u_scale is None:
+        raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+    return result
+
+
+def stop_results(result: StopMethodResult, reference: str) -> StopMethodResults:
+    """The record's section for one stop-method record (analysis.stop_method's entries)."""
+    return StopMethodResults(
+        bias_dps=result.bias_dps,
+        bias_correction_dps=result.bias_correction_dps,
+        scale_correction=result.scale_correction,
+        scale=result.scale,
+        u_scale=result.u_scale,
+        reference_angle_deg=result.reference_angle_deg,
+        u_reference_angle_deg=result.u_reference_angle_deg,
+        reference=reference,
+        static_windows=[[a, b] for a, b in result.static_segments_s],
+        moves=[
+            StopMove(
+                start_s=m.start_s,
+                end_s=m.end_s,
+                measured_angle_deg=m.measured_angle_deg,
+                scale_correction=m.scale_correction,
+            )
+            for m in result.moves
+        ],
+        warnings=list(result.warnings),
+    )
 
 
 class StopSettings(StepSettings):
@@ -178,40 +270,17 @@ class StopMethod(StepType[Any]):
     def _moves(self, ctx: RunContext) -> tuple[float, float]:
         """The table moves the parts between the stops; the station times of the record."""
         cfg = self.settings
-        table = ctx.instruments.need_table()
-        table.enable()
-        table.set_rate(0.0)
-        table.wait_at_rate(cfg.move_timeout_s)
-        # The stops sit at fixed table angles: go to the first stop of this turn rather than
-        # re-zeroing the encoder where the sweep happened to end, so every condition uses
-        # the same stops and table angles stay comparable across the whole run.
-        _, here = ctx.instruments.snapshot()
-        origin = 360.0 * round(here.position_deg / 360.0)
-        if abs(here.position_deg - origin) > AT_STOP_TOLERANCE_DEG:
-            table.move_to(origin, move_time_s=cfg.move_time_s)
-            table.wait_in_position(cfg.move_timeout_s)
-        t_start = ctx.wait.clock.now_s()
-        _, rest = ctx.instruments.snapshot()
-        positions = [rest.position_deg]
-        ctx.wait.sleep(cfg.static_s)
-        far = cfg.stop_angle_deg
-        if cfg.reference == "fixture":
-            # the stops are the fixture's: move to its measured angle (mean over sockets)
-            far = float(np.mean([stop_angle(p)[0] for p in ctx.parts.alive()]))
-        for _ in range(cfg.repeats):
-            for target in (origin + far, origin):
-                table.move_to(target, move_time_s=cfg.move_time_s)
-                table.wait_in_position(cfg.move_timeout_s)
-                ctx.wait.sleep(cfg.static_s)
-                _, rest = ctx.instruments.snapshot()
-                positions.append(rest.position_deg)
-        t_end = ctx.wait.clock.now_s()
-        travel = np.abs(np.diff(positions))
-        self._encoder_angle = float(travel.mean())
-        # each end quantised to one count; two ends per move, averaged over the moves
-        count_deg = 360.0 / table.counts_per_rev()  # the table driver's encoder resolution
-        self._encoder_u = count_deg * math.sqrt(2.0 / 12.0) / math.sqrt(travel.size)
-        return t_start, t_end
+
+        def far() -> float:
+            if cfg.reference == "fixture":
+                # the stops are the fixture's: move to its measured angle (mean over sockets)
+                return float(np.mean([stop_angle(p)[0] for p in ctx.parts.alive()]))
+            return float(cfg.stop_angle_deg)
+
+        rec = stop_moves(ctx, far, move_time_s=cfg.move_time_s, static_s=cfg.static_s,
+                         repeats=cfg.repeats, timeout_s=cfg.move_timeout_s)
+        self._encoder_angle, self._encoder_u = rec.encoder_angle_deg, rec.u_encoder_angle_deg
+        return rec.t_start, rec.t_end
 
     def _scale(
         self, ctx: RunContext, part: PartRun, data: dict[str, Any]
@@ -223,19 +292,8 @@ class StopMethod(StepType[Any]):
             ref, u_ref = stop_angle(part)
         else:
             ref, u_ref = self._encoder_angle, self._encoder_u
-        result = analyze_stop_method(
-            data["time_s"],
-            data["rate_dps"],
-            ref,
-            u_ref,
-            status=data["status"],
-            settings=StopMethodSettings(
-                full_scale_dps=ctx.product.range_dps, trim_leading_motion=True
-            ),
-            noise=stop_noise_model(ctx, part),
-        )
-        if result.scale is None or result.u_scale is None:
-            raise AnalysisError("no usable move: " + "; ".join(result.warnings))
+        result = stop_result(ctx, part, data, ref, u_ref)
+        assert result.scale is not None and result.u_scale is not None
         return result, result.scale, result.u_scale, ref, u_ref
 
     def _analyse(self, ctx: RunContext, part: PartRun, t0: float, t1: float) -> None:
@@ -258,27 +316,7 @@ class StopMethod(StepType[Any]):
         res.note_temperature("scale", data["temp_c"], data["time_s"])
         res.stop = StopScale(scale, u_scale, result.bias_dps, ref, u_ref)
         self._segments(ctx, part, res, result, ref)
-        part.record.analysis.stop_method[self.condition] = StopMethodResults(
-            bias_dps=result.bias_dps,
-            bias_correction_dps=result.bias_correction_dps,
-            scale_correction=result.scale_correction,
-            scale=scale,
-            u_scale=u_scale,
-            reference_angle_deg=ref,
-            u_reference_angle_deg=u_ref,
-            reference=cfg.reference,
-            static_windows=[[a, b] for a, b in result.static_segments_s],
-            moves=[
-                StopMove(
-                    start_s=m.start_s,
-                    end_s=m.end_s,
-                    measured_angle_deg=m.measured_angle_deg,
-                    scale_correction=m.scale_correction,
-                )
-                for m in result.moves
-            ],
-            warnings=list(result.warnings),
-        )
+        part.record.analysis.stop_method[self.condition] = stop_results(result, cfg.reference)
         if res.table_fit is not None:
             self._judge_consistency(ctx, part, result, res.table_fit)
 

@@ -94,10 +94,38 @@ def test_a_ramp_certificate_draws_the_ramp_and_no_placeholder_for_unplanned_step
     assert "Ramp calibration: die temperature and fit residuals" in text
     assert "Die temperature over the ramp" in text and "Fit residual per plateau" in text
     assert "Not drawn" not in text
-    for heading in CLASSIC:
+    for heading in CLASSIC[1:]:
         assert heading not in text
-    assert ("Procedure eol-ramp does not include: stop method, rate table, Allan deviation, "
+    assert ("Procedure eol-ramp does not include: rate table, Allan deviation, "
             "thermal stabilisation") in text
+
+
+@pytest.mark.slow
+def test_a_ramp_with_stop_moves_draws_them_as_the_articles_figure_4(
+        ramp_run: tuple[Path, RunRecord], ramp_text: str) -> None:
+    """eol-ramp carries the stop method at both ends of its span: the stop-method section
+    shows (though its plan holds no stop_method step), a chart per end, each end's stop
+    scale against the ramp fit's law there."""
+    rec = ramp_run[1]
+    assert rec.analysis.ramp_stop is not None
+    text = _spaced(ramp_text)
+    assert "Stop method: rate record (as the article's Figure 4)" in text
+    for end in rec.analysis.ramp_stop.ends:
+        assert f"Stop method, condition {end.label}" in text
+        assert f"{end.label}: die {fmt(end.die_temp_c, 4)} C" in text
+        assert f"E_n {fmt(end.normalised_difference, 3)}" in text
+    assert [e.label for e in rec.analysis.ramp_stop.ends] == ["ramp_top", "ramp_bottom"]
+
+
+def test_a_ramp_without_stop_moves_leaves_the_stop_plot_out(tmp_path: Path) -> None:
+    folder, rec = make_run(tmp_path, Part(serial="SIM-PLAN-3"))
+    rec.analysis.plan = PlanResults(steps=["power_identify", "ramp_calibration", "verify"])
+    rec.analysis.stop_method = {}
+    write_record(folder, rec)
+    render_certificate(folder)
+    text = _spaced(pdf_text(folder / "certificate.pdf"))
+    assert "Stop method: rate record" not in text
+    assert "does not include: stop method, rate table" in text
 
 
 @pytest.mark.slow
