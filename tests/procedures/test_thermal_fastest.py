@@ -108,12 +108,26 @@ class Stream:
         return {"time_s": arr[:, 0], "temp_c": arr[:, 1]}
 
 
+class _Parts(list[Any]):
+    """The run's parts as the thermal step reads them: every one (the supply's load) and
+    those still running."""
+
+    def alive(self) -> list[Any]:
+        return list(self)
+
+    def require(self) -> None:
+        return None
+
+    drop = None
+
+
 def context(world: World, strategy: str, max_part_c: float | None = 85.0,
             max_overshoot_c: float = 15.0, ramp_c_per_min: float = 5.0) -> Any:
     clock = SimpleNamespace(now_s=lambda: world.now_s)
     parts = [
-        SimpleNamespace(socket=i + 1, stream=Stream(world, i), conditions={},
-                        record=SimpleNamespace(analysis=Analysis()), thermal=PartThermal())
+        SimpleNamespace(socket=i + 1, alive=True, stream=Stream(world, i), conditions={},
+                        record=SimpleNamespace(analysis=Analysis(), measurements=[]),
+                        thermal=PartThermal())
         for i in range(len(world.taus))
     ]
 
@@ -133,7 +147,7 @@ def context(world: World, strategy: str, max_part_c: float | None = 85.0,
             log_environment=environment,
             set_supply_voltage=set_supply,
         ),
-        parts=SimpleNamespace(alive=lambda: parts, drop=None, require=lambda: None),
+        parts=_Parts(parts),
         records=SimpleNamespace(segment=lambda *a, **k: None, event=lambda *a, **k: None),
         procedure=SimpleNamespace(
             chamber=ChamberConfig(strategy=strategy, max_overshoot_c=max_overshoot_c,
