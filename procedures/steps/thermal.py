@@ -87,7 +87,8 @@ class ThermalSettings(StepSettings):
 
     @model_validator(mode="after")
     def _entry_within_window(self) -> ThermalSettings:
-        if self.overlap_entry_s > self.window_s:
+        # only a setting in use is checked: a short window without the option stays valid
+        if self.overlap_measurement and self.overlap_entry_s > self.window_s:
             raise ValueError(f"overlap_entry_s ({self.overlap_entry_s:g} s) is longer than "
                              f"window_s ({self.window_s:g} s): give at most the window")
         return self

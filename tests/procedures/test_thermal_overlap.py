@@ -86,7 +86,9 @@ def test_the_entry_span_is_at_most_the_window() -> None:
     assert not ThermalSettings().overlap_measurement
     assert not ThermalSettings().supply_change_no_wait
     with pytest.raises(ValidationError, match="overlap_entry_s"):
-        ThermalSettings(window_s=30, overlap_entry_s=40)
+        ThermalSettings(window_s=30, overlap_entry_s=40, overlap_measurement=True)
+    # without the option a window shorter than the entry span's default stays valid
+    assert ThermalSettings(window_s=10).window_s == 10
 
 
 def test_the_plan_judges_each_condition_after_its_measurement_steps(tmp_path: Path) -> None:
