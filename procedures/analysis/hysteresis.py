@@ -125,6 +125,12 @@ class OwnHysteresis:
     def beyond_typical(self) -> bool:
         return abs(self.normalised) > self.limit
 
+    @classmethod
+    def against(cls, h: float, u_h: float, typical: tuple[float, float]) -> OwnHysteresis:
+        """A part's own h (u k = 1) against the product's typical (h, sigma)."""
+        spread = math.hypot(u_h, typical[1])
+        return cls(h, u_h, typical[0], (h - typical[0]) / spread if spread > 0 else 0.0)
+
 
 def own_hysteresis(conditions: Sequence[ConditionMeasurement], states: Sequence[float],
                    typical: tuple[float, float], reference: tuple[float, float]
@@ -141,9 +147,7 @@ def own_hysteresis(conditions: Sequence[ConditionMeasurement], states: Sequence[
     p, cov, _ = weighted_lsq(design, arr[:, 2], arr[:, 3], 1e12,
                              "the conditions cannot separate the hysteresis from the "
                              "temperature and supply terms")
-    h, u_h = 2.0 * float(p[3]), 2.0 * math.sqrt(float(cov[3, 3]))
-    spread = math.hypot(u_h, typical[1])
-    return OwnHysteresis(h, u_h, typical[0], (h - typical[0]) / spread)
+    return OwnHysteresis.against(2.0 * float(p[3]), 2.0 * math.sqrt(float(cov[3, 3])), typical)
 
 
 def own_correction(state: float, own: OwnHysteresis) -> HysteresisCorrection:

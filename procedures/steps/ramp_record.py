@@ -139,9 +139,8 @@ def _own_hysteresis(ctx: RunContext, part: PartRun, fit: RampFit) -> None:
     h, u = fit.hysteresis_dps, fit.u_hysteresis_dps
     if typ is None or not (math.isfinite(h) and math.isfinite(u)):
         return
-    spread = math.hypot(u, typ.hysteresis_sigma_dps)
-    normalised = (h - typ.hysteresis_dps) / spread if spread > 0 else 0.0
-    record_own_hysteresis(ctx, part, OwnHysteresis(h, u, typ.hysteresis_dps, normalised))
+    own = OwnHysteresis.against(h, u, (typ.hysteresis_dps, typ.hysteresis_sigma_dps))
+    record_own_hysteresis(ctx, part, own)
 
 
 def _num(x: float) -> float | None:
