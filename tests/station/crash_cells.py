@@ -27,10 +27,12 @@ from procedures.runtime.record import read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ROOT / "tests/procedures/data/short.yaml"
+RAMP_SHORT = ROOT / "tests/procedures/data/ramp_short.yaml"  # its safe_temp_c also 25 C
 HOOK = Path(__file__).with_name("run_hooked.py")
 SERIAL = "SIM-0001"
 SAFE_TEMP_C = 25.0  # short.yaml's chamber.safe_temp_c
 START_SAFE_EVENT = "safe before the first step"
+RAMP_FINISH_S = 420  # wall s for the new run's whole ramp in lockstep
 
 # step[#N: its Nth beginning] -> station s into it when the run is frozen and killed ('' =
 # program: after its first calibration write, the step takes no station time)
@@ -43,6 +45,9 @@ KILL_POINTS = {
     "program": "",
     "verify": "8",  # the table turning again (at -150 deg/s, after the rest window)
 }
+# the same in ramp_short.yaml's ramp: the chamber heading for the product's maximum, the
+# table cycling through the rate set (past skip_s: the record kept for the fit)
+RAMP_KILL_POINTS = {"ramp_calibration": "45"}
 
 
 class CellFailed(RuntimeError):
@@ -92,12 +97,12 @@ def truth(state: Path) -> dict[str, Any]:
 
 
 def station_run(
-    folder: Path, state: Path, out: Path, marks: Path, *hooks: str
+    folder: Path, state: Path, out: Path, marks: Path, *hooks: str, procedure: Path = SHORT
 ) -> subprocess.Popen[str]:
     """`station run --sim-bench STATE` (short.yaml, one part) with run_hooked.py's hooks."""
     return subprocess.Popen(
         [sys.executable, str(HOOK), str(marks), *hooks, "--", "run", "--sim-bench", str(state),
-         "--dut", SERIAL, "--procedure", str(SHORT), "--out", str(out)],
+         "--dut", SERIAL, "--procedure", str(procedure), "--out", str(out)],
         cwd=ROOT, env=env(folder), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
 
@@ -157,14 +162,16 @@ class CrashCell:
     wall_s: float = 0.0
 
 
-def run_crash_cell(step: str, folder: Path) -> CrashCell:
-    """Freeze a run KILL_POINTS[step] into `step`, kill -9 it, read the bench, run again."""
+def run_crash_cell(step: str, folder: Path, procedure: Path = SHORT) -> CrashCell:
+    """Freeze a run KILL_POINTS[step] (RAMP_KILL_POINTS[step] in the ramp procedure) into
+    `step`, kill -9 it, read the bench, run `procedure` again."""
     wall0 = time.monotonic()
     cell = CrashCell(step)
     out = folder / "out"
+    kill_at = {**KILL_POINTS, **RAMP_KILL_POINTS}[step]
     with bench_process(folder) as state:
         crashed = station_run(folder, state, out, folder / "crashed.jsonl",
-                              "--freeze-at", f"{step}:{KILL_POINTS[step]}")
+                              "--freeze-at", f"{step}:{kill_at}", procedure=procedure)
         frozen = wait_mark(folder / "crashed.jsonl", "frozen", crashed)
         if frozen["frozen"] != step.partition("#")[0]:
             raise CellFailed(f"frozen in {frozen['frozen']}, not {step}")
@@ -177,7 +184,8 @@ def run_crash_cell(step: str, folder: Path) -> CrashCell:
         cell.crashed_folder = folders[0] if len(folders) == 1 else None
         marks = folder / "new.jsonl"
         cell.code, cell.stdout, cell.stderr = finish(
-            station_run(folder, state, out, marks, "--truth-at", "power_identify")
+            station_run(folder, state, out, marks, "--truth-at", "power_identify",
+                        procedure=procedure), RAMP_FINISH_S if procedure == RAMP_SHORT else 180
         )
         cell.at_power = (read_mark(marks, "truth") or {}).get("truth", {})
     cell.new_folder = next((f for f in out.glob(f"*_{SERIAL}") if f != cell.crashed_folder), None)

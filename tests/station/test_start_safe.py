@@ -1,8 +1,10 @@
 """A station that dies by kill -9 leaves the bench as it was (table turning, supply on, chamber
 away from its handling temperature, fixtures streaming); the next `station run` on that same
-bench recovers the crashed run and makes the bench safe before its first step, then PASSes.
-Two `station run` processes on one bench: the second is refused in one line and touches no
-instrument; the first PASSes. How the cells run: tests/station/crash_cells.py.
+bench recovers the crashed run and makes the bench safe before its first step, then PASSes;
+the same in the ramp calibration (the chamber heading for the product's maximum, the table
+cycling through the rate set). Two `station run` processes on one bench: the second is
+refused in one line and touches no instrument; the first PASSes. How the cells run:
+tests/station/crash_cells.py.
 """
 
 from __future__ import annotations
@@ -16,8 +18,11 @@ from procedures.runtime.record import Verdict, read_record
 from station.manifest import Status, verify_folder
 from tests.station.crash_cells import (
     KILL_POINTS,
+    RAMP_KILL_POINTS,
+    RAMP_SHORT,
     SAFE_TEMP_C,
     SERIAL,
+    SHORT,
     START_SAFE_EVENT,
     bench_process,
     finish,
@@ -28,30 +33,33 @@ from tests.station.crash_cells import (
 )
 
 pytestmark = pytest.mark.slow
-TABLE_TURNING = ("rate_table", "verify")
+TABLE_TURNING = ("rate_table", "verify", "ramp_calibration")
+CHAMBER_AWAY = ("thermal", "ramp_calibration")  # the setpoint elsewhere than the safe one
 
 
 def _cells() -> list[Any]:
     # one representative cell in the default run (the finding: the table still turning at
     # 200 deg/s and the fixture streaming); the others in the station grid
     return [
-        pytest.param(step, marks=() if step == "rate_table" else pytest.mark.station_grid)
+        pytest.param(step, SHORT, marks=() if step == "rate_table" else pytest.mark.station_grid,
+                     id=step)
         for step in KILL_POINTS
-    ]
+    ] + [pytest.param(step, RAMP_SHORT, marks=pytest.mark.station_grid, id=step)
+         for step in RAMP_KILL_POINTS]
 
 
-@pytest.mark.parametrize("step", _cells())
+@pytest.mark.parametrize(("step", "procedure"), _cells())
 def test_kill9_mid_step_then_the_next_run_starts_safe_and_passes(
-    tmp_path: Path, step: str
+    tmp_path: Path, step: str, procedure: Path
 ) -> None:
-    cell = run_crash_cell(step, tmp_path)
+    cell = run_crash_cell(step, tmp_path, procedure)
     assert cell.killed_code == -9
     found = cell.found
     # the bench as the dead station left it: not safe (else the cell proves nothing)
     assert found["supply"]["output"] is True, found["supply"]
     if step not in ("power_identify", "program"):  # program writes with the stream stopped
         assert found["sockets"]["1"]["stream_enabled"] is True
-    if step.startswith("thermal"):  # on its way to the next condition's temperature
+    if step.startswith(CHAMBER_AWAY):  # on its way to the next temperature (or overshoot)
         assert found["chamber"]["setpoint_c"] != pytest.approx(SAFE_TEMP_C)
     if step in TABLE_TURNING:
         assert found["table"]["enabled"] and abs(found["table"]["rate_dps"]) > 1.0
