@@ -134,7 +134,11 @@ def signal_main(args: argparse.Namespace) -> int:
     wall0 = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp:
         for i, (command, phase, kind) in enumerate(signal_cells(args)):
-            cell = signal_grid.run_cell(command, phase, kind, Path(tmp) / f"s{i}")
+            try:
+                cell = signal_grid.run_cell(command, phase, kind, Path(tmp) / f"s{i}")
+            except signal_grid.DiskUnavailable as exc:  # a full-disk cell needs a tmpfs
+                print(f"{command:3s} {phase:13s} {kind:15s} NOT RUN: {exc}", flush=True)
+                continue
             results.append(cell)
             print(_signal_line(cell), flush=True)
     n = len(results)
@@ -183,7 +187,7 @@ def crash_cells(steps: list[str] | None) -> int:
     from the kill to the new run's read-back safe state (station and wall s, median and max)."""
     from tests.station import crash_cells as cc
 
-    chosen = [s for s in cc.KILL_POINTS if not steps or s in steps]
+    chosen = [s for s in {**cc.KILL_POINTS, **cc.RAMP_KILL_POINTS} if not steps or s in steps]
     results = []
     wall0 = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp:

@@ -162,9 +162,11 @@ class CrashCell:
     wall_s: float = 0.0
 
 
-def run_crash_cell(step: str, folder: Path, procedure: Path = SHORT) -> CrashCell:
-    """Freeze a run KILL_POINTS[step] (RAMP_KILL_POINTS[step] in the ramp procedure) into
-    `step`, kill -9 it, read the bench, run `procedure` again."""
+def run_crash_cell(step: str, folder: Path, procedure: Path | None = None) -> CrashCell:
+    """Freeze a run KILL_POINTS[step] (RAMP_KILL_POINTS[step] in the ramp procedure, the
+    default for those) into `step`, kill -9 it, read the bench, run `procedure` again."""
+    if procedure is None:
+        procedure = RAMP_SHORT if step in RAMP_KILL_POINTS else SHORT
     wall0 = time.monotonic()
     cell = CrashCell(step)
     out = folder / "out"
