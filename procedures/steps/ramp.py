@@ -38,7 +38,7 @@ from procedures.runtime.run_context import RunContext
 from procedures.steps.bias import NOISE
 from procedures.steps.fit import COEFF_UNITS
 from procedures.steps.ramp_record import RAW, PlateauLog, fit_and_record
-from procedures.steps.ramp_static import record_static_noise, static_dwell
+from procedures.steps.ramp_static import record_static_noise, static_dwell, wander_model
 from procedures.steps.ramp_stop import CONSISTENCY, RampStopSettings, StopAtEnd, judge, run_stop
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.steps.sweep import measure_plateau
@@ -185,6 +185,7 @@ class RampCalibration(StepType[RampSettings]):
         self._stops: dict[int, list[StopAtEnd]] = {}
         self._stops_done: set[str] = set()
         self._noise: dict[int, NoiseModel] = {}  # each part's, from the static dwell
+        self._own_bi: dict[int, float] = {}  # the dwell's bias instability (0: unresolved)
         try:
             start = self._start_chamber(ctx)
             self._static_done = self.settings.static_s <= 0
@@ -205,8 +206,8 @@ class RampCalibration(StepType[RampSettings]):
 
     def _record_part(self, ctx: RunContext, part: Any, **kwargs: Any) -> None:
         """One part's fit, then its stop-method records against the fit."""
-        fit = fit_and_record(ctx, part, **kwargs)
-        judge(ctx, part, fit, self._stops.get(part.socket, []))
+        fit = fit_and_record(ctx, part, own_bi_dps=self._own_bi.get(part.socket, 0.0), **kwargs)
+        judge(ctx, part, fit, self._stops.get(part.socket, []), self._noise.get(part.socket))
 
     def _start_chamber(self, ctx: RunContext) -> float:
         """The chamber heading for the overshoot at its ramp rate; when (station s)."""
@@ -229,9 +230,10 @@ class RampCalibration(StepType[RampSettings]):
         label = self._static_condition(ctx)
 
         def noise_of(part: Any) -> None:
-            model = record_static_noise(ctx, part, t0, t1, label)
-            if model is not None:
-                self._noise[part.socket] = model
+            allan = record_static_noise(ctx, part, t0, t1, label)
+            if allan is not None:
+                self._noise[part.socket] = wander_model(allan)
+                self._own_bi[part.socket] = allan.noise.model.bias_instability_dps
 
         ctx.parts.each(noise_of)
 

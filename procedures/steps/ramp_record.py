@@ -95,17 +95,25 @@ class RampProgrammable:
 
 
 def fit_and_record(ctx: RunContext, part: PartRun, *, log: PlateauLog, results: RampResults,
-                   bounds: tuple[float, float, float, float]) -> RampFit | None:
+                   bounds: tuple[float, float, float, float], own_bi_dps: float = 0.0
+                   ) -> RampFit | None:
     """Fit one part's ramp and record it; a part whose lag the ramp cannot correct leaves
-    the run FAIL, one the fit cannot use ERROR, each with the reason (None: no fit)."""
+    the run FAIL, one the fit cannot use ERROR, each with the reason (None: no fit).
+
+    The bias wander the plateaus share is the part's own bias instability where the static
+    dwell resolved it (`own_bi_dps`), the product's typical as a floor, as the bias step's
+    noise model is floored (procedures/steps/stop.py `stop_noise_model`): with the typical
+    alone, the parts that wander most had b0's U short (on the simulated bench three of the
+    four b0 outside U over 48 parts were drawn at 19-24 deg/h, typical 15)."""
     limit, tau_bound, width, tau_prior = bounds
     t0, v0 = ctx.product.reference_temperature_c, ctx.product.reference_supply_v
+    bi_dps = max(ctx.product.bias_instability_deg_per_h / 3600.0, own_bi_dps)
     try:
         plateaus = log.plateaus()
         _plateaus_into(results, plateaus, log)
         fit = fit_ramp(plateaus, FitSettings(
             t0, v0, width, limit, tau_bound,
-            bias_instability_dps=ctx.product.bias_instability_deg_per_h / 3600.0,
+            bias_instability_dps=bi_dps,
             rrw_dps_per_sqrt_s=ctx.product.rate_random_walk_deg_per_h_per_sqrt_h / 3600.0 / 60.0,
             plateau_s=log.dwell_s, tau_prior_s=tau_prior), log.temperature_track())
     except RampLagTooLarge as exc:

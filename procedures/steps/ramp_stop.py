@@ -14,11 +14,17 @@ x the die's rate) and supply: E_n with both k=1 uncertainties
 judged against the same per-condition limit as eol-rate-table's (the judgements counted
 per end), and in `analysis.ramp_stop`. The ramp cannot measure an end again (the dies have
 moved on), so a failed judgement stands.
+
+The stop scale's u rests on the part's bias wander between the leading rest and the moves.
+Both records are judged with the static dwell's noise model (the top's, made before the
+dwell, analysed again), every term the dwell shows kept (`ramp_static.wander_model`) and
+the product's typical as a floor: with the typical alone, a part wandering more than it
+(SIM-0002 at 23.9 deg/h, typical 15) had its u some 20 % short and failed falsely.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -95,6 +101,8 @@ class StopAtEnd:
     die_rate_c_per_s: float
     supply_v: float
     station_s: float
+    data: dict[str, Any]  # the part's samples of the record (analysed again in `judge`)
+    reference: tuple[float, float]  # the encoder's travel and its k=1 uncertainty, deg
 
     @property
     def label(self) -> str:
@@ -122,21 +130,41 @@ def _analyse(ctx: RunContext, part: PartRun, st: RampStopSettings, rec: StopReco
     what = f"stop method at the ramp's {end}"
     if not check_window(ctx, part, data, what, st.static_s * (2 * st.moves_per_direction + 1)):
         return
+    ref = (rec.encoder_angle_deg, rec.u_encoder_angle_deg)
     try:
-        ref = (rec.encoder_angle_deg, rec.u_encoder_angle_deg)
-        result = stop_result(ctx, part, data, *ref, noise=stop_noise_model(ctx, part))
-        if stop_noise_model(ctx, part) is None:  # the ramp sets none: floor the record's own
-            model = noise if noise is not None else result.bias.noise
-            result = stop_result(ctx, part, data, *ref, noise=_floored(ctx, model))
+        result = _stop_scale(ctx, part, data, ref, noise)
     except AnalysisError as exc:
         ctx.parts.drop(part, Verdict.ERROR, f"{what}: {exc}")
         return
     t = np.asarray(data["time_s"], dtype=np.float64)
     temp = np.asarray(data["temp_c"], dtype=np.float64)
     slope = float(np.polyfit(t - t.mean(), temp, 1)[0]) if t.size > 2 else 0.0
-    stop = StopAtEnd(end, result, float(temp.mean()), slope, volts, rec.t_start)
+    stop = StopAtEnd(end, result, float(temp.mean()), slope, volts, rec.t_start, data, ref)
     logs.setdefault(part.socket, []).append(stop)
     _segments(ctx, part, stop)
+
+
+def _stop_scale(ctx: RunContext, part: PartRun, data: dict[str, Any],
+                ref: tuple[float, float], noise: NoiseModel | None) -> StopMethodResult:
+    """The record analysed with the part's noise model where the run set one, else with
+    `noise` (the static dwell's, see `ramp_static.wander_model`) or, before the dwell, the
+    record's own leading rest's, floored (`_floored`)."""
+    result = stop_result(ctx, part, data, *ref, noise=stop_noise_model(ctx, part))
+    if stop_noise_model(ctx, part) is None:  # the ramp sets none: floor the record's own
+        model = noise if noise is not None else result.bias.noise
+        result = stop_result(ctx, part, data, *ref, noise=_floored(ctx, model))
+    return result
+
+
+def with_dwell_noise(ctx: RunContext, part: PartRun, stop: StopAtEnd,
+                     noise: NoiseModel | None) -> StopAtEnd:
+    """The record analysed again with the static dwell's noise model, which a record made
+    before the dwell (the top's) did not have: its u then covers the part's own bias wander
+    as far as the dwell shows it, not only the product's typical (a part wandering more
+    than typical had its top's u short). Unchanged without a dwell."""
+    if noise is None:
+        return stop
+    return replace(stop, result=_stop_scale(ctx, part, stop.data, stop.reference, noise))
 
 
 def _floored(ctx: RunContext, noise: NoiseModel) -> NoiseModel:
@@ -179,11 +207,12 @@ def stop_vs_ramp(stop: StopMethodResult, fit: RampFit, temp_c: float, supply_v: 
 
 
 def judge(ctx: RunContext, part: PartRun, fit: RampFit | None,
-          stops: list[StopAtEnd]) -> None:
+          stops: list[StopAtEnd], noise: NoiseModel | None = None) -> None:
     """Each end's stop scale against the fit (None: the fit failed; the stop records kept
-    without a comparison), into analysis.ramp_stop and stop_table_consistency@ramp_<end>."""
+    without a comparison), into analysis.ramp_stop and stop_table_consistency@ramp_<end>;
+    each record analysed with the static dwell's noise model `noise` where there is one."""
     ends = []
-    for stop in stops:
+    for stop in (with_dwell_noise(ctx, part, s, noise) for s in stops):
         temp = element_temp_c(fit, stop)
         entry = dict(label=stop.label, end=stop.end, station_s=stop.station_s,
                      die_temp_c=stop.die_temp_c, element_temp_c=temp,
