@@ -58,7 +58,8 @@ UNEXPLAINED_GAP_RATIO = 1.5  # gap above this x floor after the loop: structure 
 # library terms of the die's thermal history held in the full model the bias wander is
 # estimated against, like the catalog's effects (issue 29): on one heating-and-cooling ramp
 # a bias with the die's rate of change (gradient, the element's lag) or its direction
-# (hysteresis) is as slow as the wander, and was taken for a random walk 40 x the part's
+# (hysteresis) is as slow as the wander, and was taken for it (a hysteresis of 0.03 deg/s
+# alone: named on 1 of 4 eol-ramp folders without these terms, 3 of 4 with them)
 THERMAL_WANDER_TERMS = ("lib_dTdt", "lib_w_dTdt", "lib_dTdir")
 
 
