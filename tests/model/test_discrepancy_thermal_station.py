@@ -13,11 +13,9 @@ ideal first-order model. The bench's truth is each part's draws (tests/model/the
 - the gap after is within 1.5 x the floor of the same part run with the thermal physics off;
 - on a bench with only the gradient bias (0.01 (deg/s)/(C/min) on every part), or only the
   hysteresis (0.05 deg/s), nothing but that one's variable is named, and it is named on at
-  least MIN_NAMED of the six parts (measured: the hysteresis on 5/6, 4/6 at 0.03 deg/s; the
-  gradient on 2/6 only, and on 0/6 at 0.02: the REML's rate random walk on a ramp record grows
-  with the gradient bias, 1.05e-3 and 1.3e-3 deg/s/sqrt(s) on SIM-2931, against at most
-  0.03e-3 in the bench's truth, so lib_dTdt is tested against a wander that holds it; the
-  xfail below keeps that in view).
+  least MIN_NAMED of the six parts (measured: the hysteresis on 6/6, the gradient on 5/6; the
+  sixth, SIM-2936, has a ramp floor of 0.021 deg/s even without the physics, and the gradient's
+  gap before is 1.15 x it).
 
 Eight station runs of 20 to 120 s each on the 2-core machine, and a few seconds of workflow
 per folder: a long grid (`-m station_grid`).
@@ -34,7 +32,7 @@ from threadpoolctl import threadpool_limits
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 
 SERIALS = [f"SIM-{2931 + i}" for i in range(6)]
-MIN_NAMED = {"gradient-only": 2, "hysteresis-only": 5}
+MIN_NAMED = {"gradient-only": 5, "hysteresis-only": 6}
 _folders: dict[tuple[str, str], dict[str, Path]] = {}
 _results: dict[tuple[str, str, str], tuple[tuple[tuple[str, tuple[str, ...]], ...],
                                            float, float, float]] = {}
@@ -99,11 +97,3 @@ def test_one_effect_alone_is_named_by_its_variable(work: Path, bench: str, word:
     assert all(r.ratio <= ts.UNEXPLAINED_GAP_RATIO for r in named), [
         (r.serial, r.ratio) for r in named]
 
-
-@pytest.mark.xfail(strict=False, reason=(
-    "a gradient bias alone is named on 2 of 6 parts at 0.01 (deg/s)/(C/min) and on none at "
-    "0.02: the wander estimated on the ramp record takes it in (see the module's docstring)"))
-@pytest.mark.parametrize("serial", SERIALS)
-def test_a_gradient_bias_alone_is_named_on_every_part(work: Path, serial: str) -> None:
-    row = _result(work, "ramp", "gradient-only", serial)
-    assert ts.verdict(row, ts.truth(serial, "gradient-only"), ("temperature_rate",)) == []
