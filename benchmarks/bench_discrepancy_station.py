@@ -15,6 +15,17 @@ smallest scanned tau named first in at least 95 % of parts.
     python3 benchmarks/bench_discrepancy_station.py [--parts-per-value 8]
                                                     [--taus 0.0001,0.00015,0.0002,0.0003]
                                                     [--speed 100] [--out DIR]
+
+With --thermal (issue 29): the honest thermal bench instead. Parts on the default honest
+bench through both shipped procedures (config/procedures/eol-ramp.yaml and
+eol-rate-table.yaml), the same parts with the thermal physics off (the floor to reach), and
+on the ramp a bench with only the gradient bias and one with only the hysteresis
+(tests/model/thermal_station.py BENCHES). The workflow runs from `first_order` on each run
+folder; one row per folder: the part's drawn thermal effects (the truth), the effects named
+with their regressors, the gap before and after, the record's floor and the floor of the same
+part without the effects, and what does not match the truth.
+
+    python3 benchmarks/bench_discrepancy_station.py --thermal [--parts 6] [--out DIR]
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(ROOT / "tests" / "model"))
 
 from bench_discrepancy import five_sigma_on  # noqa: E402
 
@@ -123,8 +135,45 @@ def _ms(v: float) -> str:
     return f"{v * 1e3:.3g}" if math.isfinite(v) else "-"
 
 
+def thermal_grid(base: Path, parts: int) -> None:
+    """The per-folder table of the honest thermal bench (see the module's docstring)."""
+    import thermal_station as ts
+
+    serials = [f"SIM-{2931 + i}" for i in range(parts)]
+    must = {"honest": (), "gradient-only": ("temperature_rate",),
+            "hysteresis-only": ("temperature_direction",)}
+    runs = [(proc, bench) for proc in ts.PROCEDURES for bench in ("ideal", "honest")]
+    runs += [("ramp", "gradient-only"), ("ramp", "hysteresis-only")]
+    floors: dict[tuple[str, str], float] = {}
+    rows, truths, wrong = [], {}, 0
+    for proc, bench in runs:
+        t0 = time.perf_counter()
+        folders = ts.station_run(base / f"{proc}-{bench}", bench, proc, serials)
+        print(f"{proc} on the {bench} bench: {len(folders)}/{parts} run folders "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        for s, folder in folders.items():
+            named, before, after, floor = ts.analyse(folder, s)
+            if bench == "ideal":
+                floors[(proc, s)] = floor
+                continue
+            truths[s + bench] = ts.truth(s, bench)
+            row = ts.FolderResult(s, proc, bench, named, before, after, floor,
+                                  floors.get((proc, s), float("nan")))
+            problems = ts.verdict(row, truths[s + bench], must[bench])
+            wrong += bool(problems)
+            rows.append(row)
+            print(f"  {s}: {'; '.join(problems) or 'matches the truth'}", flush=True)
+    print("\n" + ts.table(rows, truths))
+    print(f"\n{len(rows) - wrong}/{len(rows)} folders match the truth (named effects' "
+          "regressors within the part's thermal variables, each single effect named, gap after "
+          "<= 1.5 x the floor of the same part without the thermal physics)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--thermal", action="store_true",
+                    help="the honest thermal bench's per-folder table instead (issue 29)")
+    ap.add_argument("--parts", type=int, default=6, help="parts per run with --thermal")
     ap.add_argument("--parts-per-value", type=int, default=8,
                     help="parts per tau (eight per station run)")
     ap.add_argument("--taus", default="0.0001,0.00015,0.0002,0.0003",
@@ -132,6 +181,10 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=100.0, help="simulated bench speed factor")
     ap.add_argument("--out", type=Path, help="keep the run folders here (default: a temp dir)")
     args = ap.parse_args()
+    if args.thermal:
+        with tempfile.TemporaryDirectory() as tmp:
+            thermal_grid(args.out or Path(tmp), args.parts)
+        return
     taus = [float(t) for t in args.taus.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         base = args.out or Path(tmp)

@@ -258,7 +258,8 @@ class ThermalPhysicsConfig(_Model):
     """The honest thermal physics of the parts (issue 28, drivers/sim/thermal_physics.py):
     the typical values and spreads (1 sigma) each part's draws come from. `mode: ideal` turns
     all four effects off (the part's bias and scale follow its own sensor's temperature);
-    a spread of 0 gives every part the typical value, a typical value of 0 turns one off.
+    a spread of 0 gives every part the typical value, a typical value of 0 (with its spread 0)
+    turns one off, so each effect can be on alone.
     The defaults are the GYR-130 product's `thermal_typical` (config/products/gyr130.yaml)."""
 
     mode: Literal["honest", "ideal"] = Field(
@@ -269,9 +270,15 @@ class ThermalPhysicsConfig(_Model):
         description="the sensing element's lag behind the on-chip temperature sensor, s",
     )
     element_tau_sigma_s: float = Field(default=5.0, ge=0.0, le=3600.0)
+    gradient_dps_per_c_per_min: float = Field(
+        default=0.0, ge=-10.0, le=10.0,
+        description="typical bias per rate of die temperature change, (deg/s)/(C/min): the "
+        "mean of the draws (0: the product's, which declares only the spread)",
+    )
     gradient_sigma_dps_per_c_per_min: float = Field(
         default=0.004, ge=0.0, le=10.0,
-        description="bias per rate of die temperature change, (deg/s)/(C/min), drawn N(0, sigma)",
+        description="bias per rate of die temperature change, (deg/s)/(C/min), drawn "
+        "N(typical, sigma)",
     )
     hysteresis_dps: float = Field(
         default=0.01, ge=0.0, le=10.0,

@@ -58,7 +58,8 @@ def draw_thermal(serial: str, cfg: ThermalPhysicsConfig) -> ThermalDraws:
     e = rng.standard_normal(3)
     return ThermalDraws(
         element_tau_s=max(0.0, cfg.element_tau_s + cfg.element_tau_sigma_s * float(e[0])),
-        gradient_dps_per_c_per_min=cfg.gradient_sigma_dps_per_c_per_min * float(e[1]),
+        gradient_dps_per_c_per_min=cfg.gradient_dps_per_c_per_min
+        + cfg.gradient_sigma_dps_per_c_per_min * float(e[1]),
         hysteresis_dps=max(0.0, cfg.hysteresis_dps + cfg.hysteresis_sigma_dps * float(e[2])),
         hysteresis_width_c=cfg.hysteresis_width_c,
     )

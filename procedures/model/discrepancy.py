@@ -55,6 +55,12 @@ MIN_INDEPENDENT_FRACTION = 1e-3  # below this an effect's regressor is already i
 MAX_ITERATIONS = 20  # the catalog's ten and the library's terms, each named in turn
 CATALOG_ALPHA_SHARE = 0.9  # of the family-wise alpha, spent on the catalog's candidates
 UNEXPLAINED_GAP_RATIO = 1.5  # gap above this x floor after the loop: structure remains
+# library terms of the die's thermal history held in the full model the bias wander is
+# estimated against, like the catalog's effects (issue 29): on one heating-and-cooling ramp
+# a bias with the die's rate of change (gradient, the element's lag) or its direction
+# (hysteresis) is as slow as the wander, and was taken for it (a hysteresis of 0.03 deg/s
+# alone: named on 1 of 4 eol-ramp folders without these terms, 3 of 4 with them)
+THERMAL_WANDER_TERMS = ("lib_dTdt", "lib_w_dTdt", "lib_dTdir")
 
 
 @dataclass(frozen=True)
@@ -596,6 +602,9 @@ def measure_record_noise(
     for e in fx.CATALOG:
         if e not in full.effects and e != "sensor_lag":
             full = full.with_effect(e, zero_params(e))
+    if use_library:  # the thermal terms too, so a heat-and-cool cycle's is not wander
+        thermal = library.spanned_ids(traj, THERMAL_WANDER_TERMS)
+        full = structure.with_terms(full, [e for e in thermal if e not in full.effects])
     accel = blocks.mean(_rate_change_dps2(traj))
     noise = _reml(traj, blocks, allan, full, accel)
     nuisance: list[str] = []

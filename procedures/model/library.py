@@ -252,11 +252,39 @@ def temperature_rate_c_per_s(traj: Trajectory) -> FloatArray:
 
 
 def _temperature_rate(traj: Trajectory) -> FloatArray:
+    """Over stretches joined across gaps shorter than BRIDGE_GAP_S (the die's temperature
+    goes on through a gap of left-out samples): the temperature on a regular grid, smoothed,
+    differenced, read back at the samples. Smoothed within each contiguous stretch instead,
+    the rate sagged towards the stretch's ends (the average held at the edge): on a ramp whose
+    supply alternates every sweep (eol-ramp) a stretch is a minute long, so a sixth of the
+    record carried a wrong rate, a bias with the rate was taken for wander and not named."""
+    from scipy.ndimage import uniform_filter1d  # slow to import: on first use
+
     out = np.zeros(traj.n)
-    smooth = _smoothed_temperature(traj)
-    for a, b in contiguous_runs(traj.time_s):
-        if b - a >= 3:
-            out[a:b] = np.gradient(smooth[a:b], traj.time_s[a:b])
+    t = traj.time_s
+    for a, b in _bridged_runs(t):
+        if b - a < 3:
+            continue
+        dt = float(np.median(np.diff(t[a:b])))
+        grid = np.arange(t[a], t[b - 1] + 0.5 * dt, dt)
+        width = min(max(int(round(DTDT_SMOOTH_S / dt)), 1), grid.size)
+        smooth = uniform_filter1d(np.interp(grid, t[a:b], traj.temp_c[a:b]), size=width,
+                                  mode="nearest")
+        out[a:b] = np.interp(t[a:b], grid, np.gradient(smooth, grid))
+    return out
+
+
+BRIDGE_GAP_S = 30.0  # gaps in the sampling up to this long are bridged for the rate
+
+
+def _bridged_runs(time_s: FloatArray) -> list[tuple[int, int]]:
+    runs = contiguous_runs(time_s)
+    out = [runs[0]] if runs else []
+    for a, b in runs[1:]:
+        if time_s[a] - time_s[out[-1][1] - 1] <= BRIDGE_GAP_S:
+            out[-1] = (out[-1][0], b)
+        else:
+            out.append((a, b))
     return out
 
 

@@ -38,6 +38,9 @@ from procedures.runtime.record import RAW_DATA_FILE, RECORD_FILE, read_record, t
 log = logging.getLogger(__name__)
 
 STATIC_KINDS = ("static", "stabilise", "stop_static", "position_static")
+# a rate plateau as the rate table writes it, or as the ramp does (eol-ramp: the table at a
+# constant rate while the die heats or cools; the model's temperature follows each sample)
+PLATEAU_KINDS = ("plateau", "ramp_plateau")
 DENSE_TABLE_S = 0.1
 MIN_LATCHED_FRACTION = 0.9  # below this, the record is read as having no hardware sync
 SUPPLY_STEADY_V = 0.01  # neighbouring supply readings closer than this: supply unchanged
@@ -304,6 +307,15 @@ def _segment_list(rec: _Record) -> list[tuple[str, int, int, int]]:
     return out
 
 
+def _model_kind(kind: str) -> str:
+    """The window's kind to the model without hardware sync: a multi-position window is
+    static, a ramp's plateau a plateau (its reference the window's rate, as the rate
+    table's)."""
+    if kind == "position_static":
+        return "static"
+    return "plateau" if kind in PLATEAU_KINDS else kind
+
+
 def _latched_angle(rec: _Record, cpr: float) -> FloatArray:
     """Table angle at each sample from the latched counts (u32 wraps undone), relative to
     the first sample."""
@@ -361,8 +373,12 @@ def _latched_trajectory(rec: _Record, latched: NDArray[np.bool_], angle: FloatAr
         seg_v = float(rec.segs["supply_v"][k])
         if np.isfinite(seg_v):
             supply[a:b] = seg_v
+        # (a ramp's plateau keeps its kind here: its latched reference carries the encoder's
+        # quantisation, which the noise's Allan deviation over constant inputs would take
+        # for white noise of the block means)
         seg_kind = "static" if kind in STATIC_KINDS else kind
-        segments.append(Segment(seg_kind, float(rec.t_fix[a]), float(rec.t_fix[b - 1]) + 1e-9,
+        segments.append(Segment(seg_kind, float(rec.t_fix[a]),
+                                float(rec.t_fix[b - 1]) + 1e-9,
                                 str(rec.segs["condition"][k])))
     notes = []
     missing = ~np.isfinite(supply)
@@ -447,7 +463,7 @@ def _windowed_trajectory(rec: _Record, why: tuple[str, ...] = ()) -> Trajectory:
         if kind in STATIC_KINDS:
             ref_rate[a:b] = 0.0
             ref_angle[a:b] = _static_angle(tab_t, tab_pos, tab_rate, float(ts[0]), float(ts[-1]))
-        elif kind == "plateau":
+        elif kind in PLATEAU_KINDS:
             rate = float(rec.segs["ref_rate_dps"][k])
             if not np.isfinite(rate):
                 continue
@@ -465,9 +481,7 @@ def _windowed_trajectory(rec: _Record, why: tuple[str, ...] = ()) -> Trajectory:
         use[a:b] = (rec.status[a:b] & UNUSABLE) == 0  # clipped, compensated, ...
         if np.isfinite(seg_v):
             supply[a:b] = seg_v
-        # a multi-position window is a static window to the model (and the noise estimate)
-        seg_kind = "static" if kind == "position_static" else kind
-        segments.append(Segment(seg_kind, float(t_fix[a]), float(t_fix[b - 1]) + 1e-9,
+        segments.append(Segment(_model_kind(kind), float(t_fix[a]), float(t_fix[b - 1]) + 1e-9,
                                 str(rec.segs["condition"][k])))
     if skipped_moves:
         notes.append(

@@ -27,6 +27,7 @@ SEGMENT_KINDS = (
     "stop_static",
     "verify",
     "stabilise",
+    "ramp_plateau",  # the ramp's (eol-ramp): a rate plateau while the die heats or cools
 )
 
 

@@ -74,3 +74,25 @@ def test_a_record_only_ever_heated_does_not_span_the_temperature_direction(profi
     assert "lib_dTdir" not in spanned and "lib_w_dTdir" not in spanned
     both_ways = as_trajectory(generate(realistic_part(), 13, RAMPED_UPDOWN))
     assert {"lib_dTdir", "lib_w_dTdir"} <= set(library.spanned_ids(both_ways))
+
+
+def test_the_temperature_rate_goes_on_through_short_gaps() -> None:
+    """dT/dt over a record cut every minute by 4 s gaps (eol-ramp's supply changes): the
+    rate of a steady ramp everywhere but the record's own ends (smoothed per stretch, it sank
+    to half at every stretch's ends); a gap longer than BRIDGE_GAP_S is not bridged."""
+    from procedures.model.trajectory import Segment, Trajectory
+
+    t = np.arange(0.0, 600.0, 0.01)
+    keep = (t % 60.0) < 56.0  # a 4 s gap every minute
+    keep &= ~((t > 400.0) & (t < 400.0 + library.BRIDGE_GAP_S + 5.0))  # and one long gap
+    t = t[keep]
+    n = t.size
+    temp = 25.0 + 0.05 * t  # 3 C/min
+    traj = Trajectory(time_s=t, gyro_dps=np.zeros(n), ref_rate_dps=np.where(t % 20 < 10, 10.0,
+                      -10.0), ref_angle_deg=np.zeros(n), temp_c=temp, supply_v=np.full(n, 5.0),
+                      time_since_power_on_s=t, segments=(Segment("transition", 0.0, 600.0),))
+    rate = library.temperature_rate_c_per_s(traj)
+    inner = (t > 10.0) & (t < 390.0)
+    assert np.allclose(rate[inner], 0.05, rtol=1e-6)
+    before_long_gap = (t > 380.0) & (t < 400.0)
+    assert rate[before_long_gap].min() < 0.04  # a stretch's end again: the long gap cuts

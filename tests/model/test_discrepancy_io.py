@@ -172,3 +172,27 @@ def test_run_folder_input_names_the_hidden_effect(tmp_path: Path) -> None:
     assert res.gap_final_dps <= 1.5 * res.noise_floor_dps
     with pytest.raises(ValueError, match="not SYN-0002"):
         load_data(folder, dut="SYN-0002")
+
+
+def test_a_ramps_plateaus_are_read_with_or_without_hardware_sync(tmp_path: Path) -> None:
+    """eol-ramp writes its plateaus as `ramp_plateau` (issue 29). Without latched counts they
+    are read as the rate table's plateaus (before, they were left out: the record then held
+    only the static and stop windows); with them they keep their kind, which a CSV export
+    writes and reads back."""
+    run = generate(Part(), 5, TINY)
+    as_ramp = {**run, "segments": [("ramp_plateau" if k == "plateau" else k, a, b)
+                                   for k, a, b in run["segments"]]}  # type: ignore[union-attr]
+    plain = load_data(write_run_folder(tmp_path / "rate-table", run))
+    ramp = load_data(write_run_folder(tmp_path / "ramp", as_ramp))
+    assert ramp.n == plain.n
+    assert [s.kind for s in ramp.segments] == [s.kind for s in plain.segments]
+    assert "plateau" in {s.kind for s in ramp.segments}
+    latched = load_data(write_run_folder(tmp_path / "ramp-sync", as_ramp,
+                                         latched_counts_per_rev=1 << 20))
+    assert "ramp_plateau" in {s.kind for s in latched.segments}
+    csv = tmp_path / "ramp.csv"
+    write_csv(csv, latched)
+    back = load_data(csv)  # (neighbouring windows of one kind read back as one)
+    assert {s.kind for s in back.segments} - {"transition"} == {
+        s.kind for s in latched.segments}
+    assert back.n == latched.n

@@ -1,0 +1,176 @@
+"""Station-run folders of the honest thermal bench and the workflow's answer on each (issue 29).
+
+`station run --sim` runs a shipped procedure on several parts at once with the parts' thermal
+physics as a sim config sets them (drivers/sim/config.py ThermalPhysicsConfig: the honest
+default, `mode: ideal`, or one effect alone by zeroing the others); the workflow analyses each
+part's run folder from the ideal first-order model. The bench's truth is each part's draws
+(drivers/sim/thermal_physics.draw_thermal, deterministic per serial) and its first-order
+coefficients (drivers/sim/population.draw_population), from which the base variables the
+part's hidden effects depend on follow:
+
+- the element's lag: the part's bias and scale follow the element's temperature, which trails
+  the sensor's by about tau x its rate: bias_temp_coeff x tau x dT/dt (`temperature_rate`) and
+  scale_temp_coeff x tau x w dT/dt (`rate`, `temperature_rate`);
+- the gradient bias: `temperature_rate`;
+- the hysteresis: `temperature_direction`.
+
+Used by tests/model/test_discrepancy_thermal_station.py and
+benchmarks/bench_discrepancy_station.py --thermal.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from drivers.sim.config import ThermalPhysicsConfig
+from drivers.sim.population import draw_population
+from drivers.sim.thermal_physics import ThermalDraws, draw_thermal
+from procedures.model.discrepancy import UNEXPLAINED_GAP_RATIO, run_discrepancy
+from procedures.model.gyro_model import first_order_model
+from procedures.model.run_folder import load_data
+from procedures.runtime.record import read_record
+
+ROOT = Path(__file__).resolve().parents[2]
+PROCEDURES = {
+    "ramp": ROOT / "config" / "procedures" / "eol-ramp.yaml",
+    "rate-table": ROOT / "config" / "procedures" / "eol-rate-table.yaml",
+}
+_OFF = {
+    "element_tau_s": 0.0, "element_tau_sigma_s": 0.0,
+    "gradient_dps_per_c_per_min": 0.0, "gradient_sigma_dps_per_c_per_min": 0.0,
+    "hysteresis_dps": 0.0, "hysteresis_sigma_dps": 0.0, "socket_air_sigma_c": 0.0,
+}
+# the sim's `part_physics.thermal` per bench: the honest default (the product's typical
+# spreads), none of it, and each bias effect alone at a magnitude the ramp shows
+BENCHES: dict[str, dict[str, Any]] = {
+    "honest": {},
+    "ideal": {"mode": "ideal"},
+    "gradient-only": {**_OFF, "gradient_dps_per_c_per_min": 0.01},
+    "hysteresis-only": {**_OFF, "hysteresis_dps": 0.05},
+}
+THERMAL_WORDS = ("temperature_rate", "temperature_direction")
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A part's hidden thermal effects as the bench drew them, and their base variables."""
+
+    draws: ThermalDraws
+    bias_temp_coeff_dps_per_c: float
+    scale_temp_coeff_per_c: float
+
+    @property
+    def words(self) -> frozenset[str]:
+        """The thermal base variables the part's hidden effects depend on."""
+        d, out = self.draws, set()
+        if d.element_tau_s > 0 or d.gradient_dps_per_c_per_min != 0:
+            out.add("temperature_rate")
+        if d.hysteresis_dps > 0:
+            out.add("temperature_direction")
+        return frozenset(out)
+
+    def allows(self, regressors: tuple[str, ...]) -> bool:
+        """A named effect matches the truth: it depends on a thermal variable the part's
+        effects depend on, and otherwise only on what the first-order model already uses
+        (the rate: a lag of the scale's temperature law is w x dT/dt)."""
+        thermal = set(regressors) & set(THERMAL_WORDS)
+        rest = set(regressors) - set(THERMAL_WORDS)
+        return bool(thermal) and thermal <= self.words and rest <= {"rate", "temperature"}
+
+    def label(self) -> str:
+        d = self.draws
+        return (f"tau {d.element_tau_s:.0f} s, grad {d.gradient_dps_per_c_per_min:+.4f}, "
+                f"h {d.hysteresis_dps:.3f}")
+
+
+def truth(serial: str, bench: str) -> Truth:
+    pop = draw_population(serial)
+    return Truth(draws=draw_thermal(serial, ThermalPhysicsConfig(**BENCHES[bench])),
+                 bias_temp_coeff_dps_per_c=pop["bias_temp_coeff_dps_per_c"],
+                 scale_temp_coeff_per_c=pop["scale_temp_coeff_per_c"])
+
+
+def station_run(work: Path, bench: str, procedure: str, serials: list[str]) -> dict[str, Path]:
+    """One `station run --sim` of `procedure` on these parts (one socket each) on `bench`:
+    each part's run folder (PASS or FAIL; a part that ended otherwise is left out)."""
+    out = work / "runs"
+    if all(any(out.glob(f"*_{s}")) for s in serials):  # already run there: read again
+        return _finished(out, serials)
+    work.mkdir(parents=True, exist_ok=True)
+    cfg = work / "sim.yaml"
+    cfg.write_text(yaml.safe_dump({
+        "part_physics": {"thermal": BENCHES[bench]},
+        "fixture": {"sockets": len(serials)},
+        "parts": [{"socket": i + 1, "serial": s} for i, s in enumerate(serials)],
+    }))
+    station = Path(sys.executable).parent / "station"
+    args = [str(station), "run", "--sim", "--sim-config", str(cfg),
+            "--procedure", str(PROCEDURES[procedure]), "--out", str(out)]
+    for s in serials:
+        args += ["--dut", s]
+    done = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    if done.returncode not in (0, 1, 2):
+        raise RuntimeError((done.stdout + done.stderr)[-2000:])
+    return _finished(out, serials)
+
+
+def _finished(out: Path, serials: list[str]) -> dict[str, Path]:
+    folders = {}
+    for s in serials:
+        found = sorted(p for p in out.glob(f"*_{s}") if p.is_dir())
+        if found and read_record(found[-1]).verdict in ("PASS", "FAIL"):
+            folders[s] = found[-1]
+    return folders
+
+
+@dataclass(frozen=True)
+class FolderResult:
+    serial: str
+    procedure: str
+    bench: str
+    named: tuple[tuple[str, tuple[str, ...]], ...]  # (effect, its regressors) in order
+    gap_before_dps: float
+    gap_after_dps: float
+    floor_dps: float  # this record's
+    ideal_floor_dps: float  # the same part's, same procedure, thermal physics off
+
+    @property
+    def ratio(self) -> float:
+        return self.gap_after_dps / self.ideal_floor_dps
+
+
+def analyse(folder: Path, serial: str) -> tuple[tuple[tuple[str, tuple[str, ...]], ...],
+                                                float, float, float]:
+    """(named effects with their regressors, gap before, gap after, floor) from first_order."""
+    res = run_discrepancy(load_data(folder, dut=serial), first_order_model())
+    named = tuple((it.effect, tuple(it.regressors)) for it in res.iterations)
+    return named, res.gap_initial_dps, res.gap_final_dps, res.noise_floor_dps
+
+
+def verdict(row: FolderResult, t: Truth, must_name: tuple[str, ...]) -> list[str]:
+    """What is wrong with a folder's answer (empty: right): every named effect matches the
+    truth, each word in `must_name` is named, the gap after within 1.5 x the ideal floor."""
+    wrong = [f"{e} {regs} not in the truth" for e, regs in row.named if not t.allows(regs)]
+    named_words = {w for _, regs in row.named for w in regs}
+    wrong += [f"{w} not named" for w in must_name if w not in named_words]
+    if row.ratio > UNEXPLAINED_GAP_RATIO:
+        wrong.append(f"gap after {row.ratio:.2f} x the ideal floor")
+    return wrong
+
+
+def table(rows: list[FolderResult], truths: dict[str, Truth]) -> str:
+    lines = [f"{'part':9} {'procedure':10} {'bench':15} {'truth':32} {'named (regressors)':52} "
+             f"{'before':>7} {'after':>7} {'floor':>7} {'ideal':>7} {'after/ideal':>11}"]
+    for r in rows:
+        named = "; ".join(f"{e} ({','.join(regs)})" for e, regs in r.named) or "-"
+        lines.append(
+            f"{r.serial:9} {r.procedure:10} {r.bench:15} {truths[r.serial + r.bench].label():32} "
+            f"{named:52} {r.gap_before_dps:7.4f} {r.gap_after_dps:7.4f} {r.floor_dps:7.4f} "
+            f"{r.ideal_floor_dps:7.4f} {r.ratio:11.2f}")
+    return "\n".join(lines)
