@@ -351,7 +351,7 @@ class StationSettings(_Strict):
         "(sqlite:///PATH, postgresql+psycopg://USER@HOST/DB)",
     )
     procedure: PathText = Field(
-        "procedures/eol-rate-table.yaml", description="default procedure (relative to this file)"
+        "procedures/eol-ramp.yaml", description="default procedure (relative to this file)"
     )
     sim_config: PathText | None = Field(
         None, description="simulated bench configuration used by --sim (relative to this file)"

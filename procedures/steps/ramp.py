@@ -32,7 +32,6 @@ from pydantic import Field
 from common.bounded import MAX_ACCEL_DPS2, MAX_LIST, ONE_HOUR_S
 from drivers.errors import ChamberSetpointNotReached, InstrumentError
 from procedures.analysis.allan import NoiseModel
-from procedures.runtime.conditions import Condition
 from procedures.runtime.results import RampResults
 from procedures.runtime.run_context import RunContext
 from procedures.steps.bias import NOISE
@@ -53,6 +52,11 @@ from procedures.units import Rate, Seconds
 
 log = logging.getLogger(__name__)
 
+# the static dwell's condition label: where it is, the span's bottom (as the stop record after
+# it). Not a temperature-and-supply name: the supply applied then depends on how many sweeps
+# the ramp took, which varies from load to load, and a measurement's condition must not (the
+# line's history groups by it).
+STATIC_CONDITION = "ramp_bottom"
 RATE_WINDOW_S = 20.0  # a die's rate for the turn: a line over its last 20 s
 
 
@@ -227,7 +231,7 @@ class RampCalibration(StepType[RampSettings]):
         st = self.settings
         self._static_done = True
         t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
-        label = self._static_condition(ctx)
+        label = STATIC_CONDITION
 
         def noise_of(part: Any) -> None:
             allan = record_static_noise(ctx, part, t0, t1, label)
@@ -236,14 +240,6 @@ class RampCalibration(StepType[RampSettings]):
                 self._own_bi[part.socket] = allan.noise.model.bias_instability_dps
 
         ctx.parts.each(noise_of)
-
-    def _static_condition(self, ctx: RunContext) -> str:
-        """The condition the static dwell is nearest: the span's bottom, at the procedure's
-        supply nearest the one applied."""
-        volts = ctx.instruments.log_supply()[0]
-        supplies = ctx.procedure.conditions.supplies_v
-        nearest = min(supplies, key=lambda v: abs(v - volts))
-        return Condition(self._span(ctx)[0], float(nearest)).name
 
     def _ramp(self, ctx: RunContext, logs: dict[int, PlateauLog], start: float
               ) -> float | None:

@@ -395,7 +395,7 @@ def _run(args: argparse.Namespace) -> int:
 def _demo(args: argparse.Namespace) -> int:
     duts = {1: DEMO_SERIAL}
     args.station = args.station or None
-    args.procedure = args.procedure or str(CONFIG_DIR / "procedures" / "eol-rate-table.yaml")
+    args.procedure = args.procedure or str(CONFIG_DIR / "procedures" / "eol-ramp.yaml")
     code = run_cycle(
         args,
         duts,

@@ -25,7 +25,8 @@ from procedures.runtime.record import RunRecord, read_record  # noqa: E402
 from station.sim_run import run_simulated  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-SHIPPED = [ROOT / "config/procedures/eol-rate-table.yaml",
+SHIPPED = [ROOT / "config/procedures/eol-ramp.yaml",
+           ROOT / "config/procedures/eol-rate-table.yaml",
            ROOT / "config/procedures/eol-stop-method.yaml"]
 SERIAL = "SIM-0001"
 
