@@ -89,6 +89,7 @@ def all_plots(inputs: CertificateInputs) -> list[Flowable]:
     if left_out:
         proc = rec.procedure.name or rec.procedure.path
         story.append(Paragraph(escape(
-            f"Procedure {proc} does not include: {', '.join(left_out)} (no plot for them)."),
+            f"Procedure {proc} has no step of its own for: {', '.join(left_out)} "
+            "(no plot for them)."),
             NOTE))
     return story
