@@ -255,7 +255,8 @@ class RampCalibration(StepType[RampSettings]):
             volts = ctx.instruments.log_supply()[0]
             for rate in st.rates_dps:
                 plateau = measure_plateau(ctx, rate, st.plateau_dwell_s, st.settle_s,
-                                          st.accel_dps2, st.at_rate_timeout_s)
+                                          st.accel_dps2, st.at_rate_timeout_s,
+                                          sleep_through_change=True)
                 if plateau.t0_s - start >= st.skip_s:
                     for part in ctx.parts.alive():
                         ctx.parts.per_part(part, partial(

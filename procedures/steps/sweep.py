@@ -19,6 +19,8 @@ from procedures.steps.base import check_window, sample_rate_hz, samples_between
 from procedures.steps.registry import Declared, Provided, StepSettings, StepType
 from procedures.units import Rate, Seconds
 
+CHANGE_MARGIN_S = 0.1  # polling starts this long before a rate change could be done
+
 
 def plateau_time_s(rate_dps: float, previous_dps: float, accel_dps2: float) -> float:
     return abs(rate_dps - previous_dps) / accel_dps2
@@ -36,13 +38,20 @@ class Plateau:
 
 def measure_plateau(
     ctx: RunContext, rate: float, dwell_s: float, settle_s: float, accel_dps2: float,
-    timeout_s: float,
+    timeout_s: float, *, sleep_through_change: bool = False,
 ) -> Plateau:
     """The table to `rate`, settled, then one plateau: its reference rate from two encoder
-    snapshots around the dwell."""
+    snapshots around the dwell. `sleep_through_change`: wait out the rate change the
+    acceleration allows before polling the table (a ramp changes rate every few seconds;
+    polled at the table's 0.05 s, each change cost some 40 status reads, and in lockstep as
+    many advances of every socket's stream)."""
     table = ctx.instruments.need_table()
     ctx.wait.check()
+    before_dps = table.read_status().rate_dps if sleep_through_change else rate
     table.set_rate(rate, accel_dps2)
+    change_s = abs(rate - before_dps) / accel_dps2 - CHANGE_MARGIN_S
+    if change_s > 0:
+        ctx.wait.sleep(change_s)
     table.wait_at_rate(timeout_s)
     ctx.wait.sleep(settle_s)
     t0, s0 = ctx.instruments.snapshot()
