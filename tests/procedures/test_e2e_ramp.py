@@ -58,7 +58,12 @@ def test_the_ramp_calibrates_every_part_within_u_of_the_truth(tmp_path: Path) ->
         assert abs(ramp.element_tau_s - true_tau) <= 2 * ramp.u_element_tau_s + 1.0
         # both halves: the dies covered the span heating and cooling
         assert ramp.die_min_c is not None and ramp.die_max_c is not None
-        assert ramp.die_min_c <= 26.0 and ramp.die_max_c >= 44.0  # the turns are predicted
+        # the turns are predicted: the top is overshot, and at the bottom the dies come down
+        # towards the chamber's end setpoint (25 C) from above, the ramp ending once they are
+        # slower than end_rate_c_per_min: the lowest plateau lands 0.5 to 1.2 C above it
+        # (SIM-0002 26.15 C; SIM-7001..7003 up to 26.03 C since the plateaus' rate changes
+        # are slept through, which moves each plateau by a poll's few hundredths of a second)
+        assert ramp.die_min_c <= 26.5 and ramp.die_max_c >= 44.0
         assert any(ramp.heating) and not all(ramp.heating)
         assert rec.verification is not None
         assert abs(rec.verification.residual_bias_dps) < 0.03
