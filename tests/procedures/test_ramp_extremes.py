@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from scipy.stats import binom
 
 from procedures.runtime.record import RunRecord, Verdict, read_record
 from procedures.steps import ramp as ramp_step
@@ -23,6 +24,7 @@ from .test_e2e_ramp import RAMP, z_scores
 HYSTERESIS_4X = {"part_physics": {"thermal": {"hysteresis_dps": 0.04,
                                               "hysteresis_sigma_dps": 0.0}}}
 IDEAL = {"part_physics": {"thermal": {"mode": "ideal"}}}
+BEYOND_U_BY_CHANCE = 0.0455  # P(|z| > 2 sigma): a fair U at k = 2
 
 
 def _lag(tau_s: float) -> dict[str, Any]:
@@ -49,10 +51,14 @@ def _within_u(runs: list[tuple[RunRecord, dict[str, Any]]]) -> list[float]:
 
 
 def _judge(zs: list[float]) -> None:
-    """U at k = 2: none beyond 1.5 U (a systematic error shows far beyond), about one in
-    twenty beyond U by chance."""
+    """U at k = 2: none beyond 1.5 U (a systematic error shows far beyond), and beyond U no
+    more than chance gives (4.55 % each) in 99 of 100 runs: 3 of 18, 4 of 24. (The count
+    allowed was n // 12, 1 of 18: a fair U fails that one run in four; the lockstep runs
+    passed it until the plateaus' rate changes were slept through, which draws other noise.)
+    A U half the true one puts about 8 of 24 beyond."""
     assert max(zs) <= 1.5, zs
-    assert sum(z > 1.0 for z in zs) <= max(1, len(zs) // 12), zs
+    allowed = int(binom.ppf(0.99, len(zs), BEYOND_U_BY_CHANCE))
+    assert sum(z > 1.0 for z in zs) <= allowed, (allowed, zs)
 
 
 @pytest.mark.slow
