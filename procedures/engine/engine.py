@@ -427,15 +427,15 @@ class Engine:
         part.record.failed_measurements = failed
         if marginal:
             part.record.analysis.marginal_measurements = marginal
+        not_measured = self._note_not_measured(part)
         if ok:
             part.verdict = Verdict.PASS
             part.reason = "all measurements within limits" + (
                 f" ({len(marginal)} marginal: {', '.join(marginal)})" if marginal else ""
-            )
+            ) + (f"; not measured: {', '.join(not_measured)}" if not_measured else "")
         else:
             part.verdict = Verdict.FAIL
             part.reason = f"out of limits: {', '.join(failed)}"
-        self._note_not_measured(part)
 
     def _judge_failed(self, part: PartRun) -> None:
         """A part taken out FAIL (a stop_part limit, or not programmed): the record lists
@@ -447,9 +447,10 @@ class Engine:
         self._note_not_measured(part)
 
     @staticmethod
-    def _note_not_measured(part: PartRun) -> None:
-        not_measured = [
-            m.name for m in part.record.measurements if m.outcome is Outcome.NOT_MEASURED
-        ]
-        if not_measured:
-            part.record.analysis.not_measured = not_measured
+    def _note_not_measured(part: PartRun) -> list[str]:
+        """Record the names of the declared measurements no step set; return them with their
+        conditions (name@condition), as the verdict's reason names them."""
+        missing = [m for m in part.record.measurements if m.outcome is Outcome.NOT_MEASURED]
+        if missing:
+            part.record.analysis.not_measured = [m.name for m in missing]
+        return [f"{m.name}@{m.condition}" if m.condition else m.name for m in missing]

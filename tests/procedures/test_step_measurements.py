@@ -60,6 +60,9 @@ def test_a_declared_measurement_never_set_is_not_measured(tmp_path: Path) -> Non
     assert m.value is None and m.outcome is Outcome.NOT_MEASURED
     assert m.units == "deg/h" and m.high == 60.0 and m.condition == "T25_V5"
     assert rec.analysis.not_measured == ["bias_instability_deg_per_h"]
+    # the PASS says what it does not cover (a new user read "all within limits" as all measured)
+    assert rec.reason == ("all measurements within limits; "
+                          "not measured: bias_instability_deg_per_h@T25_V5")
     set_ = [m for m in rec.measurements if m.name == "raw_bias_dps"]
     assert len(set_) == 1 and set_[0].outcome is Outcome.PASS
 
