@@ -23,6 +23,9 @@ class ProgressEvent:
     kind: str  # "step" | "progress" | "part" | "log" | "finished"
     step: str = ""
     condition: str = ""
+    # what a long step is doing now ("heating", "cooling", ...: the step's own phase names),
+    # "" for a step that names none; a change of phase is published as a "step" event
+    phase: str = ""
     fraction: float = 0.0  # of the whole procedure, 0..1 (planned station time)
     station_time_s: float = 0.0
     remaining_s: float | None = None  # station seconds, estimated

@@ -79,6 +79,7 @@ class Progress:
         self._parts = parts
         self.step = ""  # the running step's type name (ProgressEvent.step)
         self.condition = ""  # the running step's condition name, "" outside a loop
+        self.phase = ""  # the running step's phase (set_phase), "" when it names none
         self.step_started_s = 0.0
         self.step_estimate_s = 0.0
         self.done_estimate_s = 0.0
@@ -89,10 +90,17 @@ class Progress:
         return self.bus.subscribe(fn)
 
     def begin(self, step: str, condition: str, estimate_s: float) -> None:
-        self.step, self.condition = step, condition
+        self.step, self.condition, self.phase = step, condition, ""
         self.step_started_s = self._clock.now_s()
         self.step_estimate_s = estimate_s
         self.publish("step", message=step + (f" at {condition}" if condition else ""))
+
+    def set_phase(self, phase: str) -> None:
+        """The running step's phase (ProgressEvent.phase): a "step" event when it changes,
+        so a line that prints one line per step shows a long step's phases too."""
+        if phase != self.phase:
+            self.phase = phase
+            self.publish("step", message=f"{self.step}: {phase}" if phase else self.step)
 
     def end(self) -> None:
         self.done_estimate_s += self.step_estimate_s
@@ -121,6 +129,7 @@ class Progress:
                 kind=kind,
                 step=self.step,
                 condition=self.condition,
+                phase=self.phase,
                 fraction=fraction,
                 station_time_s=self._clock.now_s(),
                 remaining_s=remaining,

@@ -197,6 +197,7 @@ class RampCalibration(StepType[RampSettings]):
         except BaseException:
             self._leave_at_end(ctx)  # never left heading for an overshoot
             raise
+        ctx.progress.set_phase("fitting")
         low, high = self._span(ctx)
         bounds = _typical_bounds(ctx.product, self.settings.max_element_tau_s)
         for part in ctx.parts.alive():
@@ -230,6 +231,7 @@ class RampCalibration(StepType[RampSettings]):
         that they come to rest no sooner than it ends: each part's noise from it."""
         st = self.settings
         self._static_done = True
+        ctx.progress.set_phase("static")
         t0, t1 = static_dwell(ctx, st.static_s, st.accel_dps2, st.at_rate_timeout_s)
         label = STATIC_CONDITION
 
@@ -254,6 +256,7 @@ class RampCalibration(StepType[RampSettings]):
             ctx.instruments.set_supply_voltage(supplies[sweep % len(supplies)])
             volts = ctx.instruments.log_supply()[0]
             for rate in st.rates_dps:
+                ctx.progress.set_phase(phase)
                 plateau = measure_plateau(ctx, rate, st.plateau_dwell_s, st.settle_s,
                                           st.accel_dps2, st.at_rate_timeout_s,
                                           sleep_through_change=True)
@@ -300,6 +303,7 @@ class RampCalibration(StepType[RampSettings]):
                 else self._static_done and all(abs(r) <= limit for r in rates))
         if slow:
             self._stops_done.add(end)
+            ctx.progress.set_phase(f"stop_{end}")
             run_stop(ctx, sm, end, self._stops, self._noise)
 
     def _next_phase(self, ctx: RunContext, phase: str, low_sp: float) -> str:

@@ -101,7 +101,7 @@ class ProgressDisplay:
         if ev.kind in ("prompt", "prompt_done"):
             self._prompt(ev)
             return
-        step = f"{ev.step} {ev.condition}".strip()
+        step = " ".join(s for s in (ev.step, ev.condition, ev.phase) if s)
         remaining = "" if ev.remaining_s is None else f"~{ev.remaining_s / 60:4.1f} min left"
         head = (
             f"[{100 * ev.fraction:3.0f}%] {step:<26} {remaining:<15} "

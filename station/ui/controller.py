@@ -311,7 +311,8 @@ class Controller:
                 step_type = str(event.get("step_type") or plain_words.step_type_of(
                     str(event.get("step", ""))))
                 progress["words"] = plain_words.step_phrases(
-                    step_type, str(event.get("condition") or ""))
+                    step_type, str(event.get("condition") or ""),
+                    str(event.get("phase") or ""))
                 progress["received_utc"] = _now_utc()
                 self._run["progress"] = progress
                 event = {"type": "progress", **progress}

@@ -52,10 +52,19 @@ def step_type_of(label: str) -> str:
     return label.strip().split(" ")[0] if label.strip() else ""
 
 
-def step_phrases(step: str, condition: str) -> list[Phrase]:
+def step_phrases(step: str, condition: str, phase: str = "") -> list[Phrase]:
     """What the station is doing, as phrases the page joins with commas.
 
-    step_phrases("thermal", "T45_V5.25") -> "Heating to 45 C", "supply 5.25 V"."""
+    step_phrases("thermal", "T45_V5.25") -> "Heating to 45 C", "supply 5.25 V";
+    step_phrases("ramp_calibration", "", "cooling") -> the step's words, then its phase's
+    ("phase.ramp_calibration.cooling"; a phase without words is left out)."""
+    out = _step_and_condition(step, condition)
+    if phase and _has_words(f"phase.{step}.{phase}"):
+        out.append(phrase(f"phase.{step}.{phase}"))
+    return out
+
+
+def _step_and_condition(step: str, condition: str) -> list[Phrase]:
     temp_c, supply_v = parse_condition(condition)
     out: list[Phrase] = []
     if step == "thermal" and temp_c is not None:

@@ -97,7 +97,9 @@ class Runner(Protocol):
           {"type": "steps", "steps": [label, ...],
            "items": [{"step": step type name, "condition": str}, ...] (optional)}
           {"type": "progress", "step": label, "step_type": step type name (optional),
-           "step_index": int, "step_count": int, "condition": str, "fraction": 0..1,
+           "step_index": int, "step_count": int, "condition": str,
+           "phase": the step's phase ("heating", ...; "" or absent when it names none),
+           "fraction": 0..1,
            "remaining_s": wall seconds | None, "sockets": {socket: state} (optional)}
           {"type": "prompt", "message": plain-words instruction, "sockets": [int, ...]}
           {"type": "prompt_done"}  (the prompt is answered: clear it)
@@ -223,6 +225,7 @@ class ProgressRelay:
                 "step_index": self.index,
                 "step_count": len(self.labels),
                 "condition": ev.condition,
+                "phase": ev.phase,
                 "fraction": float(ev.fraction),
                 "remaining_s": self.pace.wall_s(ev.remaining_s, ev.station_time_s),
                 "sockets": {str(k): v for k, v in ev.sockets.items()},

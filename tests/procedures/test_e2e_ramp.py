@@ -6,6 +6,7 @@ far beyond the product's typical spread is refused, never calibrated silently wr
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ import pytest
 from procedures.analysis.temp_supply_fit import COEFFICIENT_NAMES
 from procedures.loading.config import check_procedure_for_product, load_procedure, load_product
 from procedures.runtime.limits import LIMIT_NAMES
+from procedures.runtime.progress import ProgressEvent
 from procedures.runtime.record import RunRecord, Verdict, read_record
 from station.sim_run import run_simulated
 
@@ -22,10 +24,11 @@ RAMP = ROOT / "config" / "procedures" / "eol-ramp.yaml"
 
 
 def run(tmp_path: Path, serials: list[str], sim_config: dict[str, Any] | None = None,
+        on_progress: Callable[[ProgressEvent], None] | None = None,
         ) -> list[tuple[RunRecord, dict[str, Any]]]:
     parts = [{"socket": i + 1, "serial": s} for i, s in enumerate(serials)]
     result, truth = run_simulated(parts, procedure_path=RAMP, out=tmp_path,
-                                  sim_config=sim_config)
+                                  sim_config=sim_config, on_progress=on_progress)
     return [(read_record(result.folders[s]), truth["sockets"][str(s)])
             for s in sorted(result.folders)]
 
@@ -45,7 +48,9 @@ def z_scores(rec: RunRecord, params: dict[str, float]) -> dict[str, float]:
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_the_ramp_calibrates_every_part_within_u_of_the_truth(tmp_path: Path) -> None:
-    runs = run(tmp_path, ["SIM-7001", "SIM-7002", "SIM-7003"])
+    events: list[ProgressEvent] = []
+    runs = run(tmp_path, ["SIM-7001", "SIM-7002", "SIM-7003"], on_progress=events.append)
+    _shows_its_phases(events)
     zs: list[float] = []
     for rec, truth in runs:
         assert rec.verdict is Verdict.PASS, rec.reason
@@ -73,6 +78,20 @@ def test_the_ramp_calibrates_every_part_within_u_of_the_truth(tmp_path: Path) ->
         assert "refused" not in written["analysis"]["ramp"]
     assert max(zs) <= 2.0
     assert sum(z <= 1.0 for z in zs) >= len(zs) - 2
+
+
+def _shows_its_phases(events: list[ProgressEvent]) -> None:
+    """The ramp's 20 minutes are not one phrase: each phase is a "step" event the
+    operator's line and screen show (a new user saw only "Heating and cooling the parts
+    while the table turns" for 19 minutes, and a log's progress jump from 0 to 95 %)."""
+    phases = [e.phase for e in events if e.kind == "step" and e.step == "ramp_calibration"]
+    seen = [p for i, p in enumerate(phases) if p and (i == 0 or p != phases[i - 1])]
+    assert seen[:2] == ["heating", "stop_top"] or seen[:2] == ["heating", "cooling"], seen
+    order = ["heating", "cooling", "settling", "static", "fitting"]
+    assert [p for p in dict.fromkeys(seen) if p in order] == order, seen  # first times
+    assert {"stop_top", "stop_bottom"} <= set(seen), seen
+    fractions = [e.fraction for e in events if e.kind == "step" and e.phase]
+    assert fractions == sorted(fractions) and fractions[-1] - fractions[0] > 0.5
 
 
 @pytest.mark.slow

@@ -70,3 +70,15 @@ def test_on_a_terminal_the_line_fits_its_width_and_few_sockets_are_named() -> No
     display = ProgressDisplay(out)
     display(ProgressEvent(kind="step", step="bias", sockets={1: "RUNNING", 2: "FAIL"}))
     assert out.getvalue().rstrip().endswith("1:RUNNING 2:FAIL")
+
+
+def test_without_a_terminal_each_phase_of_a_long_step_is_a_line() -> None:
+    # the ramp's 20 minutes printed one line, then jumped to the next step at 95 %
+    out = io.StringIO()
+    display = ProgressDisplay(out)
+    for phase, fraction in (("", 0.02), ("heating", 0.03), ("heating", 0.2), ("cooling", 0.5)):
+        display(ProgressEvent(kind="step", step="ramp_calibration", phase=phase,
+                              fraction=fraction, sockets={1: "RUNNING"}))
+    lines = out.getvalue().splitlines()
+    assert [line.split("]")[0] for line in lines] == ["[  2%", "[  3%", "[ 50%"]
+    assert "ramp_calibration heating" in lines[1] and "ramp_calibration cooling" in lines[2]

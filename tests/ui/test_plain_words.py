@@ -49,6 +49,12 @@ def test_steps_and_conditions_in_plain_words() -> None:
     assert words(step_phrases("new_step", "odd")) == "Step: new step, condition odd"
     german = words(step_phrases("thermal", "T45_V5.25"), "de")
     assert german == "Heizen auf 45 °C, Versorgung 5,25 V"
+    # a long step's phase after its words; a phase without words is left out
+    assert words(step_phrases("ramp_calibration", "", "cooling")) == (
+        "Heating and cooling the parts while the table turns, "
+        "now cooling towards the bottom of the span")
+    assert words(step_phrases("ramp_calibration", "", "unheard_of")) == (
+        "Heating and cooling the parts while the table turns")
 
 
 def test_failure_reasons_in_plain_words() -> None:
