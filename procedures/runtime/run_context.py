@@ -85,6 +85,7 @@ class Progress:
         self.done_estimate_s = 0.0
         self.total_estimate_s = 1.0
         self._last_wall = 0.0
+        self._shown = 0.0  # the largest fraction published: the bar never goes back
 
     def subscribe(self, fn: Callable[[ProgressEvent], None]) -> Callable[[], None]:
         return self.bus.subscribe(fn)
@@ -102,14 +103,24 @@ class Progress:
             self.phase = phase
             self.publish("step", message=f"{self.step}: {phase}" if phase else self.step)
 
+    def revise(self, left_s: float) -> None:
+        """The running step's own estimate of the station seconds it has left (a step that
+        learns its length as it runs, as the ramp does from its heating half): the step's
+        planned time and the whole's move by the difference."""
+        new = max(self._clock.now_s() - self.step_started_s, 0.0) + max(left_s, 0.0)
+        self.total_estimate_s = max(self.total_estimate_s + new - self.step_estimate_s, 1.0)
+        self.step_estimate_s = new
+
     def end(self) -> None:
         self.done_estimate_s += self.step_estimate_s
 
     def fraction(self) -> tuple[float, float]:
-        """(fraction of the planned station time done, station seconds left)."""
+        """(fraction of the planned station time done, station seconds left); the fraction
+        never goes back when an estimate is revised upwards."""
         in_step = min(self._clock.now_s() - self.step_started_s, self.step_estimate_s)
         done = self.done_estimate_s + max(in_step, 0.0)
-        return min(done / self.total_estimate_s, 1.0), max(self.total_estimate_s - done, 0.0)
+        self._shown = max(self._shown, min(done / self.total_estimate_s, 1.0))
+        return self._shown, max(self.total_estimate_s - done, 0.0)
 
     def maybe_publish(self) -> None:
         """A "progress" event at most every 0.2 wall s."""

@@ -60,6 +60,13 @@ STATIC_CONDITION = "ramp_bottom"
 RATE_WINDOW_S = 20.0  # a die's rate for the turn: a line over its last 20 s
 
 
+# the ramp's time left, as it learns its length (measured in lockstep on eol-ramp, SIM-7001/2
+# and config/sim/eight_sockets.yaml: heating 340-347 s, cooling with the top's stop 563-593 s,
+# the bottom's settling, dwell, stop and fit 265-272 s): the cooling half takes longer than
+# the heating half, the dies' lag reaching further from the chamber's turn
+COOL_PER_HEAT = 1.65
+AFTER_COOLING_S = 270.0
+
 class RampSettings(StepSettings):
     rates_dps: list[Rate] = Field(
         min_length=2, max_length=MAX_LIST,
@@ -157,6 +164,8 @@ class RampCalibration(StepType[RampSettings]):
         return 0 if sm is None else len(sm.ends)
 
     def estimate_s(self, ctx: RunContext) -> float:
+        """Before it starts (ctx.progress.revise corrects it at the turns, from the time the
+        heating half took: COOL_PER_HEAT, AFTER_COOLING_S)."""
         # measured on the simulated bench: 1150 s for 20 C at 5 C/min (the dies' lag rules)
         span = self._span(ctx)
         return 60.0 * (span[1] - span[0]) * 4.8 / max(ctx.procedure.chamber.ramp_c_per_min, 1.0)
@@ -268,6 +277,7 @@ class RampCalibration(StepType[RampSettings]):
                 phase = self._next_phase(ctx, phase, low_sp)
                 if phase == "cooling" and turned_at is None:
                     turned_at = ctx.wait.clock.now_s()
+                    ctx.progress.revise(COOL_PER_HEAT * (turned_at - start) + AFTER_COOLING_S)
                 if phase == "done":
                     break
             sweep += 1
@@ -313,6 +323,7 @@ class RampCalibration(StepType[RampSettings]):
         if phase == "cooling" and self._should_turn(ctx, False, self._end_c(ctx)):
             self._set_towards(ctx, self._end_c(ctx))
             self._end_turn = ctx.wait.clock.now_s()
+            ctx.progress.revise(AFTER_COOLING_S)
             return "settling"
         st = self.settings
         if phase == "settling" and not self._static_done and self._dies_at_rest(

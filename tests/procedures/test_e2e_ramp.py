@@ -92,6 +92,14 @@ def _shows_its_phases(events: list[ProgressEvent]) -> None:
     assert {"stop_top", "stop_bottom"} <= set(seen), seen
     fractions = [e.fraction for e in events if e.kind == "step" and e.phase]
     assert fractions == sorted(fractions) and fractions[-1] - fractions[0] > 0.5
+    # the time left, revised at the turns from the heating half's length, is within a
+    # quarter of what was left (it once sat at 0.9 min for the ramp's last minutes)
+    end_s = events[-1].station_time_s
+    for phase in ("cooling", "settling"):
+        ev = next(e for e in events if e.kind == "step" and e.phase == phase)
+        assert ev.remaining_s is not None
+        assert abs(ev.remaining_s - (end_s - ev.station_time_s)) <= 0.25 * (
+            end_s - ev.station_time_s), (phase, ev.remaining_s, end_s - ev.station_time_s)
 
 
 @pytest.mark.slow
