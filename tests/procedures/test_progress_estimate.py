@@ -16,7 +16,7 @@ class _Clock:
 
 
 def _progress(clock: _Clock) -> tuple[Progress, list[ProgressEvent]]:
-    bus, events = ProgressBus(), []
+    bus, events = ProgressBus(), list[ProgressEvent]()
     bus.subscribe(events.append)
     progress = Progress(bus, clock, [])  # type: ignore[arg-type]
     progress.total_estimate_s = 1000.0 + 100.0  # the step and a 100 s one after it
