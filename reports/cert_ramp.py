@@ -134,15 +134,27 @@ def widened_text(ramp: RampResults) -> str:
     for key, value in terms.items():
         label, units = _LAG_TERMS.get(key, (key, ""))
         parts.append(f"{label} +{fmt(value, 2)}{' ' + units if units else ''}")
-    at = f" at a lag of {fmt(ramp.tau_bound_s, 3)} s" if ramp.tau_bound_s is not None else ""
+    bound = ("the part's lag plus its U (k = 2), the most it may be"
+             if ramp.element_tau_s is not None
+             else "the lag assumed where the fit cannot tell the part's own")
+    at = (f" at a lag of {fmt(ramp.tau_bound_s, 3)} s ({bound})"
+          if ramp.tau_bound_s is not None else "")
     return ("yes, for the lag: each coefficient's U (k = 2) includes the error the lag "
             f"correction may leave{at} ({'; '.join(parts)})")
+
+
+def covered_text(ramp: RampResults) -> str:
+    if ramp.die_min_c is None or ramp.die_max_c is None:
+        return "not recorded"
+    return (f"{fmt(ramp.die_min_c, 4)} to {fmt(ramp.die_max_c, 4)} C, the lowest and highest "
+            "plateau's die temperature")
 
 
 def fit_rows(ramp: RampResults) -> list[tuple[str, str]]:
     rows = [
         ("Span asked", f"{fmt(ramp.low_c)} to {fmt(ramp.high_c)} C die temperature (the "
          "part's own sensor), heated up and cooled back"),
+        ("Span covered", covered_text(ramp)),
         ("Supplies", f"{supplies_text(ramp)}, alternated each sweep of the rate set"),
         ("Element lag", lag_text(ramp)),
         ("Hysteresis", hysteresis_text(ramp)),
@@ -177,4 +189,7 @@ def ramp_conditions(rec: RunRecord) -> list[Flowable]:
             Paragraph("Die temperatures and rates are the part's own sensor's means over each "
                       "plateau; a plateau counts as heating when the die's own temperature was "
                       "rising (it goes on rising a while after the chamber turns). "
-                      "U (k = 2) is twice the fit's standard uncertainty.", NOTE)]
+                      "U (k = 2) is twice the fit's standard uncertainty. In the results, "
+                      "raw_bias_dps and raw_scale_error at each condition are the fitted laws "
+                      "evaluated at that temperature and supply (the ramp holds no condition "
+                      "still).", NOTE)]

@@ -307,6 +307,14 @@ def margin_pct(pct: float) -> str:
     return f"{pct:.0f}\u00a0%"
 
 
+def outcome_text(m: Measurement) -> str:
+    """The outcome as the table shows it: a measurement without limits is recorded, not
+    passed (the record's outcome stays PASS)."""
+    if m.outcome == Outcome.PASS and m.low is None and m.high is None:
+        return "recorded (no limit)"
+    return m.outcome.value.replace("_", " ")
+
+
 def results(inputs: CertificateInputs) -> list[Flowable]:
     rec = inputs.record
     story: list[Flowable] = [Paragraph("Results", H2)]
@@ -328,7 +336,7 @@ def results(inputs: CertificateInputs) -> list[Flowable]:
         rows.append([_p(m.name), _p(m.condition or "-"), fmt(m.value),
                      fmt(m.uncertainty_k2, 3), _p(unit_label(m.units)), fmt(m.low), fmt(m.high),
                      _p(f"{fmt(d, 3)} {pct}".strip() if d is not None else pct, words),
-                     _p(m.outcome.value.replace("_", " "), words)])
+                     _p(outcome_text(m), words)])
         if m.outcome == Outcome.FAIL:
             style.add("BACKGROUND", (0, i), (-1, i), FAIL_ROW)
             style.add("FONT", (0, i), (-1, i), FONT_BOLD, 7.5)

@@ -88,6 +88,26 @@ def test_a_ramp_certificate_states_the_span_supplies_plateaus_and_lag(
 
 
 @pytest.mark.slow
+def test_a_ramp_certificate_says_what_its_figures_are(ramp_run: tuple[Path, RunRecord]) -> None:
+    """The wording a new user's trial asked for: the span the dies covered beside the span
+    asked, what the lag in "U widened" is, raw_* as the fitted laws, and a measurement
+    without limits recorded rather than passed."""
+    folder, rec = ramp_run
+    ramp = rec.analysis.ramp
+    assert ramp is not None and ramp.die_min_c is not None and ramp.die_max_c is not None
+    flowing = _spaced(pdf_text(folder / "certificate.pdf", layout=False))  # lines undone
+    assert (f"Span covered {fmt(ramp.die_min_c, 4)} to {fmt(ramp.die_max_c, 4)} C, the lowest "
+            "and highest plateau's die temperature") in flowing
+    assert (f"at a lag of {fmt(ramp.tau_bound_s, 3)} s (the part's lag plus its U (k = 2), "
+            "the most it may be)") in flowing
+    assert "raw_bias_dps and raw_scale_error at each condition are the fitted laws" in flowing
+    hysteresis = next(m for m in rec.measurements if m.name == "hysteresis_dps")
+    assert hysteresis.low is None and hysteresis.high is None
+    row = re.search(r"hysteresis_dps .*?(recorded \(no limit\)|PASS)", flowing)
+    assert row is not None and row.group(1) == "recorded (no limit)", row
+
+
+@pytest.mark.slow
 def test_a_ramp_certificate_draws_the_ramp_and_no_placeholder_for_unplanned_steps(
         ramp_text: str) -> None:
     text = _spaced(ramp_text)
