@@ -128,11 +128,12 @@ def _the_next_run_passes(cell: Any, procedure: Path) -> None:
     bias's 0.054 deg/s/C against +-0.03): there a FAIL on them alone also counts, the run
     having measured to its end (exit 1, never 2)."""
     if procedure == RAMP_SHORT and cell.code == 1:
-        verdict = next(line for line in cell.stdout.splitlines()
-                       if line.startswith(f"socket 1 {SERIAL}:"))
-        assert re.fullmatch(
-            rf"socket 1 {SERIAL}: FAIL - not programmed: failed \w+_temp_coeff_\w+", verdict
-        ), verdict
+        assert cell.new_folder is not None, cell.stdout + cell.stderr
+        record = read_record(cell.new_folder)  # the record, not the console's words
+        assert record.verdict is Verdict.FAIL and record.failed_measurements, record.reason
+        assert all(re.fullmatch(r"\w+_temp_coeff_\w+(@\w+)?", name)
+                   for name in record.failed_measurements), record.failed_measurements
+        assert record.calibration is not None  # measured to its end, then not programmed
         return
     assert cell.code == 0, cell.stdout + cell.stderr
     assert f"socket 1 {SERIAL}: PASS" in cell.stdout
