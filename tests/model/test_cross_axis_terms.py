@@ -4,12 +4,16 @@ cross_axis.py): their ids, specs and columns, searched on one axis of a three-ax
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from procedures.model import cross_axis, library
 from procedures.model import effects as fx
 from procedures.model.effect_spec import REGRESSOR_VOCABULARY
+from procedures.model.gyro_model import first_order_model
+from procedures.model.model_io import load_model, save_model
 from procedures.model.trajectory import Segment, Trajectory
 
 G = 9.80665
@@ -89,3 +93,11 @@ def test_cross_term_columns_and_parameters() -> None:
         np.testing.assert_allclose(library.to_coefficients(e, params), coefs)
     assert library.to_params("lib_yfromx_w_dT", np.array([1e-3, 5e-5]), np.eye(2))[0] == {
         "offset": 1e-3, "coeff": 5e-5}
+
+
+def test_a_model_holding_a_cross_term_is_saved_and_read_back(tmp_path: Path) -> None:
+    model = first_order_model().with_effect(
+        "lib_yfromx_w_dT", {"coeff": 2e-5, "offset": -2e-4}).with_effect(
+        "lib_yfromz_a2", {"coeff": 3e-4, "offset_x": 1e-3, "offset_y": 0.0, "offset_z": 0.0})
+    back = load_model(save_model(model, tmp_path / "model.yaml"))
+    assert back.effects == model.effects
