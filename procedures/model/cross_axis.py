@@ -121,6 +121,8 @@ def candidate_ids(traj: Trajectory) -> tuple[str, ...]:
     record (no `axis`)."""
     if traj.axis not in AXES:
         return ()
+    if _last_candidates and _last_candidates[0][0] is traj:
+        return _last_candidates[0][1]
     out = []
     for k in AXES:
         if k == traj.axis:
@@ -129,7 +131,11 @@ def candidate_ids(traj: Trajectory) -> tuple[str, ...]:
             e = f"lib_{traj.axis}from{k}_{kind}"
             if _spanned(columns(e, traj)):
                 out.append(e)
+    _last_candidates[:] = [(traj, tuple(out))]
     return tuple(out)
+
+
+_last_candidates: list[tuple[Trajectory, tuple[str, ...]]] = []  # the last record's
 
 
 def _spanned(x: FloatArray) -> bool:
