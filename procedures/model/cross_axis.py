@@ -85,7 +85,11 @@ def spec(effect_id: str) -> EffectSpec:
 
 def columns(effect_id: str, traj: Trajectory) -> FloatArray:
     """[w_k, w_k dT] of a drift term, [a_x, a_y, a_z, a_k^2] of a g-squared term."""
-    _j, k, kind = _parse(effect_id)
+    j, k, kind = _parse(effect_id)
+    if traj.axis != j or f"rate_{k}" not in traj.axis_variables:
+        raise ValueError(f"{effect_id} couples axis {j} to axis {k} of a three-axis part; this "
+                         f"record is {'axis ' + traj.axis if traj.axis else 'a single-axis one'}"
+                         ": leave the term out of its model")
     if kind == "w_dT":
         w = traj.axis_variables[f"rate_{k}"]
         return np.stack([w, w * traj.dtemp_c], axis=1)

@@ -101,3 +101,9 @@ def test_a_model_holding_a_cross_term_is_saved_and_read_back(tmp_path: Path) -> 
         "lib_yfromz_a2", {"coeff": 3e-4, "offset_x": 1e-3, "offset_y": 0.0, "offset_z": 0.0})
     back = load_model(save_model(model, tmp_path / "model.yaml"))
     assert back.effects == model.effects
+
+
+def test_a_cross_term_on_a_record_it_does_not_fit_is_refused_in_words() -> None:
+    for traj, term in ((_traj(), "lib_yfromx_w_dT"), (_traj("x"), "lib_yfromz_a2")):
+        with pytest.raises(ValueError, match="couples axis y to axis"):
+            library.columns(term, traj)
