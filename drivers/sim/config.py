@@ -98,6 +98,28 @@ class ThreeAxisSpec(_Model):
     accel_noise_mps2: float = Field(
         default=0.003, ge=0.0, le=1.0, description="accelerometer white noise per sample, 1 sigma"
     )
+    # Appended (issue 29): effects that couple the axes beyond the first-order model
+    # (drivers/sim/cross_axis.py), never drawn; left out they are 0 and a part behaves as before.
+    cross_temp_coeff_per_c: Mat3Spec | None = Field(
+        default=None,
+        description="C: raw_j += C[j][k] dT w_k (k != j), a cross-coupling that drifts with "
+        "temperature; the diagonal is 0 (the scale's own is scale_temp_coeff_per_c)",
+    )
+    g2_cross_dps_per_mps2_sq: Mat3Spec | None = Field(
+        default=None,
+        description="Q: raw_j += Q[j][k] a_k^2 (k != j), the g-squared sensitivity of axis j "
+        "to the specific force along axis k; the diagonal is 0",
+    )
+
+    @field_validator("cross_temp_coeff_per_c", "g2_cross_dps_per_mps2_sq")
+    @classmethod
+    def _off_diagonal(cls, m: Mat3Spec | None) -> Mat3Spec | None:
+        if m is not None and any(m[i][i] != 0 for i in range(3)):
+            raise ValueError("a cross-axis matrix couples an axis to the others only: its "
+                             "diagonal must be 0")
+        if m is not None and any(abs(v) > 0.1 for row in m for v in row):
+            raise ValueError("cross-axis coefficients must be within +-0.1")
+        return m
 
     @field_validator("matrix")
     @classmethod

@@ -2,17 +2,19 @@
 
 The world's truth (never the station's model), in the part frame, deg/s and m/s^2:
 
-    raw = S(T, V) w + b(T, V) + G a + noise,     S = M^-1 D(T, V)
+    raw = S(T, V) w + b(T, V) + G a + X(T, w, a) + noise,     S = M^-1 D(T, V)
     D   = diag(1 + sT_i dT + sV_i dV),           b(T, V) = b + bT dT + bV dV   (per axis)
 
 with w the true rate, a the specific force the accelerometer measures (gravity's reaction
-from the cube's orientation, drivers/sim/cube.py), dT = T_die - 25 C, dV = V - 5 V. M is the
-correction matrix the station fits (scale and misalignment; the part's compensated output
-D^-1 M (raw - b - G a) with the true registers is w). Each axis has the single-axis model's
-noise (white, bias instability as three Gauss-Markov terms, rate random walk) from the part's
-`PartParams`, independently; the die temperature, self-heating, power and turn-on are the
-single-axis `PartModel`'s (this class extends it). The accelerometer adds white noise only.
-The single-axis effects catalog (k2, lag, tilt, ...) does not apply to three-axis parts.
+from the cube's orientation, drivers/sim/cube.py), dT = T_die - 25 C, dV = V - 5 V, X the
+effects that couple the axes beyond that model (drivers/sim/cross_axis.py; 0 unless
+configured). M is the correction matrix the station fits (scale and misalignment; with X = 0
+the part's compensated output D^-1 M (raw - b - G a) with the true registers is w). Each axis
+has the single-axis model's noise (white, bias instability as three Gauss-Markov terms, rate
+random walk) from the part's `PartParams`, independently; the die temperature, self-heating,
+power and turn-on are the single-axis `PartModel`'s (this class extends it). The
+accelerometer adds white noise only. The single-axis effects catalog (k2, lag,
+tilt, ...) does not apply to three-axis parts.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from numpy.typing import NDArray
 
 from drivers.protocols import CalibrationRegisters3
 from drivers.sim.config import PartPhysicsConfig, ThreeAxisSpec
+from drivers.sim.cross_axis import cross_axis_output
 from drivers.sim.gyro import GM_TAUS_S, T_REF_C, V_REF_V, PartModel, first_order_filter
 from drivers.sim.population import PartParams, serial_seed
 
@@ -46,6 +49,9 @@ class ThreeAxisParams:
     scale_temp_coeff_per_c: Vec3
     scale_supply_coeff_per_v: Vec3
     accel_noise_mps2: float
+    # issue 29: the cross-axis effects (drivers/sim/cross_axis.py), 0 unless configured
+    cross_temp_coeff_per_c: Mat3 = ((0.0, 0.0, 0.0),) * 3
+    g2_cross_dps_per_mps2_sq: Mat3 = ((0.0, 0.0, 0.0),) * 3
 
     def as_truth(self) -> dict[str, Any]:
         """The truth JSON's three-axis `parameters` keys."""
@@ -59,7 +65,14 @@ class ThreeAxisParams:
             "scale_temp_coeff_per_c": list(self.scale_temp_coeff_per_c),
             "scale_supply_coeff_per_v": list(self.scale_supply_coeff_per_v),
             "accel_noise_mps2": self.accel_noise_mps2,
+            **{name: [list(r) for r in m] for name, m in self.cross_axis().items()
+               if any(v != 0 for r in m for v in r)},
         }
+
+    def cross_axis(self) -> dict[str, Mat3]:
+        """The cross-axis effects' matrices by their config (and truth) key."""
+        return {"cross_temp_coeff_per_c": self.cross_temp_coeff_per_c,
+                "g2_cross_dps_per_mps2_sq": self.g2_cross_dps_per_mps2_sq}
 
     def registers(self) -> CalibrationRegisters3:
         """The registers that make the part's compensated output the true rate."""
@@ -116,6 +129,9 @@ def resolve_three_axis(serial: str, spec: ThreeAxisSpec) -> ThreeAxisParams:
         values[name] = _mat(value) if name in ("matrix", "g_sensitivity_dps_per_mps2") else _vec(
             value
         )
+    for name in ("cross_temp_coeff_per_c", "g2_cross_dps_per_mps2_sq"):  # never drawn
+        given = getattr(spec, name)
+        values[name] = _mat(np.zeros((3, 3)) if given is None else given)
     return ThreeAxisParams(accel_noise_mps2=spec.accel_noise_mps2, **values)
 
 
@@ -184,6 +200,9 @@ class PartModel3(PartModel):
             bias = bias + thermal_bias[:, None]
         raw = (rate_xyz_dps * scale) @ self._m_inv.T + bias
         raw = raw + accel_xyz_mps2 @ np.asarray(th.g_sensitivity_dps_per_mps2).T
+        raw = raw + cross_axis_output(rate_xyz_dps, accel_xyz_mps2, d_t,
+                                      np.asarray(th.cross_temp_coeff_per_c),
+                                      np.asarray(th.g2_cross_dps_per_mps2_sq))
         return raw + self._noise3(len(t_s), dt_s), die
 
     def accel_output(self, specific_force_mps2: FloatArray) -> FloatArray:

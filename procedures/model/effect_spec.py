@@ -21,9 +21,14 @@ class EffectSpec:
     regressors: tuple[str, ...] = ()
     # readable formula, str.format()-ed with the parameters
     formula: str = ""
+    # a term coupling the axes of a three-axis part: (the axis it acts on, the axis it comes
+    # from), e.g. ("y", "x"): couples y <- x (procedures/model/cross_axis.py)
+    couples: tuple[str, ...] = ()
 
 
 # Pinned vocabulary of the base variables a term may depend on (JSON `regressors`).
 # Words keep their meaning; the vocabulary may grow (temperature_direction: issue 29).
+# Three-axis parts (issue 29): the other axes' reference rates and accelerometer readings.
 REGRESSOR_VOCABULARY = ("rate", "temperature", "temperature_rate", "supply", "angle", "time",
-                        "temperature_direction")
+                        "temperature_direction", "rate_x", "rate_y", "rate_z", "accel_x",
+                        "accel_y", "accel_z")

@@ -40,6 +40,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from procedures.model import cross_axis
 from procedures.model.effect_spec import EffectSpec
 from procedures.model.lag import contiguous_runs
 from procedures.model.trajectory import FloatArray, Trajectory
@@ -121,6 +122,8 @@ def _factor_info(tok: str) -> _Factor:
 @lru_cache(maxsize=512)
 def spec(effect_id: str) -> EffectSpec:
     """The effect spec of a library term (parameters, regressors, formula), from its id."""
+    if cross_axis.is_cross_id(effect_id):
+        return cross_axis.spec(effect_id)
     parsed = _parse(effect_id)
     if isinstance(parsed, int):
         k = parsed
@@ -187,13 +190,18 @@ def spanned_ids(traj: Trajectory, ids: tuple[str, ...] | None = None) -> tuple[s
     """The library terms whose every factor the data span: factor^p is not (to
     SPAN_FRACTION of its size) a combination of 1, factor, ..., factor^(p-1) over the
     record. Two supply levels, for example, do not span dV^2 (constant) nor dV^3 (~ dV); a
-    constant supply does not span dV."""
-    ids = candidate_ids() if ids is None else ids
+    constant supply does not span dV. On one axis of a three-axis part the terms that
+    couple it to the other axes (cross_axis.py) join the library where the data span them."""
+    ids = (*candidate_ids(), *cross_axis.candidate_ids(traj)) if ids is None else ids
     if _last_spanned and _last_spanned[0][0] is traj and _last_spanned[0][1] == ids:
         return _last_spanned[0][2]
     verdict: dict[tuple[str, int], bool] = {}
     out = []
     for e in ids:
+        if cross_axis.is_cross_id(e):
+            if e in cross_axis.candidate_ids(traj):
+                out.append(e)
+            continue
         parsed = _parse(e)
         if isinstance(parsed, int):
             out.append(e)
@@ -353,7 +361,10 @@ def _compute_factor(tok: str, traj: Trajectory) -> FloatArray:
 
 
 def columns(effect_id: str, traj: Trajectory) -> FloatArray:
-    """Regressors (n, 1) of a product term, (n, 2) of an angle harmonic."""
+    """Regressors (n, 1) of a product term, (n, 2) of an angle harmonic (or of a cross-axis
+    drift term)."""
+    if cross_axis.is_cross_id(effect_id):
+        return cross_axis.columns(effect_id, traj)
     parsed = _parse(effect_id)
     if isinstance(parsed, int):
         a = parsed * np.deg2rad(traj.ref_angle_deg)
@@ -367,6 +378,8 @@ def columns(effect_id: str, traj: Trajectory) -> FloatArray:
 def to_params(
     effect_id: str, coefs: FloatArray, cov: FloatArray
 ) -> tuple[dict[str, float], dict[str, float]]:
+    if cross_axis.is_cross_id(effect_id):
+        return cross_axis.to_params(effect_id, coefs, cov)
     c = [float(v) for v in coefs]
     if len(c) == 1:
         return {"coeff": c[0]}, {"coeff": math.sqrt(max(float(cov[0, 0]), 0.0))}
@@ -383,6 +396,8 @@ def to_params(
 
 
 def to_coefficients(effect_id: str, params: Mapping[str, float]) -> FloatArray:
+    if cross_axis.is_cross_id(effect_id):
+        return cross_axis.to_coefficients(effect_id, params)
     s = spec(effect_id)
     missing = [p for p in s.params if p not in params]
     if missing:

@@ -30,7 +30,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping
 from functools import lru_cache
 
-from procedures.model import library
+from procedures.model import cross_axis, library
 
 IN_EVERY_MODEL = "scale"  # w alone: every model has a scale
 # as library.candidate_ids spells ids
@@ -71,8 +71,8 @@ def _term_id(factors: Collection[tuple[str, int]]) -> str:
 def _factors(effect_id: str) -> tuple[tuple[str, int], ...]:
     if effect_id in _CATALOG_FACTORS:
         return _CATALOG_FACTORS[effect_id]
-    if not library.is_library_id(effect_id):
-        return ()
+    if not library.is_library_id(effect_id) or cross_axis.is_cross_id(effect_id):
+        return ()  # a cross-axis term's constant column travels with it: it waits for none
     parsed = library._parse(effect_id)  # noqa: SLF001 - the ids' own grammar
     return () if isinstance(parsed, int) else tuple(parsed)
 

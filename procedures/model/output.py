@@ -62,6 +62,12 @@ def _candidate(c: CandidateTest) -> dict[str, Any]:
     }
 
 
+def _couples(effect_id: str) -> dict[str, str]:
+    """`couples: "y <- x"` for a term coupling the axes of a three-axis part, else nothing."""
+    pair = fx.check_effect_id(effect_id).couples
+    return {"couples": f"{pair[0]} <- {pair[1]}"} if pair else {}
+
+
 def result_to_json(res: DiscrepancyResult) -> dict[str, Any]:
     """Pinned keys: gap_initial_dps, noise_floor_dps, iterations (effect, gap_before_dps,
     gap_after_dps, parameters, evidence), effects_added, gap_final_dps."""
@@ -78,6 +84,7 @@ def result_to_json(res: DiscrepancyResult) -> dict[str, Any]:
                 "regressors": list(it.regressors),
                 "formula": it.formula,
                 "candidates": [_candidate(c) for c in it.candidates],
+                **_couples(it.effect),
             }
             for it in res.iterations
         ],

@@ -76,6 +76,7 @@ def load_axis(folder: Path, axis: str, dut: str | None = None) -> Trajectory:
     g_row = np.asarray(cal.g_sensitivity_dps_per_mps2.value, dtype=float)[j]
     gyro = rate[:, j] - accel @ g_row
     segs = {k: np.array(v, copy=True) for k, v in rec.segs.items()}
+    used = []  # (start, end, rate in the part frame) of the windows read
     for k in range(segs["start_s"].size):
         w = windows.get(round(float(segs["start_s"][k]), 6))
         if w is None:
@@ -85,10 +86,33 @@ def load_axis(folder: Path, axis: str, dut: str | None = None) -> Trajectory:
         segs["ref_rate_dps"][k] = w_part[j]
         inside = (rec.t_fix >= start_s) & (rec.t_fix <= end_s)
         gyro[inside] -= sum(p[j, c] * w_part[c] for c in range(3) if c != j)
+        used.append((start_s, end_s, w_part))
     traj = _windowed_trajectory(dataclasses.replace(rec, gyro=gyro, segs=segs))
     note = (f"axis {axis} of a three-axis part: cross-axis terms and g-sensitivity of the "
             "run's own fit removed")
-    return dataclasses.replace(traj, notes=(note, *traj.notes))
+    variables = _other_axes(traj.time_s, j, used, rec.t_fix, accel)
+    return dataclasses.replace(traj, notes=(note, *traj.notes), axis=axis,
+                               axis_variables=variables)
+
+
+def _other_axes(
+    time_s: np.ndarray, j: int, used: list[tuple[float, float, np.ndarray]],
+    t_fix: np.ndarray, accel: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """Axis j's trajectory's variables of the part's other axes per sample: the reference
+    rate along each other axis (0 outside the windows read) and the accelerometer's reading
+    along every axis (its own included: the g-squared term carries the whole linear row)."""
+    at = np.searchsorted(t_fix, time_s)
+    out: dict[str, np.ndarray] = {}
+    for c, name in enumerate(AXES):
+        out[f"accel_{name}"] = np.asarray(accel[at, c], dtype=float)
+        if c == j:
+            continue  # the trajectory's own reference rate
+        rate = np.zeros(time_s.size)
+        for start_s, end_s, w_part in used:
+            rate[(time_s >= start_s) & (time_s <= end_s)] = w_part[c]
+        out[f"rate_{name}"] = rate
+    return out
 
 
 def _sorted_xyz(

@@ -7,6 +7,7 @@ sample, plus the analysed windows (segments) of the run.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,9 +55,18 @@ class Trajectory:
     source: str = ""
     serial: str = ""
     notes: tuple[str, ...] = field(default_factory=tuple)
+    # one axis of a three-axis part (procedures/model/run_folder_xyz.py): the axis (x, y, z)
+    # and the other axes' variables per sample, by their regressor name (rate_x, accel_x, ...:
+    # the reference rate along that axis, deg/s, and the accelerometer's reading, m/s^2);
+    # empty for a single-axis part
+    axis: str = ""
+    axis_variables: Mapping[str, FloatArray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = self.time_s.shape[0]
+        for name, arr in self.axis_variables.items():
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ValueError(f"trajectory variable {name} must be ({n},) finite values")
         for name in (
             "gyro_dps",
             "ref_rate_dps",

@@ -318,3 +318,57 @@ def test_a_slipping_operator_lands_on_another_face_and_a_deaf_one_never_turns() 
     deaf = Cube(CubeConfig(responds=False), seed=1, socket=3)
     assert deaf.on_prompt(1.0, "-z") is None and deaf.prompts_seen == 1
     assert deaf.face_at(100.0) == "+z"
+
+
+CROSS_C = [[0.0, 0.0, 0.0], [4e-5, 0.0, 0.0], [0.0, 0.0, 0.0]]  # y <- x, per C
+CROSS_Q = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 2e-3, 0.0]]  # z <- y, deg/s per (m/s^2)^2
+
+
+def test_cross_axis_effects_follow_their_formulas() -> None:
+    """drivers/sim/cross_axis.py: raw_j += C_jk dT w_k + Q_jk a_k^2 (k != j), the diagonal
+    never acting."""
+    from drivers.sim.cross_axis import cross_axis_output
+
+    rate = np.array([[100.0, 0.0, 0.0], [0.0, -50.0, 0.0]])
+    accel = np.array([[0.0, 9.8, 0.0], [0.0, 0.0, -9.8]])
+    d_t = np.array([20.0, -10.0])
+    c = np.asarray(CROSS_C) + np.eye(3)  # a diagonal given anyway does nothing
+    out = cross_axis_output(rate, accel, d_t, c, np.asarray(CROSS_Q))
+    np.testing.assert_allclose(out, [[0.0, 4e-5 * 20.0 * 100.0, 2e-3 * 9.8**2],
+                                     [0.0, 0.0, 0.0]])
+
+
+def test_cross_axis_keys_are_off_diagonal_zero_by_default_and_in_the_truth() -> None:
+    from pydantic import ValidationError
+
+    from drivers.sim.config import ThreeAxisSpec
+    from drivers.sim.gyro3 import resolve_three_axis
+
+    with pytest.raises(ValidationError, match="diagonal must be 0"):
+        ThreeAxisSpec(cross_temp_coeff_per_c=((1e-5, 0, 0), (0, 0, 0), (0, 0, 0)))
+    plain = resolve_three_axis("IMU-7", ThreeAxisSpec())
+    assert np.count_nonzero(plain.cross_temp_coeff_per_c) == 0
+    assert "cross_temp_coeff_per_c" not in plain.as_truth()  # today's truth unchanged
+    w = _world({"cross_temp_coeff_per_c": CROSS_C, "g2_cross_dps_per_mps2_sq": CROSS_Q})
+    p = w.truth()["sockets"]["1"]["parameters"]
+    assert p["cross_temp_coeff_per_c"] == CROSS_C
+    assert p["g2_cross_dps_per_mps2_sq"] == CROSS_Q
+    assert "cross_temp_coeff_per_c" not in _world().truth()["sockets"]["1"]["parameters"]
+
+
+def test_the_g_squared_cross_term_shows_on_the_faces_along_its_axis_only() -> None:
+    """Static on each face, the same part with and without Q: axis z's output moves by
+    Q_zy g^2 on the +-y faces only, the other axes not at all."""
+    worlds = (_world(), _world({"g2_cross_dps_per_mps2_sq": CROSS_Q}))
+    for w in worlds:
+        w.sockets[1].handle_line("START", 0.0)
+    g2 = 2e-3 * STANDARD_GRAVITY_MPS2**2
+    t = 0.0
+    for face in ("+y", "+x", "-y", "-z"):
+        t += 2.0
+        means = []
+        for w in worlds:
+            w.sockets[1].cube.place(face)
+            means.append(_dps(_record(w, t)).mean(axis=0))
+        expect = [0.0, 0.0, g2 if face[1] == "y" else 0.0]
+        np.testing.assert_allclose(means[1] - means[0], expect, atol=2e-4, err_msg=face)
