@@ -35,10 +35,9 @@ from threadpoolctl import threadpool_limits
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 
 SERIALS = [f"SIM-{2931 + i}" for i in range(6)]
-MIN_NAMED = {"gradient-only": 1, "hysteresis-only": 1}
+MIN_NAMED = 1  # of the six parts, with one effect alone on the bench
 _folders: dict[tuple[str, str], dict[str, Path]] = {}
-_results: dict[tuple[str, str, str], tuple[tuple[tuple[str, tuple[str, ...]], ...],
-                                           float, float, float]] = {}
+_results: dict[tuple[str, str, str], ts.Analysis] = {}
 
 
 @pytest.fixture(scope="module")
@@ -55,48 +54,44 @@ def _result(work: Path, procedure: str, bench: str, serial: str) -> ts.FolderRes
         assert folder is not None, f"{serial} did not finish the {procedure} on {b}"
         if (procedure, b, serial) not in _results:
             with threadpool_limits(limits=1, user_api="blas"):
-                _results[(procedure, b, serial)] = ts.analyse(folder, serial)
-    named, before, after, floor = _results[(procedure, bench, serial)]
-    ideal_floor = _results[(procedure, "ideal", serial)][3]
-    return ts.FolderResult(serial, procedure, bench, named, before, after, floor, ideal_floor)
+                _results[(procedure, b, serial)] = ts.analyse(folder, serial,
+                                                              ts.truth(serial, b))
+    ideal_floor = _results[(procedure, "ideal", serial)].floor_dps
+    return ts.FolderResult(serial, procedure, bench, _results[(procedure, bench, serial)],
+                           ideal_floor)
 
 
 @pytest.mark.parametrize("procedure", list(ts.PROCEDURES))
 @pytest.mark.parametrize("serial", SERIALS)
 def test_the_honest_bench_named_by_its_variables_and_the_gap_closed(
         work: Path, procedure: str, serial: str) -> None:
+    """Every effect named is in the truth, every effect the folder shows is named (on the
+    ramp the lag through the scale on every part, alone), the gap within 1.5 x the ideal
+    floor."""
     row = _result(work, procedure, "honest", serial)
     truth = ts.truth(serial, "honest")
-    thermal = [(e, regs) for e, regs in row.named if set(regs) & set(ts.THERMAL_WORDS)]
-    assert all(truth.allows(regs) for _, regs in thermal), (truth.label(), row.named)
-    assert row.ratio <= ts.UNEXPLAINED_GAP_RATIO, (row.gap_after_dps, row.ideal_floor_dps)
-    if procedure == "ramp":  # the lag's scale signature: w x dT/dt
-        assert ("rate", "temperature_rate") in [regs for _, regs in row.named], row.named
+    assert ts.verdict(row, truth) == [], (ts.sizes_label(row.answer), row.named)
+    if procedure == "ramp":  # the lag's scale signature, w x dT/dt: far above the threshold
+        assert [s.expected for s in row.answer.sizes if s.name == "lag (scale)"] == [True]
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "the lag's start after power-on (the element following the self-heating die tau behind "
-    "its sensor) is named on some parts as w exp(-t/30 s) (rate, time): the library's dT/dt is "
-    "the sensor's rate, not the element's (a 20 s causal low-pass of it removes it, but moves "
-    "the synthetic records' temperature-rate tests)"))
+@pytest.mark.parametrize("procedure", list(ts.PROCEDURES))
 @pytest.mark.parametrize("serial", SERIALS)
-def test_on_the_ramp_nothing_else_is_named(work: Path, serial: str) -> None:
-    row = _result(work, "ramp", "honest", serial)
-    assert ts.verdict(row, ts.truth(serial, "honest"), ()) == [], row.named
+def test_the_null_folders_name_nothing(work: Path, procedure: str, serial: str) -> None:
+    """The same parts with the thermal physics off: nothing named, the gap within 1.5 x
+    its floor."""
+    row = _result(work, procedure, "ideal", serial)
+    assert row.named == () and ts.verdict(row, ts.truth(serial, "ideal")) == [], row.named
 
 
 @pytest.mark.parametrize("bench,word", [("gradient-only", "temperature_rate"),
                                         ("hysteresis-only", "temperature_direction")])
 def test_one_effect_alone_is_named_by_its_variable(work: Path, bench: str, word: str) -> None:
-    """Nothing but the effect's own variable is ever named; it is named on at least
-    MIN_NAMED of the six parts, and where it is the gap closes to 1.5 x the ideal floor (one
-    ramp against each part's own bias wander: see the module's docstring for the figures)."""
+    """Nothing but the effect's own variable is ever named; it is named wherever the folder
+    shows it (z at least the expected threshold: thermal_truth), at least MIN_NAMED of the
+    six parts, and the gap closes to 1.5 x the ideal floor."""
     rows = [_result(work, "ramp", bench, s) for s in SERIALS]
-    for row in rows:
-        t = ts.truth(row.serial, bench)
-        assert all(t.allows(regs) for _, regs in row.named), (row.serial, row.named)
+    wrong = {r.serial: ts.verdict(r, ts.truth(r.serial, bench)) for r in rows}
+    assert not any(wrong.values()), wrong
     named = [r for r in rows if word in {w for _, regs in r.named for w in regs}]
-    assert len(named) >= MIN_NAMED[bench], [(r.serial, r.named) for r in rows]
-    assert all(r.ratio <= ts.UNEXPLAINED_GAP_RATIO for r in named), [
-        (r.serial, r.ratio) for r in named]
-
+    assert len(named) >= MIN_NAMED, [(r.serial, r.named) for r in rows]

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import thermal_truth as tt
 import yaml
 
 from drivers.sim.config import ThermalPhysicsConfig
@@ -64,6 +65,7 @@ class Truth:
     draws: ThermalDraws
     bias_temp_coeff_dps_per_c: float
     scale_temp_coeff_per_c: float
+    scale: float = 1.0
 
     @property
     def words(self) -> frozenset[str]:
@@ -83,6 +85,12 @@ class Truth:
         rest = set(regressors) - set(THERMAL_WORDS)
         return bool(thermal) and thermal <= self.words and rest <= {"rate", "temperature"}
 
+    def part(self) -> tt.PartTruth:
+        d = self.draws
+        return tt.PartTruth(d.element_tau_s, d.gradient_dps_per_c_per_min, d.hysteresis_dps,
+                            d.hysteresis_width_c, self.bias_temp_coeff_dps_per_c, self.scale,
+                            self.scale_temp_coeff_per_c)
+
     def label(self) -> str:
         d = self.draws
         return (f"tau {d.element_tau_s:.0f} s, grad {d.gradient_dps_per_c_per_min:+.4f}, "
@@ -93,7 +101,7 @@ def truth(serial: str, bench: str) -> Truth:
     pop = draw_population(serial)
     return Truth(draws=draw_thermal(serial, ThermalPhysicsConfig(**BENCHES[bench])),
                  bias_temp_coeff_dps_per_c=pop["bias_temp_coeff_dps_per_c"],
-                 scale_temp_coeff_per_c=pop["scale_temp_coeff_per_c"])
+                 scale_temp_coeff_per_c=pop["scale_temp_coeff_per_c"], scale=pop["scale"])
 
 
 def station_run(work: Path, bench: str, procedure: str, serials: list[str]) -> dict[str, Path]:
@@ -129,48 +137,87 @@ def _finished(out: Path, serials: list[str]) -> dict[str, Path]:
     return folders
 
 
+Named = tuple[tuple[str, tuple[str, ...]], ...]  # (effect, its regressors) in order
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """The workflow's answer on one folder, and what the folder shows of the part's truth."""
+
+    named: Named
+    gap_before_dps: float
+    gap_after_dps: float
+    floor_dps: float
+    sizes: tuple[tt.EffectSize, ...]
+    z_expected: float
+
+
 @dataclass(frozen=True)
 class FolderResult:
     serial: str
     procedure: str
     bench: str
-    named: tuple[tuple[str, tuple[str, ...]], ...]  # (effect, its regressors) in order
-    gap_before_dps: float
-    gap_after_dps: float
-    floor_dps: float  # this record's
+    answer: Analysis
     ideal_floor_dps: float  # the same part's, same procedure, thermal physics off
 
     @property
+    def named(self) -> Named:
+        return self.answer.named
+
+    @property
     def ratio(self) -> float:
-        return self.gap_after_dps / self.ideal_floor_dps
+        return self.answer.gap_after_dps / self.ideal_floor_dps
 
 
-def analyse(folder: Path, serial: str) -> tuple[tuple[tuple[str, tuple[str, ...]], ...],
-                                                float, float, float]:
-    """(named effects with their regressors, gap before, gap after, floor) from first_order."""
-    res = run_discrepancy(load_data(folder, dut=serial), first_order_model())
+def analyse(folder: Path, serial: str, t: Truth) -> Analysis:
+    """The workflow from first_order on the folder, and each of the part's effects' size
+    there (thermal_truth.sizes)."""
+    traj = load_data(folder, dut=serial)
+    res = run_discrepancy(traj, first_order_model())
     named = tuple((it.effect, tuple(it.regressors)) for it in res.iterations)
-    return named, res.gap_initial_dps, res.gap_final_dps, res.noise_floor_dps
+    return Analysis(named, res.gap_initial_dps, res.gap_final_dps, res.noise_floor_dps,
+                    tuple(tt.sizes(traj, res, t.part())), tt.z_expected(res))
 
 
-def verdict(row: FolderResult, t: Truth, must_name: tuple[str, ...]) -> list[str]:
+def _names(regressors: tuple[str, ...], effect: tt.EffectSize) -> bool:
+    """A named term with these regressors names the effect: its thermal variable, and the
+    rate exactly when the effect has it (a scale law, w x ...)."""
+    thermal = set(effect.regressors) & set(THERMAL_WORDS)
+    return thermal <= set(regressors) and (("rate" in regressors)
+                                            == ("rate" in effect.regressors))
+
+
+def verdict(row: FolderResult, t: Truth) -> list[str]:
     """What is wrong with a folder's answer (empty: right): every named effect matches the
-    truth, each word in `must_name` is named, the gap after within 1.5 x the ideal floor."""
+    truth (never misnamed), every effect the folder is expected to show (thermal_truth) is
+    named, the gap after within 1.5 x the ideal floor."""
     wrong = [f"{e} {regs} not in the truth" for e, regs in row.named if not t.allows(regs)]
-    named_words = {w for _, regs in row.named for w in regs}
-    wrong += [f"{w} not named" for w in must_name if w not in named_words]
+    wrong += [f"{s.name} (z {s.z:.1f}) not named" for s in row.answer.sizes
+              if s.expected and not any(_names(regs, s) for _, regs in row.named)]
     if row.ratio > UNEXPLAINED_GAP_RATIO:
         wrong.append(f"gap after {row.ratio:.2f} x the ideal floor")
     return wrong
 
 
+_SHORT = {"lag (scale)": "lag", "rate bias": "rbias", "hysteresis": "hyst"}
+
+
+def sizes_label(a: Analysis) -> str:
+    """Each effect's z (its gap / floor), a star where it is expected to be named."""
+    return ", ".join(f"{_SHORT[s.name]} {s.z:.1f}{'*' if s.expected else ''} "
+                     f"({s.gap_over_floor:.2f})" for s in a.sizes) or "-"
+
+
 def table(rows: list[FolderResult], truths: dict[str, Truth]) -> str:
-    lines = [f"{'part':9} {'procedure':10} {'bench':15} {'truth':32} {'named (regressors)':52} "
-             f"{'before':>7} {'after':>7} {'floor':>7} {'ideal':>7} {'after/ideal':>11}"]
+    lines = [f"{'part':9} {'procedure':10} {'bench':15} {'truth':32} "
+             f"{'z (gap/floor), * expected':48} {'named (regressors)':44} "
+             f"{'before':>7} {'after':>7} {'floor':>7} {'ideal':>7} {'after/ideal':>11} match"]
     for r in rows:
         named = "; ".join(f"{e} ({','.join(regs)})" for e, regs in r.named) or "-"
+        t = truths[r.serial + r.bench]
+        a = r.answer
         lines.append(
-            f"{r.serial:9} {r.procedure:10} {r.bench:15} {truths[r.serial + r.bench].label():32} "
-            f"{named:52} {r.gap_before_dps:7.4f} {r.gap_after_dps:7.4f} {r.floor_dps:7.4f} "
-            f"{r.ideal_floor_dps:7.4f} {r.ratio:11.2f}")
+            f"{r.serial:9} {r.procedure:10} {r.bench:15} {t.label():32} {sizes_label(a):48} "
+            f"{named:44} {a.gap_before_dps:7.4f} {a.gap_after_dps:7.4f} {a.floor_dps:7.4f} "
+            f"{r.ideal_floor_dps:7.4f} {r.ratio:11.2f} {'yes' if not verdict(r, t) else 'NO'}")
     return "\n".join(lines)
