@@ -21,9 +21,11 @@ bench through both shipped procedures (config/procedures/eol-ramp.yaml and
 eol-rate-table.yaml), the same parts with the thermal physics off (the floor to reach), and
 on the ramp a bench with only the gradient bias and one with only the hysteresis
 (tests/model/thermal_station.py BENCHES). The workflow runs from `first_order` on each run
-folder; one row per folder: the part's drawn thermal effects (the truth), the effects named
-with their regressors, the gap before and after, the record's floor and the floor of the same
-part without the effects, and what does not match the truth.
+folder; one row per folder (the thermal-off folders too: the null): the part's drawn thermal
+effects (the truth), each effect's size on the folder (z against the workflow's own test, its
+gap / floor, a star where it is expected to be named: tests/model/thermal_truth.py), the
+effects named with their regressors, the gap before and after, the record's floor and the
+floor of the same part without the effects, and whether it matches the truth.
 
     python3 benchmarks/bench_discrepancy_station.py --thermal [--parts 6] [--out DIR]
 """

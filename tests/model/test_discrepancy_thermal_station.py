@@ -1,24 +1,28 @@
 """The honest thermal bench through the station (issue 29, deliverable 1): run folders of
 `station run --sim` with both shipped procedures (config/procedures/eol-ramp.yaml, which heats
 and cools, and eol-rate-table.yaml, which heats and soaks), six parts each, analysed from the
-ideal first-order model. The bench's truth is each part's draws (tests/model/thermal_station.py):
+ideal first-order model. The bench's truth is each part's draws (tests/model/thermal_station.py),
+and what each folder can show of it, each effect's z on the folder against the workflow's own
+test (tests/model/thermal_truth.py): expected to be named at z >= the 90 %-power threshold of
+a library term at the first Holm step (5.47 on these folders). On every folder:
 
 - every effect named depends on a thermal variable the part's hidden effects depend on
   (`temperature_rate` for the element's lag and the gradient bias, `temperature_direction`
-  for the hysteresis), and otherwise only on the rate or the temperature;
-- on the ramp the element's lag is named through the scale (w x dT/dt: `rate`,
-  `temperature_rate`) on every part (the bias effects of the default bench, 0.004
-  (deg/s)/(C/min) and 0.01 deg/s typical, are below what one ramp shows against the parts' own
-  bias wander);
+  for the hysteresis), and otherwise only on the rate or the temperature (never misnamed);
+- every expected effect is named: on the ramp the element's lag through the scale (w x dT/dt,
+  or its element-lagged variant: `rate`, `temperature_rate`) on every part, alone (z 18-57;
+  the default bench's gradient and hysteresis, z 0.3-2.3, are below what one ramp shows
+  against the parts' own bias wander); on the rate table nothing is expected (z <= 1.6);
 - the gap after is within 1.5 x the floor of the same part run with the thermal physics off;
+- those null folders (thermal physics off, both procedures) name nothing;
 - on a bench with only the gradient bias (0.01 (deg/s)/(C/min) on every part), or only the
-  hysteresis (0.05 deg/s), nothing but that one's variable is named, and it is named on at
-  least MIN_NAMED of the six parts. How many varies from run to run, the effects being near
-  each part's own bias wander on one ramp: the hysteresis on 6/6, 5/6 and 4/6 in three runs,
-  the gradient on 5/6, 5/6 and 2/6 (the last two runs on clean clones; the third after the
-  ramp's plateaus began to sleep through their rate changes, which draws other noise). So
-  the test holds what every run showed, that each is nameable and never misnamed; the rate
-  is the benchmark's to measure (benchmarks/bench_discrepancy_station.py --thermal).
+  hysteresis (0.05 deg/s), nothing but that one's variable is named, it is named wherever
+  expected (z 4.6-11.7 and 5.3-12.0 on one run: 3 and 5 of 6 expected), and on at least
+  MIN_NAMED of the six parts. Below the threshold it may be named or not (the gradient was
+  named on 5/6, 5/6 and 2/6 parts in three runs, the hysteresis on 6/6, 5/6 and 4/6).
+
+An expected effect at z just above the threshold is missed one time in ten (the power):
+the effects here lie mostly far above it (a miss chance of about 2 % per run of the grid).
 
 Eight station runs of 20 to 120 s each on the 2-core machine, and a few seconds of workflow
 per folder: a long grid (`-m station_grid`).

@@ -14,6 +14,12 @@ part's hidden effects depend on follow:
 - the gradient bias: `temperature_rate`;
 - the hysteresis: `temperature_direction`.
 
+What a folder can show of them is each effect's size there (tests/model/thermal_truth.py:
+z against the workflow's own test, expected to be named above a threshold). A folder's answer
+matches the truth (`verdict`) when every named effect depends on the variables of a drawn
+effect (never misnamed), every expected effect is named, and the gap after is within 1.5 x
+the floor of the same part with the thermal physics off.
+
 Used by tests/model/test_discrepancy_thermal_station.py and
 benchmarks/bench_discrepancy_station.py --thermal.
 """

@@ -90,7 +90,7 @@ def signals(traj: Trajectory, p: PartTruth) -> list[tuple[str, tuple[str, ...], 
     element = element_temperature(traj, p.tau_s)
     behind = element - traj.temp_c
     rate = -behind / p.tau_s if p.tau_s > 0 else library.temperature_rate_c_per_s(traj)
-    out = []
+    out: list[tuple[str, tuple[str, ...], FloatArray]] = []
     if p.tau_s > 0 and p.scale_temp_coeff_per_c:
         out.append(("lag (scale)", ("rate", "temperature_rate"),
                     p.scale * p.scale_temp_coeff_per_c * traj.ref_rate_dps * behind))
