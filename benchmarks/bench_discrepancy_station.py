@@ -27,7 +27,7 @@ gap / floor, a star where it is expected to be named: tests/model/thermal_truth.
 effects named with their regressors, the gap before and after, the record's floor and the
 floor of the same part without the effects, and whether it matches the truth.
 
-    python3 benchmarks/bench_discrepancy_station.py --thermal [--parts 6] [--out DIR]
+    python3 benchmarks/bench_discrepancy_station.py --thermal [--parts 6] [--out DIR] [--markdown]
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def _ms(v: float) -> str:
     return f"{v * 1e3:.3g}" if math.isfinite(v) else "-"
 
 
-def thermal_grid(base: Path, parts: int) -> None:
+def thermal_grid(base: Path, parts: int, markdown: bool = False) -> None:
     """The per-folder table of the honest thermal bench (see the module's docstring)."""
     import thermal_station as ts
 
@@ -163,6 +163,8 @@ def thermal_grid(base: Path, parts: int) -> None:
             rows.append(row)
             print(f"  {s}: {'; '.join(problems) or 'matches the truth'}", flush=True)
     print("\n" + ts.table(rows, truths))
+    if markdown:
+        print("\n" + ts.markdown(rows, truths))
     print(f"\n{len(rows) - wrong}/{len(rows)} folders match the truth (every named effect's "
           "regressors within a drawn effect's variables, every effect of z at least the "
           "expected threshold named, gap after <= 1.5 x the floor of the same part without "
@@ -177,6 +179,8 @@ def main() -> None:
     ap.add_argument("--thermal", action="store_true",
                     help="the honest thermal bench's per-folder table instead (issue 29)")
     ap.add_argument("--parts", type=int, default=6, help="parts per run with --thermal")
+    ap.add_argument("--markdown", action="store_true",
+                    help="with --thermal, the table in Markdown too")
     ap.add_argument("--parts-per-value", type=int, default=8,
                     help="parts per tau (eight per station run)")
     ap.add_argument("--taus", default="0.0001,0.00015,0.0002,0.0003",
@@ -186,7 +190,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.thermal:
         with tempfile.TemporaryDirectory() as tmp:
-            thermal_grid(args.out or Path(tmp), args.parts)
+            thermal_grid(args.out or Path(tmp), args.parts, args.markdown)
         return
     taus = [float(t) for t in args.taus.split(",")]
     with tempfile.TemporaryDirectory() as tmp:

@@ -93,9 +93,14 @@ def test_the_null_folders_name_nothing(work: Path, procedure: str, serial: str) 
 def test_one_effect_alone_is_named_by_its_variable(work: Path, bench: str, word: str) -> None:
     """Nothing but the effect's own variable is ever named; it is named wherever the folder
     shows it (z at least the expected threshold: thermal_truth), at least MIN_NAMED of the
-    six parts, and the gap closes to 1.5 x the ideal floor."""
+    six parts, and where it is named or expected the gap closes to 1.5 x the ideal floor.
+    A folder below the threshold keeps its gap: on one run SIM-2931 and -2935 with the
+    gradient alone measured floors 1.6 and 2.0 x their ideal folders' (the wander estimated
+    higher on that noise: 1.4 x with the bench's own gradient subtracted), z 3.9 and 3.6,
+    not named, gap after 2.20 and 2.35 x the ideal floor."""
     rows = [_result(work, "ramp", bench, s) for s in SERIALS]
-    wrong = {r.serial: ts.verdict(r, ts.truth(r.serial, bench)) for r in rows}
+    wrong = {r.serial: ts.verdict(r, ts.truth(r.serial, bench), every_gap=False)
+             for r in rows}
     assert not any(wrong.values()), wrong
     named = [r for r in rows if word in {w for _, regs in r.named for w in regs}]
     assert len(named) >= MIN_NAMED, [(r.serial, r.named) for r in rows]
