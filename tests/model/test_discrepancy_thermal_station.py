@@ -11,20 +11,22 @@ a library term at the first Holm step (5.47 on these folders). On every folder:
   for the hysteresis), and otherwise only on the rate or the temperature (never misnamed);
 - every expected effect is named: on the ramp the element's lag through the scale (w x dT/dt,
   or its element-lagged variant: `rate`, `temperature_rate`) on every part, alone (z 18-57;
-  the default bench's gradient and hysteresis, z 0.3-2.3, are below what one ramp shows
-  against the parts' own bias wander); on the rate table nothing is expected (z <= 1.6);
+  the default bench's gradient and hysteresis, z 0.2-2.3 over two runs, are below what one
+  ramp shows against the parts' own bias wander); on the rate table nothing is expected
+  (z <= 1.6);
 - the gap after is within 1.5 x the floor of the same part run with the thermal physics off;
 - those null folders (thermal physics off, both procedures) name nothing;
 - on a bench with only the gradient bias (0.01 (deg/s)/(C/min) on every part), or only the
   hysteresis (0.05 deg/s), nothing but that one's variable is named, it is named wherever
-  expected (z 4.6-11.7 and 5.3-12.0 on one run: 3 and 5 of 6 expected), and on at least
-  MIN_NAMED of the six parts. Below the threshold it may be named or not (the gradient was
-  named on 5/6, 5/6 and 2/6 parts in three runs, the hysteresis on 6/6, 5/6 and 4/6).
+  expected (two runs: the gradient expected on 3 and 2 of 6, z up to 11.7, named on 5 and
+  2; the hysteresis expected on 5 and 4, named on 6 and 4), and on at least MIN_NAMED of the
+  six parts. Below the threshold it may be named or not (over four runs the gradient was
+  named on 5, 5, 2 and 2 of 6, the hysteresis on 6, 5, 4 and 4).
 
 An expected effect at z just above the threshold is missed one time in ten (the power):
 the effects here lie mostly far above it (a miss chance of about 2 % per run of the grid).
 
-Eight station runs of 20 to 120 s each on the 2-core machine, and a few seconds of workflow
+Six station runs of 25 to 85 s each on the 2-core machine, and a few seconds of workflow
 per folder: a long grid (`-m station_grid`).
 """
 
