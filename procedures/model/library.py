@@ -26,12 +26,11 @@ are not in the library: the catalog effect keeps its id.
 with time constant tau (`ELEMENT_LAG_S`): sensor - element = tau x dTdtlag exactly, the
 element starting at the sensor's temperature at power-on. A bias or scale that follows the
 element's temperature while the record carries the sensor's shows as tau x (temperature law)
-x dTdtlag: after power-on,
-where the self-heating die's rate is highest and the element has not yet fallen behind, the
-instantaneous dTdt overstates the lag (which an exp(-t/tau) term was then named to take
-back). It enters two terms, `lib_dTdtlag20s` and `lib_w_dTdtlag20s`, the lagged variants of
-`lib_dTdt` and `lib_w_dTdt`; of a term and its variant the data fit better is named when
-they look alike (marginality.parsimonious).
+x dTdtlag. After power-on, where the self-heating die's rate is highest and the element has
+not yet fallen behind, the instantaneous dTdt overstates the lag (an exp(-t/30 s) term was
+then named as well, to take it back). It enters two terms, `lib_dTdtlag20s` and
+`lib_w_dTdtlag20s`, the lagged variants of `lib_dTdt` and `lib_w_dTdt`; of a term and its
+variant the data fit better is named when they look alike (marginality.parsimonious).
 
 `dTdir` is the direction of the die's temperature history (hysteresis between heating and
 cooling): a play (backlash) operator of half-width `PLAY_HALF_WIDTH_C` run over the
@@ -61,7 +60,7 @@ DTDT_SMOOTH_S = 10.0  # moving-average window of the die temperature before diff
 EXP_TAUS_S = (30.0, 100.0, 300.0, 1000.0)  # time constants of the exponential terms
 MAX_HARMONIC = 4
 PLAY_HALF_WIDTH_C = 1.0  # half-width of the play operator of the temperature direction
-ELEMENT_LAG_S = 20  # time constant of the lagged rate's terms (s): a sensing element's typical
+ELEMENT_LAG_S = 20  # time constant of the lagged rate's terms (s): a typical sensing element's
 
 
 @dataclass(frozen=True)
