@@ -107,8 +107,14 @@ def z_expected(res: DiscrepancyResult) -> float:
     """The z at which a one-column library term is significant with probability POWER at the
     first step of the workflow's Holm procedure over the folder's first candidates."""
     first = res.iterations[0].candidates if res.iterations else res.last_candidates
-    n_lib = max(sum(library.is_library_id(c.effect) for c in first), 1)
-    crit = float(stats.chi2.isf(res.alpha * (1 - CATALOG_ALPHA_SHARE) / n_lib, 1))
+    return threshold_z(res.alpha, max(sum(library.is_library_id(c.effect) for c in first), 1))
+
+
+def threshold_z(alpha: float, n_library: int) -> float:
+    """sqrt of the noncentrality at which chi^2_1 passes the first Holm step of one of
+    n_library library terms (alpha x (1 - CATALOG_ALPHA_SHARE) / n_library) with
+    probability POWER."""
+    crit = float(stats.chi2.isf(alpha * (1 - CATALOG_ALPHA_SHARE) / n_library, 1))
     lam = optimize.brentq(lambda x: float(stats.ncx2.sf(crit, 1, x)) - POWER, 1e-6, 1e4)
     return math.sqrt(lam)
 
