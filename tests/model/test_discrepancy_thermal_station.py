@@ -23,10 +23,12 @@ a library term at the first Holm step (5.47 on these folders). On every folder:
   six parts. Below the threshold it may be named or not (over four runs the gradient was
   named on 5, 5, 2 and 2 of 6, the hysteresis on 6, 5, 4 and 4).
 
-An expected effect at z just above the threshold is missed one time in ten (the power):
-the effects here lie mostly far above it (a miss chance of about 2 % per run of the grid).
+The bench runs in lockstep: a run of the grid draws the same noise as the last on the same
+code (two runs from scratch gave the same table). Other code may draw other noise; an
+expected effect at z just above the threshold is then missed one time in ten (the power),
+but the effects here lie mostly far above it.
 
-Six station runs of 25 to 85 s each on the 2-core machine, and a few seconds of workflow
+Six station runs of 15 to 85 s each on the 2-core machine, and a few seconds of workflow
 per folder: a long grid (`-m station_grid`).
 """
 
