@@ -188,6 +188,8 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=100.0, help="simulated bench speed factor")
     ap.add_argument("--out", type=Path, help="keep the run folders here (default: a temp dir)")
     args = ap.parse_args()
+    if args.thermal and not 1 <= args.parts <= SOCKETS:
+        ap.error(f"--parts: 1 to {SOCKETS} (one station run, one socket each)")
     if args.thermal:
         with tempfile.TemporaryDirectory() as tmp:
             thermal_grid(args.out or Path(tmp), args.parts, args.markdown)

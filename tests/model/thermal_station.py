@@ -129,9 +129,10 @@ def station_run(work: Path, bench: str, procedure: str, serials: list[str]) -> d
     for s in serials:
         args += ["--dut", s]
     done = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=1800)
-    if done.returncode not in (0, 1, 2):
+    folders = _finished(out, serials)
+    if done.returncode not in (0, 1, 2) or not folders:  # 2: a part's ERROR, or refused
         raise RuntimeError((done.stdout + done.stderr)[-2000:])
-    return _finished(out, serials)
+    return folders
 
 
 def _finished(out: Path, serials: list[str]) -> dict[str, Path]:
