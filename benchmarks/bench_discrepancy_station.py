@@ -21,11 +21,13 @@ bench through both shipped procedures (config/procedures/eol-ramp.yaml and
 eol-rate-table.yaml), the same parts with the thermal physics off (the floor to reach), and
 on the ramp a bench with only the gradient bias and one with only the hysteresis
 (tests/model/thermal_station.py BENCHES). The workflow runs from `first_order` on each run
-folder; one row per folder: the part's drawn thermal effects (the truth), the effects named
-with their regressors, the gap before and after, the record's floor and the floor of the same
-part without the effects, and what does not match the truth.
+folder; one row per folder (the thermal-off folders too: the null): the part's drawn thermal
+effects (the truth), each effect's size on the folder (z against the workflow's own test, its
+gap / floor, a star where it is expected to be named: tests/model/thermal_truth.py), the
+effects named with their regressors, the gap before and after, the record's floor and the
+floor of the same part without the effects, and whether it matches the truth.
 
-    python3 benchmarks/bench_discrepancy_station.py --thermal [--parts 6] [--out DIR]
+    python3 benchmarks/bench_discrepancy_station.py --thermal [--parts 6] [--out DIR] [--markdown]
 """
 
 from __future__ import annotations
@@ -135,38 +137,41 @@ def _ms(v: float) -> str:
     return f"{v * 1e3:.3g}" if math.isfinite(v) else "-"
 
 
-def thermal_grid(base: Path, parts: int) -> None:
+def thermal_grid(base: Path, parts: int, markdown: bool = False) -> None:
     """The per-folder table of the honest thermal bench (see the module's docstring)."""
     import thermal_station as ts
 
     serials = [f"SIM-{2931 + i}" for i in range(parts)]
-    must = {"honest": (), "gradient-only": ("temperature_rate",),
-            "hysteresis-only": ("temperature_direction",)}
     runs = [(proc, bench) for proc in ts.PROCEDURES for bench in ("ideal", "honest")]
     runs += [("ramp", "gradient-only"), ("ramp", "hysteresis-only")]
     floors: dict[tuple[str, str], float] = {}
     rows, truths, wrong = [], {}, 0
+    t_start = time.perf_counter()
     for proc, bench in runs:
         t0 = time.perf_counter()
         folders = ts.station_run(base / f"{proc}-{bench}", bench, proc, serials)
         print(f"{proc} on the {bench} bench: {len(folders)}/{parts} run folders "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
         for s, folder in folders.items():
-            named, before, after, floor = ts.analyse(folder, s)
-            if bench == "ideal":
-                floors[(proc, s)] = floor
-                continue
             truths[s + bench] = ts.truth(s, bench)
-            row = ts.FolderResult(s, proc, bench, named, before, after, floor,
-                                  floors.get((proc, s), float("nan")))
-            problems = ts.verdict(row, truths[s + bench], must[bench])
+            answer = ts.analyse(folder, s, truths[s + bench])
+            if bench == "ideal":
+                floors[(proc, s)] = answer.floor_dps
+            row = ts.FolderResult(s, proc, bench, answer, floors.get((proc, s), math.nan))
+            problems = ts.verdict(row, truths[s + bench])
             wrong += bool(problems)
             rows.append(row)
             print(f"  {s}: {'; '.join(problems) or 'matches the truth'}", flush=True)
     print("\n" + ts.table(rows, truths))
-    print(f"\n{len(rows) - wrong}/{len(rows)} folders match the truth (named effects' "
-          "regressors within the part's thermal variables, each single effect named, gap after "
-          "<= 1.5 x the floor of the same part without the thermal physics)")
+    if markdown:
+        print("\n" + ts.markdown(rows, truths))
+    print(f"\n{len(rows) - wrong}/{len(rows)} folders match the truth (every named effect's "
+          "regressors within a drawn effect's variables, every effect of z at least the "
+          "expected threshold named, gap after <= 1.5 x the floor of the same part without "
+          "the thermal physics; ideal rows: the null, nothing to name)")
+    z = sorted({round(r.answer.z_expected, 2) for r in rows})
+    print(f"expected threshold z* {', '.join(map(str, z))} (power {ts.tt.POWER} at the first "
+          f"Holm step of a library term); wall time {time.perf_counter() - t_start:.0f} s")
 
 
 def main() -> None:
@@ -174,6 +179,8 @@ def main() -> None:
     ap.add_argument("--thermal", action="store_true",
                     help="the honest thermal bench's per-folder table instead (issue 29)")
     ap.add_argument("--parts", type=int, default=6, help="parts per run with --thermal")
+    ap.add_argument("--markdown", action="store_true",
+                    help="with --thermal, the table in Markdown too")
     ap.add_argument("--parts-per-value", type=int, default=8,
                     help="parts per tau (eight per station run)")
     ap.add_argument("--taus", default="0.0001,0.00015,0.0002,0.0003",
@@ -181,9 +188,11 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=100.0, help="simulated bench speed factor")
     ap.add_argument("--out", type=Path, help="keep the run folders here (default: a temp dir)")
     args = ap.parse_args()
+    if args.thermal and not 1 <= args.parts <= SOCKETS:
+        ap.error(f"--parts: 1 to {SOCKETS} (one station run, one socket each)")
     if args.thermal:
         with tempfile.TemporaryDirectory() as tmp:
-            thermal_grid(args.out or Path(tmp), args.parts)
+            thermal_grid(args.out or Path(tmp), args.parts, args.markdown)
         return
     taus = [float(t) for t in args.taus.split(",")]
     with tempfile.TemporaryDirectory() as tmp:

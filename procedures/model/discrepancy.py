@@ -502,7 +502,7 @@ def _evidence(fitter: Fitter, naming: _Naming, alpha: float) -> dict[str, Any]:
     later = [c for c in later if c.effect not in naming.preferred_over]
     runner = later[0] if later else None
     parsimony = ({"preferred_over": list(naming.preferred_over),
-                  "rule": "marginality: of look-alikes, the main effect is named"}
+                  "rule": _parsimony_rule(best.effect, naming.preferred_over)}
                  if naming.preferred_over else {})
     return {
         **parsimony,
@@ -526,6 +526,14 @@ def _evidence(fitter: Fitter, naming: _Naming, alpha: float) -> dict[str, Any]:
             "expected": fx.check_effect_id(best.effect).pattern,
         },
     }
+
+
+def _parsimony_rule(named: str, over: tuple[str, ...]) -> str:
+    """Why `named` was named before its look-alikes `over` (marginality.parsimonious)."""
+    same = marginality.instant_form(named)
+    if all(marginality.instant_form(e) == same for e in over):
+        return ("a term and its element-lagged variant: the one of lower BIC is named")
+    return "marginality: of look-alikes, the main effect is named"
 
 
 def _result(

@@ -8,6 +8,7 @@ variables (at most three, total degree at most three), or a pair of table-angle 
 | `w` | rate (deg/s) | rate |
 | `dT` | die temperature - 25 C | temperature |
 | `dTdt` | d(die temperature)/dt (C/s), smoothed over `DTDT_SMOOTH_S` | temperature_rate |
+| `dTdtlag<tau>s` | dTdt low-passed causally, first order, over tau (C/s) | temperature_rate |
 | `dTdir` | play state of the die temperature, -1 cooled .. +1 heated | temperature_direction |
 | `dV` | supply - 5.0 V | supply |
 | `sgnw` | sign(rate) | rate |
@@ -20,6 +21,16 @@ the token (`lib_w_dT2` = w * dT^2, `lib_dTdt`, `lib_w_exp300s`, `lib_angleh2`), 
 file holding it needs nothing else to be read back (`spec()` parses the id). Terms equal to a
 catalog effect (dT, dV, w dT, w dV, w^2, w^3, |w|, exp(-t/tau), the first angle harmonic)
 are not in the library: the catalog effect keeps its id.
+
+`dTdtlag<tau>s` is the rate at a sensing element that follows the on-chip sensor first order
+with time constant tau (`ELEMENT_LAG_S`): sensor - element = tau x dTdtlag exactly, the
+element starting at the sensor's temperature at power-on. A bias or scale that follows the
+element's temperature while the record carries the sensor's shows as tau x (temperature law)
+x dTdtlag. After power-on, where the self-heating die's rate is highest and the element has
+not yet fallen behind, the instantaneous dTdt overstates the lag (an exp(-t/30 s) term was
+then named as well, to take it back). It enters two terms, `lib_dTdtlag20s` and
+`lib_w_dTdtlag20s`, the lagged variants of `lib_dTdt` and `lib_w_dTdt`; of a term and its
+variant the data fit better is named when they look alike (marginality.parsimonious).
 
 `dTdir` is the direction of the die's temperature history (hysteresis between heating and
 cooling): a play (backlash) operator of half-width `PLAY_HALF_WIDTH_C` run over the
@@ -50,6 +61,7 @@ DTDT_SMOOTH_S = 10.0  # moving-average window of the die temperature before diff
 EXP_TAUS_S = (30.0, 100.0, 300.0, 1000.0)  # time constants of the exponential terms
 MAX_HARMONIC = 4
 PLAY_HALF_WIDTH_C = 1.0  # half-width of the play operator of the temperature direction
+ELEMENT_LAG_S = 20  # time constant of the lagged rate's terms (s): a typical sensing element's
 
 
 @dataclass(frozen=True)
@@ -69,7 +81,8 @@ FACTORS: dict[str, _Factor] = {
     "sgnw": _Factor("rate", "sign(rate)", ""),
     "absw": _Factor("rate", "|rate|", "deg/s"),
 }
-_TOKEN = re.compile(r"^(?:(?P<f>dTdir|dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
+_TOKEN = re.compile(r"^(?:(?P<f>dTdir|dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s"
+                    r"|dTdtlag(?P<lag>\d+)s)$")
 _HARMONIC = re.compile(r"^angleh(?P<k>[1-9])$")
 # exponent tuples (w, dT, dTdt, dV) of the catalog's polynomial effects and the base scale
 _CATALOG_MONOMIALS = {(1, 0, 0, 0), (0, 1, 0, 0), (0, 0, 0, 1), (1, 1, 0, 0), (1, 0, 0, 1),
@@ -99,10 +112,10 @@ def _parse(effect_id: str) -> list[tuple[str, int]] | int:
                 f"{', '.join(FACTORS)} with an optional power 2 or 3, exp<tau>s, or a term "
                 "angleh<k>"
             )
-        if m["tau"] is not None:
-            tau = int(m["tau"])
+        if m["tau"] is not None or m["lag"] is not None:
+            tau = int(m["tau"] or m["lag"])
             if not 1 <= tau <= 100000:
-                raise ValueError(f"library term {effect_id!r}: exp time constant 1 to 1e5 s")
+                raise ValueError(f"library term {effect_id!r}: time constant 1 to 1e5 s")
             factors.append((tok, 1))
         else:
             factors.append((m["f"], int(m["p"] or 1)))
@@ -114,6 +127,9 @@ def _parse(effect_id: str) -> list[tuple[str, int]] | int:
 
 
 def _factor_info(tok: str) -> _Factor:
+    if tok.startswith("dTdtlag"):
+        return _Factor("temperature_rate",
+                       f"d(die temperature)/dt lagged {tok[7:-1]} s (at the element)", "C/s")
     if tok.startswith("exp"):
         return _Factor("time", f"exp(-t / {tok[3:-1]} s)", "")
     return FACTORS[tok]
@@ -168,7 +184,8 @@ def spec(effect_id: str) -> EffectSpec:
 def candidate_ids() -> tuple[str, ...]:
     """The library searched by the workflow: products of w, dT, dTdt, dV up to third order
     (the catalog's own left out), sign(w), |w| dT, rate x warm-up exponentials, angle
-    harmonics 2 to 4, and the temperature direction (hysteresis) as a bias and a scale."""
+    harmonics 2 to 4, the temperature direction (hysteresis) as a bias and a scale, and the
+    element-lagged rate as a bias and a scale."""
     toks = ("w", "dT", "dTdt", "dV")
     out: list[str] = []
     for powers in itertools.product(range(4), repeat=4):
@@ -178,6 +195,7 @@ def candidate_ids() -> tuple[str, ...]:
         out.append(PREFIX + "_".join(parts))
     out += [PREFIX + "sgnw", PREFIX + "absw_dT", PREFIX + "absw_dV"]
     out += [PREFIX + "dTdir", PREFIX + "w_dTdir"]
+    out += [f"{PREFIX}dTdtlag{ELEMENT_LAG_S}s", f"{PREFIX}w_dTdtlag{ELEMENT_LAG_S}s"]
     out += [f"{PREFIX}w_exp{int(t)}s" for t in EXP_TAUS_S]
     out += [f"{PREFIX}angleh{k}" for k in range(2, MAX_HARMONIC + 1)]
     return tuple(out)
@@ -259,7 +277,7 @@ def temperature_rate_c_per_s(traj: Trajectory) -> FloatArray:
     return out
 
 
-def _temperature_rate(traj: Trajectory) -> FloatArray:
+def _temperature_rate(traj: Trajectory, lag_s: float = 0.0) -> FloatArray:
     """Over stretches joined across gaps shorter than BRIDGE_GAP_S (the die's temperature
     goes on through a gap of left-out samples): the temperature on a regular grid, smoothed,
     differenced, read back at the samples. Smoothed within each contiguous stretch instead,
@@ -278,8 +296,28 @@ def _temperature_rate(traj: Trajectory) -> FloatArray:
         width = min(max(int(round(DTDT_SMOOTH_S / dt)), 1), grid.size)
         smooth = uniform_filter1d(np.interp(grid, t[a:b], traj.temp_c[a:b]), size=width,
                                   mode="nearest")
-        out[a:b] = np.interp(t[a:b], grid, np.gradient(smooth, grid))
+        rate = np.gradient(smooth, grid)
+        if lag_s > 0:
+            on = float(traj.time_since_power_on_s[a])  # the rate held since power-on
+            rate = _low_pass(rate, dt, lag_s, float(rate[0]) * -math.expm1(-on / lag_s))
+        out[a:b] = np.interp(t[a:b], grid, rate)
     return out
+
+
+def lagged_temperature_rate(traj: Trajectory, lag_s: float) -> FloatArray:
+    """dTdt low-passed causally (first order, time constant `lag_s`) on the same grid: the
+    rate of an element at the sensor's temperature at power-on; each stretch (split at gaps
+    longer than BRIDGE_GAP_S) starts as if its first rate had held since power-on."""
+    return _temperature_rate(traj, lag_s)
+
+
+def _low_pass(x: FloatArray, dt_s: float, tau_s: float, start: float) -> FloatArray:
+    """y' = (x - y) / tau sampled every dt_s, exact for x held over each step; y(0) = start."""
+    from scipy.signal import lfilter  # slow to import: on first use
+
+    a = math.exp(-dt_s / tau_s)
+    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * start])
+    return np.asarray(y, dtype=float)
 
 
 BRIDGE_GAP_S = 30.0  # gaps in the sampling up to this long are bridged for the rate
@@ -353,6 +391,8 @@ def _compute_factor(tok: str, traj: Trajectory) -> FloatArray:
         return np.exp(-traj.time_since_power_on_s / float(tok[3:-1]))
     if tok == "dTdt":
         return temperature_rate_c_per_s(traj)
+    if tok.startswith("dTdtlag"):
+        return lagged_temperature_rate(traj, float(tok[7:-1]))
     if tok == "dTdir":
         return temperature_direction(traj)
     compute = {"w": lambda: w, "dT": lambda: traj.dtemp_c, "dV": lambda: traj.dsupply_v,

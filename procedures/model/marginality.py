@@ -22,12 +22,15 @@ The same principle settles look-alikes (`parsimonious`): where a term and an int
 descending from it explain the gap about equally well with almost the same signature (lib_dTdt
 and lib_dTdt_dV2 on a record whose temperature moves only at one supply), the main effect is
 named, the simpler explanation; terms of which none descends from the others stay not
-separable.
+separable. A term and its element-lagged variant (the die's rate read at the sensor or at a
+sensing element that follows it, dTdt or dTdtlag20s: lib_w_dTdt and lib_w_dTdtlag20s) are
+one effect of the same variables in two forms: of look-alike variants, the one the data fit
+better (the lower BIC, the first given) stands for both.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from functools import lru_cache
 
 from procedures.model import cross_axis, library
@@ -117,12 +120,27 @@ def ancestors(effect_id: str) -> frozenset[str]:
     return frozenset(out)
 
 
-def parsimonious(look_alikes: Collection[str]) -> str | None:
-    """Of terms that explain the gap about equally well with almost the same signature, the
-    one to name by the marginality principle: the single term from which every other one
-    descends (lib_dTdt among lib_dTdt, lib_dTdt_dV, lib_dTdt_dV2). None when the look-alikes
-    are genuinely different terms (k2_quadratic and scale_asymmetry; lib_dTdt and
-    warmup_drift): more than one of them descends from none of the others."""
-    group = set(look_alikes)
-    roots = [e for e in look_alikes if not ancestors(e) & group]
-    return roots[0] if len(roots) == 1 else None
+def instant_form(effect_id: str) -> str:
+    """The term with the element-lagged rate read at the sensor instead (lib_w_dTdtlag20s:
+    lib_w_dTdt); any other term as it is."""
+    if not library.is_library_id(effect_id):
+        return effect_id
+    return library.PREFIX + "_".join(
+        "dTdt" if tok.startswith("dTdtlag") else tok
+        for tok in effect_id[len(library.PREFIX):].split("_"))
+
+
+def parsimonious(look_alikes: Sequence[str]) -> str | None:
+    """Of terms that explain the gap about equally well with almost the same signature, in
+    BIC order (best first), the one to name by the marginality principle: the single term
+    from which every other one descends (lib_dTdt among lib_dTdt, lib_dTdt_dV, lib_dTdt_dV2),
+    a term and its element-lagged variant counting as one, the better fit standing for both.
+    None when the look-alikes are genuinely different terms (k2_quadratic and
+    scale_asymmetry; lib_dTdt and warmup_drift): more than one of them descends from none of
+    the others."""
+    best_variant: dict[str, str] = {}
+    for e in look_alikes:
+        best_variant.setdefault(instant_form(e), e)
+    group = set(best_variant)
+    roots = [e for e in best_variant if not ancestors(e) & group]
+    return best_variant[roots[0]] if len(roots) == 1 else None

@@ -487,8 +487,11 @@ def _print_summary(
         )
         say(f"  {it.formula} [depends on: {', '.join(it.regressors)}]")
         if it.evidence.get("preferred_over"):
-            say(f"  named before its look-alike interaction(s) "
-                f"{', '.join(it.evidence['preferred_over'])}: the main effect (marginality)")
+            what = ("its variant(s)" if it.evidence["rule"].startswith("a term and its")
+                    else "its look-alike interaction(s)")
+            how = ("the better fit" if what == "its variant(s)"
+                   else "the main effect (marginality)")
+            say(f"  named before {what} {', '.join(it.evidence['preferred_over'])}: {how}")
     for ns in result.not_separable:
         say(f"not separable: {' / '.join(ns['effects'])}: {ns['reason']}")
     if result.not_identifiable:

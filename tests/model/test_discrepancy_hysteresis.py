@@ -96,3 +96,36 @@ def test_the_temperature_rate_goes_on_through_short_gaps() -> None:
     assert np.allclose(rate[inner], 0.05, rtol=1e-6)
     before_long_gap = (t > 380.0) & (t < 400.0)
     assert rate[before_long_gap].min() < 0.04  # a stretch's end again: the long gap cuts
+
+
+def test_the_lagged_rate_is_how_far_an_element_trails_its_sensor() -> None:
+    """tau x dTdtlag20s is sensor - element of an element that follows the sensor first
+    order with tau = 20 s from power-on (where both are at one temperature): heated at
+    3 C/min from power-on, held, cooled, cut every minute by 4 s gaps. The instantaneous rate
+    says the element trails by tau x 3 C/min from the first second; it trails by nothing."""
+    from procedures.model.trajectory import Segment, Trajectory
+
+    tau, dt = float(library.ELEMENT_LAG_S), 0.01
+    t = np.arange(0.0, 700.0, dt)
+    sensor = 25.0 + np.interp(t, [0.0, 300.0, 400.0, 600.0], [0.0, 15.0, 15.0, 5.0])
+    element = np.empty_like(sensor)
+    element[0] = sensor[0]
+    a = np.exp(-dt / tau)
+    for i in range(1, t.size):  # exact for the sensor linear over each step
+        r = (sensor[i] - sensor[i - 1]) / dt
+        element[i] = sensor[i] - r * tau + (element[i - 1] - sensor[i - 1] + r * tau) * a
+    keep = (t % 60.0) < 56.0
+    n = int(keep.sum())
+    traj = Trajectory(time_s=t[keep], gyro_dps=np.zeros(n), ref_rate_dps=np.zeros(n),
+                      ref_angle_deg=np.zeros(n), temp_c=sensor[keep], supply_v=np.full(n, 5.0),
+                      time_since_power_on_s=t[keep],
+                      segments=(Segment("transition", 0.0, 700.0),))
+    lagged = tau * library.lagged_temperature_rate(traj, tau)
+    trails = (sensor - element)[keep]
+    err = np.abs(lagged - trails)  # the 10 s smoothing of dT/dt rounds the corners
+    assert err.max() < 0.1 * trails.max() and np.sqrt(np.mean(err**2)) < 0.02 * trails.max()
+    early = traj.time_s < 2.0
+    assert lagged[early].max() < 0.1 * tau * 0.05 < tau * library.temperature_rate_c_per_s(
+        traj)[early].min()
+    assert "lib_w_dTdtlag20s" in library.candidate_ids()
+    assert fx.check_effect_id("lib_w_dTdtlag20s").regressors == ("rate", "temperature_rate")

@@ -39,6 +39,20 @@ def test_the_main_effect_of_look_alikes_is_the_one_named() -> None:
         marginality.ancestors("lib_dTdt_dV2"))
 
 
+def test_a_term_and_its_element_lagged_variant_count_as_one_the_better_fit_named() -> None:
+    """lib_w_dTdt and lib_w_dTdtlag20s: the same variables, the die's rate at the sensor or
+    at an element 20 s behind it; the first given (the lower BIC) is named, and a variant
+    descends from the other's main effect as the term itself does."""
+    assert marginality.instant_form("lib_w_dTdtlag20s") == "lib_w_dTdt"
+    assert marginality.instant_form("lib_w_dTdt") == "lib_w_dTdt"
+    assert marginality.parsimonious(["lib_w_dTdtlag20s", "lib_w_dTdt"]) == "lib_w_dTdtlag20s"
+    assert marginality.parsimonious(["lib_w_dTdt", "lib_w_dTdtlag20s"]) == "lib_w_dTdt"
+    assert marginality.parsimonious(["lib_dTdtlag20s", "lib_dTdt", "lib_dTdt_dV"]) == (
+        "lib_dTdtlag20s")
+    assert marginality.main_effects("lib_w_dTdtlag20s") == ("lib_dTdtlag20s",)
+    assert marginality.parsimonious(["lib_w_dTdtlag20s", "warmup_drift"]) is None
+
+
 def test_genuinely_different_look_alikes_stay_not_separable() -> None:
     assert marginality.parsimonious(["k2_quadratic", "scale_asymmetry"]) is None
     assert marginality.parsimonious(["lib_dTdt", "warmup_drift"]) is None
