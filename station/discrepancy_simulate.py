@@ -92,17 +92,23 @@ def _check_entry(entry: dict[str, Any], model_name: str) -> None:
 
 
 def run_twin(
-    entry: dict[str, Any], procedure: Path, out: Path, speed: float | None
+    entry: dict[str, Any], procedure: Path, out: Path, speed: float | None,
+    effects: tuple[str, ...] = (),
 ) -> tuple[Path, str]:
-    """One station run of `procedure` on a bench holding the twin part; (run folder, verdict)."""
+    """One station run of `procedure` on a bench holding the twin part (the honest thermal
+    physics off: the part carries only the model's `effects`, which its record and
+    certificate name); (run folder, verdict)."""
     # the simulated bench: loaded only when asked for
     from drivers.sim.launcher import BenchStartError
+    from procedures.model.twin import TWIN_SIM_CONFIG
     from procedures.runtime.record import read_record
     from station.sim_run import run_simulated
 
     for attempt in range(1, BENCH_START_ATTEMPTS + 1):
         try:
-            result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed)
+            result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed,
+                                      sim_config=TWIN_SIM_CONFIG, certificate=True,
+                                      part_effects={int(entry["socket"]): effects})
             break
         except BenchStartError as exc:  # slow to start on a loaded machine: start it again
             if attempt == BENCH_START_ATTEMPTS:
@@ -140,7 +146,7 @@ def simulate(
     run folders, verdicts)."""
     # the discrepancy model: loaded only by this command
     from procedures.model.run_folder import load_data
-    from procedures.model.twin import compare, part_entry
+    from procedures.model.twin import compare, part_entry, twin_config
 
     proc, proc_note = record_procedure(run_folder, procedure)
     current = supply_current_a(run_folder)
@@ -154,12 +160,12 @@ def simulate(
                            supply_current_a=current)
         _check_entry(entry, models[label].name)
         config = out / f"twin_{label}.yaml"
-        config.write_text(yaml.safe_dump({"parts": [entry]}, sort_keys=False), encoding="utf-8")
+        config.write_text(yaml.safe_dump(twin_config(entry), sort_keys=False), encoding="utf-8")
         runs = out / f"twin_{label}_runs"
         if runs.exists():  # a previous --simulate into the same --out
             shutil.rmtree(runs)
         say(f"simulate: running {proc.name} on the bench with the {models[label].name} twin")
-        folder, verdict = run_twin(entry, proc, runs, speed)
+        folder, verdict = run_twin(entry, proc, runs, speed, tuple(models[label].effects))
         try:
             trajs[label] = load_data(folder, dut=serial)
         except ValueError as exc:

@@ -42,9 +42,21 @@ FIRST_ORDER_KEYS = {
     "scale_supply": "scale_supply_coeff_per_v",
 }
 TWIN_NOISE_FRACTION = 0.01  # the twin's white noise, relative to the measured part's
-COMPARED_KINDS = ("static", "plateau", "stop_static")
+COMPARED_KINDS = ("static", "plateau", "stop_static", "ramp_plateau")
 MAX_RATE_MISMATCH_DPS = 1.0  # matched windows must be at the same table rate
 MAX_ANGLE_MISMATCH_DEG = 5.0  # and, at rest, the same table angle
+# a ramp's plateau is matched by its die temperature instead of its order: the twin's ramp,
+# one part alone, turns when its own die has covered the span, a measured run of several
+# parts when the last die has, so the same order can be another temperature (the sweeps of
+# the rate set differ by one or more plateaus). A measured ramp plateau piece is compared
+# with the twin's piece of the same condition, rate, piece number and ramp direction
+# (heating or cooling) whose die temperature is nearest, if it is within this
+MAX_RAMP_TEMP_MISMATCH_C = 1.0
+# the twin's bench: the model's effects only. The honest thermal physics (element lag,
+# gradient bias, hysteresis, socket air) is off, or the twin would carry them twice (once as
+# the model's terms, once as the bench's hidden draws); the die's own heat path (chamber ->
+# die lag, self-heating) stays the bench's, so the die temperature follows the same history
+TWIN_SIM_CONFIG: dict[str, Any] = {"part_physics": {"thermal": {"mode": "ideal"}}}
 MIN_WINDOW_SAMPLES = 3
 MAX_PIECE_S = 10.0  # windows are compared in pieces of at most this (the workflow's blocks)
 
@@ -83,6 +95,11 @@ def part_entry(
     return entry
 
 
+def twin_config(entry: dict[str, Any]) -> dict[str, Any]:
+    """The twin's sim config: its part on a bench without the honest thermal physics."""
+    return {**TWIN_SIM_CONFIG, "parts": [entry]}
+
+
 @dataclass(frozen=True)
 class Windows:
     """The analysed windows of one record: sample ranges, by key, in time order."""
@@ -95,6 +112,8 @@ class Windows:
     angle_deg: FloatArray
     duration_s: FloatArray
     center_s: FloatArray
+    temp_c: FloatArray
+    heating: np.ndarray  # bool: the piece lies before the record's hottest sample
 
 
 def _pieces(a: int, b: int, per_piece: int) -> list[tuple[int, int]]:
@@ -133,7 +152,8 @@ def windows_of(traj: Trajectory) -> Windows:
     stop = np.asarray(stops, dtype=np.int64)
     if not keys:
         empty = np.zeros(0)
-        return Windows((), start, stop, empty, empty, empty, empty, empty)
+        return Windows((), start, stop, empty, empty, empty, empty, empty, empty,
+                       np.zeros(0, dtype=bool))
     t0 = traj.time_s[start]
     t1 = traj.time_s[stop - 1] + step
     ang = np.deg2rad(traj.ref_angle_deg)
@@ -148,6 +168,8 @@ def windows_of(traj: Trajectory) -> Windows:
         angle_deg=angle,
         duration_s=t1 - t0,
         center_s=0.5 * (t0 + t1),
+        temp_c=block_mean(traj.temp_c, start, stop),
+        heating=0.5 * (t0 + t1) < traj.time_s[int(np.argmax(traj.temp_c))],
     )
 
 
@@ -211,14 +233,34 @@ def _matches(meas: Windows, i: int, twin: Windows, j: int) -> bool:
     return abs(diff) <= MAX_ANGLE_MISMATCH_DEG
 
 
+def _nearest_ramp_piece(meas: Windows, i: int, twin: Windows) -> int | None:
+    """The twin's ramp plateau piece for measured piece `i`: same condition, piece number,
+    rate and ramp direction, the nearest die temperature within MAX_RAMP_TEMP_MISMATCH_C."""
+    cond, _, _, piece = meas.keys[i]
+    best, best_d = None, MAX_RAMP_TEMP_MISMATCH_C
+    for j, (c, kind, _, p) in enumerate(twin.keys):
+        if (kind != "ramp_plateau" or c != cond or p != piece
+                or twin.heating[j] != meas.heating[i]
+                or abs(meas.rate_dps[i] - twin.rate_dps[j]) > MAX_RATE_MISMATCH_DPS):
+            continue
+        d = abs(meas.temp_c[i] - twin.temp_c[j])
+        if d <= best_d:
+            best, best_d = j, d
+    return best
+
+
 def residuals_against(meas: Windows, twin: Windows) -> dict[WindowKey, float]:
     """measured - simulated mean of every window both runs hold (same key, same rate and
-    angle)."""
+    angle; a ramp plateau: the nearest die temperature, `_nearest_ramp_piece`)."""
     index = {k: j for j, k in enumerate(twin.keys)}
     out: dict[WindowKey, float] = {}
     for i, key in enumerate(meas.keys):
-        j = index.get(key)
-        if j is not None and _matches(meas, i, twin, j):
+        if key[1] == "ramp_plateau":
+            j = _nearest_ramp_piece(meas, i, twin)
+        else:
+            j = index.get(key)
+            j = j if j is not None and _matches(meas, i, twin, j) else None
+        if j is not None:
             out[key] = float(meas.mean_dps[i] - twin.mean_dps[j])
     return out
 
@@ -256,7 +298,7 @@ def compare(
     if not chosen:
         raise ValueError(
             "the twin runs hold none of the measured run's windows (static, plateau, "
-            "stop_static); was the same procedure simulated?"
+            "stop_static, ramp_plateau); was the same procedure simulated?"
         )
     idx = np.asarray(chosen, dtype=np.int64)
     keys = tuple(meas.keys[i] for i in chosen)
@@ -268,8 +310,9 @@ def compare(
     if len(keys) < len(meas.keys):
         notes.append(
             f"{len(meas.keys) - len(keys)} of {len(meas.keys)} measured window pieces have no "
-            "matching piece in both twin runs (a retry, a step the twin ran differently, or a "
-            "window the twin held for a shorter time) and are not compared"
+            "matching piece in both twin runs (a retry, a step the twin ran differently, a "
+            "window the twin held for a shorter time, or a ramp plateau the twin ran at "
+            "another die temperature) and are not compared"
         )
     return SimulationComparison(
         keys=keys,

@@ -10,10 +10,18 @@ import numpy as np
 import pytest
 
 from drivers.sim.config import parse_sim_config
+from drivers.sim.thermal_physics import draw_thermal
 from procedures.model.gyro_model import GyroModel, first_order_model, zero_params
 from procedures.model.noise import NoiseModel
 from procedures.model.trajectory import Segment, Trajectory
-from procedures.model.twin import compare, part_entry, window_floor_dps, windows_of
+from procedures.model.twin import (
+    MAX_RAMP_TEMP_MISMATCH_C,
+    compare,
+    part_entry,
+    twin_config,
+    window_floor_dps,
+    windows_of,
+)
 
 RATE_HZ = 20.0
 
@@ -44,6 +52,21 @@ def test_part_entry_carries_every_term_the_bench_reads() -> None:
     assert part.supply_current_a == 0.02
 
 
+def test_a_twin_runs_without_the_bench_s_thermal_physics_and_carries_the_found_terms(
+) -> None:
+    """The found thermal term is the twin's generic term; the bench's hidden element lag,
+    gradient bias and hysteresis are off (else the twin carried them twice)."""
+    effects = {e: dict(zero_params(e)) for e in first_order_model().effects}
+    effects["lib_w_dTdt"] = {"coeff": -2.5e-4}
+    model = GyroModel(name="extended", bias_dps=0.4, scale=1.01, effects=effects)
+    config = parse_sim_config(twin_config(part_entry(model, "SIM-2931")))
+    assert config.part_physics.thermal.mode == "ideal"
+    assert draw_thermal("SIM-2931", config.part_physics.thermal).ideal
+    assert config.parts[0].effects == {"lib_w_dTdt": {"coeff": -2.5e-4}}
+    # the die's own heat path stays the bench's default
+    assert config.part_physics.die_tau_s == parse_sim_config({}).part_physics.die_tau_s
+
+
 def test_a_base_model_twin_has_no_first_order_terms_of_its_own() -> None:
     """Left out, the bench would draw them from the population: they are set to zero."""
     entry = part_entry(GyroModel(name="base", bias_dps=0.5, scale=1.0), "SIM-8")
@@ -64,8 +87,8 @@ PLAN = [
 ]
 
 
-def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: float = 3.0
-          ) -> Trajectory:
+def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: float = 3.0,
+          temp_c_per_s: float = 0.0, temp_offset_c: float = 0.0) -> Trajectory:
     t_parts, rate, angle, segs = [], [], [], []
     t0 = 0.0
     for cond, kind, dur, w, ang in plan or PLAN:
@@ -84,7 +107,7 @@ def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: flo
         gyro_dps=np.zeros(n) if signal is None else signal,
         ref_rate_dps=np.concatenate(rate),
         ref_angle_deg=np.concatenate(angle),
-        temp_c=np.full(n, 25.0),
+        temp_c=25.0 + temp_offset_c + temp_c_per_s * time_s,
         supply_v=np.full(n, 5.0),
         time_since_power_on_s=time_s + 100.0,
         segments=tuple(segs),
@@ -172,3 +195,43 @@ def test_a_model_the_bench_cannot_hold_is_refused_before_any_bench_starts() -> N
     entry = part_entry(GyroModel(name="odd", bias_dps=0.0, scale=3.0), "SIM-9")
     with pytest.raises(UserError, match="cannot be a simulated part.*scale"):
         _check_entry(entry, "odd")
+
+
+# a ramp: plateaus of 6 s at the rate set while the die heats (eol-ramp), a static dwell
+SWEEP = [("", "ramp_plateau", 6.0, w, 0.0) for w in (200.0, -200.0, 100.0, -100.0)]
+RAMP = SWEEP * 3 + [("ramp_top", "static", 5.0, 0.0, 90.0)]
+HEAT = 0.05  # C/s: 3 C/min; a plateau every 8.95 s, a sweep of the rate set 1.8 C
+PLATEAU_EVERY_S = 6.0 - 1 / RATE_HZ + 3.0  # _traj: a window's last sample + the gap
+
+
+def _ramp(plan: list, offset_c: float = 0.0) -> Trajectory:
+    """A heating ramp whose output is a bias in the die temperature (0.01 deg/s per C)."""
+    traj = _traj(plan=plan, temp_c_per_s=HEAT, temp_offset_c=offset_c)
+    return dataclasses.replace(traj, gyro_dps=0.01 * (traj.temp_c - 25.0))
+
+
+def test_ramp_plateaus_are_matched_by_rate_direction_and_nearest_die_temperature() -> None:
+    """A twin whose ramp ran a sweep more before the same temperatures (its plateaus' order
+    four off, as a part alone turns at another time than six together): each measured
+    plateau is compared with the twin's at the same rate and die temperature (no gap from
+    the temperature law). A twin 2 C hotter at every plateau holds, at the same rate, one a
+    sweep earlier 0.2 C away (matched) and none for the first sweep (not compared, noted)."""
+    measured = _ramp(RAMP)
+    w = windows_of(measured)
+    assert [k[2] for k in w.keys if k[1] == "ramp_plateau"] == list(range(12))
+    assert w.heating[:12].all()  # the die heats through the whole record here
+    longer = _ramp(SWEEP + RAMP, offset_c=-HEAT * 4 * PLATEAU_EVERY_S)
+    cmp = compare(measured, longer, longer, _white(0.001))
+    assert len(cmp.keys) == 13 and not cmp.notes
+    assert np.abs(cmp.residual_after_dps).max() < 1e-9
+    far = 2 * MAX_RAMP_TEMP_MISMATCH_C
+    hot = _ramp(RAMP, offset_c=far)
+    cmp = compare(measured, hot, hot, _white(0.001))
+    kept = [k[2] for k in cmp.keys if k[1] == "ramp_plateau"]
+    assert kept == list(range(4, 12))
+    assert np.abs(cmp.residual_after_dps[:8]).max() == pytest.approx(0.01 * 0.2, abs=1e-3)
+    assert "4 of 13 measured window pieces" in cmp.notes[0]
+    assert "another die temperature" in cmp.notes[0]
+    cold = _ramp(RAMP, offset_c=-far)  # the last sweep has no twin plateau as warm
+    cmp = compare(measured, cold, cold, _white(0.001))
+    assert [k[2] for k in cmp.keys if k[1] == "ramp_plateau"] == list(range(8))
