@@ -25,7 +25,12 @@ floor, the pieces compared (and how many are ramp plateaus), and the largest die
 difference measured - twin over the compared ramp plateau pieces.
 
     python3 benchmarks/bench_discrepancy_simulate.py --thermal [--procedure PATH]
-        [--serials SIM-2931,SIM-2932,...] [--bench honest|ideal|gradient-only|...] [--keep DIR]
+        [--serials SIM-2931,SIM-2932,...] [--bench honest|ideal|gradient-only|...] [--alone]
+        [--keep DIR]
+
+With --alone each part runs in a station run of its own, as its twins do (one part, socket
+1): in lockstep the twin's ramp then turns when the measured one did. Several parts in one
+run turn when the last die has covered the span, the twin alone when its own has.
 """
 
 from __future__ import annotations
@@ -143,10 +148,7 @@ def thermal_one(serial: str, folder: Path, out: Path) -> dict[str, float]:
     before, after = res["simulation_gap_before_dps"], res["simulation_gap_after_dps"]
     wins = res["simulation_windows"]
     ramp = [w for w in wins if w["kind"] == "ramp_plateau"]
-    meas_in = _window_inputs(folder, serial)
-    twin_in = _window_inputs(Path(res["simulation_twin_after"]["run_folder"]), serial)
-    d_temp = [abs(meas_in[k][0] - twin_in[k][0]) for w in ramp
-              if (k := (w["condition"], w["kind"], w["ordinal"], w["piece"])) in twin_in]
+    d_temp = [abs(w["die_temp_c"] - w["twin_die_temp_c"]) for w in ramp]
     print(f"{serial} {folder.name}: exit {code} in {time.perf_counter() - t0:.0f} s; named "
           f"{res['effects_added'] or '-'}; simulation gap before {before:.4f} "
           f"({before / floor:.2f} x), after {after:.4f} ({after / floor:.2f} x), floor "
@@ -158,10 +160,16 @@ def thermal_one(serial: str, folder: Path, out: Path) -> dict[str, float]:
     return {"before": before / floor, "after": after / floor}
 
 
-def thermal(serials: list[str], procedure: Path, work: Path, bench: str
+def thermal(serials: list[str], procedure: Path, work: Path, bench: str, alone: bool
             ) -> list[dict[str, float]]:
+    folders: dict[str, Path] = {}
+    if alone:  # each part its own station run: the twin's schedule is the measured one's
+        for serial in serials:
+            folders |= thermal_folders([serial], procedure, work / serial, bench)
+    else:
+        folders = thermal_folders(serials, procedure, work, bench)
     out = []
-    for serial, folder in thermal_folders(serials, procedure, work, bench).items():
+    for serial, folder in folders.items():
         try:
             out.append(thermal_one(serial, folder, work / f"disc_{serial}"))
         except (OSError, RuntimeError, ValueError, KeyError) as exc:
@@ -191,6 +199,8 @@ def main() -> None:
                     help="the honest thermal bench's parts, no hidden harmonic")
     ap.add_argument("--procedure", type=Path, default=ROOT / "config" / "procedures"
                     / "eol-ramp.yaml", help="with --thermal: the procedure the parts run")
+    ap.add_argument("--alone", action="store_true",
+                    help="with --thermal: each part in a station run of its own")
     ap.add_argument("--bench", default="honest",
                     help="with --thermal: honest, ideal, gradient-only or hysteresis-only")
     args = ap.parse_args()
@@ -199,10 +209,10 @@ def main() -> None:
     if args.thermal:
         serials = args.serials.split(",")
         if args.keep:
-            ratios = thermal(serials, args.procedure, args.keep, args.bench)
+            ratios = thermal(serials, args.procedure, args.keep, args.bench, args.alone)
         else:
             with tempfile.TemporaryDirectory() as tmp:
-                ratios = thermal(serials, args.procedure, Path(tmp), args.bench)
+                ratios = thermal(serials, args.procedure, Path(tmp), args.bench, args.alone)
         args.serials = ""
     for serial in filter(None, args.serials.split(",")):
         try:

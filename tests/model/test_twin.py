@@ -210,28 +210,23 @@ def _ramp(plan: list, offset_c: float = 0.0) -> Trajectory:
     return dataclasses.replace(traj, gyro_dps=0.01 * (traj.temp_c - 25.0))
 
 
-def test_ramp_plateaus_are_matched_by_rate_direction_and_nearest_die_temperature() -> None:
-    """A twin whose ramp ran a sweep more before the same temperatures (its plateaus' order
-    four off, as a part alone turns at another time than six together): each measured
-    plateau is compared with the twin's at the same rate and die temperature (no gap from
-    the temperature law). A twin 2 C hotter at every plateau holds, at the same rate, one a
-    sweep earlier 0.2 C away (matched) and none for the first sweep (not compared, noted)."""
+def test_ramp_plateaus_are_compared_by_key_rate_and_die_temperature() -> None:
+    """In lockstep the twin of a part run alone ramps on the measured timeline: every ramp
+    plateau is compared (the dies a few tenths of a degree apart: the socket's air). A twin
+    whose ramp ran a sweep of the rate set more before (as a part alone turns at another
+    time than six together) holds each plateau's key at the same rate but 1.8 C colder:
+    those are not compared, and the note says why."""
     measured = _ramp(RAMP)
     w = windows_of(measured)
     assert [k[2] for k in w.keys if k[1] == "ramp_plateau"] == list(range(12))
-    assert w.heating[:12].all()  # the die heats through the whole record here
+    same = _ramp(RAMP, offset_c=0.3)
+    cmp = compare(measured, same, same, _white(0.001))
+    assert len(cmp.keys) == 13 and not cmp.notes
+    assert np.allclose(cmp.twin_temp_c - cmp.temp_c, 0.3)
+    assert np.allclose(cmp.residual_after_dps[:12], -0.01 * 0.3)
     longer = _ramp(SWEEP + RAMP, offset_c=-HEAT * 4 * PLATEAU_EVERY_S)
     cmp = compare(measured, longer, longer, _white(0.001))
-    assert len(cmp.keys) == 13 and not cmp.notes
-    assert np.abs(cmp.residual_after_dps).max() < 1e-9
-    far = 2 * MAX_RAMP_TEMP_MISMATCH_C
-    hot = _ramp(RAMP, offset_c=far)
-    cmp = compare(measured, hot, hot, _white(0.001))
-    kept = [k[2] for k in cmp.keys if k[1] == "ramp_plateau"]
-    assert kept == list(range(4, 12))
-    assert np.abs(cmp.residual_after_dps[:8]).max() == pytest.approx(0.01 * 0.2, abs=1e-3)
-    assert "4 of 13 measured window pieces" in cmp.notes[0]
+    assert cmp.keys == (("ramp_top", "static", 0, 0),)
+    assert "12 of 13 measured window pieces" in cmp.notes[0]
     assert "another die temperature" in cmp.notes[0]
-    cold = _ramp(RAMP, offset_c=-far)  # the last sweep has no twin plateau as warm
-    cmp = compare(measured, cold, cold, _white(0.001))
-    assert [k[2] for k in cmp.keys if k[1] == "ramp_plateau"] == list(range(8))
+    assert HEAT * 4 * PLATEAU_EVERY_S > MAX_RAMP_TEMP_MISMATCH_C
