@@ -136,6 +136,28 @@ def thermal_folders(serials: list[str], procedure: Path, work: Path, bench: str
             if str(result.verdicts[i + 1]) in ("PASS", "FAIL")}
 
 
+def definition_gap(out: Path, serial: str, floor: float) -> float:
+    """The extended model's twin run against the extended model as the station evaluates it
+    on that run (its own dT/dt, 10 s centred average of the die sensor across gaps up to
+    30 s; its own play operator), piece by piece, as the duration-weighted RMS of the piece
+    means' difference over the floor: what differs between the bench's generic terms and
+    the station's library terms (the twin is quiet, so noise is 1 % of the measured)."""
+    from procedures.model.model_io import load_model
+    from procedures.model.run_folder import load_data
+    from procedures.model.twin import weighted_rms, windows_of
+
+    res = json.loads((out / "discrepancy.json").read_text())
+    traj = load_data(Path(res["simulation_twin_after"]["run_folder"]), dut=serial)
+    model = load_model(out / "model.yaml")
+    w = windows_of(traj)
+    predicted = model.predict(traj)
+    from procedures.model.blocks import block_mean
+
+    diff = w.mean_dps - block_mean(predicted, w.start, w.stop)
+    diff = diff - np.average(diff, weights=w.duration_s)  # the bias: the run's own fit
+    return weighted_rms(diff, w.duration_s) / floor
+
+
 def thermal_one(serial: str, folder: Path, out: Path) -> dict[str, float]:
     """`--simulate` on one part's folder of the honest bench: its row."""
     from station.cli import main as cli
@@ -155,8 +177,9 @@ def thermal_one(serial: str, folder: Path, out: Path) -> dict[str, float]:
           f"{floor:.4f} deg/s; {res['simulation_windows_compared']} of "
           f"{res['simulation_windows_measured']} pieces compared, {len(ramp)} ramp plateau "
           f"pieces (die temperature meas - twin at most "
-          f"{max(d_temp, default=math.nan):.3f} C); notes {res['simulation_notes']}",
-          flush=True)
+          f"{max(d_temp, default=math.nan):.3f} C); the extended twin against its model as "
+          f"the station evaluates it {definition_gap(out, serial, floor):.2f} x floor; notes "
+          f"{res['simulation_notes']}", flush=True)
     return {"before": before / floor, "after": after / floor}
 
 
