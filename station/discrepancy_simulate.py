@@ -150,12 +150,13 @@ def simulate(
 
     proc, proc_note = record_procedure(run_folder, procedure)
     current = supply_current_a(run_folder)
+    socket = max(read_record(run_folder).dut.socket, 1)  # the measured part's (its air)
     serial = measured.serial or "SIM-TWIN"
     detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve())}
     trajs: dict[str, Trajectory] = {}
     models = {"before": result.initial_model, "after": result.final_model}
     for label in TWINS:
-        entry = part_entry(models[label], serial,
+        entry = part_entry(models[label], serial, socket=socket,
                            measured_arw_deg_per_sqrt_h=result.noise.arw_deg_per_sqrt_h,
                            supply_current_a=current)
         _check_entry(entry, models[label].name)

@@ -55,11 +55,18 @@ MAX_ANGLE_MISMATCH_DEG = 5.0  # and, at rest, the same table angle
 # seconds away at another die rate, and the gap rose (2.26 against 1.64 x the floor on a
 # part alone)
 MAX_RAMP_TEMP_MISMATCH_C = 1.0
-# the twin's bench: the model's effects only. The honest thermal physics (element lag,
-# gradient bias, hysteresis, socket air) is off, or the twin would carry them twice (once as
-# the model's terms, once as the bench's hidden draws); the die's own heat path (chamber ->
-# die lag, self-heating) stays the bench's, so the die temperature follows the same history
-TWIN_SIM_CONFIG: dict[str, Any] = {"part_physics": {"thermal": {"mode": "ideal"}}}
+# the twin's bench: the model's effects only. The part's honest thermal physics (element
+# lag, gradient bias, hysteresis: drivers/sim/thermal_physics.py) is off, or the twin would
+# carry them twice (once as the model's terms, once as the bench's hidden draws); the die's
+# own heat path stays the bench's: chamber -> die lag, self-heating and the air at the
+# socket (drawn per socket from the bench's seed, so a twin in the measured part's socket of
+# the default bench has the measured die's air: with it left out, `mode: ideal`, the twin's
+# die ran 0.11 C warmer, and on eol-ramp a part's turn at the top came a plateau apart)
+TWIN_SIM_CONFIG: dict[str, Any] = {"part_physics": {"thermal": {
+    "element_tau_s": 0.0, "element_tau_sigma_s": 0.0,
+    "gradient_dps_per_c_per_min": 0.0, "gradient_sigma_dps_per_c_per_min": 0.0,
+    "hysteresis_dps": 0.0, "hysteresis_sigma_dps": 0.0,
+}}}
 MIN_WINDOW_SAMPLES = 3
 MAX_PIECE_S = 10.0  # windows are compared in pieces of at most this (the workflow's blocks)
 
@@ -99,7 +106,7 @@ def part_entry(
 
 
 def twin_config(entry: dict[str, Any]) -> dict[str, Any]:
-    """The twin's sim config: its part on a bench without the honest thermal physics."""
+    """The twin's sim config: its part on a bench without the part's thermal physics."""
     return {**TWIN_SIM_CONFIG, "parts": [entry]}
 
 

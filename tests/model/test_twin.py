@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drivers.sim.config import parse_sim_config
-from drivers.sim.thermal_physics import draw_thermal
+from drivers.sim.thermal_physics import draw_thermal, socket_air_offset_c
 from procedures.model.gyro_model import GyroModel, first_order_model, zero_params
 from procedures.model.noise import NoiseModel
 from procedures.model.trajectory import Segment, Trajectory
@@ -59,12 +59,15 @@ def test_a_twin_runs_without_the_bench_s_thermal_physics_and_carries_the_found_t
     effects = {e: dict(zero_params(e)) for e in first_order_model().effects}
     effects["lib_w_dTdt"] = {"coeff": -2.5e-4}
     model = GyroModel(name="extended", bias_dps=0.4, scale=1.01, effects=effects)
-    config = parse_sim_config(twin_config(part_entry(model, "SIM-2931")))
-    assert config.part_physics.thermal.mode == "ideal"
+    config = parse_sim_config(twin_config(part_entry(model, "SIM-2931", socket=3)))
     assert draw_thermal("SIM-2931", config.part_physics.thermal).ideal
     assert config.parts[0].effects == {"lib_w_dTdt": {"coeff": -2.5e-4}}
-    # the die's own heat path stays the bench's default
-    assert config.part_physics.die_tau_s == parse_sim_config({}).part_physics.die_tau_s
+    assert config.parts[0].socket == 3
+    # the die's own heat path stays the bench's: die lag, self-heating, the socket's air
+    default = parse_sim_config({}).part_physics
+    assert config.part_physics.die_tau_s == default.die_tau_s
+    assert socket_air_offset_c(0, 3, config.part_physics.thermal) == socket_air_offset_c(
+        0, 3, default.thermal) != 0.0
 
 
 def test_a_base_model_twin_has_no_first_order_terms_of_its_own() -> None:
