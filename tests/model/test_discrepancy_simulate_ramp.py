@@ -4,8 +4,8 @@ ramp_short.yaml: 25 -> 27 -> 25 C, the table cycling 4 rates) on the default ben
 lag, gradient bias, hysteresis, socket air), in lockstep, analysed from `first_order`.
 
 - the ramp's plateaus are compared: the twins ramp on the measured timeline (a part alone,
-  in lockstep), every ramp plateau piece is matched, the dies within 0.5 C (the socket's
-  air: 0.11 C);
+  in lockstep), every ramp plateau piece is matched, the dies at the same temperature (the
+  twin in the measured part's socket of the same bench: the same air);
 - the twins run on a bench with the honest thermal physics off and carry the model's terms
   only, the found thermal term as a generic term; the twin run's certificate names them;
 - the gap with the extended model's twin is within 1.5 x its floor, and where a term in the
