@@ -15,6 +15,7 @@ import logging
 import shutil
 from collections.abc import Callable
 from dataclasses import replace
+from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -77,6 +78,37 @@ def supply_current_a(run_folder: Path) -> float | None:
     return sum(currents) / len(currents) if currents else None
 
 
+SAME_CYCLE_S = 10.0  # run folders started this close together, same procedure: one cycle
+
+
+def parse_utc_s(text: str) -> float:
+    """Seconds of an ISO time stamp (a record's started_utc)."""
+    return datetime.fromisoformat(text).timestamp()
+
+
+def companions(run_folder: Path) -> list[dict[str, Any]]:
+    """The other parts of the measured run's cycle (sibling run folders started with it, the
+    same procedure, other sockets) as plain bench parts of their serials. The twin runs
+    among them: a ramp turns when the last die of the load has covered the span, so a twin
+    alone turned elsewhere and its plateaus left the measured timeline (eol-ramp, six parts
+    in one run: 53-133 of 148 pieces compared); among the same parts it turns with them."""
+    rec = read_record(run_folder)
+    t0 = parse_utc_s(rec.started_utc)
+    out: dict[int, dict[str, Any]] = {}
+    for sibling in sorted(run_folder.parent.iterdir()):
+        if sibling == run_folder or not (sibling / "record.json").is_file():
+            continue
+        try:
+            other = read_record(sibling)
+        except ValueError:
+            continue
+        if (other.procedure.sha256 == rec.procedure.sha256
+                and other.dut.socket not in (rec.dut.socket, *out)
+                and abs(parse_utc_s(other.started_utc) - t0) <= SAME_CYCLE_S):
+            out[other.dut.socket] = {"socket": other.dut.socket, "serial": other.dut.serial}
+    return [out[k] for k in sorted(out)]
+
+
 def _check_entry(entry: dict[str, Any], model_name: str) -> None:
     """UserError before any bench starts if the bench cannot hold the model as a part."""
     # the simulated bench: loaded only when asked for
@@ -93,7 +125,7 @@ def _check_entry(entry: dict[str, Any], model_name: str) -> None:
 
 def run_twin(
     entry: dict[str, Any], procedure: Path, out: Path, speed: float | None,
-    effects: tuple[str, ...] = (),
+    effects: tuple[str, ...] = (), others: list[dict[str, Any]] | None = None,
 ) -> tuple[Path, str]:
     """One station run of `procedure` on a bench holding the twin part (the honest thermal
     physics off: the part carries only the model's `effects`, which its record and
@@ -106,7 +138,8 @@ def run_twin(
 
     for attempt in range(1, BENCH_START_ATTEMPTS + 1):
         try:
-            result, _ = run_simulated([entry], procedure_path=procedure, out=out, speed=speed,
+            result, _ = run_simulated([entry, *(others or [])], procedure_path=procedure,
+                                      out=out, speed=speed,
                                       sim_config=TWIN_SIM_CONFIG, certificate=True,
                                       part_effects={int(entry["socket"]): effects})
             break
@@ -151,8 +184,10 @@ def simulate(
     proc, proc_note = record_procedure(run_folder, procedure)
     current = supply_current_a(run_folder)
     socket = max(read_record(run_folder).dut.socket, 1)  # the measured part's (its air)
+    others = companions(run_folder)  # the rest of its load: the ramp turns with them
     serial = measured.serial or "SIM-TWIN"
-    detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve())}
+    detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve()),
+                              "simulation_companions": [o["serial"] for o in others]}
     trajs: dict[str, Trajectory] = {}
     models = {"before": result.initial_model, "after": result.final_model}
     for label in TWINS:
@@ -166,7 +201,8 @@ def simulate(
         if runs.exists():  # a previous --simulate into the same --out
             shutil.rmtree(runs)
         say(f"simulate: running {proc.name} on the bench with the {models[label].name} twin")
-        folder, verdict = run_twin(entry, proc, runs, speed, tuple(models[label].effects))
+        folder, verdict = run_twin(entry, proc, runs, speed, tuple(models[label].effects),
+                                   others)
         try:
             trajs[label] = load_data(folder, dut=serial)
         except ValueError as exc:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -236,3 +237,32 @@ def test_ramp_plateaus_are_compared_by_key_rate_and_die_temperature() -> None:
     assert "12 of 13 measured window pieces" in cmp.notes[0]
     assert "another die temperature" in cmp.notes[0]
     assert HEAT * 4 * PLATEAU_EVERY_S > MAX_RAMP_TEMP_MISMATCH_C
+
+
+def _record(folder: Path, serial: str, socket: int, started: str, sha: str = "abc") -> Path:
+    from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, write_record
+
+    folder.mkdir(parents=True)
+    write_record(folder, RunRecord(
+        run_id=folder.name, verdict=Verdict.PASS, started_utc=started,
+        dut=Dut(serial=serial, socket=socket), product=FileRef(path="p.yaml", sha256=""),
+        procedure=FileRef(path="eol-ramp.yaml", sha256=sha)))
+    return folder
+
+
+def test_the_twin_runs_among_the_other_parts_of_the_measured_cycle(tmp_path: Path) -> None:
+    """A ramp turns when the last die of the load has covered the span: the twin's bench
+    holds the other parts the measured run started with (same procedure, within seconds),
+    not parts of another run or another procedure."""
+    from station.discrepancy_simulate import companions
+
+    t = "2026-11-28T03:30:50.{:03d}+00:00"
+    measured = _record(tmp_path / "A_SIM-2932", "SIM-2932", 2, t.format(120))
+    _record(tmp_path / "A_SIM-2931", "SIM-2931", 1, t.format(100))
+    _record(tmp_path / "A_SIM-2933", "SIM-2933", 3, t.format(140))
+    _record(tmp_path / "B_SIM-2934", "SIM-2934", 4, "2026-11-28T04:10:00.000+00:00")
+    _record(tmp_path / "A_SIM-2935", "SIM-2935", 5, t.format(150), sha="other")
+    assert companions(measured) == [{"socket": 1, "serial": "SIM-2931"},
+                                    {"socket": 3, "serial": "SIM-2933"}]
+    alone = _record(tmp_path / "alone" / "C_SIM-2936", "SIM-2936", 1, t.format(0))
+    assert companions(alone) == []
