@@ -50,8 +50,9 @@ MAX_ANGLE_MISMATCH_DEG = 5.0  # and, at rest, the same table angle
 # on the default bench. They part when the ramp turns elsewhere: a run of several parts
 # turns when the last die has covered the span (so the twin runs among the measured cycle's
 # other parts, station/discrepancy_simulate.py); a twin whose die is 0.11 C off (a bench
-# whose socket air is not the twin's) can turn a plateau later. The same plateau (order, rate) is then 0.4-0.6 C away on eol-ramp (a plateau's
-# time at the die's rate), a sweep of the rate set ~5 C: not compared beyond this. With
+# whose socket air is not the twin's) can turn a plateau later. The same plateau (order,
+# rate) is then 0.4-0.6 C away on eol-ramp (a plateau's time at the die's rate), a sweep of
+# the rate set ~5 C: not compared beyond this. With
 # 1 C, a turn a plateau apart kept its shifted pieces, compared at another die rate (2.06 x
 # the floor on a part whose lag the twin carried). Matching by the nearest die temperature
 # instead was tried: near the turn the die barely moves, so a 0.1 C offset picked plateaus
