@@ -3,9 +3,11 @@
 The starting model (fitted to the run) and the extended model each become a simulated part
 (procedures/model/twin.py `part_entry`); their sim configs are written next to the report
 (`twin_before.yaml`, `twin_after.yaml`), the procedure the run's record names runs on a
-freshly started simulated bench with each (one part, the procedure's conditions; in lockstep
-with the station's clock unless a speed is given), and the measured run is compared window
-piece by window piece with both twin runs (`twin.compare`).
+freshly started simulated bench with each (in the measured part's socket, the part's own
+thermal physics off, among the other parts of the measured cycle; the procedure's
+conditions; in lockstep with the station's clock unless a speed is given; its record and
+certificate name the effects it carries), and the measured run is compared window piece by
+window piece with both twin runs (`twin.compare`).
 """
 
 from __future__ import annotations
