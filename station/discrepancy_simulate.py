@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import shutil
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,6 +29,7 @@ from station.errors import UserError
 
 if TYPE_CHECKING:
     from procedures.model.discrepancy import DiscrepancyResult
+    from procedures.model.gyro_model import GyroModel
     from procedures.model.trajectory import Trajectory
     from procedures.model.twin import SimulationComparison
 
@@ -88,15 +90,16 @@ def parse_utc_s(text: str) -> float:
     return datetime.fromisoformat(text).timestamp()
 
 
-def companions(run_folder: Path) -> list[dict[str, Any]]:
+def companions(run_folder: Path) -> dict[int, Path]:
     """The other parts of the measured run's cycle (sibling run folders started with it, the
-    same procedure, other sockets) as plain bench parts of their serials. The twin runs
-    among them: a ramp turns when the last die of the load has covered the span, so a twin
-    alone turned elsewhere and its plateaus left the measured timeline (eol-ramp, six parts
-    in one run: 53-133 of 148 pieces compared); among the same parts it turns with them."""
+    same procedure, other sockets), socket -> run folder. The twin runs among them (bench
+    parts of their serials): a ramp turns when the last die of the load has covered the
+    span, so a twin alone turned elsewhere and its plateaus left the measured timeline
+    (eol-ramp, six parts in one run: 53-133 of 148 pieces compared); among the same parts
+    it turns with them."""
     rec = read_record(run_folder)
     t0 = parse_utc_s(rec.started_utc)
-    out: dict[int, dict[str, Any]] = {}
+    out: dict[int, Path] = {}
     for sibling in sorted(run_folder.parent.iterdir()):
         if sibling == run_folder or not (sibling / "record.json").is_file():
             continue
@@ -107,8 +110,8 @@ def companions(run_folder: Path) -> list[dict[str, Any]]:
         if (other.procedure.sha256 == rec.procedure.sha256
                 and other.dut.socket not in (rec.dut.socket, *out)
                 and abs(parse_utc_s(other.started_utc) - t0) <= SAME_CYCLE_S):
-            out[other.dut.socket] = {"socket": other.dut.socket, "serial": other.dut.serial}
-    return [out[k] for k in sorted(out)]
+            out[other.dut.socket] = sibling
+    return dict(sorted(out.items()))
 
 
 def _check_entry(entry: dict[str, Any], model_name: str) -> None:
@@ -128,6 +131,7 @@ def _check_entry(entry: dict[str, Any], model_name: str) -> None:
 def run_twin(
     entry: dict[str, Any], procedure: Path, out: Path, speed: float | None,
     effects: tuple[str, ...] = (), others: list[dict[str, Any]] | None = None,
+    bench: dict[str, Any] | None = None,
 ) -> tuple[Path, str]:
     """One station run of `procedure` on a bench holding the twin part (the honest thermal
     physics off: the part carries only the model's `effects`, which its record and
@@ -142,7 +146,8 @@ def run_twin(
         try:
             result, _ = run_simulated([entry, *(others or [])], procedure_path=procedure,
                                       out=out, speed=speed,
-                                      sim_config=TWIN_SIM_CONFIG, certificate=True,
+                                      sim_config=bench or TWIN_SIM_CONFIG,
+                                      certificate=True,
                                       part_effects={int(entry["socket"]): effects})
             break
         except BenchStartError as exc:  # slow to start on a loaded machine: start it again
@@ -167,6 +172,80 @@ def run_twin(
     return folder, verdict
 
 
+AIR_MATCH_C = 0.02  # a twin's die further than this from the measured: its air is given
+
+
+@dataclass
+class TwinRuns:
+    """What the twin runs of one measured run share: the procedure, the measured part's
+    socket and supply current, the other parts of its cycle, and the air given to sockets."""
+
+    run_folder: Path
+    procedure: Path
+    out: Path
+    serial: str
+    speed: float | None
+    current: float | None
+    arw: float
+    others: dict[int, Path]  # socket -> the measured run folder of a companion part
+    air_c: dict[int, float] = field(default_factory=dict)
+
+    def parts(self) -> list[dict[str, Any]]:
+        return [{"socket": k, "serial": read_record(f).dut.serial}
+                for k, f in sorted(self.others.items())]
+
+    def run(self, label: str, model: GyroModel, say: Callable[[str], None]
+            ) -> tuple[Path, dict[str, Any]]:
+        """The twin of `model` through the procedure: its run folder and JSON detail."""
+        from procedures.model.twin import part_entry, twin_bench, twin_config
+
+        socket = max(read_record(self.run_folder).dut.socket, 1)  # the measured one's air
+        entry = part_entry(model, self.serial, socket=socket, measured_arw_deg_per_sqrt_h=self.arw,
+                           supply_current_a=self.current)
+        _check_entry(entry, model.name)
+        config = self.out / f"twin_{label}.yaml"
+        config.write_text(yaml.safe_dump(twin_config(entry, self.air_c), sort_keys=False),
+                          encoding="utf-8")
+        runs = self.out / f"twin_{label}_runs"
+        if runs.exists():  # a previous --simulate into the same --out, or a first pass
+            shutil.rmtree(runs)
+        say(f"simulate: running {self.procedure.name} on the bench with the {model.name} twin")
+        folder, verdict = run_twin(entry, self.procedure, runs, self.speed,
+                                   tuple(model.effects), self.parts(), twin_bench(self.air_c))
+        return folder, {"model": model.name, "sim_config": str(config),
+                        "run_folder": str(folder), "verdict": verdict}
+
+    def air_to_give(self, measured: Trajectory, twin_folder: Path) -> dict[int, float]:
+        """Each socket's air that puts the twin run's dies at the measured ones (the
+        measured die minus the twin's over the first pieces, added to the twin bench's own
+        air); empty when every die is within AIR_MATCH_C already (the default bench)."""
+        from drivers.sim.config import ThermalPhysicsConfig
+        from drivers.sim.thermal_physics import socket_air_offset_c
+        from procedures.model.run_folder import load_data
+        from procedures.model.twin import TWIN_SIM_CONFIG, die_offset_c
+
+        pairs = {max(read_record(self.run_folder).dut.socket, 1): (measured, twin_folder)}
+        offsets = {k: _offset(m, f, self.serial) for k, (m, f) in pairs.items()}
+        if all(abs(v) <= AIR_MATCH_C or math.isnan(v) for v in offsets.values()):
+            return {}
+        for k, folder in self.others.items():  # their dies too: the ramp turns with them
+            serial = read_record(folder).dut.serial
+            twin = next(iter(sorted(twin_folder.parent.glob(f"*_{serial}"))), None)
+            if twin is not None:
+                offsets[k] = die_offset_c(load_data(folder, dut=serial),
+                                          load_data(twin, dut=serial))
+        own = ThermalPhysicsConfig(**TWIN_SIM_CONFIG["part_physics"]["thermal"])
+        return {k: socket_air_offset_c(0, k, own) + v for k, v in offsets.items()
+                if not math.isnan(v)}
+
+
+def _offset(measured: Trajectory, twin_folder: Path, serial: str) -> float:
+    from procedures.model.run_folder import load_data
+    from procedures.model.twin import die_offset_c
+
+    return die_offset_c(measured, load_data(twin_folder, dut=serial))
+
+
 def simulate(
     run_folder: Path,
     measured: Trajectory,
@@ -178,44 +257,31 @@ def simulate(
     say: Callable[[str], None] = lambda _line: None,
 ) -> tuple[SimulationComparison, dict[str, Any]]:
     """Run both twins and compare; returns the comparison and the JSON detail (twin configs,
-    run folders, verdicts)."""
+    run folders, verdicts). A first twin run whose die is not at the measured die's (a bench
+    with other air than the default's, a real part) is run again with the air given."""
     # the discrepancy model: loaded only by this command
     from procedures.model.run_folder import load_data
-    from procedures.model.twin import compare, part_entry, twin_config
+    from procedures.model.twin import compare
 
     proc, proc_note = record_procedure(run_folder, procedure)
-    current = supply_current_a(run_folder)
-    socket = max(read_record(run_folder).dut.socket, 1)  # the measured part's (its air)
-    others = companions(run_folder)  # the rest of its load: the ramp turns with them
-    serial = measured.serial or "SIM-TWIN"
-    detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve()),
-                              "simulation_companions": [o["serial"] for o in others]}
-    trajs: dict[str, Trajectory] = {}
+    twins = TwinRuns(run_folder, proc, out, measured.serial or "SIM-TWIN", speed,
+                     supply_current_a(run_folder), result.noise.arw_deg_per_sqrt_h,
+                     companions(run_folder))
     models = {"before": result.initial_model, "after": result.final_model}
+    folders: dict[str, Path] = {}
+    detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve()),
+                              "simulation_companions": [p["serial"] for p in twins.parts()]}
     for label in TWINS:
-        entry = part_entry(models[label], serial, socket=socket,
-                           measured_arw_deg_per_sqrt_h=result.noise.arw_deg_per_sqrt_h,
-                           supply_current_a=current)
-        _check_entry(entry, models[label].name)
-        config = out / f"twin_{label}.yaml"
-        config.write_text(yaml.safe_dump(twin_config(entry), sort_keys=False), encoding="utf-8")
-        runs = out / f"twin_{label}_runs"
-        if runs.exists():  # a previous --simulate into the same --out
-            shutil.rmtree(runs)
-        say(f"simulate: running {proc.name} on the bench with the {models[label].name} twin")
-        folder, verdict = run_twin(entry, proc, runs, speed, tuple(models[label].effects),
-                                   others)
-        try:
-            trajs[label] = load_data(folder, dut=serial)
-        except ValueError as exc:
-            raise UserError(f"twin run {folder}: {exc}") from exc
-        detail[f"simulation_twin_{label}"] = {
-            "model": models[label].name,
-            "sim_config": str(config),
-            "run_folder": str(folder),
-            "verdict": verdict,
-        }
+        folders[label], detail[f"simulation_twin_{label}"] = twins.run(label, models[label], say)
+        if label == "before" and (air := twins.air_to_give(measured, folders[label])):
+            twins.air_c = air
+            say(f"simulate: the twin's die was not the measured one's; again with the air "
+                f"{', '.join(f'socket {k}: {v:+.3f} C' for k, v in sorted(air.items()))}")
+            folders[label], detail[f"simulation_twin_{label}"] = twins.run(
+                label, models[label], say)
+    detail["simulation_air_given_c"] = {str(k): v for k, v in sorted(twins.air_c.items())}
     try:
+        trajs = {k: load_data(f, dut=twins.serial) for k, f in folders.items()}
         comparison = compare(measured, trajs["before"], trajs["after"], result.noise)
     except ValueError as exc:
         raise UserError(f"{run_folder}: {exc}") from exc

@@ -108,9 +108,31 @@ def part_entry(
     return entry
 
 
-def twin_config(entry: dict[str, Any]) -> dict[str, Any]:
-    """The twin's sim config: its part on a bench without the part's thermal physics."""
-    return {**TWIN_SIM_CONFIG, "parts": [entry]}
+def twin_bench(air_c: dict[int, float] | None = None) -> dict[str, Any]:
+    """The twin's bench (sim config keys besides the parts): the part's thermal physics off;
+    `air_c` gives fixture positions' air (socket -> C) instead of the bench's draw."""
+    thermal = dict(TWIN_SIM_CONFIG["part_physics"]["thermal"])
+    if air_c:
+        thermal["socket_air_c"] = {int(k): float(v) for k, v in air_c.items()}
+    return {"part_physics": {"thermal": thermal}}
+
+
+def twin_config(entry: dict[str, Any], air_c: dict[int, float] | None = None) -> dict[str, Any]:
+    """The twin's sim config: its part on the twin's bench (`twin_bench`)."""
+    return {**twin_bench(air_c), "parts": [entry]}
+
+
+DIE_OFFSET_PIECES = 5  # the first pieces of a run, before any ramp turns: the dies' offset
+
+
+def die_offset_c(measured: Trajectory, twin: Trajectory) -> float:
+    """The measured die minus the twin run's over the first pieces both runs hold (same key),
+    median, C: what the socket's air (or a real part's mount) puts between them; nan if none."""
+    meas, sim = windows_of(measured), windows_of(twin)
+    index = {k: j for j, k in enumerate(sim.keys)}
+    diffs = [meas.temp_c[i] - sim.temp_c[index[k]] for i, k in enumerate(meas.keys)
+             if k in index][:DIE_OFFSET_PIECES]
+    return float(np.median(diffs)) if diffs else math.nan
 
 
 @dataclass(frozen=True)

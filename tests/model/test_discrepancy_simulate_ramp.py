@@ -68,6 +68,7 @@ def test_ramp_plateaus_are_compared_on_the_measured_timeline(simulated: tuple[Pa
     assert len(ramp) >= 40  # the short ramp: ~50 plateaus of 2 s, heating and cooling
     assert res["simulation_windows_compared"] == res["simulation_windows_measured"]
     assert max(abs(w["die_temp_c"] - w["twin_die_temp_c"]) for w in ramp) < 0.05
+    assert res["simulation_air_given_c"] == {}  # the default bench's air is the measured one's
 
 
 def test_the_twin_carries_the_model_s_terms_only_and_its_certificate_says_which(

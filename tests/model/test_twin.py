@@ -18,6 +18,7 @@ from procedures.model.trajectory import Segment, Trajectory
 from procedures.model.twin import (
     MAX_RAMP_TEMP_MISMATCH_C,
     compare,
+    die_offset_c,
     part_entry,
     twin_config,
     window_floor_dps,
@@ -262,7 +263,20 @@ def test_the_twin_runs_among_the_other_parts_of_the_measured_cycle(tmp_path: Pat
     _record(tmp_path / "A_SIM-2933", "SIM-2933", 3, t.format(140))
     _record(tmp_path / "B_SIM-2934", "SIM-2934", 4, "2026-11-28T04:10:00.000+00:00")
     _record(tmp_path / "A_SIM-2935", "SIM-2935", 5, t.format(150), sha="other")
-    assert companions(measured) == [{"socket": 1, "serial": "SIM-2931"},
-                                    {"socket": 3, "serial": "SIM-2933"}]
+    assert companions(measured) == {1: tmp_path / "A_SIM-2931", 3: tmp_path / "A_SIM-2933"}
     alone = _record(tmp_path / "alone" / "C_SIM-2936", "SIM-2936", 1, t.format(0))
-    assert companions(alone) == []
+    assert companions(alone) == {}
+
+
+def test_a_twin_s_air_is_given_where_its_die_is_not_the_measured_one_s() -> None:
+    """The dies' offset is read over a run's first pieces (before any ramp turns), and the
+    twin's bench takes it as the socket's air."""
+    measured = _ramp(RAMP)
+    warm = _ramp(RAMP, offset_c=0.11)  # a twin on air 0.11 C warmer than the measured part's
+    assert die_offset_c(measured, warm) == pytest.approx(-0.11)
+    assert die_offset_c(measured, measured) == 0.0
+    bench = parse_sim_config(twin_config(part_entry(GyroModel(name="m", bias_dps=0.0,
+                                                              scale=1.0), "SIM-1", socket=2),
+                                         air_c={2: -0.11}))
+    assert socket_air_offset_c(0, 2, bench.part_physics.thermal) == -0.11
+    assert draw_thermal("SIM-1", bench.part_physics.thermal).ideal
