@@ -264,9 +264,13 @@ def simulate(
     from procedures.model.twin import compare
 
     proc, proc_note = record_procedure(run_folder, procedure)
-    twins = TwinRuns(run_folder, proc, out, measured.serial or "SIM-TWIN", speed,
-                     supply_current_a(run_folder), result.noise.arw_deg_per_sqrt_h,
-                     companions(run_folder))
+    others = companions(run_folder)
+    # a load's parts share the supply: their records hold the load's current per part, not
+    # the part's own (eol-rate-table, six parts: the twin's die 1 C cold); the bench's own
+    # then (the measured part's on the simulated bench)
+    current = None if others else supply_current_a(run_folder)
+    twins = TwinRuns(run_folder, proc, out, measured.serial or "SIM-TWIN", speed, current,
+                     result.noise.arw_deg_per_sqrt_h, others)
     models = {"before": result.initial_model, "after": result.final_model}
     folders: dict[str, Path] = {}
     detail: dict[str, Any] = {"simulation_procedure": str(proc.resolve()),
