@@ -28,9 +28,12 @@ difference measured - twin over the compared ramp plateau pieces.
         [--serials SIM-2931,SIM-2932,...] [--bench honest|ideal|gradient-only|...] [--alone]
         [--keep DIR]
 
-With --alone each part runs in a station run of its own, as its twins do (one part, socket
-1): in lockstep the twin's ramp then turns when the measured one did. Several parts in one
-run turn when the last die has covered the span, the twin alone when its own has.
+With --alone each part runs in a station run of its own; without, the parts run together
+and each twin runs among the others (`--simulate`'s companions: a ramp turns when the last
+die of the load has covered the span). The difference between the two (and the die offset
+of a twin on another bench's air, given back as the socket's air) is in docs/discrepancy.md.
+The last figure per folder is `definition_gap`: the extended twin's run against the model as
+the station evaluates it.
 """
 
 from __future__ import annotations
