@@ -14,12 +14,33 @@ the run's inputs).
 
 Without --sim-speed the bench runs in lockstep (station time is physics time), for the
 measured run and the twins alike.
+
+With --thermal (issue 29): the honest thermal bench instead of a hidden harmonic. The parts
+(population parts with the bench's default honest thermal physics: element lag, gradient
+bias, hysteresis, socket air; tests/model/thermal_station.py) run a procedure together, one
+socket each, in lockstep; then `station discrepancy FOLDER --model first_order --simulate`
+on each part's folder (the twins on a bench with the thermal physics off, carrying the found
+terms). Printed per folder: the effects named, the simulation gap before/after against its
+floor, the pieces compared (and how many are ramp plateaus), and the largest die temperature
+difference measured - twin over the compared ramp plateau pieces.
+
+    python3 benchmarks/bench_discrepancy_simulate.py --thermal [--procedure PATH]
+        [--serials SIM-2931,SIM-2932,...] [--bench honest|ideal|gradient-only|...] [--alone]
+        [--keep DIR]
+
+With --alone each part runs in a station run of its own; without, the parts run together
+and each twin runs among the others (`--simulate`'s companions: a ramp turns when the last
+die of the load has covered the span). The difference between the two (and the die offset
+of a twin on another bench's air, given back as the socket's air) is in docs/discrepancy.md.
+The last figure per folder is `definition_gap`: the extended twin's run against the model as
+the station evaluates it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 import time
@@ -29,6 +50,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests" / "model"))
 
 PROCEDURE = ROOT / "tests" / "model" / "data" / "eol-simulate.yaml"
 
@@ -97,6 +119,90 @@ def one_part(serial: str, amplitude: float, speed: float | None, work: Path) -> 
     return {"before": before / floor, "after": after / floor}
 
 
+def thermal_folders(serials: list[str], procedure: Path, work: Path, bench: str
+                    ) -> dict[str, Path]:
+    """One lockstep run of `procedure` on `bench` (thermal_station.BENCHES) with these
+    parts, one socket each: each part's run folder (PASS or FAIL)."""
+    from thermal_station import BENCHES
+
+    from station.sim_run import run_simulated
+
+    parts = [{"socket": i + 1, "serial": s} for i, s in enumerate(serials)]
+    t0 = time.perf_counter()
+    result, _ = run_simulated(parts, procedure_path=procedure, out=work / "measured",
+                              speed=None,
+                              sim_config={"part_physics": {"thermal": BENCHES[bench]}})
+    print(f"{procedure.name}: {len(serials)} parts in {time.perf_counter() - t0:.0f} s: "
+          + ", ".join(f"{s} {result.verdicts[i + 1]}" for i, s in enumerate(serials)),
+          flush=True)
+    return {s: result.folders[i + 1] for i, s in enumerate(serials)
+            if str(result.verdicts[i + 1]) in ("PASS", "FAIL")}
+
+
+def definition_gap(out: Path, serial: str, floor: float) -> float:
+    """The extended model's twin run against the extended model as the station evaluates it
+    on that run (its own dT/dt, 10 s centred average of the die sensor across gaps up to
+    30 s; its own play operator), piece by piece, as the duration-weighted RMS of the piece
+    means' difference over the floor: what differs between the bench's generic terms and
+    the station's library terms (the twin is quiet, so noise is 1 % of the measured)."""
+    from procedures.model.model_io import load_model
+    from procedures.model.run_folder import load_data
+    from procedures.model.twin import weighted_rms, windows_of
+
+    res = json.loads((out / "discrepancy.json").read_text())
+    traj = load_data(Path(res["simulation_twin_after"]["run_folder"]), dut=serial)
+    model = load_model(out / "model.yaml")
+    w = windows_of(traj)
+    predicted = model.predict(traj)
+    from procedures.model.blocks import block_mean
+
+    diff = w.mean_dps - block_mean(predicted, w.start, w.stop)
+    diff = diff - np.average(diff, weights=w.duration_s)  # the bias: the run's own fit
+    return weighted_rms(diff, w.duration_s) / floor
+
+
+def thermal_one(serial: str, folder: Path, out: Path) -> dict[str, float]:
+    """`--simulate` on one part's folder of the honest bench: its row."""
+    from station.cli import main as cli
+
+    t0 = time.perf_counter()
+    code = cli.main(["discrepancy", str(folder), "--model", "first_order", "--simulate",
+                     "--out", str(out)])
+    res = json.loads((out / "discrepancy.json").read_text())
+    floor = res["simulation_noise_floor_dps"]
+    before, after = res["simulation_gap_before_dps"], res["simulation_gap_after_dps"]
+    wins = res["simulation_windows"]
+    ramp = [w for w in wins if w["kind"] == "ramp_plateau"]
+    d_temp = [abs(w["die_temp_c"] - w["twin_die_temp_c"]) for w in ramp]
+    print(f"{serial} {folder.name}: exit {code} in {time.perf_counter() - t0:.0f} s; named "
+          f"{res['effects_added'] or '-'}; simulation gap before {before:.4f} "
+          f"({before / floor:.2f} x), after {after:.4f} ({after / floor:.2f} x), floor "
+          f"{floor:.4f} deg/s; {res['simulation_windows_compared']} of "
+          f"{res['simulation_windows_measured']} pieces compared, {len(ramp)} ramp plateau "
+          f"pieces (die temperature meas - twin at most "
+          f"{max(d_temp, default=math.nan):.3f} C); the extended twin against its model as "
+          f"the station evaluates it {definition_gap(out, serial, floor):.2f} x floor; notes "
+          f"{res['simulation_notes']}", flush=True)
+    return {"before": before / floor, "after": after / floor}
+
+
+def thermal(serials: list[str], procedure: Path, work: Path, bench: str, alone: bool
+            ) -> list[dict[str, float]]:
+    folders: dict[str, Path] = {}
+    if alone:  # each part its own station run: the twin's schedule is the measured one's
+        for serial in serials:
+            folders |= thermal_folders([serial], procedure, work / serial, bench)
+    else:
+        folders = thermal_folders(serials, procedure, work, bench)
+    out = []
+    for serial, folder in folders.items():
+        try:
+            out.append(thermal_one(serial, folder, work / f"disc_{serial}"))
+        except (OSError, RuntimeError, ValueError, KeyError) as exc:
+            print(f"{serial}: left out ({type(exc).__name__}: {exc})", flush=True)
+    return out
+
+
 def _patient_bench_start(timeout_s: float) -> None:
     """A bench on a machine loaded by other work can take more than the launcher's 20 s to
     write its state file; this benchmark waits longer rather than lose the part."""
@@ -115,10 +221,26 @@ def main() -> None:
     ap.add_argument("--sim-speed", type=float, default=None)
     ap.add_argument("--keep", type=Path, help="keep the run folders under this folder")
     ap.add_argument("--bench-start-timeout", type=float, default=120.0)
+    ap.add_argument("--thermal", action="store_true",
+                    help="the honest thermal bench's parts, no hidden harmonic")
+    ap.add_argument("--procedure", type=Path, default=ROOT / "config" / "procedures"
+                    / "eol-ramp.yaml", help="with --thermal: the procedure the parts run")
+    ap.add_argument("--alone", action="store_true",
+                    help="with --thermal: each part in a station run of its own")
+    ap.add_argument("--bench", default="honest",
+                    help="with --thermal: honest, ideal, gradient-only or hysteresis-only")
     args = ap.parse_args()
     _patient_bench_start(args.bench_start_timeout)
     ratios = []
-    for serial in args.serials.split(","):
+    if args.thermal:
+        serials = args.serials.split(",")
+        if args.keep:
+            ratios = thermal(serials, args.procedure, args.keep, args.bench, args.alone)
+        else:
+            with tempfile.TemporaryDirectory() as tmp:
+                ratios = thermal(serials, args.procedure, Path(tmp), args.bench, args.alone)
+        args.serials = ""
+    for serial in filter(None, args.serials.split(",")):
         try:
             if args.keep:
                 work = args.keep / serial

@@ -196,7 +196,16 @@ def _identity_rows(inputs: CertificateInputs, serial: str) -> list[tuple[str, st
         ("Operator", rec.operator or "not recorded"),
         ("Software version", rec.software_version or "not recorded"),
         ("Bench", "SIMULATED bench (no real instruments)" if rec.simulated else "real instruments"),
+        *_simulated_part_row(rec),
     ]
+
+
+def _simulated_part_row(rec: RunRecord) -> list[tuple[str, str]]:
+    """A model's twin (a simulated part declared to carry a model's effects): which."""
+    if not rec.simulated or rec.simulated_part_effects is None:
+        return []
+    ids = ", ".join(rec.simulated_part_effects) or "none (bias and scale only)"
+    return [("Simulated part", bounded(f"a model's twin; effects it carries: {ids}", 600))]
 
 
 def traceability(inputs: CertificateInputs) -> list[Flowable]:

@@ -27,6 +27,9 @@ class Endpoints:
     inclinometers: dict[int, str] = field(default_factory=dict)
     lockstep: bool = False  # the bench's world moves only when the station's clock asks
     control: str = ""  # the bench's control channel (host:port)
+    # socket -> the effects the simulated part there carries, when the caller declares them
+    # (a model's twin: station/discrepancy_simulate.py); recorded and on the certificate
+    part_effects: dict[int, tuple[str, ...]] = field(default_factory=dict)
 
     @classmethod
     def of_bench(cls, e: BenchEndpoints) -> Endpoints:

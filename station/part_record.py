@@ -37,6 +37,13 @@ class PartSource(Protocol):
     product_file: LoadedYaml
 
 
+def _declared_effects(endpoints: Endpoints | None, sock: int) -> list[str] | None:
+    """The effects the simulated part in `sock` was declared to carry (a model's twin)."""
+    if endpoints is None or sock not in endpoints.part_effects:
+        return None
+    return list(endpoints.part_effects[sock])
+
+
 def new_part(run: PartSource, sock: int, serial: str, counts_per_rev: int | None) -> PartRun:
     """A part's run folder with its first record.json (RUNNING) and its raw-data writer."""
     folder = create_run_folder(run.out, serial)
@@ -46,6 +53,7 @@ def new_part(run: PartSource, sock: int, serial: str, counts_per_rev: int | None
         run_id=folder.name,
         verdict=Verdict.RUNNING,
         simulated=run.endpoints is not None,
+        simulated_part_effects=_declared_effects(run.endpoints, sock),
         started_utc=now.isoformat(timespec="milliseconds"),
         station_local_tz=str(dt.datetime.now().astimezone().tzinfo),
         station={

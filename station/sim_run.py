@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +29,14 @@ def run_simulated(
     certificate: bool = False,
     on_progress: Callable[[ProgressEvent], None] | None = None,
     sim_config: dict[str, Any] | None = None,
+    part_effects: dict[int, tuple[str, ...]] | None = None,
 ) -> tuple[UutResult, dict[str, Any]]:
     """One UUT cycle on a freshly started simulated bench holding `parts` (sim config
     entries); returns the result and the bench's truth at the end (for benchmarks and tests).
     Without `speed` the bench runs in lockstep (station time is physics time); `sim_config`
-    adds sim config keys besides the parts (e.g. `part_physics: {thermal: {mode: ideal}}`)."""
+    adds sim config keys besides the parts (e.g. `part_physics: {thermal: {mode: ideal}}`);
+    `part_effects` declares, per socket, the effects the part there carries (a model's twin):
+    its record and certificate name them."""
     from drivers.sim.launcher import launch_bench
     from station.station_file import load_settings
 
@@ -54,7 +58,8 @@ def run_simulated(
             settings,
             procedure_path=procedure_path,
             out=out,
-            endpoints=Endpoints.of_bench(bench.endpoints),
+            endpoints=replace(Endpoints.of_bench(bench.endpoints),
+                              part_effects=dict(part_effects or {})),
             certificate=certificate,
             operator="benchmark",
         )

@@ -315,6 +315,21 @@ class ThermalPhysicsConfig(_Model):
         default=0.2, ge=0.0, le=10.0,
         description="chamber air at a fixture position minus the chamber's, drawn N(0, sigma), C",
     )
+    socket_air_c: dict[int, float] = Field(
+        default_factory=dict,
+        description="a fixture position's air minus the chamber's, C, given instead of drawn "
+        "(socket -> offset; `station discrepancy --simulate` gives a model's twin the "
+        "measured die's)",
+    )
+
+    @field_validator("socket_air_c")
+    @classmethod
+    def _air_in_range(cls, v: dict[int, float]) -> dict[int, float]:
+        for socket, offset in v.items():
+            if not 1 <= socket <= 64 or not -10.0 <= offset <= 10.0:
+                raise ValueError(f"socket_air_c: socket {socket} must be 1-64 and its offset "
+                                 f"{offset} C within +-10 C")
+        return v
 
 
 class PartPhysicsConfig(_Model):

@@ -66,7 +66,10 @@ def draw_thermal(serial: str, cfg: ThermalPhysicsConfig) -> ThermalDraws:
 
 
 def socket_air_offset_c(seed: int, socket: int, cfg: ThermalPhysicsConfig) -> float:
-    """The chamber air at fixture position `socket` minus the chamber's air, C."""
+    """The chamber air at fixture position `socket` minus the chamber's air, C (given in
+    `socket_air_c`, else drawn)."""
+    if socket in cfg.socket_air_c:
+        return float(cfg.socket_air_c[socket])
     if cfg.mode == "ideal" or cfg.socket_air_sigma_c == 0:
         return 0.0
     rng = np.random.default_rng([serial_seed(f"socket-{socket}", "air"), seed])

@@ -42,9 +42,34 @@ FIRST_ORDER_KEYS = {
     "scale_supply": "scale_supply_coeff_per_v",
 }
 TWIN_NOISE_FRACTION = 0.01  # the twin's white noise, relative to the measured part's
-COMPARED_KINDS = ("static", "plateau", "stop_static")
+COMPARED_KINDS = ("static", "plateau", "stop_static", "ramp_plateau")
 MAX_RATE_MISMATCH_DPS = 1.0  # matched windows must be at the same table rate
 MAX_ANGLE_MISMATCH_DEG = 5.0  # and, at rest, the same table angle
+# and a ramp's plateau at the same die temperature. In lockstep a part run alone and its
+# twin (alone, in its socket) ramp on the same timeline, plateau for plateau, the dies equal
+# on the default bench. They part when the ramp turns elsewhere: a run of several parts
+# turns when the last die has covered the span (so the twin runs among the measured cycle's
+# other parts, station/discrepancy_simulate.py); a twin whose die is 0.11 C off (a bench
+# whose socket air is not the twin's) can turn a plateau later. The same plateau (order,
+# rate) is then 0.4-0.6 C away on eol-ramp (a plateau's time at the die's rate), a sweep of
+# the rate set ~5 C: not compared beyond this. With
+# 1 C, a turn a plateau apart kept its shifted pieces, compared at another die rate (2.06 x
+# the floor on a part whose lag the twin carried). Matching by the nearest die temperature
+# instead was tried: near the turn the die barely moves, so a 0.1 C offset picked plateaus
+# tens of seconds away at another die rate (2.26 against 1.64 x the floor, a part alone)
+MAX_RAMP_TEMP_MISMATCH_C = 0.3
+# the twin's bench: the model's effects only. The part's honest thermal physics (element
+# lag, gradient bias, hysteresis: drivers/sim/thermal_physics.py) is off, or the twin would
+# carry them twice (once as the model's terms, once as the bench's hidden draws); the die's
+# own heat path stays the bench's: chamber -> die lag, self-heating and the air at the
+# socket (drawn per socket from the bench's seed, so a twin in the measured part's socket of
+# the default bench has the measured die's air: with it left out, `mode: ideal`, the twin's
+# die ran 0.11 C warmer, and on eol-ramp a part's turn at the top came a plateau apart)
+TWIN_SIM_CONFIG: dict[str, Any] = {"part_physics": {"thermal": {
+    "element_tau_s": 0.0, "element_tau_sigma_s": 0.0,
+    "gradient_dps_per_c_per_min": 0.0, "gradient_sigma_dps_per_c_per_min": 0.0,
+    "hysteresis_dps": 0.0, "hysteresis_sigma_dps": 0.0,
+}}}
 MIN_WINDOW_SAMPLES = 3
 MAX_PIECE_S = 10.0  # windows are compared in pieces of at most this (the workflow's blocks)
 
@@ -83,6 +108,33 @@ def part_entry(
     return entry
 
 
+def twin_bench(air_c: dict[int, float] | None = None) -> dict[str, Any]:
+    """The twin's bench (sim config keys besides the parts): the part's thermal physics off;
+    `air_c` gives fixture positions' air (socket -> C) instead of the bench's draw."""
+    thermal = dict(TWIN_SIM_CONFIG["part_physics"]["thermal"])
+    if air_c:
+        thermal["socket_air_c"] = {int(k): float(v) for k, v in air_c.items()}
+    return {"part_physics": {"thermal": thermal}}
+
+
+def twin_config(entry: dict[str, Any], air_c: dict[int, float] | None = None) -> dict[str, Any]:
+    """The twin's sim config: its part on the twin's bench (`twin_bench`)."""
+    return {**twin_bench(air_c), "parts": [entry]}
+
+
+DIE_OFFSET_PIECES = 5  # the first pieces of a run, before any ramp turns: the dies' offset
+
+
+def die_offset_c(measured: Trajectory, twin: Trajectory) -> float:
+    """The measured die minus the twin run's over the first pieces both runs hold (same key),
+    median, C: what the socket's air (or a real part's mount) puts between them; nan if none."""
+    meas, sim = windows_of(measured), windows_of(twin)
+    index = {k: j for j, k in enumerate(sim.keys)}
+    diffs = [meas.temp_c[i] - sim.temp_c[index[k]] for i, k in enumerate(meas.keys)
+             if k in index][:DIE_OFFSET_PIECES]
+    return float(np.median(diffs)) if diffs else math.nan
+
+
 @dataclass(frozen=True)
 class Windows:
     """The analysed windows of one record: sample ranges, by key, in time order."""
@@ -95,6 +147,7 @@ class Windows:
     angle_deg: FloatArray
     duration_s: FloatArray
     center_s: FloatArray
+    temp_c: FloatArray
 
 
 def _pieces(a: int, b: int, per_piece: int) -> list[tuple[int, int]]:
@@ -133,7 +186,7 @@ def windows_of(traj: Trajectory) -> Windows:
     stop = np.asarray(stops, dtype=np.int64)
     if not keys:
         empty = np.zeros(0)
-        return Windows((), start, stop, empty, empty, empty, empty, empty)
+        return Windows((), start, stop, empty, empty, empty, empty, empty, empty)
     t0 = traj.time_s[start]
     t1 = traj.time_s[stop - 1] + step
     ang = np.deg2rad(traj.ref_angle_deg)
@@ -148,6 +201,7 @@ def windows_of(traj: Trajectory) -> Windows:
         angle_deg=angle,
         duration_s=t1 - t0,
         center_s=0.5 * (t0 + t1),
+        temp_c=block_mean(traj.temp_c, start, stop),
     )
 
 
@@ -174,6 +228,8 @@ class SimulationComparison:
     gap_after_dps: float
     noise_floor_dps: float  # over the same windows, from the measured noise model
     windows_measured: int
+    temp_c: FloatArray  # the measured pieces' die temperature
+    twin_temp_c: FloatArray  # the extended-model twin's matched pieces'
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def to_json(self) -> dict[str, Any]:
@@ -193,10 +249,12 @@ class SimulationComparison:
                     "duration_s": float(d),
                     "residual_before_dps": float(rb),
                     "residual_after_dps": float(ra),
+                    "die_temp_c": float(tm),
+                    "twin_die_temp_c": float(tt),
                 }
-                for k, d, rb, ra in zip(
+                for k, d, rb, ra, tm, tt in zip(
                     self.keys, self.duration_s, self.residual_before_dps,
-                    self.residual_after_dps, strict=True
+                    self.residual_after_dps, self.temp_c, self.twin_temp_c, strict=True
                 )
             ],
         }
@@ -205,21 +263,24 @@ class SimulationComparison:
 def _matches(meas: Windows, i: int, twin: Windows, j: int) -> bool:
     if abs(meas.rate_dps[i] - twin.rate_dps[j]) > MAX_RATE_MISMATCH_DPS:
         return False
+    if (meas.keys[i][1] == "ramp_plateau"
+            and abs(meas.temp_c[i] - twin.temp_c[j]) > MAX_RAMP_TEMP_MISMATCH_C):
+        return False  # the twin's ramp ran this plateau at another point of the ramp
     if abs(meas.rate_dps[i]) > MAX_RATE_MISMATCH_DPS:
         return True  # a plateau turns the table: its mean angle says nothing
     diff = (meas.angle_deg[i] - twin.angle_deg[j] + 180.0) % 360.0 - 180.0
     return abs(diff) <= MAX_ANGLE_MISMATCH_DEG
 
 
-def residuals_against(meas: Windows, twin: Windows) -> dict[WindowKey, float]:
-    """measured - simulated mean of every window both runs hold (same key, same rate and
-    angle)."""
+def residuals_against(meas: Windows, twin: Windows) -> dict[WindowKey, tuple[float, float]]:
+    """(measured - simulated mean, the twin piece's die temperature) of every window both
+    runs hold (same key, same rate and angle; a ramp plateau: and die temperature)."""
     index = {k: j for j, k in enumerate(twin.keys)}
-    out: dict[WindowKey, float] = {}
+    out: dict[WindowKey, tuple[float, float]] = {}
     for i, key in enumerate(meas.keys):
         j = index.get(key)
         if j is not None and _matches(meas, i, twin, j):
-            out[key] = float(meas.mean_dps[i] - twin.mean_dps[j])
+            out[key] = (float(meas.mean_dps[i] - twin.mean_dps[j]), float(twin.temp_c[j]))
     return out
 
 
@@ -256,20 +317,21 @@ def compare(
     if not chosen:
         raise ValueError(
             "the twin runs hold none of the measured run's windows (static, plateau, "
-            "stop_static); was the same procedure simulated?"
+            "stop_static, ramp_plateau); was the same procedure simulated?"
         )
     idx = np.asarray(chosen, dtype=np.int64)
     keys = tuple(meas.keys[i] for i in chosen)
     duration = meas.duration_s[idx]
     center = meas.center_s[idx]
-    rb = np.array([r_before[k] for k in keys])
-    ra = np.array([r_after[k] for k in keys])
+    rb = np.array([r_before[k][0] for k in keys])
+    ra = np.array([r_after[k][0] for k in keys])
     notes = []
     if len(keys) < len(meas.keys):
         notes.append(
             f"{len(meas.keys) - len(keys)} of {len(meas.keys)} measured window pieces have no "
-            "matching piece in both twin runs (a retry, a step the twin ran differently, or a "
-            "window the twin held for a shorter time) and are not compared"
+            "matching piece in both twin runs (a retry, a step the twin ran differently, a "
+            "window the twin held for a shorter time, or a ramp plateau the twin ran at "
+            "another die temperature) and are not compared"
         )
     return SimulationComparison(
         keys=keys,
@@ -282,5 +344,7 @@ def compare(
         gap_after_dps=weighted_rms(ra, duration),
         noise_floor_dps=window_floor_dps(noise, center, duration),
         windows_measured=len(meas.keys),
+        temp_c=meas.temp_c[idx],
+        twin_temp_c=np.array([r_after[k][1] for k in keys]),
         notes=tuple(notes),
     )

@@ -291,6 +291,11 @@ class RunRecord(_Model):
     reason: str = ""
     failed_measurements: list[str] = Field(default_factory=list)
     simulated: bool = False
+    # the effects (catalog and library ids) a simulated part was declared to carry: a model's
+    # twin (`station discrepancy --simulate`); never set for any other part
+    simulated_part_effects: list[str] | None = Field(
+        default=None, exclude_if=lambda v: v is None
+    )
     started_utc: str
     finished_utc: str | None = None
     station_local_tz: str = ""

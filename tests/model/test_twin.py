@@ -5,15 +5,25 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from drivers.sim.config import parse_sim_config
+from drivers.sim.thermal_physics import draw_thermal, socket_air_offset_c
 from procedures.model.gyro_model import GyroModel, first_order_model, zero_params
 from procedures.model.noise import NoiseModel
 from procedures.model.trajectory import Segment, Trajectory
-from procedures.model.twin import compare, part_entry, window_floor_dps, windows_of
+from procedures.model.twin import (
+    MAX_RAMP_TEMP_MISMATCH_C,
+    compare,
+    die_offset_c,
+    part_entry,
+    twin_config,
+    window_floor_dps,
+    windows_of,
+)
 
 RATE_HZ = 20.0
 
@@ -44,6 +54,24 @@ def test_part_entry_carries_every_term_the_bench_reads() -> None:
     assert part.supply_current_a == 0.02
 
 
+def test_a_twin_runs_without_the_bench_s_thermal_physics_and_carries_the_found_terms(
+) -> None:
+    """The found thermal term is the twin's generic term; the bench's hidden element lag,
+    gradient bias and hysteresis are off (else the twin carried them twice)."""
+    effects = {e: dict(zero_params(e)) for e in first_order_model().effects}
+    effects["lib_w_dTdt"] = {"coeff": -2.5e-4}
+    model = GyroModel(name="extended", bias_dps=0.4, scale=1.01, effects=effects)
+    config = parse_sim_config(twin_config(part_entry(model, "SIM-2931", socket=3)))
+    assert draw_thermal("SIM-2931", config.part_physics.thermal).ideal
+    assert config.parts[0].effects == {"lib_w_dTdt": {"coeff": -2.5e-4}}
+    assert config.parts[0].socket == 3
+    # the die's own heat path stays the bench's: die lag, self-heating, the socket's air
+    default = parse_sim_config({}).part_physics
+    assert config.part_physics.die_tau_s == default.die_tau_s
+    assert socket_air_offset_c(0, 3, config.part_physics.thermal) == socket_air_offset_c(
+        0, 3, default.thermal) != 0.0
+
+
 def test_a_base_model_twin_has_no_first_order_terms_of_its_own() -> None:
     """Left out, the bench would draw them from the population: they are set to zero."""
     entry = part_entry(GyroModel(name="base", bias_dps=0.5, scale=1.0), "SIM-8")
@@ -64,8 +92,8 @@ PLAN = [
 ]
 
 
-def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: float = 3.0
-          ) -> Trajectory:
+def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: float = 3.0,
+          temp_c_per_s: float = 0.0, temp_offset_c: float = 0.0) -> Trajectory:
     t_parts, rate, angle, segs = [], [], [], []
     t0 = 0.0
     for cond, kind, dur, w, ang in plan or PLAN:
@@ -84,7 +112,7 @@ def _traj(signal: np.ndarray | None = None, plan: list | None = None, gap_s: flo
         gyro_dps=np.zeros(n) if signal is None else signal,
         ref_rate_dps=np.concatenate(rate),
         ref_angle_deg=np.concatenate(angle),
-        temp_c=np.full(n, 25.0),
+        temp_c=25.0 + temp_offset_c + temp_c_per_s * time_s,
         supply_v=np.full(n, 5.0),
         time_since_power_on_s=time_s + 100.0,
         segments=tuple(segs),
@@ -172,3 +200,83 @@ def test_a_model_the_bench_cannot_hold_is_refused_before_any_bench_starts() -> N
     entry = part_entry(GyroModel(name="odd", bias_dps=0.0, scale=3.0), "SIM-9")
     with pytest.raises(UserError, match="cannot be a simulated part.*scale"):
         _check_entry(entry, "odd")
+
+
+# a ramp: plateaus of 6 s at the rate set while the die heats (eol-ramp), a static dwell
+SWEEP = [("", "ramp_plateau", 6.0, w, 0.0) for w in (200.0, -200.0, 100.0, -100.0)]
+RAMP = SWEEP * 3 + [("ramp_top", "static", 5.0, 0.0, 90.0)]
+HEAT = 0.05  # C/s: 3 C/min; a plateau every 8.95 s, a sweep of the rate set 1.8 C
+PLATEAU_EVERY_S = 6.0 - 1 / RATE_HZ + 3.0  # _traj: a window's last sample + the gap
+
+
+def _ramp(plan: list, offset_c: float = 0.0) -> Trajectory:
+    """A heating ramp whose output is a bias in the die temperature (0.01 deg/s per C)."""
+    traj = _traj(plan=plan, temp_c_per_s=HEAT, temp_offset_c=offset_c)
+    return dataclasses.replace(traj, gyro_dps=0.01 * (traj.temp_c - 25.0))
+
+
+def test_ramp_plateaus_are_compared_by_key_rate_and_die_temperature() -> None:
+    """In lockstep the twin of a part run alone ramps on the measured timeline: every ramp
+    plateau is compared (the dies 0.1 C apart: a socket's air). One a plateau late is
+    0.45 C off at every plateau: none compared. A twin
+    whose ramp ran a sweep of the rate set more before (as a part alone turns at another
+    time than six together) holds each plateau's key at the same rate but 1.8 C colder:
+    those are not compared, and the note says why."""
+    measured = _ramp(RAMP)
+    w = windows_of(measured)
+    assert [k[2] for k in w.keys if k[1] == "ramp_plateau"] == list(range(12))
+    same = _ramp(RAMP, offset_c=0.1)
+    cmp = compare(measured, same, same, _white(0.001))
+    assert len(cmp.keys) == 13 and not cmp.notes
+    assert np.allclose(cmp.twin_temp_c - cmp.temp_c, 0.1)
+    assert np.allclose(cmp.residual_after_dps[:12], -0.01 * 0.1)
+    late = _ramp(RAMP, offset_c=-HEAT * PLATEAU_EVERY_S)  # a plateau later: 0.45 C colder
+    assert compare(measured, late, late, _white(0.001)).keys == (("ramp_top", "static", 0, 0),)
+    longer = _ramp(SWEEP + RAMP, offset_c=-HEAT * 4 * PLATEAU_EVERY_S)
+    cmp = compare(measured, longer, longer, _white(0.001))
+    assert cmp.keys == (("ramp_top", "static", 0, 0),)
+    assert "12 of 13 measured window pieces" in cmp.notes[0]
+    assert "another die temperature" in cmp.notes[0]
+    assert HEAT * 4 * PLATEAU_EVERY_S > MAX_RAMP_TEMP_MISMATCH_C
+
+
+def _record(folder: Path, serial: str, socket: int, started: str, sha: str = "abc") -> Path:
+    from procedures.runtime.record import Dut, FileRef, RunRecord, Verdict, write_record
+
+    folder.mkdir(parents=True)
+    write_record(folder, RunRecord(
+        run_id=folder.name, verdict=Verdict.PASS, started_utc=started,
+        dut=Dut(serial=serial, socket=socket), product=FileRef(path="p.yaml", sha256=""),
+        procedure=FileRef(path="eol-ramp.yaml", sha256=sha)))
+    return folder
+
+
+def test_the_twin_runs_among_the_other_parts_of_the_measured_cycle(tmp_path: Path) -> None:
+    """A ramp turns when the last die of the load has covered the span: the twin's bench
+    holds the other parts the measured run started with (same procedure, within seconds),
+    not parts of another run or another procedure."""
+    from station.discrepancy_simulate import companions
+
+    t = "2026-11-28T03:30:50.{:03d}+00:00"
+    measured = _record(tmp_path / "A_SIM-2932", "SIM-2932", 2, t.format(120))
+    _record(tmp_path / "A_SIM-2931", "SIM-2931", 1, t.format(100))
+    _record(tmp_path / "A_SIM-2933", "SIM-2933", 3, t.format(140))
+    _record(tmp_path / "B_SIM-2934", "SIM-2934", 4, "2026-11-28T04:10:00.000+00:00")
+    _record(tmp_path / "A_SIM-2935", "SIM-2935", 5, t.format(150), sha="other")
+    assert companions(measured) == {1: tmp_path / "A_SIM-2931", 3: tmp_path / "A_SIM-2933"}
+    alone = _record(tmp_path / "alone" / "C_SIM-2936", "SIM-2936", 1, t.format(0))
+    assert companions(alone) == {}
+
+
+def test_a_twin_s_air_is_given_where_its_die_is_not_the_measured_one_s() -> None:
+    """The dies' offset is read over a run's first pieces (before any ramp turns), and the
+    twin's bench takes it as the socket's air."""
+    measured = _ramp(RAMP)
+    warm = _ramp(RAMP, offset_c=0.11)  # a twin on air 0.11 C warmer than the measured part's
+    assert die_offset_c(measured, warm) == pytest.approx(-0.11)
+    assert die_offset_c(measured, measured) == 0.0
+    bench = parse_sim_config(twin_config(part_entry(GyroModel(name="m", bias_dps=0.0,
+                                                              scale=1.0), "SIM-1", socket=2),
+                                         air_c={2: -0.11}))
+    assert socket_air_offset_c(0, 2, bench.part_physics.thermal) == -0.11
+    assert draw_thermal("SIM-1", bench.part_physics.thermal).ideal

@@ -106,6 +106,26 @@ def test_real_bench_run_carries_no_simulated_mark(tmp_path: Path, pass_run: Path
     assert "real instruments" in text
 
 
+def test_a_model_twin_s_certificate_names_the_effects_its_part_carries(
+    tmp_path: Path, pass_run: Path
+) -> None:
+    """A simulated part declared to carry a model's effects (`station discrepancy
+    --simulate`'s twin) says which on page one; any other part has no such line."""
+    folder = tmp_path / pass_run.name
+    shutil.copytree(pass_run, folder)
+    rec = read_record(folder)
+    effects = ["bias_temperature", "scale_temperature", "lib_w_dTdt"]
+    write_record(folder, rec.model_copy(update={"simulated_part_effects": effects}))
+    page1 = _flat(pdf_text(render_certificate(folder), page=1))
+    assert ("Simulated part a model's twin; effects it carries: bias_temperature, "
+            "scale_temperature, lib_w_dTdt") in page1
+    write_record(folder, rec.model_copy(update={"simulated_part_effects": []}))
+    assert "effects it carries: none (bias and scale only)" in _flat(
+        pdf_text(render_certificate(folder), page=1))
+    assert "Simulated part" not in _flat(pdf_text(pass_run / "certificate.pdf", page=1))
+    assert "simulated_part_effects" not in (pass_run / "record.json").read_text()
+
+
 def test_certificate_holds_no_raster_image(pass_run: Path) -> None:
     need_poppler()
     pdf = pass_run / "certificate.pdf"
