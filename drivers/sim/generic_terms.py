@@ -13,7 +13,9 @@ The id spells the term: `lib_` + factors joined by `_`, each factor a token with
 power 2 or 3; at most third order, each factor once. Tokens: `w` (rate, deg/s), `dT` (die
 temperature - 25 C), `dTdt` (d(die temperature)/dt, C/s), `dTdir` (the direction of the die
 temperature's history, -1 cooled .. +1 heated: the state of a play operator of half-width
-`DIRECTION_HALF_WIDTH_C` on the die temperature), `dV` (supply - 5.0 V), `sgnw`
+`DIRECTION_HALF_WIDTH_C` on the die temperature), `dTdtlag<tau>s` (the rate of a
+temperature that follows the die first order with time constant tau, 1 to 100000 s, set to
+the die's at power-on: (die - that temperature) / tau), `dV` (supply - 5.0 V), `sgnw`
 (sign of the rate), `absw` (|rate|), `exp<tau>s` (exp(-t/tau), t since power-on, tau 1 to
 100000 s). `lib_angleh<k>` (k 1 to 4) is `amplitude_dps * cos(k * angle - phase_deg)` of
 the table angle. The term is added to the part's deterministic output (before its sensor
@@ -39,7 +41,8 @@ PREFIX = "lib_"
 MAX_TERMS = 16  # generic terms one part may carry
 MAX_HARMONIC = 4
 DIRECTION_HALF_WIDTH_C = 1.0  # the play operator of `dTdir`
-_TOKEN = re.compile(r"^(?:(?P<f>dTdir|dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s)$")
+_TOKEN = re.compile(r"^(?:(?P<f>dTdir|dTdt|dT|dV|sgnw|absw|w)(?P<p>[23]?)|exp(?P<tau>\d+)s"
+                    r"|dTdtlag(?P<lag>\d+)s)$")
 _HARMONIC = re.compile(r"^angleh(?P<k>[1-9])$")
 PRODUCT_PARAMS = frozenset({"coeff"})
 HARMONIC_PARAMS = frozenset({"amplitude_dps", "phase_deg"})
@@ -60,6 +63,7 @@ class PartInputs:
     dsupply_v: float
     since_power_on_s: FloatArray
     temp_direction: float = 0.0  # -1 cooled .. +1 heated (`dTdir`)
+    lagged_rates: Mapping[float, float] | None = None  # tau -> C/s (`dTdtlag<tau>s`)
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,8 @@ def _factor(tok: str, x: PartInputs) -> FloatArray:
     if tok.startswith("exp"):
         return np.exp(-np.maximum(x.since_power_on_s, 0.0) / float(tok[3:-1]))
     n = x.rate_dps.shape
+    if tok.startswith("dTdtlag"):
+        return np.full(n, (x.lagged_rates or {}).get(float(tok[7:-1]), 0.0))
     values = {
         "w": x.rate_dps,
         "dT": x.dtemp_c,
@@ -111,11 +117,12 @@ def parse_id(effect_id: str) -> tuple[tuple[tuple[str, int], ...], int]:
         if m is None:
             raise ValueError(
                 f"term {effect_id!r}: unknown factor {tok!r}; factors are w, dT, dTdt, dTdir, "
-                "dV, sgnw, absw with an optional power 2 or 3, exp<tau>s, or a term angleh<k>"
+                "dV, sgnw, absw with an optional power 2 or 3, exp<tau>s, dTdtlag<tau>s, or a "
+                "term angleh<k>"
             )
-        if m["tau"] is not None:
-            if not 1 <= int(m["tau"]) <= 100_000:
-                raise ValueError(f"term {effect_id!r}: exp time constant must be 1 to 100000 s")
+        if m["tau"] is not None or m["lag"] is not None:
+            if not 1 <= int(m["tau"] or m["lag"]) <= 100_000:
+                raise ValueError(f"term {effect_id!r}: time constant must be 1 to 100000 s")
             factors.append((tok, 1))
         else:
             factors.append((m["f"], int(m["p"] or 1)))
@@ -163,3 +170,9 @@ def total_dps(terms: tuple[GenericTerm, ...], x: PartInputs) -> FloatArray:
     for term in terms:
         out = out + term.value_dps(x)
     return out
+
+
+def lag_taus(terms: tuple[GenericTerm, ...]) -> tuple[float, ...]:
+    """The time constants of the lagged rates (`dTdtlag<tau>s`) the terms use."""
+    return tuple(sorted({float(tok[7:-1]) for t in terms for tok, _ in t.factors
+                         if tok.startswith("dTdtlag")}))

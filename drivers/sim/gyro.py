@@ -29,7 +29,13 @@ from numpy.typing import NDArray
 
 from drivers.protocols import CalibrationRegisters
 from drivers.sim.config import PartPhysicsConfig
-from drivers.sim.generic_terms import DIRECTION_HALF_WIDTH_C, PartInputs, build_terms, total_dps
+from drivers.sim.generic_terms import (
+    DIRECTION_HALF_WIDTH_C,
+    PartInputs,
+    build_terms,
+    lag_taus,
+    total_dps,
+)
 from drivers.sim.population import PartParams, serial_seed
 from drivers.sim.thermal_physics import ElementThermal, draw_thermal
 
@@ -134,6 +140,8 @@ class PartModel:
         w = fx.get("warmup_drift")
         self._warmup = (w["amplitude_dps"], w["tau_s"]) if w else None
         self._generic = build_terms(fx)  # generic terms of an extended model (lib_...)
+        # the temperatures that follow the die over each lagged rate's tau (dTdtlag<tau>s)
+        self._lagged_c = dict.fromkeys(lag_taus(self._generic), self.die_temp_c())
         # turn-on offsets come from their own generator: the noise sequence stays as it was
         self._turn_on_rng = np.random.default_rng([serial_seed(params.serial, "turn-on"), seed])
         self.turn_on_bias_dps = 0.0
@@ -153,6 +161,7 @@ class PartModel:
         if self.powered and not was:
             self.power_on_s = t_s
             self._turn_on()
+            self._lagged_c = dict.fromkeys(self._lagged_c, self.die_temp_c())
         if not self.powered:
             self.power_on_s = None if supply_v < self.physics.brownout_v else self.power_on_s
         if dt_s > 0:
@@ -167,6 +176,9 @@ class PartModel:
             half = DIRECTION_HALF_WIDTH_C
             self._play_c = min(max(self._play_c, self._hist_die[1] - half),
                                self._hist_die[1] + half)
+            for tau, lagged in self._lagged_c.items():
+                self._lagged_c[tau] = lagged + (self._hist_die[1] - lagged) * (
+                    1.0 - math.exp(-dt_s / tau))
             if self.element is not None:
                 self.element.step(t_s, self.die_temp_c())
 
@@ -346,5 +358,6 @@ class PartModel:
             dsupply_v=d_v,
             since_power_on_s=since,
             temp_direction=(d1 - self._play_c) / DIRECTION_HALF_WIDTH_C,
+            lagged_rates={tau: (d1 - c) / tau for tau, c in self._lagged_c.items()},
         )
         return total_dps(self._generic, inputs)

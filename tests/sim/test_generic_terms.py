@@ -120,3 +120,32 @@ def test_a_model_yaml_effects_map_is_a_valid_part_entry() -> None:
     }
     cfg = parse_sim_config({"parts": [{"socket": 1, "serial": "SIM-1", "effects": effects}]})
     assert cfg.parts[0].effects == effects
+
+
+def test_lagged_temperature_rate_term_is_the_rate_of_a_temperature_following_the_die() -> None:
+    """lib_dTdtlag20s (the discrepancy library's element-lagged rate): (die - T_lag) / 20 s,
+    T_lag following the die first order over 20 s from the die's temperature at power-on;
+    0 at power-on, towards the die's own rate when the die moves steadily."""
+    part = _part({"lib_dTdtlag20s": {"coeff": 1.0}}, air_c=25.0)
+    quiet = _part({}, air_c=25.0)
+    t = np.zeros(1)
+
+    def extra() -> float:
+        y, _ = part.raw_output_dps(t + part._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
+        y0, _ = quiet.raw_output_dps(t + quiet._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
+        return float((y - y0)[0])
+
+    lagged = part.die_temp_c()  # where it starts: the die's temperature at power-on
+    for p in (part, quiet):
+        p.step(0.5, 0.5, 25.0, 5.0)  # powered on at 25 C air: the die self-heats
+    lagged += (part._hist_die[1] - lagged) * (1.0 - np.exp(-0.5 / 20.0))
+    assert extra() == pytest.approx((part._hist_die[1] - lagged) / 20.0, rel=1e-9)
+    assert abs(extra()) < 0.01  # a 0.5 s old element has hardly fallen behind
+    a = np.exp(-1.0 / 20.0)
+    for k in range(1, 300):  # the chamber at 45 C: the die warms
+        for p in (part, quiet):
+            p.step(0.5 + k, 1.0, 45.0, 5.0)
+        lagged += (part._hist_die[1] - lagged) * (1.0 - a)
+    rate = part._hist_die[1] - part._hist_die[0]
+    assert extra() == pytest.approx((part._hist_die[1] - lagged) / 20.0, rel=1e-9)
+    assert extra() > 0.0 and extra() == pytest.approx(rate, rel=0.3)
