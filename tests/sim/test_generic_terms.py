@@ -33,6 +33,14 @@ def _extra(effects: dict, w: np.ndarray, angle: np.ndarray, v: float = 5.25) -> 
     return with_terms - without
 
 
+def _extra_now(part: PartModel, quiet: PartModel) -> float:
+    """The terms' output at rest at each part's latest time: with them minus without."""
+    t, still = np.array([part._hist_t[1]]), np.zeros(1)
+    y, _ = part.raw_output_dps(t, still, still, 5.0, 0.05)
+    y0, _ = quiet.raw_output_dps(np.array([quiet._hist_t[1]]), still, still, 5.0, 0.05)
+    return float((y - y0)[0])
+
+
 def test_product_term_of_rate_temperature_supply() -> None:
     w = np.array([-100.0, 0.0, 50.0, 200.0])
     extra = _extra({"lib_w_dT_dV": {"coeff": 2e-4}}, w, np.zeros_like(w))
@@ -72,12 +80,9 @@ def test_temperature_direction_term_is_plus_after_heating_and_minus_after_coolin
     risen 2 C (a play operator of half-width 1 C), -coeff once it has fallen 2 C."""
     part = _part({"lib_dTdir": {"coeff": 0.01}}, air_c=25.0)
     quiet = _part({}, air_c=25.0)
-    t = np.zeros(1)
 
     def extra() -> float:
-        y, _ = part.raw_output_dps(t + part._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
-        y0, _ = quiet.raw_output_dps(t + quiet._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
-        return float((y - y0)[0])
+        return _extra_now(part, quiet)
 
     assert extra() == pytest.approx(0.0, abs=1e-12)  # no history yet
     for k in range(1, 400):  # chamber at 45 C: heated
@@ -128,12 +133,9 @@ def test_lagged_temperature_rate_term_is_the_rate_of_a_temperature_following_the
     0 at power-on, towards the die's own rate when the die moves steadily."""
     part = _part({"lib_dTdtlag20s": {"coeff": 1.0}}, air_c=25.0)
     quiet = _part({}, air_c=25.0)
-    t = np.zeros(1)
 
     def extra() -> float:
-        y, _ = part.raw_output_dps(t + part._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
-        y0, _ = quiet.raw_output_dps(t + quiet._hist_t[1], np.zeros(1), np.zeros(1), 5.0, 0.05)
-        return float((y - y0)[0])
+        return _extra_now(part, quiet)
 
     lagged = part.die_temp_c()  # where it starts: the die's temperature at power-on
     for p in (part, quiet):
