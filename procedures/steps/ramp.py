@@ -62,7 +62,8 @@ RATE_WINDOW_S = 20.0  # a die's rate for the turn: a line over its last 20 s
 
 # the ramp's time left, as it learns its length (measured in lockstep on eol-ramp, SIM-7001/2
 # and config/sim/eight_sockets.yaml: heating 340-347 s, cooling with the top's stop 563-593 s,
-# the bottom's settling, dwell, stop and fit 265-272 s): the cooling half takes longer than
+# the bottom's settling, dwell, stop and fit 265-272 s; benchmarks/bench_ramp_phases.py):
+# the cooling half takes longer than
 # the heating half, the dies' lag reaching further from the chamber's turn
 COOL_PER_HEAT = 1.65
 AFTER_COOLING_S = 270.0
