@@ -11,12 +11,22 @@ from __future__ import annotations
 
 import asyncio
 import io
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
-from pyhanko.pdf_utils.incremental_writer import IncrementalPdfFileWriter
-from pyhanko.pdf_utils.misc import PdfError
-from pyhanko.sign import fields, signers
-from pyhanko.sign.general import SigningError
+from cryptography.utils import CryptographyDeprecationWarning
+
+# pyHanko imports cryptography's DSA key type to recognise such keys; recent cryptography
+# releases (51.0 here) warn on that import, on every command that signs. The station never
+# signs with DSA (its key is RSA, station/signing_keys.py), so that one warning is the
+# dependency's, not the user's: silenced here, at the import that raises it, nowhere else.
+with warnings.catch_warnings():
+    warnings.filterwarnings("ignore", message="DSA is deprecated",
+                            category=CryptographyDeprecationWarning)
+    from pyhanko.pdf_utils.incremental_writer import IncrementalPdfFileWriter
+    from pyhanko.pdf_utils.misc import PdfError
+    from pyhanko.sign import fields, signers
+    from pyhanko.sign.general import SigningError
 
 from station.signing_keys import SigningKeyError, StationIdentity
 
