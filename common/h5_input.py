@@ -25,6 +25,8 @@ from typing import Any
 import h5py
 from h5py import h5f, h5p
 
+from common.regular_file import NotARegularFile, open_regular
+
 SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _MESSAGE_CHARS = 300
 _UNREADABLE = "raw data file cannot be read"
@@ -46,8 +48,10 @@ def check_header(path: Path) -> None:
     file's size; H5InputError if either is wrong."""
     try:
         size = path.stat().st_size
-        with path.open("rb") as fh:
+        with open_regular(path) as fh:
             head = fh.read(48)
+    except NotARegularFile as exc:
+        raise H5InputError(f"{exc}; give a raw.h5 file") from None
     except OSError as exc:
         raise H5InputError(f"{path}: {_UNREADABLE} ({exc.strerror or exc})") from None
     if len(head) < len(SIGNATURE) or not head.startswith(SIGNATURE):

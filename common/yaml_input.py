@@ -28,6 +28,8 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from common.regular_file import NotARegularFile, open_regular
+
 # the largest configuration file is a few kB; the pure-Python scanner takes about 10 us a
 # character, so this also bounds the time to read any file to well under a second
 MAX_BYTES = 64 * 1024
@@ -177,8 +179,12 @@ def _read_bytes(path: Path, max_bytes: int) -> bytes:
                 f"{path}: {size} bytes is too large for a configuration file (at most "
                 f"{max_bytes}); check that this is the right file"
             )
-        with path.open("rb") as fh:
+        with open_regular(path) as fh:
             raw = fh.read(max_bytes + 1)
+    except NotARegularFile as exc:
+        if path.is_dir():
+            raise ConfigError(f"{path}: is a folder; give the path of a YAML file") from None
+        raise ConfigError(f"{exc}; give the path of a YAML file") from None
     except FileNotFoundError:
         raise ConfigError(
             f"{path}: file not found; give the path of an existing YAML file"

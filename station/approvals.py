@@ -62,7 +62,8 @@ def _write_approvals(folder: Path, entries: list[dict[str, Any]]) -> None:
 def approve(folder: Path, settings: LoadedSettings, *, by: str, role: str,
             remark: str = "") -> dict[str, Any]:
     """Record, show and sign an approval; returns the new entry. UserError when the folder
-    is altered, has no certificate, the name is empty, or a FAIL run has no remark."""
+    is altered, has no certificate, the name is empty, or a run that did not PASS (FAIL,
+    ERROR, ABORTED) has no remark."""
     # reportlab (PDF): loaded only when a report is drawn
     from reports.certificate import certificate_bytes
     from reports.pdfdoc import write_atomic
@@ -84,8 +85,9 @@ def approve(folder: Path, settings: LoadedSettings, *, by: str, role: str,
         record = read_record(folder)
     except ValueError as exc:
         raise UserError(f"{folder} cannot be approved: {exc}") from None
-    if record.verdict is Verdict.FAIL and not remark:
-        raise UserError(f"{folder} is a FAIL run: approving it needs a remark saying why "
+    if record.verdict is not Verdict.PASS and not remark:
+        raise UserError(f"{folder} is a{'n' if record.verdict.value[0] in 'AE' else ''} "
+                        f"{record.verdict.value} run: approving it needs a remark saying why "
                         "(--remark TEXT)")
     entries = read_approvals(folder)
     entry = {"by": name, "role": role,

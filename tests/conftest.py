@@ -13,10 +13,11 @@ def browser() -> Iterator[object]:
     is open, so it is closed before another module's tests (asyncio.run) run. Skips with the
     reason when this machine has no chromium."""
     from station.ui.headless import chromium, chromium_missing_reason
+    from tests.tools import missing
 
     reason = chromium_missing_reason()
     if reason:
-        pytest.skip(f"browser tests skipped: {reason}")
+        missing(f"browser tests: {reason}")
     with chromium() as b:
         yield b
 
@@ -30,3 +31,19 @@ def page(browser: object) -> Iterator[object]:
         yield pg
     finally:
         context.close()
+
+
+@pytest.fixture
+def mbpoll() -> str:
+    """The third-party Modbus client (Debian's mbpoll): skipped without it, failed in CI."""
+    from tests.tools import need
+
+    return need("mbpoll")
+
+
+@pytest.fixture
+def socat() -> str:
+    """socat, a serial terminal and TCP bridge: skipped without it, failed in CI."""
+    from tests.tools import need
+
+    return need("socat")

@@ -21,6 +21,10 @@ class ControlError(RuntimeError):
     """The bench refused a control request (the message says why) or cannot be reached."""
 
 
+class ControlTimeout(ControlError):
+    """The bench did not answer a control request in time (its process stopped or frozen)."""
+
+
 class ControlClient:
     """One TCP connection to the control channel; thread-safe, one request at a time."""
 
@@ -45,6 +49,9 @@ class ControlClient:
                 self._file.write(line)
                 self._file.flush()
                 reply_line = self._file.readline()
+            except TimeoutError:
+                raise ControlTimeout(f"control channel {self.endpoint} did not answer {cmd} "
+                                     f"within {self._sock.gettimeout()} s") from None
             except OSError as exc:
                 raise ControlError(f"control channel {self.endpoint} failed: {exc}") from None
         if not reply_line:

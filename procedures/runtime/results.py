@@ -43,6 +43,12 @@ class Section(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
+    def __contains__(self, item: object) -> bool:
+        # A pydantic model iterates as (name, value) pairs, so `"name" in section` would be
+        # False for every name, and a check written that way could never fail: refused.
+        raise TypeError(f"`in` on {type(self).__name__} is always False; compare the field "
+                        "(section.name is None) or its model_fields_set")
+
     @model_validator(mode="before")
     @classmethod
     def _drop_unknown_in_format_1(cls, data: Any, info: ValidationInfo) -> Any:

@@ -337,18 +337,25 @@ class ManualStop(StepType[ManualStopSettings]):
 
     def _warn_bounces(self, ctx: RunContext, part: PartRun, data: dict[str, NDArray[Any]],
                       result: StopMethodResult) -> None:
-        """A move whose rate reverses beyond the detection band bounced at the stop."""
+        """A move whose rate reverses beyond the detection band bounced at the stop: one
+        warning per part naming every such move (one line a move read as a flood)."""
         t, e = data["time_s"], data["rate_dps"] - result.bias_dps
+        bounced: list[tuple[int, float]] = []
         for i, mv in enumerate(result.moves):
             sel = (t >= mv.start_s) & (t <= mv.end_s)
             back = float(np.max(-mv.direction * e[sel], initial=0.0))
             if back > self.settings.detect_dps:
-                ctx.records.event(
-                    f"socket {part.socket}: the fixture bounced at the stop after move {i + 1} "
-                    f"({back:.1f} deg/s back); the move still counts (its angle is integrated "
-                    "through the bounce), but let it come gently to the stop",
-                    "WARNING", [part],
-                )
+                bounced.append((i + 1, back))
+        if bounced:
+            moves = ", ".join(str(n) for n, _ in bounced)
+            worst = max(b for _, b in bounced)
+            ctx.records.event(
+                f"socket {part.socket}: the fixture bounced at the stop after "
+                f"{'move' if len(bounced) == 1 else 'moves'} {moves} of {len(result.moves)} "
+                f"(up to {worst:.1f} deg/s back); the moves still count (each angle is "
+                "integrated through its bounce), but let the fixture come gently to the stop",
+                "WARNING", [part],
+            )
 
     def _record(self, ctx: RunContext, part: PartRun, result: StopMethodResult, ref: float,
                 u_ref: float, condition: str, data_temp_c: NDArray[Any]) -> None:

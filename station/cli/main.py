@@ -49,14 +49,26 @@ def build_parser(modules: Sequence[str] = COMMAND_MODULES) -> argparse.ArgumentP
     return parser
 
 
+class _PlainFormatter(logging.Formatter):
+    """A log line as a person at the terminal reads it: "station run: warning: socket 1: ...";
+    the time and the module that said it are for whoever debugs (-v)."""
+
+    def __init__(self, command: str) -> None:
+        super().__init__()
+        self.prefix = f"station {command}: " if command else "station: "
+
+    def formatMessage(self, record: logging.LogRecord) -> str:  # noqa: N802 - logging's name
+        return f"{self.prefix}{record.levelname.lower()}: {record.message}"
+
+
 def main(argv: Sequence[str] | None = None, modules: Sequence[str] = COMMAND_MODULES) -> int:
     """Run one command; `modules` (the command groups to offer) defaults to every one."""
     parser = build_parser(modules)
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING - 10 * min(args.verbose, 2),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    to_stderr = logging.StreamHandler()
+    to_stderr.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s")
+                           if args.verbose else _PlainFormatter(args.command or ""))
+    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2), handlers=[to_stderr])
     if args.verbose < 2:  # the drivers say what failed in their own errors, once
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     handler = getattr(args, "handler", None)

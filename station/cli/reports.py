@@ -211,11 +211,18 @@ def cmd_history(args: argparse.Namespace) -> int:
     for line in history_table(runs):
         print(line)
     counts = {v: sum(r.verdict == v for r in runs) for v in VERDICTS}
-    done = counts["PASS"] + counts["FAIL"]
-    yield_text = f"{counts['PASS'] / done * 100:.1f} %" if done else "n/a"
     print(f"{plural(len(runs), 'run')}: " + ", ".join(f"{v} {n}" for v, n in counts.items() if n)
-          + f"; yield {yield_text}")
+          + f"; {_yield_text(counts, args.verdict)}")
     return 0
+
+
+def _yield_text(counts: dict[str, int], verdict_filter: str | None) -> str:
+    """The yield of the listed runs; none for a list filtered by verdict (a list of FAIL
+    runs has no yield to give, and "yield 0.0 %" would read as the line's)."""
+    if verdict_filter:
+        return f"no yield (only {verdict_filter} runs listed; drop --verdict for the yield)"
+    done = counts["PASS"] + counts["FAIL"]
+    return f"yield {counts['PASS'] / done * 100:.1f} %" if done else "yield n/a"
 
 
 def cmd_lot_report(args: argparse.Namespace) -> int:

@@ -5,7 +5,7 @@
         archive (`station archive`) is checked as its folder was
     station approve RUN_FOLDER --by NAME [--remark TEXT] [--station FILE]
         a quality engineer's approval: shown on the certificate, second PDF signature,
-        approvals.json, new manifest (a FAIL run needs --remark)
+        approvals.json, new manifest (a run that did not PASS needs --remark)
 """
 
 from __future__ import annotations
@@ -114,6 +114,6 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("run_folder", metavar="RUN_FOLDER")
     p.add_argument("--by", required=True, metavar="NAME", help="the approving quality engineer")
     p.add_argument("--remark", metavar="TEXT",
-                   help="why the run is approved (required for a FAIL run); on the certificate")
+                   help="why the run is approved (needed unless it PASSed); on the certificate")
     p.add_argument("--station", metavar="FILE", help="station file (default: config/station.yaml)")
     p.set_defaults(handler=cmd_approve)

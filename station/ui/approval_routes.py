@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 
 class ApproveBody(BaseModel):
-    remark: str = ""  # why the run is approved; required for a FAIL run (station/approvals.py)
+    remark: str = ""  # why it is approved; needed unless the run PASSed (station/approvals.py)
 
 
 def add_approval_routes(app: FastAPI, controller: Controller, history: History,

@@ -4,7 +4,6 @@ late answers, refusals, the stuck chamber's alarm) raising its documented typed 
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -173,7 +172,7 @@ def test_twin_endpoint_is_the_drivers_address_form():
             settings.model_validate({"address": tt.endpoint})
 
 
-@pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed (apt install socat)")
+@pytest.mark.usefixtures("socat")
 def test_espec_driver_over_a_serial_device_path(tmp_path):
     """The P-300's serial port: a pseudo-terminal that socat bridges to the twin's TCP port."""
     with TwinThread(EspecP300Twin, CONFIG, speed=SPEED) as tt:

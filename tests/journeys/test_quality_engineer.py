@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.tools import need
+
 REPO = Path(__file__).resolve().parents[2]
 STATION_CMD = Path(sys.executable).parent / "station"  # the installed console script
 TWO_PARTS = """\
@@ -29,12 +31,6 @@ parts:
   - {socket: 1, serial: SIM-0001}
   - {socket: 2, serial: SIM-0002, bias_dps: 12.0}
 """
-
-
-def need(*tools: str) -> None:
-    missing = [t for t in tools if shutil.which(t) is None]
-    if missing:
-        pytest.skip(f"{', '.join(missing)} not installed (poppler-utils; .ci/run installs it)")
 
 
 class Bench:
@@ -102,10 +98,10 @@ def test_approve_shows_on_the_certificate(bench: Bench) -> None:
     text = pdftotext(folder / "certificate.pdf")
     box = text[text.rindex("Reviewed by (quality)"):]
     assert "Quinn Quality (quality)" in box and "Approval-1" in box  # finding 9
-    if shutil.which("pdfsig"):
-        sig = subprocess.run(["pdfsig", str(folder / "certificate.pdf")],
-                             capture_output=True, text=True).stdout
-        assert sig.count("Signature is Valid.") == 2, sig
+    need("pdfsig")
+    sig = subprocess.run(["pdfsig", str(folder / "certificate.pdf")],
+                         capture_output=True, text=True).stdout
+    assert sig.count("Signature is Valid.") == 2, sig
     assert bench.station("verify", str(folder), "--station", bench.station_file).returncode == 0
 
 

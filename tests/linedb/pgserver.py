@@ -12,10 +12,9 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
-
 from station.db.connect import dispose_all
 from station.ui.server import free_port
+from tests.tools import missing
 
 USER = "gyrocal"
 
@@ -96,7 +95,7 @@ def started_server() -> Iterator[PgServer]:
     is skipped, with the reason, where PostgreSQL is not installed."""
     reason = missing_reason()
     if reason:
-        pytest.skip(reason)
+        missing(reason)
     server = PgServer()
     server.start()
     try:

@@ -1,18 +1,16 @@
 """The line dashboard's control chart and Cpk (issue 26, finding 11): the chart carries its
-units, centre and control limits, and its axis labels (line.js, run in node) are round values
+units, centre and control limits, and its axis labels (line.js, run in chromium) are round values
 with the digits their step needs; Cpk is "too few" below the minimum number of values."""
 
 from __future__ import annotations
 
-import json
 import re
-import shutil
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
+from playwright.sync_api import Page
 
 from reports.lot_stats import MIN_CPK_N
 from station.db.connect import dispose_all
@@ -51,23 +49,18 @@ def test_cpk_is_too_few_below_the_minimum(client: TestClient) -> None:
     assert not enough.too_few and enough.cpk == pytest.approx(1 / 0.3)
 
 
-def _run_js(functions: list[str], expression: str) -> object:
-    node = shutil.which("node")
-    if node is None:
-        pytest.skip("node not installed (runs the dashboard's own axis functions)")
+def _run_js(page: Page, functions: list[str], expression: str) -> object:
     source = LINE_JS.read_text(encoding="utf-8")
     parts = []
     for name in functions:
         m = re.search(rf"^function {name}\(.*?^\}}$", source, re.S | re.M)
         assert m, f"line.js has no {name}()"
         parts.append(m.group(0))
-    script = "\n".join(parts) + f"\nconsole.log(JSON.stringify({expression}));"
-    out = subprocess.run([node, "-e", script], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout)
+    return page.evaluate("() => {" + "\n".join(parts) + f"\nreturn {expression}; }}")
 
 
-def test_axis_ticks_are_round_values_with_readable_labels() -> None:
-    got = _run_js(["niceTicks", "tickLabel"],
+def test_axis_ticks_are_round_values_with_readable_labels(page: Page) -> None:
+    got = _run_js(page, ["niceTicks", "tickLabel"],
                   "[[-0.013, 0.021], [0.9987, 1.0031], [-250, 250], [-0.0004, 0.0003]]"
                   ".map(([lo, hi]) => {"
                   " const t = niceTicks(lo, hi, 5);"

@@ -30,7 +30,6 @@ Three station runs of a few seconds each and the workflow on ~15,000 samples: st
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -40,6 +39,7 @@ from drivers.sim.config import load_sim_config
 from drivers.sim.thermal_physics import draw_thermal
 from station.cli import main as cli
 from station.sim_run import run_simulated
+from tests.tools import need
 
 pytestmark = [pytest.mark.slow, pytest.mark.station_grid]
 
@@ -79,8 +79,7 @@ def test_the_twin_carries_the_model_s_terms_only_and_its_certificate_says_which(
     assert draw_thermal(SERIAL, after.part_physics.thermal).ideal  # no lag, gradient, hysteresis
     generic = {e for e in res["effects_added"] if e.startswith("lib_")}
     assert generic <= set(after.parts[0].effects)
-    if shutil.which("pdftotext") is None:
-        pytest.skip("poppler-utils not installed (pdftotext)")
+    need("pdftotext")
     cert = Path(res["simulation_twin_after"]["run_folder"]) / "certificate.pdf"
     page1 = " ".join(subprocess.run(["pdftotext", "-f", "1", "-l", "1", str(cert), "-"],
                                     capture_output=True, text=True, check=True).stdout.split())

@@ -15,7 +15,6 @@ benchmarks/bench_faults.py (no relative imports: the benchmark imports this file
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import threading
 import time
@@ -33,6 +32,7 @@ from procedures.runtime.record import RAW_DATA_FILE, Verdict, read_record
 from station.endpoints import Endpoints
 from station.station_file import load_settings
 from station.uut import UutRunner
+from tests.tools import need
 
 GRID_PROCEDURE = Path(__file__).resolve().parent / "data" / "grid.yaml"
 # On a scaled clock (`speed`, the benchmark's option) a wall hiccup of milliseconds is seconds
@@ -217,8 +217,9 @@ class CellResult:
 
 
 def first_page_text(pdf: Path) -> str:
-    """Page one of a PDF as text ('' without pdftotext)."""
-    if shutil.which("pdftotext") is None or not pdf.exists():
+    """Page one of a PDF as text ('' when there is no PDF)."""
+    need("pdftotext")
+    if not pdf.exists():
         return ""
     done = subprocess.run(
         ["pdftotext", "-f", "1", "-l", "1", "-layout", str(pdf), "-"],

@@ -19,6 +19,7 @@ import pytest
 from procedures.loading.config import load_procedure
 from procedures.steps.manual_stop import VerifyManualStop
 from procedures.steps.registry import step_type
+from tests.tools import need
 
 REPO = Path(__file__).resolve().parents[2]
 DOC = REPO / "docs" / "manual-stop.md"
@@ -79,9 +80,9 @@ def test_the_documented_manual_run_fits_programs_and_verifies(tmp_path: Path) ->
     assert judged["residual_bias_dps"]["outcome"] in ("PASS", "MARGINAL")
     assert record["verification"]["method"] == "manual_stop"
     assert abs(record["verification"]["residuals"][0]["error_pct"]) < 0.05
-    if shutil.which("pdftotext"):
-        text = subprocess.run(["pdftotext", "-layout", str(folder / "certificate.pdf"), "-"],
-                              capture_output=True, text=True, check=True).stdout
-        assert "Calibration written to the part" in text
-        assert "Verification after correction" in text and "verify@stop" in text
-        assert "read-back PASSED" in " ".join(text.split())
+    need("pdftotext")
+    text = subprocess.run(["pdftotext", "-layout", str(folder / "certificate.pdf"), "-"],
+                          capture_output=True, text=True, check=True).stdout
+    assert "Calibration written to the part" in text
+    assert "Verification after correction" in text and "verify@stop" in text
+    assert "read-back PASSED" in " ".join(text.split())

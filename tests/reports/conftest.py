@@ -10,15 +10,13 @@ import pytest
 
 from reports.certificate import render_certificate
 from tests.reports.synth_run import Part, make_run
+from tests.tools import need
 
 POPPLER = ("pdftotext", "pdftoppm", "pdfinfo", "pdfimages")
 
 
 def need_poppler() -> None:
-    missing = [t for t in POPPLER if shutil.which(t) is None]
-    if missing:
-        pytest.skip(f"poppler-utils not installed ({', '.join(missing)} missing); "
-                    "apt-get install poppler-utils (.ci/run does)")
+    need(*POPPLER)
 
 
 def pdf_text(pdf: Path, page: int | None = None, layout: bool = True) -> str:

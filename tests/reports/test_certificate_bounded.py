@@ -12,6 +12,7 @@ from pathlib import Path
 from procedures.runtime.record import read_record, write_record
 from reports.certificate import certificate_bytes
 from reports.styles import MAX_TEXT_CHARS, bounded, escape
+from tests.tools import need
 
 HUGE = "<b>" + "N" * 2_000_000  # markup too: escaped, never parsed
 
@@ -44,8 +45,8 @@ def test_megabytes_of_text_in_a_record_render_promptly(pass_run: Path, tmp_path:
     assert long_s < 3 * normal_s + 5.0, (normal_s, long_s)
     out = tmp_path / "c.pdf"
     out.write_bytes(pdf)
-    if shutil.which("pdftotext"):
-        text = subprocess.run(["pdftotext", str(out), "-"], capture_output=True,
-                              text=True, check=True).stdout
-        assert "more characters not shown" in text
-        assert "<b>" in text  # shown as text, not taken as markup
+    need("pdftotext")
+    text = subprocess.run(["pdftotext", str(out), "-"], capture_output=True,
+                          text=True, check=True).stdout
+    assert "more characters not shown" in text
+    assert "<b>" in text  # shown as text, not taken as markup

@@ -99,6 +99,11 @@ def test_history_filters_and_summarises(tmp_path: Path) -> None:
     rows = [ln for ln in out.stdout.splitlines() if ln.startswith("2026-")]
     assert len(rows) == n_fail > 0 and all(" FAIL " in ln for ln in rows)
     assert f"{n_fail} run{'s' if n_fail > 1 else ''}: FAIL {n_fail}" in out.stdout  # "1 run"
+    # a list filtered by verdict has no yield of its own (it read "yield 0.0 %")
+    assert "yield 0.0 %" not in out.stdout and "no yield (only FAIL runs listed" in out.stdout
+    whole = station("history", "--db", str(db)).stdout
+    n_pass = sum(r.verdict.value == "PASS" for r in records)
+    assert f"yield {n_pass / (n_pass + n_fail) * 100:.1f} %" in whole
     js = json.loads(station("history", "--db", str(db), "--since", "2026-11-21T12:00Z",
                             "--json").stdout)
     assert len(js) == sum(r.started_utc >= "2026-11-21T12:00" for r in records)

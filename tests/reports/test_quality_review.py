@@ -5,7 +5,6 @@ certificate and a FAIL run approved only with a remark (9), and `station verify`
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from station.ui.history import History, RunFilter
 from tests.reports.conftest import pdf_text
 from tests.reports.synth_run import Part, make_record, make_run
 from tests.reports.test_signing import station, station_file
+from tests.tools import need
 
 
 @pytest.fixture(scope="module")
@@ -86,10 +86,10 @@ def test_approval_is_visible_on_the_certificate_and_both_signatures_valid(
     box = text[text.index("Reviewed by (quality)"):]
     assert "Q. Engineer (quality)" in box and "Approval-1" in box
     assert "signed digitally" in box
-    if shutil.which("pdfsig"):
-        sig = subprocess.run(["pdfsig", str(folder / "certificate.pdf")], capture_output=True,
-                             text=True).stdout
-        assert sig.count("Signature Validation: Signature is Valid.") == 2, sig
+    need("pdfsig")
+    sig = subprocess.run(["pdfsig", str(folder / "certificate.pdf")], capture_output=True,
+                         text=True).stdout
+    assert sig.count("Signature Validation: Signature is Valid.") == 2, sig
     assert station("verify", str(folder), "--station", str(settings.source.path))[0] == 0
     # `station report` renders it again with the approval still in the box
     assert station("report", str(folder), "--station", str(settings.source.path))[0] == 0
@@ -112,6 +112,20 @@ def test_a_fail_run_is_approved_only_with_a_remark(
     assert code == 0, err
     text = " ".join(pdf_text(folder / "certificate.pdf", layout=False).split())
     assert "remark: concession 17: bias limit waived for this lot" in text
+
+
+@pytest.mark.parametrize("verdict", ["ABORTED", "ERROR"])
+def test_a_run_that_did_not_finish_is_approved_only_with_a_remark(
+        tmp_path: Path, settings: LoadedSettings, verdict: str) -> None:
+    folder = _issued(tmp_path, settings, Part(serial=f"SIM-{verdict}-1", seed=14,
+                                              verdict=verdict))
+    code, _, err = station("approve", str(folder), "--by", "Q. Engineer",
+                           "--station", str(settings.source.path))
+    assert code == 2 and err.count("\n") == 1 and f"{verdict} run" in err and "--remark" in err
+    assert not (folder / "approvals.json").exists()
+    code, _, err = station("approve", str(folder), "--by", "Q. Engineer", "--remark",
+                           "part returned to stock", "--station", str(settings.source.path))
+    assert code == 0, err
 
 
 def test_verify_after_report_says_sealed_at_the_run(

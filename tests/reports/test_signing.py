@@ -23,13 +23,9 @@ from station.signing_keys import load_or_create_identity
 from station.station_file import load_settings
 from tests.reports.conftest import pdf_pages, pdf_text
 from tests.reports.synth_run import Part, make_run
+from tests.tools import need
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def need(tool: str) -> None:
-    if shutil.which(tool) is None:
-        pytest.skip(f"{tool} (poppler-utils) not installed")
 
 
 def station(*args: str) -> tuple[int, str, str]:

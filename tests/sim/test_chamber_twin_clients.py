@@ -5,7 +5,6 @@ twin; and each twin's protocol rules as a generic client sees them."""
 from __future__ import annotations
 
 import re
-import shutil
 import socket
 import struct
 import subprocess
@@ -25,9 +24,7 @@ def _host_port(endpoint: str) -> tuple[str, int]:
     return host, int(port)
 
 
-@pytest.mark.skipif(
-    shutil.which("mbpoll") is None, reason="mbpoll not installed (apt install mbpoll)"
-)
+@pytest.mark.usefixtures("mbpoll")
 def test_mbpoll_reads_the_f4t_process_value_as_a_float_at_2820() -> None:
     with TwinThread(WatlowF4TTwin, {"chamber": {"ambient_c": AIR_C}}) as tt:
         host, port = _host_port(tt.endpoint)

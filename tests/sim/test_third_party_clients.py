@@ -1,7 +1,6 @@
 """Real third-party clients read the twins: mbpoll (Modbus TCP) and socat (serial)."""
 
 import re
-import shutil
 import subprocess
 
 import pytest
@@ -40,9 +39,7 @@ def _mbpoll(bench: BenchHandle, ref: int, count: int, dtype: str) -> dict[int, s
     return {int(a): v for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out.stdout, re.MULTILINE)}
 
 
-@pytest.mark.skipif(
-    shutil.which("mbpoll") is None, reason="mbpoll not installed (apt install mbpoll)"
-)
+@pytest.mark.usefixtures("mbpoll")
 def test_mbpoll_reads_model_string_and_encoder(bench: BenchHandle) -> None:
     words = _mbpoll(bench, 40, 8, "4:hex")
     raw = b"".join(int(words[40 + i], 16).to_bytes(2, "big") for i in range(8))
@@ -54,7 +51,7 @@ def test_mbpoll_reads_model_string_and_encoder(bench: BenchHandle) -> None:
     assert abs(pos_mdeg / 1000 - counts * 360 / COUNTS_PER_REV) < 1.0
 
 
-@pytest.mark.skipif(shutil.which("socat") is None, reason="socat not installed (apt install socat)")
+@pytest.mark.usefixtures("socat")
 def test_socat_gets_the_supply_identity(bench: BenchHandle) -> None:
     out = subprocess.run(
         ["socat", "-t", "1", "-", f"{bench.endpoints.supply},raw,echo=0"],

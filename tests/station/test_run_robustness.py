@@ -86,6 +86,18 @@ def test_bad_speed_is_one_line_error(tmp_path: Path, speed: str) -> None:
     _one_line_error(r, "--speed")
 
 
+@pytest.mark.parametrize("flag", ["--procedure", "--station", "--product"])
+def test_a_named_pipe_given_as_a_file_is_one_line_error(tmp_path: Path, flag: str) -> None:
+    """A FIFO where a file is read is refused at once (it hung with no output: opening it
+    waited for a writer that never came)."""
+    fifo = tmp_path / "procedure.yaml"
+    os.mkfifo(fifo)
+    r = station("run", "--sim", "--dut", "QA-0001", flag, str(fifo), "--out",
+                str(tmp_path / "out"), timeout=60)
+    _one_line_error(r, "named pipe (FIFO), not a regular file")
+    assert str(fifo) in r.stderr
+
+
 def test_out_is_a_file_is_one_line_error(tmp_path: Path) -> None:
     out = tmp_path / "results.txt"
     out.write_text("not a folder")

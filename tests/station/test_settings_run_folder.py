@@ -22,11 +22,17 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize(
-    "serial", ["../../x", "..", "a/b", "/etc", "a\\b", "", ".hidden", "x" * 65]
+    "serial", ["../../x", "..", "a/b", "/etc", "a\\b", "", ".hidden", "x" * 65,
+               "a..b", "SIM..0001", "x" * 63 + ".."]
 )
 def test_unsafe_serials_refused(serial: str) -> None:
     with pytest.raises(UserError, match="not allowed"):
         validate_serial(serial)
+
+
+@pytest.mark.parametrize("serial", ["x" * 64, "a.b", "A-1_2.3", "7"])
+def test_safe_serials_at_the_edges_kept(serial: str) -> None:
+    assert validate_serial(serial) == serial
 
 
 def test_pattern_checked() -> None:

@@ -9,7 +9,6 @@ station serves every test; the bench's own truth is read over its control channe
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
 
 import httpx
@@ -21,6 +20,7 @@ pytest.importorskip(
 )
 from playwright.sync_api import Page, expect  # noqa: E402
 
+from tests.tools import need
 from tests.ui.conftest import ENGINEER_PASSWORD, FAIL_SERIAL, PASS_SERIAL, SimStation
 
 pytestmark = pytest.mark.slow
@@ -34,9 +34,8 @@ def _verdict(page: Page, socket: int) -> tuple[str, str]:
     return verdict.inner_text(), page.locator(f"#socket-{socket} .reasons").inner_text()
 
 
-def _pdf_text(pdf: bytes) -> str | None:
-    if shutil.which("pdftotext") is None:
-        return None
+def _pdf_text(pdf: bytes) -> str:
+    need("pdftotext")
     out = subprocess.run(["pdftotext", "-", "-"], input=pdf, capture_output=True, timeout=30)
     return out.stdout.decode("utf-8", errors="replace")
 

@@ -3,7 +3,6 @@ adds a second signature to the certificate and is recorded and sealed."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,6 +20,7 @@ from station.ui.hub import Hub
 from station.ui.requests import Security
 from tests.reports.synth_run import Part, make_run
 from tests.reports.test_signing import station_file
+from tests.tools import need
 from tests.ui.fake_runner import FakeRunner
 
 BASE = "http://127.0.0.1:8080"
@@ -64,10 +64,10 @@ def test_operator_cannot_approve_quality_can(review: tuple[TestClient, Path]) ->
     state = client.get(f"/api/runs/{key}/integrity").json()
     assert state["status"] == "intact"
     assert [a["by"] for a in state["approvals"]] == ["Quinn"]
-    if shutil.which("pdfsig"):
-        sig = subprocess.run(["pdfsig", str(folder / "certificate.pdf")], capture_output=True,
-                             text=True).stdout
-        assert sig.count("Signature is Valid.") == 2
+    need("pdfsig")
+    sig = subprocess.run(["pdfsig", str(folder / "certificate.pdf")], capture_output=True,
+                         text=True).stdout
+    assert sig.count("Signature is Valid.") == 2
 
 
 def test_altered_folder_shows_altered_and_cannot_be_approved(

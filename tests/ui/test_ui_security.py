@@ -7,7 +7,6 @@ the station it needs. What a web page of another site can send is sent here as i
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +23,7 @@ from station.ui.history import History
 from station.ui.hub import Hub
 from station.ui.requests import Security
 from station.ui.server import Tls, serve_in_thread
+from tests.tools import need
 from tests.ui.conftest import _HASH, ENGINEER_PASSWORD
 from tests.ui.fake_runner import FakeRunner
 
@@ -302,8 +302,7 @@ def test_state_never_publishes_the_bench_control_endpoint(tmp_path: Path) -> Non
 
 
 def _self_signed(folder: Path) -> Tls:
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl not installed")
+    need("openssl")
     cert, key = folder / "cert.pem", folder / "key.pem"
     subprocess.run(
         ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2",

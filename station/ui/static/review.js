@@ -15,13 +15,13 @@ function runKey(run) {
   return m ? m[1] : "";
 }
 
-// A FAIL run is approved only with a remark saying why (station/approvals.py); it is shown
-// on the certificate beside the approver's name.
+// A run that did not PASS (FAIL, ERROR, ABORTED) is approved only with a remark saying why
+// (station/approvals.py); it is shown on the certificate beside the approver's name.
 async function approveRun(key, cell, verdict) {
   let remark = "";
-  if (verdict === "FAIL") {
-    remark = (window.prompt("This run FAILED. Remark for approving it (shown on the certificate):") || "").trim();
-    if (!remark) { $("review-msg").textContent = "Approving a FAIL run needs a remark."; return; }
+  if (verdict !== "PASS") {
+    remark = (window.prompt("This run is " + verdict + ". Remark for approving it (shown on the certificate):") || "").trim();
+    if (!remark) { $("review-msg").textContent = "Approving a " + verdict + " run needs a remark."; return; }
   }
   const r = await fetch("/api/runs/" + encodeURIComponent(key) + "/approve", {
     method: "POST", headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf },
