@@ -21,6 +21,7 @@ from drivers.sim.line_twin import LineTwin
 from drivers.sim.rigol_twin import RANGES as RIGOL_RANGES
 from drivers.sim.rigol_twin import RigolDP832
 from drivers.sim.supply import SupplyOutputs
+from drivers.sim.vxi11 import Vxi11Server
 from drivers.sim.world import World
 
 log = logging.getLogger(__name__)
@@ -40,12 +41,26 @@ class ScpiLanTwin(LineTwin):
     ) -> None:
         super().__init__(world, host, port)
         self.instrument = self.make_instrument(world, channel)
+        self.vxi11 = Vxi11Server(self.reply, self.instrument.status.stb, host)
 
     def make_instrument(self, world: World, channel: int) -> ScpiInstrument:
         raise NotImplementedError
 
     def endpoint(self) -> str:
         return f"TCPIP::{self.host}::{self.port}::SOCKET"
+
+    async def start(self) -> None:
+        await super().start()
+        if self.vxi11.port == 0:
+            await self.vxi11.start()
+
+    async def shutdown(self) -> None:
+        await super().shutdown()
+        await self.vxi11.shutdown()
+
+    def vxi11_endpoint(self) -> str:
+        """The same instrument as a VXI-11 resource (its port named: no portmapper)."""
+        return self.vxi11.resource()
 
     def reply(self, line: str) -> str | None:
         """Empty lines are no message; the world advances to the message and past it."""
