@@ -128,9 +128,9 @@ class Vxi11Server:
         if proc == CREATE_LINK:
             x.uint(), x.uint(), x.uint()  # client id, lock device, lock timeout
             x.opaque()  # device name (inst0)
-            link, self._next_link = self._next_link, self._next_link + 1
-            self._links[link] = _Link()
-            return _ints(NO_ERROR, link, 0, MAX_RECV)
+            number, self._next_link = self._next_link, self._next_link + 1
+            self._links[number] = _Link()
+            return _ints(NO_ERROR, number, 0, MAX_RECV)
         link_id = x.uint()
         link = self._links.get(link_id)
         if link is None:
