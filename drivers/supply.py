@@ -369,10 +369,12 @@ class SupplySettings(BaseModel):
     timeout_s: float = Field(1.0, gt=0.0, le=60.0, description="reply timeout, wall seconds")
     expected_model: str = Field("", description="if set, *IDN?'s model must contain this")
     max_voltage_v: float | None = Field(
-        None, gt=0, le=1000, description="the supply's rated output voltage (pre-flight check)"
+        None, gt=0, le=1000, description="narrows the output's voltage range the pre-flight checks "
+        "against (the model's, or VOLT? MAX)"
     )
     max_current_a: float | None = Field(
-        None, gt=0, le=100, description="the supply's rated output current (pre-flight check)"
+        None, gt=0, le=100, description="narrows the output's current range the pre-flight checks "
+        "against (the model's, or CURR? MAX)"
     )
 
     @field_validator("address")
