@@ -1,8 +1,11 @@
 """Keysight E36300 series triple-output supplies (E36311A, E36312A, E36313A): the
 `supply.keysight-e36300` family.
 
-Every command names its output with a SCPI channel list, so nothing depends on the front
-panel's selected channel: `VOLT 5.000,(@1)`, `CURR 0.1000,(@1)`, `OUTP 1,(@1)`, `OUTP? (@1)`,
+Each model's outputs have their own ranges (`MODELS`, from Keysight's E36300 Series data
+sheet and programming guide); the pre-flight checks a procedure against the range of the
+output the parts hang on, found from *IDN?'s model. Every command names its output with a
+SCPI channel list, so nothing depends on the selected output (`INST:SEL`):
+`VOLT 5.000,(@1)`, `CURR 0.1000,(@1)`, `OUTP 1,(@1)`, `OUTP? (@1)`,
 `MEAS:VOLT? (@1)`, `MEAS:CURR? (@1)`, `VOLT? (@1)`, `CURR? (@1)`, `SYST:ERR?`. The E36300 has
 LAN (raw SCPI socket on port 5025, VXI-11, HiSLIP), USBTMC and GPIB, no serial port.
 """
@@ -13,10 +16,16 @@ from typing import Any
 
 from pydantic import Field
 
-from drivers.supply import ScpiDialect, ScpiSupply, SupplySettings, open_checked
+from drivers.supply import ModelOutputs, ScpiDialect, ScpiSupply, SupplySettings, open_checked
 
 NAME = "Keysight E36300 supply"
 CHANNELS = 3
+# each output's (lowest V, highest V, highest A); the E36311A's output 3 is negative
+MODELS: ModelOutputs = {
+    "E36311A": {1: (0.0, 6.0, 5.0), 2: (0.0, 25.0, 1.0), 3: (-25.0, 0.0, 1.0)},
+    "E36312A": {1: (0.0, 6.0, 5.0), 2: (0.0, 25.0, 1.0), 3: (0.0, 25.0, 1.0)},
+    "E36313A": {1: (0.0, 6.0, 10.0), 2: (0.0, 25.0, 2.0), 3: (0.0, 25.0, 2.0)},
+}
 
 
 class KeysightE36300Dialect(ScpiDialect):
@@ -27,6 +36,16 @@ class KeysightE36300Dialect(ScpiDialect):
             raise ValueError(f"the E36300 has outputs 1..{CHANNELS}, not {channel}")
         self.channel = channel
         self._at = f"(@{channel})"
+
+    def output_name(self, model: str) -> str:
+        return f"output {self.channel} of the Keysight {model}"
+
+    def model_output(self, model: str) -> tuple[float, float, float] | None:
+        outputs = MODELS.get(model.strip().upper())
+        return None if outputs is None else outputs.get(self.channel)
+
+    def range_queries(self) -> tuple[str, str]:
+        return f"VOLT? MAX,{self._at}", f"CURR? MAX,{self._at}"
 
     def set_voltage(self, supply_v: float) -> str:
         return f"VOLT {supply_v:.3f},{self._at}"

@@ -250,6 +250,34 @@ class OutputLimited(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class OutputRange:
+    """What one supply output can be set to, and who says so (for the pre-flight's line)."""
+
+    output: str  # "output 2 of the Keysight E36312A"
+    low_v: float  # the lowest voltage it can be set to (a negative output: below 0)
+    high_v: float
+    max_a: float  # the highest current limit
+    source: str  # "its rating", "VOLT? MAX and CURR? MAX", "station.yaml"
+
+    def describe(self) -> str:
+        parts = []
+        if self.high_v != float("inf"):
+            parts.append(f"{self.low_v:g} to {self.high_v:g} V")
+        if self.max_a != float("inf"):
+            parts.append(f"up to {self.max_a:g} A")
+        return ", ".join(parts) + (f": {self.source}" if self.source else "")
+
+
+@runtime_checkable
+class OutputRanged(Protocol):
+    """Optional: the range of the output the parts hang on, for the pre-flight."""
+
+    def output_range(self) -> OutputRange | None:
+        """The output's range; None when neither the model nor the instrument tells it."""
+        ...
+
+
 @runtime_checkable
 class Supply(Identifiable, VoltageSource, SupplyMeasurable, Closable, Protocol):
     def safe_state(self) -> None: ...

@@ -20,12 +20,13 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from drivers.errors import (
     ConnectionLost,
     InstrumentError,
+    InstrumentTimeout,
     ProtocolError,
     ScpiError,
     SupplyCurrentLimit,
     WrongInstrument,
 )
-from drivers.protocols import InstrumentIdentity, SafeReadback
+from drivers.protocols import InstrumentIdentity, OutputRange, SafeReadback
 from drivers.scpi import ScpiCommands, ScpiTransport, parse_float
 from drivers.visa import VisaTransport, resource_name
 
@@ -38,10 +39,28 @@ CC_VOLTAGE_SAG_V = 0.05
 CC_CURRENT_FRACTION = 0.98
 
 
+# an output's (lowest V, highest V, highest A), by model and output number
+ModelOutputs = dict[str, dict[int, tuple[float, float, float]]]
+
+
 class ScpiDialect:
     """The generic single-channel SCPI command set (IEEE 488.2 + SCPI 1999 source subsystem)."""
 
     error_query = "SYST:ERR?"
+
+    def output_name(self, model: str) -> str:
+        """The output the parts hang on, as a message names it."""
+        return f"the {NAME}'s output"
+
+    def model_output(self, model: str) -> tuple[float, float, float] | None:
+        """(lowest V, highest V, highest A) of that output on `model`, from the maker's
+        documents; None: the family does not know the model (the instrument is asked)."""
+        return None
+
+    def range_queries(self) -> tuple[str, str]:
+        """The queries of the output's highest voltage and current (SCPI-1999 vol. 1,
+        7.2.1.2: MAXimum)."""
+        return "VOLT? MAX", "CURR? MAX"
 
     def set_voltage(self, supply_v: float) -> str:
         return f"VOLT {supply_v:.3f}"
@@ -92,6 +111,8 @@ class ScpiSupply:
         self._reopen: Callable[[float | None], ScpiTransport] | None = None
         # who *IDN? first said it is: a reconnect commands nothing until it says so again
         self._identity: InstrumentIdentity | None = None
+        # station.yaml's expected_model: the model when *IDN?'s is not one the family knows
+        self.configured_model = ""
 
     @classmethod
     def open(
@@ -241,8 +262,45 @@ class ScpiSupply:
         return volts, amps
 
     def output_limits(self) -> tuple[float | None, float | None]:
-        """(highest voltage V, highest current limit A) it can set; None: not configured."""
-        return self.limits
+        """(highest voltage V, highest current limit A) it can set; None: not known."""
+        found = self.output_range()
+        if found is None:
+            return self.limits
+        return (found.high_v if found.high_v != INFINITE else None,
+                found.max_a if found.max_a != INFINITE else None)
+
+    def output_range(self) -> OutputRange | None:
+        """The range of the parts' output: the model's (from *IDN?, or station.yaml's
+        expected_model), else what the instrument answers to the range queries, narrowed by
+        station.yaml's max_voltage_v / max_current_a; None when nothing tells it."""
+        found = self._model_range() or self._asked_range()
+        return _narrowed(found, self.limits, self.dialect.output_name(self._model_name()))
+
+    def _model_name(self) -> str:
+        return (self._identity or self.identify()).model
+
+    def _model_range(self) -> OutputRange | None:
+        for model in (self._model_name(), self.configured_model):
+            found = self.dialect.model_output(model) if model else None
+            if found is not None:
+                low, high, amps = found
+                return OutputRange(self.dialect.output_name(model), low, high, amps,
+                                   f"the {model}'s rating")
+        return None
+
+    def _asked_range(self) -> OutputRange | None:
+        volts_q, amps_q = self.dialect.range_queries()
+        try:
+            volts, amps = self._float(volts_q), self._float(amps_q)
+        except (InstrumentTimeout, ProtocolError) as exc:
+            log.info("the %s does not tell its range (%s): %s", self.name, volts_q, exc)
+            try:
+                self._scpi.errors()  # whatever the refusal queued
+            except InstrumentError as drain:
+                log.info("draining the %s's errors: %s", self.name, drain)
+            return None
+        return OutputRange(self.dialect.output_name(self._model_name()), min(0.0, volts),
+                           max(0.0, volts), amps, f"its {volts_q} and {amps_q}")
 
     def safe_state(self) -> None:
         try:
@@ -261,6 +319,32 @@ class ScpiSupply:
         if self.output_is_on():
             return SafeReadback(False, f"output ON, measuring {self.measure_voltage():.3f} V")
         return SafeReadback(True, "output off")
+
+
+INFINITE = float("inf")
+
+
+def _narrowed(
+    found: OutputRange | None, limits: tuple[float | None, float | None], name: str
+) -> OutputRange | None:
+    """`found` within station.yaml's max_voltage_v / max_current_a (which may narrow the
+    model's range, never widen it)."""
+    max_v, max_a = limits
+    if found is None:
+        if max_v is None and max_a is None:
+            return None
+        found = OutputRange(name, 0.0, INFINITE, INFINITE, "")
+    high = found.high_v if max_v is None else min(found.high_v, max_v)
+    amps = found.max_a if max_a is None else min(found.max_a, max_a)
+    if (high, amps) == (found.high_v, found.max_a):
+        return found
+    narrowed = [k for k, v, f in (("max_voltage_v", max_v, found.high_v),
+                                  ("max_current_a", max_a, found.max_a))
+                if v is not None and v < f]
+    source = f"station.yaml's {' and '.join(narrowed)}"
+    if found.source:
+        source += f" within {found.source}"
+    return OutputRange(found.output, found.low_v, high, amps, source)
 
 
 def _who(identity: InstrumentIdentity) -> tuple[str, str, str]:
@@ -285,10 +369,12 @@ class SupplySettings(BaseModel):
     timeout_s: float = Field(1.0, gt=0.0, le=60.0, description="reply timeout, wall seconds")
     expected_model: str = Field("", description="if set, *IDN?'s model must contain this")
     max_voltage_v: float | None = Field(
-        None, gt=0, le=1000, description="the supply's rated output voltage (pre-flight check)"
+        None, gt=0, le=1000, description="narrows the output's voltage range the pre-flight checks "
+        "against (the model's, or VOLT? MAX)"
     )
     max_current_a: float | None = Field(
-        None, gt=0, le=100, description="the supply's rated output current (pre-flight check)"
+        None, gt=0, le=100, description="narrows the output's current range the pre-flight checks "
+        "against (the model's, or CURR? MAX)"
     )
 
     @field_validator("address")
@@ -313,6 +399,7 @@ def open_checked(
         settings.address, baudrate=baud, timeout_s=settings.timeout_s, dialect=dialect, name=name
     )
     supply.limits = (settings.max_voltage_v, settings.max_current_a)
+    supply.configured_model = settings.expected_model
     if settings.expected_model:
         try:
             model = supply.identify().model

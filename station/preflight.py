@@ -7,8 +7,9 @@ supply range) is found from the files alone, when they are loaded
 (`procedures.loading.config.check_procedure_for_product`); a setting an instrument refuses (a
 setpoint beyond the chamber's limits, a rate or an acceleration beyond the table's, a voltage
 or current beyond the supply's) needs the opened instrument and the capability
-(`SetpointLimited`, `RateLimited`, `OutputLimited`); a driver without it is not checked (and
-says so in the log).
+(`SetpointLimited`, `RateLimited`, `OutputRanged` or `OutputLimited`); a driver without it is
+not checked (and says so in the log). A supply's range is its output's: the model's (an
+E36312A's output 1 is 0-6 V, 5 A), narrowed by station.yaml's max_voltage_v / max_current_a.
 """
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from common.yaml_input import LoadedYaml
-from drivers.protocols import OutputLimited, RateLimited, SetpointLimited
+from drivers.protocols import (
+    OutputLimited,
+    OutputRange,
+    OutputRanged,
+    RateLimited,
+    SetpointLimited,
+)
 from procedures.loading.config import ProcedureConfig, ProductConfig
 from procedures.runtime.conditions import Condition
 from procedures.runtime.run_parts import Bench
@@ -198,27 +205,42 @@ def _supply(
     n_parts: int,
     who: str,
 ) -> list[str]:
-    if not isinstance(bench.supply, OutputLimited):
-        log.info("%s reports no output limits: supply levels not checked", who)
+    """The supply levels and the load's current limit against the range of the output the
+    parts hang on (the family's model, the instrument, or station.yaml's limits)."""
+    found = _output_range(bench, who)
+    if found is None:
+        log.info("%s reports no output range: supply levels not checked", who)
         return []
-    max_v, max_a = bench.supply.output_limits()
-    out = []
-    if max_v is not None:
-        volts = list(_listed("conditions", "supplies_v", procedure.conditions.supplies_v))
-        volts += _step_values(procedure, "supply_v", table_only=False)
-        out += [
-            f"{_where(loaded, s.path)}: {s.text} {s.value:g} V is above the {max_v:g} V "
-            f"{who} can set: lower the supply level"
-            for s in volts
-            if s.value > max_v
-        ]
-    if max_a is not None and product.current_limit_a * n_parts > max_a:
+    volts = list(_listed("conditions", "supplies_v", procedure.conditions.supplies_v))
+    volts += _step_values(procedure, "supply_v", table_only=False)
+    out = [
+        f"{_where(loaded, s.path)}: {s.text} {s.value:g} V is beyond {found.output} "
+        f"({found.describe()}): change the supply level or the output"
+        for s in volts
+        if not found.low_v <= s.value <= found.high_v
+    ]
+    need_a = product.current_limit_a * n_parts
+    if need_a > found.max_a:
         out.append(
             f"{loaded.path}: {n_parts} part(s) at the product's current_limit_a "
-            f"{product.current_limit_a:g} A need a {product.current_limit_a * n_parts:g} A limit, "
-            f"above the {max_a:g} A {who} can set: load fewer parts"
+            f"{product.current_limit_a:g} A need a {need_a:g} A limit, beyond {found.output} "
+            f"({found.describe()}): load fewer parts or use an output that gives {need_a:g} A"
         )
     return out
+
+
+def _output_range(bench: Bench, who: str) -> OutputRange | None:
+    supply = bench.supply
+    if isinstance(supply, OutputRanged):
+        return supply.output_range()
+    if isinstance(supply, OutputLimited):
+        max_v, max_a = supply.output_limits()
+        if max_v is None and max_a is None:
+            return None
+        inf = float("inf")
+        return OutputRange(f"the output of {who}", 0.0, inf if max_v is None else max_v,
+                           inf if max_a is None else max_a, "its reported limits")
+    return None
 
 
 def _no_table(procedure: ProcedureConfig, loaded: LoadedYaml) -> list[str]:

@@ -198,6 +198,9 @@ class Bench:
             "rate_table": endpoint_of(self.table),
             "chamber": endpoint_of(self.chamber),
             "supply": endpoint_of(self.supply),
+            # a LAN supply also as its VXI-11 resource (TCPIP::127.0.0.1,<port>::inst0::INSTR)
+            **({"supply_vxi11": self.supply.vxi11_endpoint()}
+               if hasattr(self.supply, "vxi11_endpoint") else {}),
             "duts": {str(i): f.port.path for i, f in self.fixtures.items()},
             "boards": {str(b.number): sorted(b.twins) for b in self.boards},
             "control": self.control.endpoint,

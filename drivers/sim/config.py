@@ -238,8 +238,11 @@ class ChamberConfig(_Model):
 
 
 class SupplyConfig(_Model):
-    manufacturer: ShortName = "SIMPOWER"
-    model: ShortName = "SP-3005"
+    """The supply's physics, and what the generic SCPI twin (`scpi`) says it is: no maker's
+    product, so its *IDN? names the simulated bench (the LAN twins name their model)."""
+
+    manufacturer: ShortName = "GYROCAL SIMULATED BENCH"
+    model: ShortName = "SCPI SUPPLY TWIN"
     serial: ShortName = "PS-0001"
     firmware: ShortName = "1.2"
     max_voltage_v: float = Field(default=30.0, gt=0.0, le=MAX_SUPPLY_V)

@@ -1,35 +1,64 @@
-"""The DC supply in the world: constant-voltage / constant-current crossover, and its SCPI.
+"""The DC supply in the world: constant-voltage / constant-current crossover, and the generic
+SCPI supply the bench's pseudo-terminal serves (the `supply.scpi` family).
 
 The load is the fixture's parts, each close to a resistor drawing its nominal current at
 5 V; a shorted part is a fraction of an ohm. When the load would draw more than the current
 limit, the supply goes constant-current and the output voltage collapses.
+
+`GenericScpiSupply` is a single-output supply as SCPI-1999 describes one (vol. 2: SOURce,
+OUTPut, MEASure; vol. 1 4.2.1: the required commands, with IEEE 488.2's common commands in
+`drivers.sim.ieee488`): no maker's product, and its *IDN? says so (the sim config's
+`supply:` manufacturer and model).
 """
 
 from __future__ import annotations
 
-import re
 from collections import deque
 from typing import Any
 
 import numpy as np
 
 from drivers.sim.config import SupplyConfig
+from drivers.sim.ieee488 import ScpiInstrument
+from drivers.sim.scpi_syntax import (
+    ILLEGAL_VALUE,
+    UNDEFINED_HEADER,
+    Unit,
+    boolean,
+    keyword,
+    match,
+    number,
+)
 
-_NUMBER = r"([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
+CC_BIT = 1  # QUEStionable bit 0 (VOLTage): the output cannot hold its set voltage (CC)
 
 
 class SupplyModel:
+    """One output's electrical state; its range (`max_v`, `max_a`) is the sim config's, or
+    the output's of the model a LAN twin serves."""
+
     def __init__(self, config: SupplyConfig, rng: np.random.Generator) -> None:
         self.cfg = config
         self._rng = rng
-        self.errors: deque[tuple[int, str]] = deque(maxlen=16)
+        self.max_v = config.max_voltage_v
+        self.max_a = config.max_current_a
         self.load_siemens = 0.0
         self.reset()
+        self.scpi = GenericScpiSupply(self)
+
+    @property
+    def errors(self) -> deque[tuple[int, str]]:
+        """The generic SCPI supply's error queue."""
+        return self.scpi.status.errors
 
     def reset(self) -> None:
         self.voltage_set_v = 0.0
         self.current_limit_a = 0.1
         self.output_on = False
+
+    def handle(self, line: str) -> str | None:
+        """One SCPI message to the generic supply -> its response, or None."""
+        return self.scpi.handle(line)
 
     # ------------------------------------------------------------ electrical
 
@@ -45,58 +74,13 @@ class SupplyModel:
     def output_v(self) -> float:
         return self.operating_point()[0]
 
-    # ------------------------------------------------------------ SCPI
+    def measured_v(self) -> float:
+        v = self.operating_point()[0]
+        return max(0.0, v + (self._rng.normal(0.0, 2e-4) if self.output_on else 0.0))
 
-    def handle(self, line: str) -> str | None:
-        """One SCPI command line -> the reply line, or None for a setting."""
-        cmd = line.strip()
-        if not cmd:
-            return None
-        upper = cmd.upper()
-        if upper == "*IDN?":
-            c = self.cfg
-            return f"{c.manufacturer},{c.model},{c.serial},{c.firmware}"
-        if upper == "*RST":
-            self.reset()
-            return None
-        if upper in ("OUTP?", "OUTPUT?"):
-            return "1" if self.output_on else "0"
-        if upper in ("MEAS:VOLT?", "MEASURE:VOLTAGE?"):
-            v, _, _ = self.operating_point()
-            noise = self._rng.normal(0.0, 2e-4) if self.output_on else 0.0
-            return f"{max(0.0, v + noise):.4f}"
-        if upper in ("MEAS:CURR?", "MEASURE:CURRENT?"):
-            _, i, _ = self.operating_point()
-            noise = self._rng.normal(0.0, 2e-6) if self.output_on else 0.0
-            return f"{max(0.0, i + noise):.6f}"
-        if upper in ("VOLT?", "VOLTAGE?"):
-            return f"{self.voltage_set_v:.4f}"
-        if upper in ("CURR?", "CURRENT?"):
-            return f"{self.current_limit_a:.4f}"
-        if upper in ("SYST:ERR?", "SYSTEM:ERROR?"):
-            if not self.errors:
-                return '+0,"No error"'
-            code, text = self.errors.popleft()
-            return f'{code},"{text}"'
-        m = re.fullmatch(r"(OUTP|OUTPUT)\s+(ON|OFF|1|0)", upper)
-        if m:
-            self.output_on = m.group(2) in ("ON", "1")
-            return None
-        m = re.fullmatch(r"(VOLT|VOLTAGE|CURR|CURRENT)\s+" + _NUMBER, upper)
-        if m:
-            value = float(m.group(2))
-            if m.group(1).startswith("VOLT"):
-                if not 0.0 <= value <= self.cfg.max_voltage_v:
-                    self.errors.append((-222, "Data out of range"))
-                else:
-                    self.voltage_set_v = value
-            elif not 0.0 <= value <= self.cfg.max_current_a:
-                self.errors.append((-222, "Data out of range"))
-            else:
-                self.current_limit_a = value
-            return None
-        self.errors.append((-113, "Undefined header"))
-        return None
+    def measured_a(self) -> float:
+        i = self.operating_point()[1]
+        return max(0.0, i + (self._rng.normal(0.0, 2e-6) if self.output_on else 0.0))
 
     def truth(self) -> dict[str, Any]:
         v, i, mode = self.operating_point()
@@ -110,3 +94,87 @@ class SupplyModel:
             "load_siemens": self.load_siemens,
             "error_queue": len(self.errors),
         }
+
+
+class GenericScpiSupply(ScpiInstrument):
+    """`VOLT 5`, `CURR 0.1`, `OUTP ON`, `MEAS:VOLT?`, `VOLT? MAX`...: SCPI-1999's DC source."""
+
+    signed = True
+    self_test = "+0"
+
+    def __init__(self, output: SupplyModel) -> None:
+        super().__init__()
+        self.output = output
+
+    @property
+    def identity(self) -> str:
+        c = self.output.cfg
+        return f"{c.manufacturer},{c.model},{c.serial},{c.firmware}"
+
+    def reset(self) -> None:
+        self.output.reset()
+
+    def conditions(self) -> tuple[int, int]:
+        return (CC_BIT if self.output.operating_point()[2] == "CC" else 0), 0
+
+    def command(self, unit: Unit) -> str | None:
+        out = self.output
+        for word, unit_max, attr, digits in (("VOLTage", out.max_v, "voltage_set_v", 4),
+                                             ("CURRent", out.max_a, "current_limit_a", 4)):
+            if match(unit, f"[SOURce]:{word}[:LEVel][:IMMediate][:AMPLitude]") is not None:
+                if unit.query:
+                    (which,) = unit.arity(0, 1) or ("",)
+                    kind = keyword(which) if which else None
+                    if which and kind not in ("MIN", "MAX"):
+                        raise ILLEGAL_VALUE
+                    value = {"MIN": 0.0, "MAX": unit_max}.get(kind or "", getattr(out, attr))
+                    return f"{value:.{digits}f}"
+                setattr(out, attr, number(unit.arity(1)[0], 0.0, unit_max, 0.0))
+                return None
+        if match(unit, "OUTPut[:STATe]") is not None:
+            if unit.query:
+                unit.arity(0)
+                return "1" if out.output_on else "0"
+            out.output_on = boolean(unit.arity(1)[0])
+            return None
+        if match(unit, "MEASure[:SCALar]:VOLTage[:DC]", query=True) is not None:
+            unit.arity(0)
+            return f"{out.measured_v():.4f}"
+        if match(unit, "MEASure[:SCALar]:CURRent[:DC]", query=True) is not None:
+            unit.arity(0)
+            return f"{out.measured_a():.6f}"
+        raise UNDEFINED_HEADER
+
+
+class SupplyOutputs:
+    """The outputs of a multi-output supply: the world's supply on `channel` (the parts'),
+    the others unloaded; each output's range (max V, max A) is the model's."""
+
+    def __init__(
+        self, main: SupplyModel, channel: int, ranges: dict[int, tuple[float, float]]
+    ) -> None:
+        if channel not in ranges:
+            raise ValueError(f"the part's supply channel must be one of {sorted(ranges)}, "
+                             f"not {channel}")
+        self.main = main
+        self.channel = channel
+        self._models: dict[int, SupplyModel] = {}
+        for n, (max_v, max_a) in ranges.items():
+            model = main if n == channel else SupplyModel(main.cfg, np.random.default_rng(n))
+            model.max_v, model.max_a = max_v, max_a
+            self._models[n] = model
+
+    @property
+    def numbers(self) -> list[int]:
+        return sorted(self._models)
+
+    def model(self, channel: int) -> SupplyModel:
+        """Output `channel`; -224 Illegal parameter value if the supply has no such output."""
+        found = self._models.get(channel)
+        if found is None:
+            raise ILLEGAL_VALUE
+        return found
+
+    def reset(self) -> None:
+        for model in self._models.values():
+            model.reset()

@@ -263,7 +263,7 @@ def test_a_reconnect_that_reaches_another_device_commands_nothing() -> None:
             first = psu.identify()
             psu.reconnect()  # the same supply: no complaint, and it still obeys
             psu.output(False)
-            tt.twin.model_name = "E36313A"  # the address now leads to another instrument
+            tt.twin.instrument.model = "E36313A"  # type: ignore[attr-defined]  # the address now leads to another instrument
             heard.clear()
             with pytest.raises(WrongInstrument, match="E36313A.*not the.*E36312A.*nothing was"):
                 psu.reconnect()

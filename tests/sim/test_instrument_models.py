@@ -111,7 +111,7 @@ def test_chamber_ramp_limit_and_first_order_air() -> None:
 
 def test_supply_scpi_and_cv_cc_crossover() -> None:
     sup = SupplyModel(SupplyConfig(), np.random.default_rng(0))
-    assert sup.handle("*IDN?").startswith("SIMPOWER,")
+    assert sup.handle("*IDN?").startswith("GYROCAL SIMULATED BENCH,SCPI SUPPLY TWIN,")
     for line in ("VOLT 5.0", "CURR 0.1", "OUTP ON"):
         assert sup.handle(line) is None
     sup.load_siemens = 0.005  # 25 mA at 5 V

@@ -62,4 +62,4 @@ def test_socat_gets_the_supply_identity(bench: BenchHandle) -> None:
     )
     assert out.returncode == 0, out.stderr
     fields = out.stdout.strip().split(",")
-    assert fields[0] == "SIMPOWER" and len(fields) == 4
+    assert fields[0] == "GYROCAL SIMULATED BENCH" and len(fields) == 4
